@@ -1,0 +1,1 @@
+"""Evaluators: truth + tracker outputs → polars metrics tables, plots and baseline checks."""

@@ -1,0 +1,106 @@
+"""Metrics of the TWS radar trackers: RMSE of position and velocity, NPE, gain behaviour.
+
+Scopes in the summary:
+
+``overall``                    every run and every filtered scan;
+``cross_range_above_nominal``  scans whose true cross-range error std r·σ_θ exceeds the design
+                               value the fixed gains assume (where adaptive gains should help);
+``cross_range_below_nominal``  the other filtered scans.
+
+Scans before a track is filtered (the two start-up plots) are left out everywhere.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import polars as pl
+
+from evaluators.tracking_metrics import long_form, nanmean, normalised_position_error, rmse_overall, rmse_per_scan
+from pipeline.decoupled_tracker import FLAG_CLAMPED, FLAG_COASTED, FLAG_INITIALISING, FLAG_NO_TRACK
+
+SCOPES = ("overall", "cross_range_above_nominal", "cross_range_below_nominal")
+
+
+def filtered_mask(flags: np.ndarray) -> np.ndarray:
+    """Scans that carry a filtered estimate (track started and updated or coasted)."""
+    return (flags & (FLAG_NO_TRACK | FLAG_INITIALISING)) == 0
+
+
+def evaluate(times, tracks: dict, measured_xy, truth_state=None, cross_range_std=None,
+             nominal_cross_range_m: float | None = None):
+    """Per-scan and summary tables.
+
+    Parameters
+    ----------
+    times : ndarray (scans,)
+    tracks : dict
+        ``tracker -> {"state", "alpha", "beta", "lambda_cross", "innovation", "flags"}`` grids.
+    measured_xy : ndarray (runs, scans, 2)
+        Converted plot per scan (NaN when missed), for NPE.
+    truth_state : ndarray (runs, scans, 4), optional
+        Without truth only innovation statistics are reported.
+    cross_range_std : ndarray (runs, scans), optional
+        True r·σ_θ per scan, for the above/below-nominal scopes.
+
+    Returns
+    -------
+    per_scan : polars.DataFrame
+        One row per tracker × scan.
+    summary : polars.DataFrame
+        Long form: ``tracker, metric, scope, value``.
+    """
+    scans = np.arange(len(times))
+    per_scan_parts, summary_parts = [], []
+    if cross_range_std is not None and nominal_cross_range_m is not None:
+        above_scan = np.nanmean(cross_range_std, axis=0) > nominal_cross_range_m
+    else:
+        above_scan = np.zeros(len(times), bool)
+    for name, out in tracks.items():
+        ok = filtered_mask(out["flags"])
+        est = np.where(ok[..., None], out["state"], np.nan)
+        innov = np.where(ok[..., None], out["innovation"], np.nan)
+        cols = {
+            "tracker": [name] * len(times), "scan": scans, "time_s": times,
+            "alpha_along": _nanmean0(out["alpha"][..., 0]),
+            "alpha_cross": _nanmean0(out["alpha"][..., 1]),
+            "beta_along": _nanmean0(out["beta"][..., 0]),
+            "beta_cross": _nanmean0(out["beta"][..., 1]),
+            "lambda_cross": _nanmean0(out["lambda_cross"]),
+            "rms_innovation_m": _rms0(innov),
+            "clamped_fraction": np.mean((out["flags"] & FLAG_CLAMPED) > 0, axis=0),
+        }
+        row = {"tracker": name, "scope": "overall",
+               "rms_innovation_m": float(np.sqrt(nanmean(np.sum(innov**2, -1)))) if ok.any() else np.nan,
+               "clamped_scans": float(np.sum((out["flags"] & FLAG_CLAMPED) > 0)),
+               "coasted_scans": float(np.sum((out["flags"] & FLAG_COASTED) > 0))}
+        rows = [row]
+        if truth_state is not None:
+            npe = normalised_position_error(est[..., :2], truth_state[..., :2], measured_xy)
+            cols["rmse_position_m"] = rmse_per_scan(est[..., :2], truth_state[..., :2])
+            cols["rmse_velocity_mps"] = rmse_per_scan(est[..., 2:], truth_state[..., 2:])
+            cols["npe"] = npe
+            row.update(rmse_position_m=rmse_overall(est[..., :2], truth_state[..., :2]),
+                       rmse_velocity_mps=rmse_overall(est[..., 2:], truth_state[..., 2:]),
+                       npe_max=float(np.nanmax(npe)), npe_mean=float(nanmean(npe)),
+                       scans_npe_ge_1=float(np.sum(npe >= 1.0)))
+            for scope, sel in (("cross_range_above_nominal", above_scan), ("cross_range_below_nominal", ~above_scan)):
+                if not (sel & ok.any(axis=0)).any():
+                    continue
+                e = est[:, sel]
+                rows.append({"tracker": name, "scope": scope,
+                             "rmse_position_m": rmse_overall(e[..., :2], truth_state[:, sel, :2]),
+                             "rmse_velocity_mps": rmse_overall(e[..., 2:], truth_state[:, sel, 2:]),
+                             "npe_mean": float(nanmean(npe[sel])), "scans": float(sel.sum())})
+        per_scan_parts.append(pl.DataFrame(cols))
+        summary_parts.append(long_form(pl.DataFrame(rows, infer_schema_length=None), ["tracker", "scope"]).drop_nulls("value"))
+    per_scan = pl.concat(per_scan_parts, how="diagonal")
+    summary = pl.concat(summary_parts).select("tracker", "metric", "scope", "value")
+    return per_scan, summary
+
+
+def _nanmean0(a):
+    return nanmean(a, axis=0)
+
+
+def _rms0(v):
+    return np.sqrt(_nanmean0(np.sum(v**2, axis=-1)))

@@ -1,0 +1,63 @@
+"""Monte Carlo error metrics over a leading run axis (pure functions, arrays in, arrays out).
+
+Conventions: arrays are ``(runs, scans, ...)``; scans where a tracker has no filtered estimate
+are NaN and are left out of every average (``nan``-aware reductions), so start-up scans never
+dilute or inflate a figure.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import polars as pl
+
+
+def nanmean(a, axis=None):
+    """``np.nanmean`` that returns NaN for all-NaN slices without a warning (scans with no
+    estimate yet are expected, not an error)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return np.nanmean(a, axis=axis)
+
+
+def squared_error(estimate, truth):
+    """``‖estimate − truth‖²`` over the last axis, ``(runs, scans)``."""
+    d = np.asarray(estimate, float) - np.asarray(truth, float)
+    return np.sum(d * d, axis=-1)
+
+
+def rmse_per_scan(estimate, truth):
+    """RMS error per scan over runs: ``√(mean_runs ‖x̂ − x‖²)``, shape ``(scans,)``."""
+    se = squared_error(estimate, truth)
+    with np.errstate(invalid="ignore"):
+        return np.sqrt(nanmean(se, axis=0)) if se.size else np.zeros(0)
+
+
+def rmse_overall(estimate, truth):
+    """RMS error over every run and every scan that has an estimate."""
+    se = squared_error(estimate, truth)
+    return float(np.sqrt(nanmean(se)))
+
+
+def normalised_position_error(estimate_xy, truth_xy, measured_xy):
+    """NPE per scan (Efe, Atherton & Bather 1998; spec radar-alpha-beta.md).
+
+    ``NPE_k = √(Σ_runs ‖p̂_k − p_k‖²) / √(Σ_runs ‖z_k − p_k‖²)``; NPE ≥ 1 means the tracker is no
+    better than the raw (converted) plots. Runs where either side is missing are left out of
+    both sums, so the ratio compares like with like.
+    """
+    se = squared_error(estimate_xy, truth_xy)
+    sm = squared_error(measured_xy, truth_xy)
+    both = np.isfinite(se) & np.isfinite(sm)
+    num = np.sqrt(np.where(both, se, 0.0).sum(axis=0))
+    den = np.sqrt(np.where(both, sm, 0.0).sum(axis=0))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(both.any(axis=0), num / den, np.nan)
+
+
+def long_form(wide: pl.DataFrame, id_cols: list[str]) -> pl.DataFrame:
+    """Wide metric columns → records ``(*id_cols, metric, value)``."""
+    value_cols = [c for c in wide.columns if c not in id_cols]
+    return wide.unpivot(on=value_cols, index=id_cols, variable_name="metric", value_name="value").with_columns(
+        pl.col("value").cast(pl.Float64))

@@ -1,0 +1,332 @@
+"""The ``replay`` command line.
+
+``replay DATA.mcap`` replays a data set (``replay`` alone replays the bundled demo); the other
+commands simulate, convert, evaluate, check against baselines, sweep parameters and view.
+User errors print one line and exit with status 2; only bugs show a traceback.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+
+import click
+import polars as pl
+
+from pipeline import __version__
+from pipeline.errors import InputError
+
+DEMO_NAME = "radar_tws_demo.mcap"
+
+
+class UserError(click.ClickException):
+    exit_code = 2
+
+    def show(self, file=None):
+        click.echo(f"replay: error: {self.format_message()}", err=True)
+
+
+def bundled_data_dir() -> Path:
+    """``data/`` of the source tree when run from a clone, else the installed copy."""
+    local = Path.cwd() / "data"
+    if (local / "baselines").is_dir():
+        return local
+    try:
+        from importlib.resources import files
+
+        return Path(str(files("replay_data")))
+    except ModuleNotFoundError:
+        return Path(__file__).resolve().parents[1] / "data"
+
+
+class ReplayGroup(click.Group):
+    """``replay FILE`` means ``replay run FILE``; user errors become one line."""
+
+    def parse_args(self, ctx, args):
+        if not args:
+            args = ["run"]
+        elif args[0] not in self.commands and args[0] not in ("--help", "-h", "--version"):
+            args = ["run", *args]
+        return super().parse_args(ctx, args)
+
+    def invoke(self, ctx):
+        try:
+            return super().invoke(ctx)
+        except InputError as exc:
+            raise UserError(str(exc)) from None
+
+
+@click.group(cls=ReplayGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="replay")
+def main():
+    """Offline replay and evaluation of target-tracking algorithms.
+
+    \b
+    Examples:
+      replay                                   # the bundled demo data set
+      replay data/radar_tws_demo.mcap
+      replay simulate radar-tws --runs 500 --seed 7 -o radar.mcap
+      replay eval radar.mcap --json
+      replay check
+      replay sweep radar-tws --param sigma_bearing_deg=0.5,1,2 --runs 100 -o study/
+    """
+
+
+# --------------------------------------------------------------------------- run
+
+
+def _default_out_dir(data: Path) -> Path:
+    return Path.cwd() / "replay-out" / data.stem
+
+
+def _print_summary(summary: pl.DataFrame, title: str) -> None:
+    wide = summary.pivot(on="metric", index=["tracker", "scope"], values="value", aggregate_function="first")
+    order = {"overall": 0}
+    wide = wide.with_columns(pl.col("scope").replace_strict(order, default=1).alias("_o")).sort(["_o", "scope", "tracker"]).drop("_o")
+    click.echo(title)
+    with pl.Config(tbl_rows=200, tbl_cols=30, tbl_width_chars=200, float_precision=4,
+                   tbl_hide_dataframe_shape=True, tbl_hide_column_data_types=True):
+        for (scope,), part in wide.group_by(["scope"], maintain_order=True):
+            click.echo(f"\n[{scope}]")
+            click.echo(part.drop("scope").select([c for c in part.columns if c != "scope" and part[c].null_count() < part.height]))
+
+
+def _export_tables(res, out_dir: Path) -> list[Path]:
+    from pipeline.contract import atomic_output
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = []
+    for name, df in (("metrics", res.summary), ("per_scan", res.per_scan)):
+        for ext in ("csv", "parquet"):
+            p = out_dir / f"{name}.{ext}"
+            with atomic_output(p) as f:
+                df.write_csv(f) if ext == "csv" else df.write_parquet(f)
+            written.append(p)
+    return written
+
+
+def _report_plot(res, out_dir: Path) -> Path | None:
+    from evaluators.report_plots import plot_metrics_vs
+
+    metrics = [m for m in ("rmse_position_m", "rmse_velocity_mps", "npe", "alpha_cross") if m in res.per_scan.columns]
+    if not metrics:
+        return None
+    return plot_metrics_vs(res.per_scan, "scan", metrics, out_dir / "report.png",
+                           title=Path(res.dataset.path).name, hlines={"npe": [1.0]})
+
+
+@main.command("run")
+@click.argument("data", required=False, type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--trackers", help="Comma-separated subset, e.g. fixed,approximate (default: all that apply).")
+@click.option("--out", "out_path", type=click.Path(dir_okay=False, path_type=Path), help="Output MCAP (default: replay-out/<name>/tracks.mcap).")
+@click.option("--rrd", "rrd_path", type=click.Path(dir_okay=False, path_type=Path), help="Rerun recording (default: next to --out).")
+@click.option("--no-rrd", is_flag=True, help="Skip the Rerun recording.")
+@click.option("--spawn", is_flag=True, help="Open the Rerun viewer on the recording.")
+@click.option("--recover", is_flag=True, help="Accept a truncated MCAP: keep its complete chunks.")
+@click.option("--set", "sets", multiple=True, metavar="NAME=VALUE", help="Override a tracker design value (e.g. nominal_cross_range_m=120).")
+@click.option("--rerun-run", default=0, show_default=True, help="Monte Carlo run shown in the per-run Rerun views.")
+def run_cmd(data, trackers, out_path, rrd_path, no_rrd, spawn, recover, sets, rerun_run):
+    """Replay a data set through every tracker that applies.
+
+    \b
+    Example:
+      replay data/radar_tws_demo.mcap --trackers fixed,approximate --spawn
+    """
+    from pipeline.replay import replay
+    from recorders.scenarios import parse_assignments
+
+    if data is None:
+        data = bundled_data_dir() / DEMO_NAME
+        click.echo(f"no data set given: replaying the bundled demo {data}")
+    out_dir = (out_path.parent if out_path else _default_out_dir(data))
+    out_path = out_path or out_dir / "tracks.mcap"
+    rrd_path = None if no_rrd else (rrd_path or out_path.with_suffix(".rrd"))
+    wanted = [t.strip() for t in trackers.split(",")] if trackers else None
+    with click.progressbar(length=1, label=f"replaying {data.name}", file=sys.stderr) as bar:
+        res = replay(data, wanted, out_path, rrd_path, recover=recover,
+                     design_overrides=parse_assignments(sets), rerun_run=rerun_run)
+        bar.update(1)
+    if res.dataset.recovered_messages is not None:
+        click.echo(f"recovered {res.dataset.recovered_messages} messages from complete chunks of {data}")
+    _print_summary(res.summary, f"metrics for {data.name} ({res.dataset.channel(next(iter(res.dataset.channels))).n_runs} runs)")
+    tables = _export_tables(res, out_dir)
+    plot = _report_plot(res, out_dir)
+    click.echo("")
+    click.echo(f"outputs:   {res.out_path}")
+    if res.rrd_path:
+        click.echo(f"recording: {res.rrd_path}   (view: replay view {res.rrd_path})")
+    click.echo(f"tables:    {', '.join(str(p) for p in tables if p.suffix == '.csv')} (+ .parquet)")
+    if plot:
+        click.echo(f"plot:      {plot}")
+    t = res.timings
+    click.echo(f"time:      {t['total_s']:.2f} s (read {t['read_s']:.2f}, filter {t['filter_s']:.2f}, "
+               f"evaluate {t['evaluate_s']:.2f}, write {t.get('write_s', 0):.2f}, rerun {t.get('rerun_s', 0):.2f})")
+    if spawn and res.rrd_path:
+        from pipeline.viewer import open_viewer
+
+        open_viewer(res.rrd_path)
+
+
+# --------------------------------------------------------------------------- simulate / convert
+
+
+@main.command("simulate")
+@click.argument("scenario")
+@click.option("--runs", default=100, show_default=True, type=click.IntRange(min=1), help="Monte Carlo runs.")
+@click.option("--seed", default=0, show_default=True, type=int, help="Random seed (same seed, same bytes).")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--set", "sets", multiple=True, metavar="NAME=VALUE", help="Override a scenario parameter.")
+def simulate_cmd(scenario, runs, seed, output, sets):
+    """Simulate a scenario (a name from data/scenarios/ or a TOML path) into an MCAP file.
+
+    \b
+    Example:
+      replay simulate radar-tws --runs 500 --seed 7 -o radar.mcap --set sigma_bearing_deg=0.5
+    """
+    from recorders import recorder_module
+    from recorders.scenarios import load_scenario, parse_assignments
+    from recorders.simulated import write_simulated
+    from pipeline.contract import scenario_metadata
+
+    sc = load_scenario(scenario).with_overrides(parse_assignments(sets))
+    rec = recorder_module(sc.recorder)
+    t0 = time.perf_counter()
+    data = rec.simulate(sc.params, runs, seed)
+    with click.progressbar(length=len(data.times), label=f"writing {output.name}", file=sys.stderr) as bar:
+        n = write_simulated(output, data, scenario_metadata(sc.name, sc.params, seed), bar.update)
+    click.echo(f"wrote {output}: {n} messages, {runs} runs × {len(data.times)} scans, seed {seed} "
+               f"({time.perf_counter() - t0:.2f} s)")
+
+
+@main.command("scenarios")
+def scenarios_cmd():
+    """List the bundled scenarios and their parameters.
+
+    \b
+    Example:
+      replay scenarios
+    """
+    from recorders.scenarios import available_scenarios, load_scenario
+
+    for name in available_scenarios():
+        sc = load_scenario(name)
+        click.echo(f"{name}: {sc.description}")
+        for k, v in sc.params.items():
+            click.echo(f"    {k} = {v}")
+
+
+@main.group("convert")
+def convert_group():
+    """Convert recorded data into the MCAP data contract."""
+
+
+@convert_group.command("plots-csv")
+@click.argument("csv_path", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--set", "sets", multiple=True, metavar="NAME=VALUE",
+              help="Sensor/design values (defaults from radar-tws), e.g. sigma_range_m=50.")
+def convert_plots_cmd(csv_path, output, sets):
+    """Radar plots CSV (time, range_m, bearing_deg[, run]) → MCAP.
+
+    \b
+    Example:
+      replay convert plots-csv plots.csv -o plots.mcap --set sigma_bearing_deg=0.8
+    """
+    from recorders.plots_csv import convert_plots_csv
+    from recorders.scenarios import load_scenario, parse_assignments
+
+    sc = load_scenario("radar-tws").with_overrides(parse_assignments(sets))
+    n = convert_plots_csv(csv_path, output, sc.params)
+    click.echo(f"wrote {output}: {n} messages")
+
+
+# --------------------------------------------------------------------------- eval / check
+
+
+@main.command("eval")
+@click.argument("data", type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("outputs", required=False, type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--json", "as_json", is_flag=True, help="Print long-form JSON records (tracker, metric, scope, value).")
+@click.option("--per-scan", is_flag=True, help="Include per-scan records (scope 'scan:K') in --json.")
+@click.option("--export", "export_dir", type=click.Path(file_okay=False, path_type=Path), help="Also write CSV/Parquet tables and a PNG plot here.")
+@click.option("--recover", is_flag=True, help="Accept truncated MCAP files.")
+def eval_cmd(data, outputs, as_json, per_scan, export_dir, recover):
+    """Metrics of a data set, from a replay output file or by replaying in memory.
+
+    \b
+    Example:
+      replay eval radar.mcap replay-out/radar/tracks.mcap --json
+    """
+    from pipeline.replay import evaluate_files
+
+    res = evaluate_files(data, outputs, recover=recover)
+    if as_json:
+        records = res.summary.to_dicts()
+        if per_scan:
+            metrics = [c for c in res.per_scan.columns if c not in ("tracker", "scan", "time_s", "stage")]
+            long = res.per_scan.unpivot(on=metrics, index=["tracker", "scan", "stage"], variable_name="metric", value_name="value")
+            long = long.with_columns(pl.format("scan:{}", pl.col("scan")).alias("scope")).drop("scan")
+            records += long.select("tracker", "metric", "scope", "value", "stage").to_dicts()
+        click.echo(json.dumps([{k: _json_value(v) for k, v in r.items()} for r in records]))
+    else:
+        _print_summary(res.summary, f"metrics for {data.name}")
+    if export_dir:
+        _export_tables(res, export_dir)
+        _report_plot(res, export_dir)
+
+
+def _json_value(v):
+    if isinstance(v, float) and v != v:
+        return None
+    return v
+
+
+@main.command("check")
+@click.argument("data_dir", required=False, type=click.Path(file_okay=False, path_type=Path))
+@click.option("--update", is_flag=True, help="Rewrite the baselines from the current code (deliberately).")
+def check_cmd(data_dir, update):
+    """Re-run every bundled data set and compare its metrics with the stored baselines.
+
+    Exits 1 and names every metric that moved beyond its tolerance.
+
+    \b
+    Example:
+      replay check data/
+      replay check --update        # after a deliberate change
+    """
+    from evaluators.check import run_check
+
+    data_dir = data_dir or bundled_data_dir()
+    report = run_check(data_dir, update=update, echo=click.echo)
+    if report.failed:
+        raise click.exceptions.Exit(1)
+
+
+# --------------------------------------------------------------------------- view
+
+
+@main.command("view")
+@click.argument("rrd", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--screenshot", "png", type=click.Path(dir_okay=False, path_type=Path), help="Render headless to this PNG instead of opening a window.")
+@click.option("--size", default="1600x900", show_default=True, help="Window size for --screenshot.")
+def view_cmd(rrd, png, size):
+    """Open a recording in the Rerun viewer, or render it headless to a PNG.
+
+    \b
+    Example:
+      replay view replay-out/radar_tws_demo/tracks.rrd --screenshot fig.png
+    """
+    from pipeline.viewer import open_viewer, screenshot
+
+    if not rrd.exists():
+        raise InputError("no such recording", rrd)
+    if png:
+        click.echo(f"wrote {screenshot(rrd, png, size=size)}")
+    else:
+        open_viewer(rrd)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

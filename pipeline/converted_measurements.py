@@ -1,0 +1,42 @@
+"""Polar radar plots as Cartesian measurements (spec: radar-alpha-beta.md, "Converted measurements").
+
+Bearing convention used everywhere in this project: θ is measured counter-clockwise from the
++x axis (mathematical convention), so ``x = r cos θ``, ``y = r sin θ``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def polar_to_cartesian(range_m, bearing_rad):
+    """``(x, y) = (r cos θ, r sin θ)``; returns an array ``(..., 2)``."""
+    r = np.asarray(range_m, dtype=float)
+    th = np.asarray(bearing_rad, dtype=float)
+    return np.stack([r * np.cos(th), r * np.sin(th)], axis=-1)
+
+
+def cartesian_to_polar(xy):
+    """Inverse of :func:`polar_to_cartesian`; returns ``(range_m, bearing_rad)``."""
+    xy = np.asarray(xy, dtype=float)
+    return np.hypot(xy[..., 0], xy[..., 1]), np.arctan2(xy[..., 1], xy[..., 0])
+
+
+def rotation(bearing_rad):
+    """``D(θ)``: columns are the along-range and cross-range unit vectors, ``(..., 2, 2)``."""
+    c = np.cos(bearing_rad)
+    s = np.sin(bearing_rad)
+    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
+
+
+def converted_covariance(range_m, bearing_rad, sigma_range_m: float, sigma_bearing_rad: float):
+    """``R = D diag(σ_r², r² σ_θ²) Dᵀ``, the linearised converted-measurement covariance.
+
+    Valid while ``r σ_θ² / σ_r < 0.4`` and ``σ_θ < 0.4 rad`` (spec).
+    """
+    r = np.asarray(range_m, dtype=float)
+    D = rotation(bearing_rad)
+    diag = np.zeros(r.shape + (2, 2))
+    diag[..., 0, 0] = sigma_range_m**2
+    diag[..., 1, 1] = (r * sigma_bearing_rad) ** 2
+    return D @ diag @ np.swapaxes(D, -1, -2)

@@ -1,0 +1,39 @@
+"""User-facing errors.
+
+Anything raised as :class:`InputError` is a problem with what the user gave us (a file, a
+parameter, a channel); the CLI prints its one-line message and exits non-zero without a
+traceback. Every other exception is a bug and keeps its traceback.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class InputError(Exception):
+    """A problem with user input, reported as one line: ``<file>: <problem>``."""
+
+    def __init__(self, problem: str, path: str | Path | None = None):
+        self.path = None if path is None else str(path)
+        self.problem = problem
+        super().__init__(f"{self.path}: {problem}" if self.path else problem)
+
+
+def require_finite(name: str, values, path: str | Path | None = None) -> None:
+    """Raise :class:`InputError` if ``values`` holds NaN or Inf.
+
+    Parameters
+    ----------
+    name : str
+        What the values are, for the message.
+    values : array_like
+        Numbers to check.
+    path : str or Path, optional
+        The file they came from.
+    """
+    import numpy as np
+
+    arr = np.asarray(values)
+    if arr.dtype.kind in "fc" and not np.all(np.isfinite(arr)):
+        bad = int(np.size(arr) - np.count_nonzero(np.isfinite(arr)))
+        raise InputError(f"{name} holds {bad} NaN/Inf value(s)", path)

@@ -1,0 +1,155 @@
+"""Stage: TWS radar plots → four trackers (fixed / approximate / exact α-β, Kalman).
+
+Input channels: ``/radar/plots`` (``range_m``, ``bearing_rad`` per run and scan), optionally
+``/radar/truth`` (``state``). Output: ``/tracks/radar/<tracker>`` with ``state``,
+``covariance``, ``alpha``, ``beta`` (along-range, cross-range), ``lambda_cross``,
+``innovation`` and ``flags`` per run and scan. Only I/O and bookkeeping live here; the numbers
+come from :mod:`pipeline.decoupled_tracker` and :mod:`evaluators.radar_tws`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import rerun.blueprint as rrb
+
+from evaluators import radar_tws as radar_eval
+from pipeline.converted_measurements import polar_to_cartesian
+from pipeline.decoupled_tracker import STRATEGIES, TrackerDesign, track_plots
+from pipeline.errors import InputError, require_finite
+from pipeline.timeline import color, log_path, log_points, log_series
+
+PLOTS = "/radar/plots"
+TRUTH = "/radar/truth"
+
+
+class RadarTwsStage:
+    name = "radar-tws"
+    input_topics = (PLOTS,)
+    trackers = tuple(STRATEGIES)
+    output_prefix = "/tracks/radar/"
+    design_keys = ("scan_period_s", "design_sigma_v_mps2", "sigma_range_m", "sigma_bearing_deg",
+                   "nominal_cross_range_m", "startup_gains")
+
+    def applies(self, topics) -> bool:
+        return PLOTS in topics
+
+    def output_topic(self, tracker: str) -> str:
+        return self.output_prefix + tracker
+
+    def design(self, dataset, overrides: dict | None = None) -> dict:
+        """Design values: the file's scenario record, else the bundled scenario's defaults."""
+        from recorders.scenarios import coerce, load_scenario
+
+        defaults = load_scenario("radar-tws").params
+        recorded = dataset.scenario.get("params", {})
+        out = {k: recorded.get(k, defaults[k]) for k in self.design_keys}
+        for k, v in (overrides or {}).items():
+            if k not in self.design_keys:
+                raise InputError(f"unknown tracker parameter {k!r} (known: {', '.join(self.design_keys)})")
+            out[k] = coerce(k, v, defaults[k])
+        return out
+
+    def _plots(self, dataset):
+        ch = dataset.channel(PLOTS)
+        rng, counts = ch.ragged("range_m")
+        brg, _ = ch.ragged("bearing_rad")
+        for name, arr in (("range_m", rng), ("bearing_rad", brg)):
+            valid = np.arange(arr.shape[2])[None, None, :] < counts[..., None]
+            require_finite(f"{PLOTS} {name}", arr[valid], dataset.path)
+        if np.any(rng[np.isfinite(rng)] < 0):
+            raise InputError(f"{PLOTS} holds negative ranges", dataset.path)
+        if ch.n_scans < 3:
+            raise InputError(f"{PLOTS} has {ch.n_scans} scan(s); a track needs at least 3", dataset.path)
+        return rng, brg, counts, ch.times()
+
+    def run(self, dataset, trackers, design: dict) -> dict:
+        rng, brg, counts, times = self._plots(dataset)
+        d = TrackerDesign(scan_period_s=design["scan_period_s"], sigma_v=design["design_sigma_v_mps2"],
+                          sigma_range_m=design["sigma_range_m"],
+                          sigma_bearing_rad=np.deg2rad(design["sigma_bearing_deg"]),
+                          nominal_cross_range_m=design["nominal_cross_range_m"],
+                          startup=bool(design["startup_gains"]))
+        outputs = {t: track_plots(rng, brg, counts, times, d, STRATEGIES[t]) for t in trackers}
+        return {"times": times, "tracks": outputs}
+
+    def outputs_from_dataset(self, out_dataset) -> dict:
+        """Rebuild :meth:`run`'s result from a replay output file."""
+        tracks, times = {}, None
+        for topic, ch in out_dataset.channels.items():
+            if topic.startswith(self.output_prefix):
+                name = topic[len(self.output_prefix):]
+                tracks[name] = {k: ch.grid(k) for k in ch.arrays}
+                tracks[name]["flags"] = tracks[name]["flags"].astype(np.uint8)
+                times = ch.times()
+        if not tracks:
+            raise InputError(f"no {self.output_prefix}* channels: not a radar replay output", out_dataset.path)
+        return {"times": times, "tracks": tracks}
+
+    def write(self, writer, result: dict) -> None:
+        for name, out in result["tracks"].items():
+            writer.write_grid(self.output_topic(name), result["times"], out)
+
+    def evaluate(self, dataset, result: dict, design: dict):
+        rng, brg, counts, times = self._plots(dataset)
+        first = np.where(counts > 0, 0, -1)
+        measured = polar_to_cartesian(rng[..., 0], brg[..., 0]) if rng.shape[2] else np.full(counts.shape + (2,), np.nan)
+        measured[first < 0] = np.nan
+        truth = dataset.channels.get(TRUTH)
+        truth_state = cross_std = None
+        if truth is not None:
+            truth_state = truth.grid("state")
+            if truth_state.shape[:2] != counts.shape:
+                raise InputError(f"{TRUTH} covers {truth_state.shape[:2]} run×scan, plots {counts.shape}", dataset.path)
+            cross_std = np.hypot(truth_state[..., 0], truth_state[..., 1]) * np.deg2rad(design["sigma_bearing_deg"])
+        return radar_eval.evaluate(result["times"], result["tracks"], measured, truth_state, cross_std,
+                                   design["nominal_cross_range_m"])
+
+    # ------------------------------------------------------------------ Rerun
+
+    def blueprint(self, trackers):
+        return rrb.Blueprint(
+            rrb.Horizontal(
+                rrb.Spatial2DView(origin="/xy", name="x / y (run shown)"),
+                rrb.Vertical(
+                    rrb.TimeSeriesView(origin="/gains/alpha_cross", name="α cross-range"),
+                    rrb.TimeSeriesView(origin="/gains/beta_cross", name="β cross-range"),
+                    rrb.TimeSeriesView(origin="/gains/lambda_cross", name="λ_k cross-range"),
+                ),
+                rrb.Vertical(
+                    rrb.TimeSeriesView(origin="/errors/rmse_position_m", name="position RMSE (m)"),
+                    rrb.TimeSeriesView(origin="/errors/rmse_velocity_mps", name="velocity RMSE (m/s)"),
+                    rrb.TimeSeriesView(origin="/errors/npe", name="NPE"),
+                ),
+                column_shares=[2, 1.2, 1.2],
+            ),
+            rrb.TimePanel(state="collapsed"),
+        )
+
+    def log_rerun(self, rec, dataset, result: dict, per_scan, run: int = 0) -> None:
+        times = result["times"]
+        scans = np.arange(len(times))
+        rng, brg, counts, _ = self._plots(dataset)
+        run = min(run, counts.shape[0] - 1)
+        plots_xy = polar_to_cartesian(rng[run], brg[run])
+        log_points(rec, "/xy/plots", scans, times,
+                   [plots_xy[k, : counts[run, k]] for k in scans], color("plots"), radius=-3.0)
+        truth = dataset.channels.get(TRUTH)
+        if truth is not None:
+            log_path(rec, "/xy/truth", truth.grid("state")[run, :, :2], color("truth"))
+        for name, out in result["tracks"].items():
+            ok = radar_eval.filtered_mask(out["flags"][run])
+            xy = np.where(ok[:, None], out["state"][run, :, :2], np.nan)
+            log_path(rec, f"/xy/tracks/{name}/path", xy, color(name))
+            log_points(rec, f"/xy/tracks/{name}/estimate", scans, times,
+                       [xy[k : k + 1] if ok[k] else np.zeros((0, 2)) for k in scans], color(name), radius=-5.0)
+            log_series(rec, f"/gains/alpha_cross/{name}", scans, times, out["alpha"][run, :, 1], name)
+            log_series(rec, f"/gains/beta_cross/{name}", scans, times, out["beta"][run, :, 1], name)
+            log_series(rec, f"/gains/alpha_along/{name}", scans, times, out["alpha"][run, :, 0], name)
+            part = per_scan.filter(per_scan["tracker"] == name)
+            for metric in ("rmse_position_m", "rmse_velocity_mps", "npe"):
+                if metric in part.columns:
+                    log_series(rec, f"/errors/{metric}/{name}", part["scan"].to_numpy(),
+                               part["time_s"].to_numpy(), part[metric].to_numpy(), name)
+        any_track = next(iter(result["tracks"].values()))
+        log_series(rec, "/gains/lambda_cross/measured", scans, times, any_track["lambda_cross"][run],
+                   "λ_k", (200, 200, 200))

@@ -1,0 +1,114 @@
+"""Open a recording in the Rerun viewer, or render it headless to a PNG.
+
+Headless rendering uses the real viewer (software Vulkan from Debian's
+``mesa-vulkan-drivers``): ``rerun --headless`` serves on 127.0.0.1, and
+``rerun.experimental.ViewerClient`` opens the file, waits for it to load, moves the time
+cursor to the end and saves a screenshot. The viewer runs in its own process group, which is
+ended afterwards whatever happens.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from pipeline.errors import InputError
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _rerun_cli() -> list[str]:
+    exe = shutil.which("rerun")
+    return [exe] if exe else [sys.executable, "-m", "rerun"]
+
+
+def open_viewer(rrd: str | Path) -> subprocess.Popen:
+    """Start the desktop viewer on a recording (returns at once)."""
+    return subprocess.Popen([*_rerun_cli(), str(rrd)], start_new_session=True)
+
+
+def screenshot(rrd: str | Path, png: str | Path, size: str = "1600x900", timeline: str = "scan",
+               settle_s: float = 3.0, timeout_s: float = 90.0) -> Path:
+    """Render ``rrd`` in the headless viewer and save a PNG of the whole window.
+
+    Raises
+    ------
+    InputError
+        When the viewer cannot start (e.g. no Vulkan driver) or does not answer in time.
+    """
+    import rerun.experimental as rrx
+
+    rrd, png = Path(rrd).resolve(), Path(png).resolve()
+    if not rrd.exists():
+        raise InputError("no such recording", rrd)
+    png.parent.mkdir(parents=True, exist_ok=True)
+    port = _free_port()
+    home = tempfile.mkdtemp(prefix="rerun-home-")
+    env = dict(os.environ, XDG_CONFIG_HOME=home, XDG_DATA_HOME=home, XDG_CACHE_HOME=home)
+    log = open(Path(home) / "viewer.log", "wb")
+    proc = subprocess.Popen(
+        [*_rerun_cli(), "--headless", "--bind", "127.0.0.1", "--port", str(port), "--window-size", size],
+        start_new_session=True, env=env, stdout=log, stderr=subprocess.STDOUT,
+    )
+    tmp = png.with_name(png.name + ".tmp.png")
+    try:
+        client = _connect(rrx, port, proc, timeout_s, home)
+        client.open(str(rrd))
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            state = client.get_state()
+            if not getattr(state, "loading", False):
+                break
+            time.sleep(0.2)
+        try:
+            client.set_time(timeline, sequence=2**31, play_state="paused")
+        except Exception:  # a recording without that timeline still gets a picture
+            pass
+        time.sleep(settle_s)
+        client.save_screenshot(str(tmp))
+        if not tmp.exists() or tmp.stat().st_size == 0:
+            raise InputError("the viewer produced no screenshot", rrd)
+        os.replace(tmp, png)
+        return png
+    finally:
+        try:
+            os.killpg(proc.pid, signal.SIGTERM)
+            proc.wait(timeout=10)
+        except (ProcessLookupError, subprocess.TimeoutExpired):
+            try:
+                os.killpg(proc.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+        log.close()
+        if tmp.exists():
+            tmp.unlink()
+        shutil.rmtree(home, ignore_errors=True)
+
+
+def _connect(rrx, port, proc, timeout_s, home):
+    deadline = time.monotonic() + timeout_s
+    last = None
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            tail = (Path(home) / "viewer.log").read_text(errors="replace").strip().splitlines()[-1:]
+            raise InputError(f"headless viewer exited ({' '.join(tail) or 'no output'}); "
+                             "is a Vulkan driver installed (Debian: mesa-vulkan-drivers)?")
+        try:
+            client = rrx.ViewerClient.connect(f"rerun+http://127.0.0.1:{port}/proxy")
+            client.get_state()
+            return client
+        except Exception as exc:  # not listening yet
+            last = exc
+            time.sleep(0.3)
+    raise InputError(f"headless viewer did not answer within {timeout_s:.0f} s ({last})")
