@@ -121,10 +121,13 @@ def steady_state_covariance(alpha, beta, T: float, sigma_w):
     P : ndarray, shape (..., 2, 2)
         Position/velocity covariance of one axis.
     """
+    p11, p12, p22 = steady_state_variances(alpha, beta, T, sigma_w)
+    return np.stack([np.stack([p11, p12], -1), np.stack([p12, p22], -1)], -2)
+
+
+def steady_state_variances(alpha, beta, T: float, sigma_w):
+    """The three distinct entries ``(p11, p12, p22)`` of :func:`steady_state_covariance`."""
     alpha = np.asarray(alpha, dtype=float)
     beta = np.asarray(beta, dtype=float)
     var = np.asarray(sigma_w, dtype=float) ** 2
-    p11 = alpha * var
-    p12 = beta * var / T
-    p22 = beta * (alpha - 0.5 * beta) * var / ((1.0 - alpha) * T * T)
-    return np.stack([np.stack([p11, p12], -1), np.stack([p12, p22], -1)], -2)
+    return alpha * var, beta * var / T, beta * (alpha - 0.5 * beta) * var / ((1.0 - alpha) * T * T)

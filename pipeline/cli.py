@@ -134,6 +134,7 @@ def run_cmd(data, trackers, out_path, rrd_path, no_rrd, spawn, recover, sets, re
     Example:
       replay data/radar_tws_demo.mcap --trackers fixed,approximate --spawn
     """
+    from pipeline.contract import read_dataset
     from pipeline.replay import replay
     from recorders.scenarios import parse_assignments
 
@@ -144,10 +145,14 @@ def run_cmd(data, trackers, out_path, rrd_path, no_rrd, spawn, recover, sets, re
     out_path = out_path or out_dir / "tracks.mcap"
     rrd_path = None if no_rrd else (rrd_path or out_path.with_suffix(".rrd"))
     wanted = [t.strip() for t in trackers.split(",")] if trackers else None
-    with click.progressbar(length=1, label=f"replaying {data.name}", file=sys.stderr) as bar:
-        res = replay(data, wanted, out_path, rrd_path, recover=recover,
-                     design_overrides=parse_assignments(sets), rerun_run=rerun_run)
-        bar.update(1)
+    t_read = time.perf_counter()
+    dataset = read_dataset(data, recover=recover)  # bad files fail here, before any progress output
+    t_read = time.perf_counter() - t_read
+    with click.progressbar(length=4, label=f"replaying {data.name}", file=sys.stderr) as bar:
+        res = replay(data, wanted, out_path, rrd_path, design_overrides=parse_assignments(sets),
+                     rerun_run=rerun_run, dataset=dataset, progress=bar.update)
+    res.timings["read_s"] = t_read
+    res.timings["total_s"] += t_read
     if res.dataset.recovered_messages is not None:
         click.echo(f"recovered {res.dataset.recovered_messages} messages from complete chunks of {data}")
     _print_summary(res.summary, f"metrics for {data.name} ({res.dataset.channel(next(iter(res.dataset.channels))).n_runs} runs)")
@@ -300,6 +305,65 @@ def check_cmd(data_dir, update):
 
     data_dir = data_dir or bundled_data_dir()
     report = run_check(data_dir, update=update, echo=click.echo)
+    if report.failed:
+        raise click.exceptions.Exit(1)
+
+
+# --------------------------------------------------------------------------- sweep
+
+
+@main.command("sweep")
+@click.argument("scenario")
+@click.option("--param", "params", multiple=True, required=True, metavar="NAME=v1,v2,...",
+              help="A swept parameter and its values (repeat for a cartesian grid).")
+@click.option("--set", "sets", multiple=True, metavar="NAME=VALUE", help="A parameter fixed at every point.")
+@click.option("--runs", default=100, show_default=True, type=click.IntRange(min=1))
+@click.option("--seed", default=0, show_default=True, type=int, help="Base seed; each point's seed derives from it and the point.")
+@click.option("--trackers", help="Comma-separated subset of trackers.")
+@click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path))
+@click.option("--executor", type=click.Choice(["serial", "process", "dask"]), default="process", show_default=True)
+@click.option("--workers", type=click.IntRange(min=1), help="Processes (default: the machine's cores).")
+@click.option("--scheduler", metavar="ADDRESS", help="Send the work to an existing Dask cluster (implies --executor dask).")
+@click.option("--keep-data/--no-keep-data", default=True, show_default=True, help="Keep each point's data set and recording.")
+@click.option("--resume", is_flag=True, help="Skip points whose metrics are already in the output folder.")
+def sweep_cmd(scenario, params, sets, runs, seed, trackers, out_dir, executor, workers, scheduler, keep_data, resume):
+    """Simulate, replay and evaluate every point of a parameter grid.
+
+    Writes sweep.parquet / sweep.csv (one row per point × tracker × metric), a PNG per metric
+    and, with --keep-data, each point's data set and recording under points/.
+
+    \b
+    Example:
+      replay sweep radar-tws --param sigma_bearing_deg=0.5,1,2 --param nominal_cross_range_m=100,150 \\
+             --runs 100 --seed 7 -o study/
+    """
+    from pipeline.sweep import build_grid, parse_param_specs, run_sweep, write_sweep_outputs
+    from recorders.scenarios import parse_assignments
+
+    if scheduler:
+        executor = "dask"
+    specs = parse_param_specs(params)
+    fixed = parse_assignments(sets)
+    wanted = [t.strip() for t in trackers.split(",")] if trackers else None
+    tasks = build_grid(scenario, specs, runs, seed, wanted, out_dir, keep_data, fixed)
+    if wanted:
+        from pipeline.stages import STAGES
+
+        known = {t for s in STAGES for t in s.trackers}
+        bad = [t for t in wanted if t not in known]
+        if bad:
+            raise InputError(f"unknown tracker(s) {', '.join(bad)} (have: {', '.join(sorted(known))})")
+    spec = {"scenario": scenario, "params": specs, "fixed": fixed, "runs": runs, "seed": seed,
+            "trackers": wanted, "executor": executor, "points": len(tasks)}
+    with click.progressbar(length=len(tasks), label=f"sweep {scenario} ({len(tasks)} points, {executor})",
+                           file=sys.stderr, show_pos=True) as bar:
+        report = run_sweep(tasks, list(specs), out_dir, executor, workers, scheduler, resume, bar.update)
+    paths = write_sweep_outputs(report, list(specs), spec)
+    click.echo(f"points: {report.done} done, {report.skipped} resumed, {len(report.failed)} failed; "
+               f"wall {report.wall_s:.1f} s, median point {report.median_point_s:.2f} s")
+    for label, err in report.failed.items():
+        click.echo(f"FAILED {label}: {err}", err=True)
+    click.echo(f"table: {out_dir / 'sweep.parquet'} (+ .csv); plots: {out_dir / 'plots'}/")
     if report.failed:
         raise click.exceptions.Exit(1)
 

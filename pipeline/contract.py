@@ -192,7 +192,9 @@ def encode_frame(run: int, scan: int, time_s: float, arrays: Mapping[str, np.nda
     msg = Frame(run=int(run), scan=int(scan), time_s=float(time_s),
                 run_count=int(run_count) if run_count > 1 else 0)
     for name, value in arrays.items():
-        a = np.ascontiguousarray(value)
+        a = np.asarray(value)
+        if not a.flags.c_contiguous:  # (np.ascontiguousarray would turn 0-d into 1-d)
+            a = a.copy(order="C")
         if a.dtype.byteorder == ">":
             a = a.astype(a.dtype.newbyteorder("<"))
         dt = a.dtype.str
@@ -228,6 +230,10 @@ def atomic_output(path: str | Path, mode: str = "wb"):
             yield f
             f.flush()
             os.fsync(f.fileno())
+        # mkstemp creates 0600; give the result the permissions a plain open() would.
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

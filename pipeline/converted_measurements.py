@@ -29,6 +29,16 @@ def rotation(bearing_rad):
     return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
 
 
+def rotated_diagonal(cos_b, sin_b, along, cross):
+    """Entries ``(m00, m01, m11)`` of ``D diag(along, cross) Dᵀ`` with ``D`` the rotation by θ.
+
+    The element-wise form of rotating an (along-range, cross-range) diagonal matrix into x/y:
+    used for converted covariances, decoupled gains and their steady-state covariances.
+    """
+    cc, ss, cs = cos_b * cos_b, sin_b * sin_b, cos_b * sin_b
+    return along * cc + cross * ss, (along - cross) * cs, along * ss + cross * cc
+
+
 def converted_covariance(range_m, bearing_rad, sigma_range_m: float, sigma_bearing_rad: float):
     """``R = D diag(σ_r², r² σ_θ²) Dᵀ``, the linearised converted-measurement covariance.
 

@@ -32,19 +32,23 @@ from pipeline.alpha_beta_gains import (
     approximate_gains,
     clamp_to_stability,
     kalata_gains,
-    steady_state_covariance,
+    steady_state_variances,
     tracking_index,
     with_startup,
 )
-from pipeline.converted_measurements import converted_covariance, polar_to_cartesian, rotation
-from pipeline.kalman import apply_gain, kalman_gain, kf_predict, white_acceleration_model
+from pipeline.converted_measurements import rotated_diagonal
+from pipeline.kalman import (
+    cv_apply_gain_components,
+    cv_position_gain_components,
+    cv_posterior_components,
+    cv_predict_components,
+    components_to_matrix,
+)
 
 FLAG_CLAMPED = 1
 FLAG_COASTED = 2
 FLAG_NO_TRACK = 4
 FLAG_INITIALISING = 8
-
-H_POSITION = np.hstack([np.eye(2), np.zeros((2, 2))])
 
 
 @dataclass(frozen=True)
@@ -83,17 +87,8 @@ class TrackerDesign:
         return float(tracking_index(self.sigma_v, self.scan_period_s, self.nominal_cross_range_m))
 
 
-def _blockdiag2(D):
-    z = np.zeros_like(D)
-    return np.concatenate([np.concatenate([D, z], -1), np.concatenate([z, D], -1)], -2)
-
-
-def _to_xyv(along, cross):
-    """Assemble per-axis 2×2 (pos, vel) blocks into a 4×4 in (along, cross, v_along, v_cross)."""
-    P = np.zeros(along.shape[:-2] + (4, 4))
-    P[..., 0::2, 0::2] = along
-    P[..., 1::2, 1::2] = cross
-    return P
+# Strategies work on runs-last arrays: covariance components (10, n) as in pipeline.kalman,
+# gains (8, n) = K_pos (00, 01, 10, 11) then K_vel (00, 01, 10, 11).
 
 
 class AlphaBetaGains:
@@ -103,34 +98,27 @@ class AlphaBetaGains:
         self.name = name
         self._cross_gains = cross_gains
 
-    def gain(self, x_pred, P_pred, z_range, z_bearing, n_plots, design: TrackerDesign):
+    def update(self, c_pred, r_cov, z_range, cos_b, sin_b, n_plots, design: TrackerDesign):
+        """Gain ``K = D₂ K̄₂ Dᵀ`` and the steady-state covariance those gains imply."""
         T = design.scan_period_s
-        n = z_range.shape[0]
-        lam_c = tracking_index(design.sigma_v, T, z_range * design.sigma_bearing_rad)
-        alpha_r, beta_r = kalata_gains(np.full(n, design.lam_along))
+        sigma_cross = z_range * design.sigma_bearing_rad
+        lam_c = tracking_index(design.sigma_v, T, sigma_cross)
+        alpha_r, beta_r = kalata_gains(np.full(z_range.shape, design.lam_along))
         alpha_c, beta_c, clamped = self._cross_gains(lam_c, design.lam_nominal)
         if design.startup:
             alpha_r, beta_r = with_startup(alpha_r, beta_r, n_plots)
             alpha_c, beta_c = with_startup(alpha_c, beta_c, n_plots)
-        Kbar = np.zeros((n, 4, 2))
-        Kbar[:, 0, 0] = alpha_r
-        Kbar[:, 1, 1] = alpha_c
-        Kbar[:, 2, 0] = beta_r / T
-        Kbar[:, 3, 1] = beta_c / T
-        D = rotation(z_bearing)
-        D2 = _blockdiag2(D)
-        K = D2 @ Kbar @ np.swapaxes(D, -1, -2)
-        P_local = _to_xyv(
-            steady_state_covariance(alpha_r, beta_r, T, design.sigma_range_m),
-            steady_state_covariance(alpha_c, beta_c, T, z_range * design.sigma_bearing_rad),
-        )
-        P_post = D2 @ P_local @ np.swapaxes(D2, -1, -2)
-        return K, P_post, {
-            "alpha": np.stack([alpha_r, alpha_c], -1),
-            "beta": np.stack([beta_r, beta_c], -1),
-            "lambda_cross": lam_c,
-            "clamped": clamped,
-        }
+        kp = rotated_diagonal(cos_b, sin_b, alpha_r, alpha_c)
+        kv = rotated_diagonal(cos_b, sin_b, beta_r / T, beta_c / T)
+        gain = np.stack([kp[0], kp[1], kp[1], kp[2], kv[0], kv[1], kv[1], kv[2]])
+        along = steady_state_variances(alpha_r, beta_r, T, design.sigma_range_m)
+        cross = steady_state_variances(alpha_c, beta_c, T, sigma_cross)
+        A = rotated_diagonal(cos_b, sin_b, along[0], cross[0])
+        B = rotated_diagonal(cos_b, sin_b, along[1], cross[1])
+        C = rotated_diagonal(cos_b, sin_b, along[2], cross[2])
+        c_post = np.stack([A[0], A[1], A[2], B[0], B[1], B[1], B[2], C[0], C[1], C[2]])
+        return gain, c_post, {"alpha": np.stack([alpha_r, alpha_c]), "beta": np.stack([beta_r, beta_c]),
+                              "lambda_cross": lam_c, "clamped": clamped}
 
 
 def _fixed(lam_c, lam_bar):
@@ -152,19 +140,22 @@ class KalmanGains:
 
     name = "kalman"
 
-    def gain(self, x_pred, P_pred, z_range, z_bearing, n_plots, design: TrackerDesign):
+    def update(self, c_pred, r_cov, z_range, cos_b, sin_b, n_plots, design: TrackerDesign):
         T = design.scan_period_s
-        R = converted_covariance(z_range, z_bearing, design.sigma_range_m, design.sigma_bearing_rad)
-        K, _ = kalman_gain(P_pred, H_POSITION, R)
-        _, P_post = apply_gain(x_pred, P_pred, K, np.zeros(x_pred.shape[:-1] + (2,)), H_POSITION, R)
-        D = rotation(z_bearing)
-        Kbar = np.swapaxes(_blockdiag2(D), -1, -2) @ K @ D
-        return K, P_post, {
-            "alpha": np.stack([Kbar[:, 0, 0], Kbar[:, 1, 1]], -1),
-            "beta": np.stack([Kbar[:, 2, 0] * T, Kbar[:, 3, 1] * T], -1),
-            "lambda_cross": tracking_index(design.sigma_v, T, z_range * design.sigma_bearing_rad),
-            "clamped": np.zeros(z_range.shape, bool),
-        }
+        gain = cv_position_gain_components(c_pred, *r_cov)
+        c_post = cv_posterior_components(c_pred, gain)
+        # the gain seen in the (along-range, cross-range) frame, for comparison with α-β
+        cc, ss, cs = cos_b * cos_b, sin_b * sin_b, cos_b * sin_b
+        k00, k01, k10, k11, g00, g01, g10, g11 = gain
+        alpha, beta = np.empty((2,) + k00.shape), np.empty((2,) + k00.shape)
+        kx, gx = cs * (k01 + k10), cs * (g01 + g10)
+        alpha[0] = cc * k00 + kx + ss * k11
+        alpha[1] = ss * k00 - kx + cc * k11
+        beta[0] = T * (cc * g00 + gx + ss * g11)
+        beta[1] = T * (ss * g00 - gx + cc * g11)
+        lam_c = tracking_index(design.sigma_v, T, z_range * design.sigma_bearing_rad)
+        return gain, c_post, {"alpha": alpha, "beta": beta, "lambda_cross": lam_c,
+                              "clamped": np.zeros(z_range.shape, bool)}
 
 
 STRATEGIES = {
@@ -175,12 +166,22 @@ STRATEGIES = {
 }
 
 
-def _nearest_plot(xy_all, valid, x_pred, started):
-    """Index of the plot nearest to the prediction (first valid plot for tracks not started)."""
-    d2 = np.sum((xy_all - x_pred[:, None, :2]) ** 2, axis=-1)
-    d2 = np.where(valid, d2, np.inf)
-    first = np.argmax(valid, axis=1)
-    return np.where(started, np.argmin(d2, axis=1), first)
+def _select_plots(plot_range, plot_bearing, counts_k, x_pred, started):
+    """Range and bearing of the plot each run uses this scan (nearest to the prediction;
+    the first plot for tracks not started yet; NaN where the scan has none)."""
+    width = plot_range.shape[1]
+    if width == 1:
+        return plot_range[:, 0], plot_bearing[:, 0]
+    if width == 0:
+        nan = np.full(plot_range.shape[0], np.nan)
+        return nan, nan
+    valid = np.arange(width)[None, :] < counts_k[:, None]
+    px = plot_range * np.cos(plot_bearing) - x_pred[0][:, None]
+    py = plot_range * np.sin(plot_bearing) - x_pred[1][:, None]
+    d2 = np.where(valid, px * px + py * py, np.inf)
+    j = np.where(started, np.argmin(d2, axis=1), np.argmax(valid, axis=1))
+    rows = np.arange(plot_range.shape[0])
+    return plot_range[rows, j], plot_bearing[rows, j]
 
 
 def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, strategy) -> dict:
@@ -205,80 +206,97 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
         (runs, scans, 2)`` and ``flags (runs, scans)`` (bit mask, ``FLAG_*``).
     """
     n_runs, n_scans = counts.shape
-    width = plot_range.shape[2] if plot_range.ndim == 3 else 0
-    out = {
-        "state": np.full((n_runs, n_scans, 4), np.nan),
-        "covariance": np.full((n_runs, n_scans, 4, 4), np.nan),
-        "alpha": np.full((n_runs, n_scans, 2), np.nan),
-        "beta": np.full((n_runs, n_scans, 2), np.nan),
-        "lambda_cross": np.full((n_runs, n_scans), np.nan),
-        "innovation": np.full((n_runs, n_scans, 2), np.nan),
-        "flags": np.zeros((n_runs, n_scans), np.uint8),
-    }
-    x = np.zeros((n_runs, 4))
-    P = np.tile(np.eye(4), (n_runs, 1, 1))
+    if plot_range.ndim != 3:
+        plot_range = plot_range.reshape(n_runs, n_scans, -1)
+        plot_bearing = plot_bearing.reshape(n_runs, n_scans, -1)
+    nan = np.nan
+    # outputs are filled scan by scan, runs last (contiguous), and transposed once at the end
+    state = np.full((n_scans, 4, n_runs), nan)
+    cov = np.full((n_scans, 10, n_runs), nan)
+    alpha = np.full((n_scans, 2, n_runs), nan)
+    beta = np.full((n_scans, 2, n_runs), nan)
+    lam = np.full((n_scans, n_runs), nan)
+    innov = np.full((n_scans, 2, n_runs), nan)
+    flags = np.zeros((n_scans, n_runs), np.uint8)
+
+    x = np.zeros((4, n_runs))
+    c = np.zeros((10, n_runs))
     started = np.zeros(n_runs, bool)
-    n_plots = np.zeros(n_runs, np.int64)  # plots a track has used, the start-up gains' n
     have_prev = np.zeros(n_runs, bool)
-    prev_xy = np.zeros((n_runs, 2))
-    prev_R = np.zeros((n_runs, 2, 2))
+    prev = np.zeros((5, n_runs))  # x, y, r00, r01, r11 of the first plot of a track
     prev_t = np.zeros(n_runs)
-    rows = np.arange(n_runs)
+    n_plots = np.zeros(n_runs, np.int64)  # plots a track has used, the start-up gains' n
+    var_r = design.sigma_range_m**2
     for k in range(n_scans):
-        dt = times[k] - times[k - 1] if k else design.scan_period_s
-        F, Q = white_acceleration_model(dt, design.sigma_v)
-        x_pred, P_pred = kf_predict(x, P, F, Q)
+        dt = float(times[k] - times[k - 1]) if k else design.scan_period_s
+        xp, cp = cv_predict_components(x, c, dt, design.sigma_v)
         has = counts[:, k] > 0
-        if width:
-            valid = np.arange(width)[None, :] < counts[:, k, None]
-            xy_all = polar_to_cartesian(plot_range[:, k], plot_bearing[:, k])
-            j = _nearest_plot(xy_all, valid, x_pred, started)
-            z_r = plot_range[rows, k, j]
-            z_b = plot_bearing[rows, k, j]
-            z_xy = xy_all[rows, j]
-        else:
-            z_r = z_b = np.full(n_runs, np.nan)
-            z_xy = np.full((n_runs, 2), np.nan)
+        z_r, z_b = _select_plots(plot_range[:, k], plot_bearing[:, k], counts[:, k], xp, started)
+        cos_b, sin_b = np.cos(z_b), np.sin(z_b)
+        zx, zy = z_r * cos_b, z_r * sin_b
+        r_cov = rotated_diagonal(cos_b, sin_b, var_r, (z_r * design.sigma_bearing_rad) ** 2)
 
         upd = started & has
-        coast = started & ~has
-        init = ~started & has & have_prev
-        first = ~started & has & ~have_prev
-
-        x_new, P_new = x_pred.copy(), P_pred.copy()
+        if upd.all():
+            sel = slice(None)  # the common case: every run updates, no masking or copies
+        else:
+            sel = np.flatnonzero(upd)
+        x_new, c_new = xp, cp
         if upd.any():
-            n_plots[upd] += 1
-            K, P_post, diag = strategy.gain(x_pred[upd], P_pred[upd], z_r[upd], z_b[upd], n_plots[upd], design)
-            innov = z_xy[upd] - x_pred[upd, :2]
-            x_new[upd], _ = apply_gain(x_pred[upd], P_pred[upd], K, innov, H_POSITION, None)
-            P_new[upd] = P_post
-            out["alpha"][upd, k] = diag["alpha"]
-            out["beta"][upd, k] = diag["beta"]
-            out["lambda_cross"][upd, k] = diag["lambda_cross"]
-            out["innovation"][upd, k] = innov
-            out["flags"][upd, k] |= np.where(diag["clamped"], FLAG_CLAMPED, 0).astype(np.uint8)
-        R_now = converted_covariance(z_r, z_b, design.sigma_range_m, design.sigma_bearing_rad)
-        if init.any():
-            gap = (times[k] - prev_t[init])[:, None]
-            x_new[init, :2] = z_xy[init]
-            x_new[init, 2:] = (z_xy[init] - prev_xy[init]) / gap
-            P0 = np.zeros((int(init.sum()), 4, 4))
-            P0[:, :2, :2] = R_now[init]
-            P0[:, :2, 2:] = R_now[init] / gap[..., None]
-            P0[:, 2:, :2] = R_now[init] / gap[..., None]
-            P0[:, 2:, 2:] = (R_now[init] + prev_R[init]) / gap[..., None] ** 2
-            P_new[init] = P0
-        out["flags"][coast, k] |= FLAG_COASTED
-        out["flags"][init, k] |= FLAG_INITIALISING
-        idle = ~(started | init)
-        out["flags"][idle, k] |= FLAG_NO_TRACK
-
-        prev_xy[first], prev_R[first], prev_t[first] = z_xy[first], R_now[first], times[k]
-        have_prev |= first
-        started |= init
-        n_plots[init] = 2
-        x = np.where(started[:, None], x_new, x)
-        P = np.where(started[:, None, None], P_new, P)
-        out["state"][started, k] = x[started]
-        out["covariance"][started, k] = P[started]
-    return out
+            nu = np.empty((2, n_runs) if isinstance(sel, slice) else (2, sel.size))
+            nu[0] = zx[sel] - xp[0, sel]
+            nu[1] = zy[sel] - xp[1, sel]
+            n_plots[sel] += 1
+            gain, c_post, diag = strategy.update(cp[:, sel], tuple(r[sel] for r in r_cov), z_r[sel],
+                                                 cos_b[sel], sin_b[sel], n_plots[sel], design)
+            xu = cv_apply_gain_components(xp[:, sel], gain, nu)
+            if isinstance(sel, slice):
+                x_new, c_new = xu, c_post
+            else:
+                x_new, c_new = xp.copy(), cp.copy()
+                x_new[:, sel], c_new[:, sel] = xu, c_post
+            alpha[k][:, sel] = diag["alpha"]
+            beta[k][:, sel] = diag["beta"]
+            lam[k][sel] = diag["lambda_cross"]
+            innov[k][:, sel] = nu
+            if diag["clamped"].any():
+                flags[k][sel] |= np.where(diag["clamped"], FLAG_CLAMPED, 0).astype(np.uint8)
+        if not upd.all():
+            init = ~started & has & have_prev
+            first = ~started & has & ~have_prev
+            if init.any():
+                i = np.flatnonzero(init)
+                gap = times[k] - prev_t[i]
+                r00, r01, r11 = (r[i] for r in r_cov)
+                x_new[:, i] = np.stack([zx[i], zy[i], (zx[i] - prev[0, i]) / gap, (zy[i] - prev[1, i]) / gap])
+                # two-point start: P = [[R₁, R₁/Δt], [R₁/Δt, (R₀ + R₁)/Δt²]]
+                c_new[:, i] = np.stack([r00, r01, r11, r00 / gap, r01 / gap, r01 / gap, r11 / gap,
+                                        (r00 + prev[2, i]) / gap**2, (r01 + prev[3, i]) / gap**2,
+                                        (r11 + prev[4, i]) / gap**2])
+                flags[k][i] |= FLAG_INITIALISING
+                n_plots[i] = 2
+            f = np.flatnonzero(first)
+            prev[:, f] = np.stack([zx[f], zy[f], r_cov[0][f], r_cov[1][f], r_cov[2][f]])
+            prev_t[f] = times[k]
+            have_prev |= first
+            flags[k][started & ~has] |= FLAG_COASTED
+            started = started | init
+            flags[k][~started] |= FLAG_NO_TRACK
+            # runs without a track keep their (unused) state; tracks that coast keep the prediction
+            x = np.where(started, x_new, x)
+            c = np.where(started, c_new, c)
+            state[k][:, started] = x[:, started]
+            cov[k][:, started] = c[:, started]
+        else:
+            x, c = x_new, c_new
+            state[k] = x
+            cov[k] = c
+    return {
+        "state": state.transpose(2, 0, 1),
+        "covariance": components_to_matrix(cov.transpose(1, 2, 0)),
+        "alpha": alpha.transpose(2, 0, 1),
+        "beta": beta.transpose(2, 0, 1),
+        "lambda_cross": lam.T,
+        "innovation": innov.transpose(2, 0, 1),
+        "flags": flags.T.copy(),
+    }

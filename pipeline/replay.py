@@ -41,7 +41,7 @@ def _select_trackers(stage, trackers):
 
 
 def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, design_overrides=None,
-           rerun_run: int = 0, dataset: Dataset | None = None) -> ReplayResult:
+           rerun_run: int = 0, dataset: Dataset | None = None, progress=None) -> ReplayResult:
     """Replay every applicable stage over a data set.
 
     Parameters
@@ -60,7 +60,10 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
         Which Monte Carlo run the per-run Rerun views show.
     dataset : Dataset, optional
         An already decoded data set (skips reading ``path``).
+    progress : callable, optional
+        Called with 1 after each of the four phases (filter, evaluate, write, rerun).
     """
+    step = progress or (lambda n: None)
     t0 = time.perf_counter()
     ds = dataset if dataset is not None else read_dataset(path, recover=recover)
     timings = {"read_s": time.perf_counter() - t0}
@@ -76,12 +79,14 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
         results[stage.name] = result
         designs[stage.name] = design
     timings["filter_s"] = time.perf_counter() - t1
+    step(1)
     t2 = time.perf_counter()
     for stage in stages:
         p, s = stage.evaluate(ds, results[stage.name], designs[stage.name])
         per_scan.append(p.with_columns(pl.lit(stage.name).alias("stage")))
         summary.append(s.with_columns(pl.lit(stage.name).alias("stage")))
     timings["evaluate_s"] = time.perf_counter() - t2
+    step(1)
     res = ReplayResult(ds, pl.concat(per_scan, how="diagonal"), pl.concat(summary, how="diagonal"), results,
                        timings=timings)
     if out_path is not None:
@@ -95,18 +100,20 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
                 stage.write(w, results[stage.name])
         res.out_path = Path(out_path)
         timings["write_s"] = time.perf_counter() - t3
+    step(1)
     if rrd_path is not None:
         from pipeline.timeline import recording
 
         t4 = time.perf_counter()
         # One recording per file; with several stages the first stage's blueprint is the default.
-        bp = stages[0].blueprint(list(results[stages[0].name]["tracks"]))
+        bp = stages[0].blueprint(list(results[stages[0].name]["tracks"]), ds, rerun_run)
         with recording(rrd_path, "trackreplay", Path(ds.path).stem, bp) as rec:
             for st in stages:
                 part = res.per_scan.filter(pl.col("stage") == st.name)
                 st.log_rerun(rec, ds, results[st.name], part, rerun_run)
         res.rrd_path = Path(rrd_path)
         timings["rerun_s"] = time.perf_counter() - t4
+    step(1)
     timings["total_s"] = time.perf_counter() - t0
     return res
 

@@ -81,6 +81,9 @@ def recording(path: str | Path, app_id: str, recording_id: str, blueprint=None):
         yield rec
         rec.flush()
         rec.disconnect()
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):

@@ -67,12 +67,12 @@ def screenshot(rrd: str | Path, png: str | Path, size: str = "1600x900", timelin
         client.open(str(rrd))
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
-            state = client.get_state()
-            if not getattr(state, "loading", False):
+            if not client.get_state().loading:  # empty once every source has arrived
                 break
             time.sleep(0.2)
         try:
-            client.set_time(timeline, sequence=2**31, play_state="paused")
+            # "following" puts the time cursor on the newest data: the end of the replay
+            client.set_time(timeline, play_state="following")
         except Exception:  # a recording without that timeline still gets a picture
             pass
         time.sleep(settle_s)

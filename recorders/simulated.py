@@ -54,6 +54,7 @@ def write_simulated(path: str | Path, data: SimulatedData, metadata: dict, progr
                 for r in range(next(iter(arrays.values())).shape[0]):
                     w.write(topic, r, k, t, {name: a[r, k] for name, a in arrays.items()})
                     n += 1
+            w.flush()  # one chunk per scan: a crash or a cut file loses at most one scan
             if progress:
                 progress(1)
     return n

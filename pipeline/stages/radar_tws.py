@@ -10,6 +10,7 @@ come from :mod:`pipeline.decoupled_tracker` and :mod:`evaluators.radar_tws`.
 from __future__ import annotations
 
 import numpy as np
+import rerun as rr
 import rerun.blueprint as rrb
 
 from evaluators import radar_tws as radar_eval
@@ -106,23 +107,37 @@ class RadarTwsStage:
 
     # ------------------------------------------------------------------ Rerun
 
-    def blueprint(self, trackers):
+    def blueprint(self, trackers, dataset=None, run: int = 0):
+        """Layout: x/y of one run | gains | errors; the x/y view is fitted to that run's plots."""
+        bounds = None
+        if dataset is not None:
+            rng, brg, counts, _ = self._plots(dataset)
+            run = min(run, counts.shape[0] - 1)
+            xy = polar_to_cartesian(rng[run], brg[run]).reshape(-1, 2)
+            xy = xy[np.all(np.isfinite(xy), axis=1)]
+            if len(xy):
+                lo, hi = xy.min(axis=0), xy.max(axis=0)
+                pad = 0.08 * float(max(hi - lo)) + 1.0
+                bounds = rrb.VisualBounds2D(x_range=[lo[0] - pad, hi[0] + pad], y_range=[lo[1] - pad, hi[1] + pad])
+        hidden = rrb.PlotLegend(visible=False)
+        shown = rrb.PlotLegend(corner=rrb.Corner2D.RightTop, visible=True)
         return rrb.Blueprint(
             rrb.Horizontal(
-                rrb.Spatial2DView(origin="/xy", name="x / y (run shown)"),
+                rrb.Spatial2DView(origin="/xy", name=f"x / y (run {run})", visual_bounds=bounds),
                 rrb.Vertical(
-                    rrb.TimeSeriesView(origin="/gains/alpha_cross", name="α cross-range"),
-                    rrb.TimeSeriesView(origin="/gains/beta_cross", name="β cross-range"),
-                    rrb.TimeSeriesView(origin="/gains/lambda_cross", name="λ_k cross-range"),
+                    rrb.TimeSeriesView(origin="/gains/alpha_cross", name="α cross-range", plot_legend=shown),
+                    rrb.TimeSeriesView(origin="/gains/beta_cross", name="β cross-range", plot_legend=hidden),
+                    rrb.TimeSeriesView(origin="/gains/lambda_cross", name="λ_k cross-range", plot_legend=hidden),
                 ),
                 rrb.Vertical(
-                    rrb.TimeSeriesView(origin="/errors/rmse_position_m", name="position RMSE (m)"),
-                    rrb.TimeSeriesView(origin="/errors/rmse_velocity_mps", name="velocity RMSE (m/s)"),
-                    rrb.TimeSeriesView(origin="/errors/npe", name="NPE"),
+                    rrb.TimeSeriesView(origin="/errors/rmse_position_m", name="position RMSE (m)", plot_legend=shown),
+                    rrb.TimeSeriesView(origin="/errors/rmse_velocity_mps", name="velocity RMSE (m/s)", plot_legend=hidden),
+                    rrb.TimeSeriesView(origin="/errors/npe", name="NPE", plot_legend=hidden),
                 ),
                 column_shares=[2, 1.2, 1.2],
             ),
             rrb.TimePanel(state="collapsed"),
+            collapse_panels=True,
         )
 
     def log_rerun(self, rec, dataset, result: dict, per_scan, run: int = 0) -> None:
@@ -131,8 +146,11 @@ class RadarTwsStage:
         rng, brg, counts, _ = self._plots(dataset)
         run = min(run, counts.shape[0] - 1)
         plots_xy = polar_to_cartesian(rng[run], brg[run])
-        log_points(rec, "/xy/plots", scans, times,
-                   [plots_xy[k, : counts[run, k]] for k in scans], color("plots"), radius=-3.0)
+        log_points(rec, "/xy/plots/current", scans, times,
+                   [plots_xy[k, : counts[run, k]] for k in scans], (250, 250, 250), radius=-4.0)
+        history = plots_xy.reshape(-1, 2)
+        history = history[np.all(np.isfinite(history), axis=1)]
+        rec.log("/xy/plots/all", rr.Points2D(history, colors=[color("plots")], radii=[-1.5]), static=True)
         truth = dataset.channels.get(TRUTH)
         if truth is not None:
             log_path(rec, "/xy/truth", truth.grid("state")[run, :, :2], color("truth"))

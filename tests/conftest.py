@@ -1,0 +1,35 @@
+"""Shared fixtures: small simulated data sets and an isolated home for the rerun CLI."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _isolated_rerun_home(tmp_path_factory):
+    # The rerun CLI writes analytics state under the home directory.
+    home = tmp_path_factory.mktemp("xdg")
+    for var in ("XDG_CONFIG_HOME", "XDG_DATA_HOME", "XDG_CACHE_HOME"):
+        os.environ[var] = str(home)
+    yield
+
+
+@pytest.fixture(scope="session")
+def radar_small(tmp_path_factory) -> Path:
+    """A 30-run radar-tws data set written through the real recorder."""
+    from recorders.scenarios import load_scenario
+    from recorders.simulated import record
+
+    path = tmp_path_factory.mktemp("data") / "radar_small.mcap"
+    record(path, load_scenario("radar-tws"), runs=30, seed=5)
+    return path
+
+
+@pytest.fixture(scope="session")
+def demo_mcap() -> Path:
+    return REPO / "data" / "radar_tws_demo.mcap"
