@@ -93,6 +93,17 @@ def _print_summary(summary: pl.DataFrame, title: str) -> None:
             click.echo(part.drop("scope").select([c for c in part.columns if c != "scope" and part[c].null_count() < part.height]))
 
 
+def _print_stage_reports(res) -> None:
+    """Paper-specific layouts (e.g. a paper's table) that stages add after the generic summary."""
+    from pipeline.stages import STAGES
+
+    for stage in STAGES:
+        if stage.name in res.results:
+            text = stage.report(res.summary, res.per_scan)
+            if text:
+                click.echo("\n" + text)
+
+
 def _export_tables(res, out_dir: Path) -> list[Path]:
     from pipeline.contract import atomic_output
 
@@ -156,6 +167,7 @@ def run_cmd(data, trackers, out_path, rrd_path, no_rrd, spawn, recover, sets, re
     if res.dataset.recovered_messages is not None:
         click.echo(f"recovered {res.dataset.recovered_messages} messages from complete chunks of {data}")
     _print_summary(res.summary, f"metrics for {data.name} ({res.dataset.channel(next(iter(res.dataset.channels))).n_runs} runs)")
+    _print_stage_reports(res)
     tables = _export_tables(res, out_dir)
     plot = _report_plot(res, out_dir)
     click.echo("")
@@ -277,6 +289,7 @@ def eval_cmd(data, outputs, as_json, per_scan, export_dir, recover):
         click.echo(json.dumps([{k: _json_value(v) for k, v in r.items()} for r in records]))
     else:
         _print_summary(res.summary, f"metrics for {data.name}")
+        _print_stage_reports(res)
     if export_dir:
         _export_tables(res, export_dir)
         _report_plot(res, export_dir)
@@ -391,6 +404,24 @@ def view_cmd(rrd, png, size):
     else:
         open_viewer(rrd)
 
+
+# --------------------------------------------------------------------------- extensions
+# Paper-specific commands (e.g. `replay crlb`) live next to their paper's code; each module
+# listed here exposes COMMANDS, a list of click commands added to `replay`.
+EXTENSION_MODULES: tuple[str, ...] = (
+    # one line per module: "pipeline.cli_<paper>",
+)
+
+
+def _register_extensions() -> None:
+    import importlib
+
+    for name in EXTENSION_MODULES:
+        for cmd in importlib.import_module(name).COMMANDS:
+            main.add_command(cmd)
+
+
+_register_extensions()
 
 if __name__ == "__main__":  # pragma: no cover
     main()

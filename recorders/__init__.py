@@ -1,21 +1,27 @@
 """Recorders: simulators and converters that write sensor streams plus truth to MCAP.
 
-Each simulator module exposes ``validate(params)`` and ``simulate(params, runs, seed)``.
+Each simulator module exposes ``validate(params)`` and ``simulate(params, runs, seed)``
+returning :class:`recorders.simulated.SimulatedData`. A scenario file's ``recorder`` key names
+its module here.
 """
 
 from __future__ import annotations
 
+import importlib
+
 from pipeline.errors import InputError
+
+RECORDERS = {
+    "radar-tws": "recorders.radar_tws",
+    # one line per recorder: "name": "recorders.module",
+}
 
 
 def recorder_module(recorder: str):
     """The simulator module registered under a scenario's ``recorder`` name."""
-    from recorders import radar_tws
-
-    table = {"radar-tws": radar_tws}
-    if recorder not in table:
-        raise InputError(f"no simulator named {recorder!r} (have: {', '.join(sorted(table))})")
-    return table[recorder]
+    if recorder not in RECORDERS:
+        raise InputError(f"no simulator named {recorder!r} (have: {', '.join(sorted(RECORDERS))})")
+    return importlib.import_module(RECORDERS[recorder])
 
 
 def simulator_for(recorder: str):

@@ -1,23 +1,24 @@
 """Stage processors: each consumes the channels it understands and emits channels in the same
 data contract. ``replay`` discovers which stages apply from the channels a file holds.
-
-A stage exposes::
-
-    name, input_topics, trackers
-    applies(topics) -> bool
-    design(dataset, overrides) -> dict          # parameters the trackers use
-    run(dataset, trackers, design) -> {tracker: {array name: (runs, scans, ...)}}
-    output_topic(tracker) -> str
-    evaluate(dataset, outputs, design) -> (per_scan, summary)    # polars
-    log_rerun(rec, dataset, outputs, per_scan, run)
-    blueprint(trackers)
+See :class:`pipeline.stages.base.Stage` for the interface.
 """
 
 from __future__ import annotations
 
-from pipeline.stages.radar_tws import RadarTwsStage
+import importlib
 
-STAGES = [RadarTwsStage()]
+STAGE_CLASSES = (
+    "pipeline.stages.radar_tws:RadarTwsStage",
+    # one line per stage: "pipeline.stages.module:ClassName",
+)
+
+
+def _load(spec: str):
+    module, cls = spec.split(":")
+    return getattr(importlib.import_module(module), cls)()
+
+
+STAGES = [_load(s) for s in STAGE_CLASSES]
 
 
 def applicable_stages(topics) -> list:

@@ -17,38 +17,21 @@ from evaluators import radar_tws as radar_eval
 from pipeline.converted_measurements import polar_to_cartesian
 from pipeline.decoupled_tracker import STRATEGIES, TrackerDesign, track_plots
 from pipeline.errors import InputError, require_finite
+from pipeline.stages.base import Stage
 from pipeline.timeline import color, log_path, log_points, log_series
 
 PLOTS = "/radar/plots"
 TRUTH = "/radar/truth"
 
 
-class RadarTwsStage:
+class RadarTwsStage(Stage):
     name = "radar-tws"
     input_topics = (PLOTS,)
     trackers = tuple(STRATEGIES)
     output_prefix = "/tracks/radar/"
+    scenario = "radar-tws"
     design_keys = ("scan_period_s", "design_sigma_v_mps2", "sigma_range_m", "sigma_bearing_deg",
                    "nominal_cross_range_m", "startup_gains")
-
-    def applies(self, topics) -> bool:
-        return PLOTS in topics
-
-    def output_topic(self, tracker: str) -> str:
-        return self.output_prefix + tracker
-
-    def design(self, dataset, overrides: dict | None = None) -> dict:
-        """Design values: the file's scenario record, else the bundled scenario's defaults."""
-        from recorders.scenarios import coerce, load_scenario
-
-        defaults = load_scenario("radar-tws").params
-        recorded = dataset.scenario.get("params", {})
-        out = {k: recorded.get(k, defaults[k]) for k in self.design_keys}
-        for k, v in (overrides or {}).items():
-            if k not in self.design_keys:
-                raise InputError(f"unknown tracker parameter {k!r} (known: {', '.join(self.design_keys)})")
-            out[k] = coerce(k, v, defaults[k])
-        return out
 
     def _plots(self, dataset):
         ch = dataset.channel(PLOTS)
@@ -72,23 +55,6 @@ class RadarTwsStage:
                           startup=bool(design["startup_gains"]))
         outputs = {t: track_plots(rng, brg, counts, times, d, STRATEGIES[t]) for t in trackers}
         return {"times": times, "tracks": outputs}
-
-    def outputs_from_dataset(self, out_dataset) -> dict:
-        """Rebuild :meth:`run`'s result from a replay output file."""
-        tracks, times = {}, None
-        for topic, ch in out_dataset.channels.items():
-            if topic.startswith(self.output_prefix):
-                name = topic[len(self.output_prefix):]
-                tracks[name] = {k: ch.grid(k) for k in ch.arrays}
-                tracks[name]["flags"] = tracks[name]["flags"].astype(np.uint8)
-                times = ch.times()
-        if not tracks:
-            raise InputError(f"no {self.output_prefix}* channels: not a radar replay output", out_dataset.path)
-        return {"times": times, "tracks": tracks}
-
-    def write(self, writer, result: dict) -> None:
-        for name, out in result["tracks"].items():
-            writer.write_grid(self.output_topic(name), result["times"], out)
 
     def evaluate(self, dataset, result: dict, design: dict):
         rng, brg, counts, times = self._plots(dataset)

@@ -1,0 +1,100 @@
+"""What every stage processor shares: naming, output channels and reading them back.
+
+A stage consumes the channels it understands and returns its trackers' outputs as arrays with a
+leading run axis; this base class writes them as batched frames on ``<output_prefix><tracker>``
+and rebuilds them from a replay output file, so ``replay eval data.mcap out.mcap`` works for
+every stage without stage-specific I/O. Subclasses implement :meth:`run`, :meth:`evaluate`,
+:meth:`log_rerun` and :meth:`blueprint`, and set the class attributes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.errors import InputError
+
+
+class Stage:
+    """Base class of stage processors.
+
+    Class attributes
+    ----------------
+    name : str
+        Stage name (also the scenario family it serves).
+    input_topics : tuple of str
+        Channels that must all be present for the stage to apply.
+    trackers : tuple of str
+        Tracker (strategy) names the stage can run.
+    output_prefix : str
+        Output channels are ``output_prefix + tracker``.
+    scenario : str
+        Bundled scenario whose parameters give the design defaults.
+    design_keys : tuple of str
+        Scenario parameters the trackers use (overridable with ``replay FILE --set``).
+    """
+
+    name = ""
+    input_topics: tuple = ()
+    trackers: tuple = ()
+    output_prefix = ""
+    scenario = ""
+    design_keys: tuple = ()
+
+    def applies(self, topics) -> bool:
+        return all(t in topics for t in self.input_topics)
+
+    def output_topic(self, tracker: str) -> str:
+        return self.output_prefix + tracker
+
+    def design(self, dataset, overrides: dict | None = None) -> dict:
+        """Design values: the file's scenario record, else the bundled scenario's defaults."""
+        from recorders.scenarios import coerce, load_scenario
+
+        defaults = load_scenario(self.scenario).params
+        recorded = dataset.scenario.get("params", {})
+        out = {k: recorded.get(k, defaults[k]) for k in self.design_keys}
+        for k, v in (overrides or {}).items():
+            if k not in self.design_keys:
+                raise InputError(f"unknown tracker parameter {k!r} (known: {', '.join(self.design_keys)})")
+            out[k] = coerce(k, v, defaults[k])
+        return out
+
+    # --- outputs: {"times": (scans,), "tracks": {tracker: {array: (runs, scans, ...)}}}
+
+    def write(self, writer, result: dict) -> None:
+        for name, out in result["tracks"].items():
+            writer.write_grid(self.output_topic(name), result["times"], out)
+
+    def outputs_from_dataset(self, out_dataset) -> dict:
+        """Rebuild :meth:`run`'s result from a replay output file."""
+        tracks, times = {}, None
+        for topic, ch in out_dataset.channels.items():
+            if topic.startswith(self.output_prefix):
+                name = topic[len(self.output_prefix):]
+                tracks[name] = {k: ch.grid(k) for k in ch.arrays}
+                if "flags" in tracks[name]:
+                    tracks[name]["flags"] = np.nan_to_num(tracks[name]["flags"]).astype(np.uint8)
+                times = ch.times()
+        if not tracks:
+            raise InputError(f"no {self.output_prefix}* channels: not a {self.name} replay output", out_dataset.path)
+        return {"times": times, "tracks": tracks}
+
+    def report(self, summary, per_scan) -> str:
+        """Optional extra text after the generic metrics table (e.g. a paper's table layout)."""
+        return ""
+
+    # --- to implement
+
+    def run(self, dataset, trackers, design: dict) -> dict:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def evaluate(self, dataset, result: dict, design: dict):  # pragma: no cover - interface
+        """Return ``(per_scan, summary)`` polars tables; summary in long form
+        ``tracker, metric, scope, value``."""
+        raise NotImplementedError
+
+    def log_rerun(self, rec, dataset, result: dict, per_scan, run: int = 0) -> None:  # pragma: no cover
+        raise NotImplementedError
+
+    def blueprint(self, trackers, dataset=None, run: int = 0):  # pragma: no cover - interface
+        raise NotImplementedError
