@@ -34,6 +34,11 @@ class RadarTwsStage(Stage):
                    "nominal_cross_range_m", "startup_gains")
 
     def _plots(self, dataset):
+        if "radar_plots" not in dataset.cache:
+            dataset.cache["radar_plots"] = self._decode_plots(dataset)
+        return dataset.cache["radar_plots"]
+
+    def _decode_plots(self, dataset):
         ch = dataset.channel(PLOTS)
         rng, counts = ch.ragged("range_m")
         brg, _ = ch.ragged("bearing_rad")
