@@ -156,3 +156,16 @@ def test_failed_write_leaves_no_file_and_keeps_old_one(tmp_path):
             raise RuntimeError("crash mid-write")
     assert p.read_bytes() == b"old"
     assert [q.name for q in tmp_path.iterdir()] == ["out.mcap"]
+
+
+def test_other_mcap_tools_read_the_file(radar_small):
+    """`rerun mcap info` (shipped with rerun-sdk) knows nothing of our code and reads the file."""
+    import shutil
+    import subprocess
+    import sys
+
+    exe = shutil.which("rerun")
+    cmd = [exe] if exe else [sys.executable, "-m", "rerun"]
+    out = subprocess.run([*cmd, "mcap", "info", str(radar_small)], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert "Messages" in out.stdout and "3840" in out.stdout
