@@ -68,6 +68,22 @@ def log_path(rec, entity: str, xy: np.ndarray, rgb, width: float = -1.5) -> None
         rec.log(entity, rr.LineStrips2D([xy], colors=[rgb], radii=[width]), static=True)
 
 
+def north_up(rec, entity: str) -> None:
+    """Make ``entity``'s subtree draw with +y up in a 2-D view whose origin is its parent.
+
+    Rerun's 2-D views draw +y downwards (image convention); a y-flip transform on the world
+    entity puts north up while hover still shows the true coordinates.
+    """
+    rec.log(entity, rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
+
+
+def north_up_bounds(lo, hi, pad: float):
+    """Visual bounds of a :func:`north_up` world box ``lo``..``hi`` (x, y) in view coordinates."""
+    import rerun.blueprint as rrb
+
+    return rrb.VisualBounds2D(x_range=[lo[0] - pad, hi[0] + pad], y_range=[-hi[1] - pad, -lo[1] + pad])
+
+
 @contextmanager
 def recording(path: str | Path, app_id: str, recording_id: str, blueprint=None):
     """A recording stream saved to ``path`` atomically when the block ends without error."""

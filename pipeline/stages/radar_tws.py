@@ -18,10 +18,11 @@ from pipeline.converted_measurements import polar_to_cartesian
 from pipeline.decoupled_tracker import STRATEGIES, TrackerDesign, track_plots
 from pipeline.errors import InputError, require_finite
 from pipeline.stages.base import Stage
-from pipeline.timeline import color, log_path, log_points, log_series
+from pipeline.timeline import color, log_path, log_points, log_series, north_up, north_up_bounds
 
 PLOTS = "/radar/plots"
 TRUTH = "/radar/truth"
+XY = "/xy/world"  # under the x/y view's origin, flipped north-up (see timeline.north_up)
 
 
 class RadarTwsStage(Stage):
@@ -89,7 +90,7 @@ class RadarTwsStage(Stage):
             if len(xy):
                 lo, hi = xy.min(axis=0), xy.max(axis=0)
                 pad = 0.08 * float(max(hi - lo)) + 1.0
-                bounds = rrb.VisualBounds2D(x_range=[lo[0] - pad, hi[0] + pad], y_range=[lo[1] - pad, hi[1] + pad])
+                bounds = north_up_bounds(lo, hi, pad)
         hidden = rrb.PlotLegend(visible=False)
         shown = rrb.PlotLegend(corner=rrb.Corner2D.RightTop, visible=True)
         return rrb.Blueprint(
@@ -117,19 +118,20 @@ class RadarTwsStage(Stage):
         rng, brg, counts, _ = self._plots(dataset)
         run = min(run, counts.shape[0] - 1)
         plots_xy = polar_to_cartesian(rng[run], brg[run])
-        log_points(rec, "/xy/plots/current", scans, times,
+        north_up(rec, XY)
+        log_points(rec, f"{XY}/plots/current", scans, times,
                    [plots_xy[k, : counts[run, k]] for k in scans], (250, 250, 250), radius=-4.0)
         history = plots_xy.reshape(-1, 2)
         history = history[np.all(np.isfinite(history), axis=1)]
-        rec.log("/xy/plots/all", rr.Points2D(history, colors=[color("plots")], radii=[-1.5]), static=True)
+        rec.log(f"{XY}/plots/all", rr.Points2D(history, colors=[color("plots")], radii=[-1.5]), static=True)
         truth = dataset.channels.get(TRUTH)
         if truth is not None:
-            log_path(rec, "/xy/truth", truth.grid("state")[run, :, :2], color("truth"))
+            log_path(rec, f"{XY}/truth", truth.grid("state")[run, :, :2], color("truth"))
         for name, out in result["tracks"].items():
             ok = radar_eval.filtered_mask(out["flags"][run])
             xy = np.where(ok[:, None], out["state"][run, :, :2], np.nan)
-            log_path(rec, f"/xy/tracks/{name}/path", xy, color(name))
-            log_points(rec, f"/xy/tracks/{name}/estimate", scans, times,
+            log_path(rec, f"{XY}/tracks/{name}/path", xy, color(name))
+            log_points(rec, f"{XY}/tracks/{name}/estimate", scans, times,
                        [xy[k : k + 1] if ok[k] else np.zeros((0, 2)) for k in scans], color(name), radius=-5.0)
             log_series(rec, f"/gains/alpha_cross/{name}", scans, times, out["alpha"][run, :, 1], name)
             log_series(rec, f"/gains/beta_cross/{name}", scans, times, out["beta"][run, :, 1], name)

@@ -1,0 +1,160 @@
+"""TDOA/FDOA measurement model g(θ) and its analytic Jacobian, for any list of sensor pairs.
+
+Spec ``tdoa-fdoa-gauss-newton.md``, "Measurement model (2-D)" (paper eqs. 1–5 and 9–14).
+Emitter θ = [x, y, ẋ, ẏ] (position p, velocity v); sensors s_i, ṡ_i::
+
+    r_i = ‖p − s_i‖                                  (1)
+    ṙ_i = (v − ṡ_i)ᵀ (p − s_i) / r_i                 (3)
+    τ_k = (r_i − r_j) / c          k = (i, j)        (2)
+    f_k = (f₀ / c) (ṙ_i − ṙ_j)                       (4)
+    g(θ) = [τ₁ … τ_N, f₁ … f_N]                      (5)
+
+Jacobian (eq. 9), derived from the model rather than copied from the paper, whose printed
+∂τ/∂p (eq. 10) has the opposite sign; every entry is tested against central differences::
+
+    ∂r_i/∂p = u_iᵀ,  u_i = (p − s_i)/r_i
+    ∂ṙ_i/∂p = ((v − ṡ_i) − ṙ_i u_i)ᵀ / r_i              (eqs. 12–13, corrected)
+    ∂ṙ_i/∂v = u_iᵀ        ⇒ ∂f/∂v = f₀ ∂τ/∂p           (eq. 14)
+    ∂τ/∂v  = 0                                         (eq. 11)
+
+All functions broadcast over leading axes: θ (..., 4) against sensors (..., M, 2), so one call
+evaluates every Monte Carlo run (or every point of a CEP plane) at once. SI units throughout.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+
+SPEED_OF_LIGHT_MPS = 299_792_458.0
+STATE_NAMES = ("x_m", "y_m", "vx_mps", "vy_mps")
+POSITION = (0, 1)
+VELOCITY = (2, 3)
+#: Which measurement rows each estimator uses.
+MEASUREMENT_KINDS = ("joint", "tdoa", "fdoa")
+
+
+def ranges_and_rates(theta, sensor_pos, sensor_vel):
+    """Ranges r_i, range rates ṙ_i, unit vectors u_i and relative velocities v − ṡ_i.
+
+    Parameters
+    ----------
+    theta : ndarray (..., 4)
+    sensor_pos, sensor_vel : ndarray (..., M, 2)
+
+    Returns
+    -------
+    r, rdot : ndarray (..., M)
+    u, w : ndarray (..., M, 2)
+    """
+    theta = np.asarray(theta, float)
+    d = theta[..., None, :2] - sensor_pos
+    r = np.sqrt(np.sum(d * d, axis=-1))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = d / r[..., None]
+    w = theta[..., None, 2:] - sensor_vel
+    rdot = np.sum(w * u, axis=-1)
+    return r, rdot, u, w
+
+
+def measurement_model(theta, sensor_pos, sensor_vel, pairs, carrier_hz, jacobian: bool = True):
+    """Noise-free TDOA and FDOA of every pair, and optionally the Jacobian ∂g/∂θ.
+
+    Parameters
+    ----------
+    theta : ndarray (..., 4)
+        Emitter state [x, y, ẋ, ẏ] in m and m/s.
+    sensor_pos, sensor_vel : ndarray (..., M, 2)
+        Sensor positions (m) and velocities (m/s), broadcast against ``theta``'s leading axes.
+    pairs : ndarray of int (N, 2)
+        Sensor pairs (i, j); any list, no common reference sensor needed.
+    carrier_hz : float or ndarray (...)
+        Carrier frequency f₀.
+    jacobian : bool
+        Also return H.
+
+    Returns
+    -------
+    g : ndarray (..., 2N)
+        [τ₁ … τ_N (s), f₁ … f_N (Hz)].
+    H : ndarray (..., 2N, 4), only if ``jacobian``
+        Rows in the order of ``g``, columns [x, y, ẋ, ẏ].
+    """
+    pairs = np.asarray(pairs, dtype=np.int64)
+    i, j = pairs[:, 0], pairs[:, 1]
+    c = SPEED_OF_LIGHT_MPS
+    k_f = np.asarray(carrier_hz, float)[..., None] / c
+    r, rdot, u, w = ranges_and_rates(theta, sensor_pos, sensor_vel)
+    tdoa = (r[..., i] - r[..., j]) / c
+    fdoa = k_f * (rdot[..., i] - rdot[..., j])
+    g = np.concatenate([tdoa, fdoa], axis=-1)
+    if not jacobian:
+        return g
+    with np.errstate(divide="ignore", invalid="ignore"):
+        drdot_dp = (w - rdot[..., None] * u) / r[..., None]
+    du = u[..., i, :] - u[..., j, :]
+    n = len(pairs)
+    H = np.zeros(g.shape + (4,))
+    H[..., :n, :2] = du / c
+    H[..., n:, :2] = k_f[..., None] * (drdot_dp[..., i, :] - drdot_dp[..., j, :])
+    H[..., n:, 2:] = k_f[..., None] * du
+    return g, H
+
+
+def measurement_rows(kind: str, n_pairs: int) -> np.ndarray:
+    """Indexes into g of the measurements an estimator uses (``joint``, ``tdoa`` or ``fdoa``)."""
+    if kind == "joint":
+        return np.arange(2 * n_pairs)
+    if kind == "tdoa":
+        return np.arange(n_pairs)
+    if kind == "fdoa":
+        return np.arange(n_pairs, 2 * n_pairs)
+    raise ValueError(f"unknown measurement kind {kind!r} (have: {', '.join(MEASUREMENT_KINDS)})")
+
+
+def unknowns(kind: str, stationary: bool) -> np.ndarray:
+    """State components an estimator solves for.
+
+    TDOA does not depend on velocity, so TDOA-only estimates position only; a stationary
+    emitter (velocity known to be zero, the paper's Fig. 7) has position unknowns only.
+    """
+    if stationary or kind == "tdoa":
+        return np.array(POSITION)
+    return np.arange(4)
+
+
+def independent_differences(pairs, n_sensors: int) -> int:
+    """How many of the pair differences (r_i − r_j) are linearly independent.
+
+    The differences of a pair list are the edges of a graph on the sensors; their span has
+    dimension (sensors touched) − (connected components). Three sensors with pairs a–b, b–c,
+    a–c give 2: τ_ac = τ_ab + τ_bc. The same count holds for FDOA.
+    """
+    parent = list(range(n_sensors))
+
+    def find(a):
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    touched = set()
+    for a, b in np.asarray(pairs, dtype=np.int64):
+        touched.update((int(a), int(b)))
+        ra, rb = find(int(a)), find(int(b))
+        if ra != rb:
+            parent[ra] = rb
+    components = len({find(a) for a in touched})
+    return len(touched) - components
+
+
+def independent_equations(kind: str, pairs, n_sensors: int) -> int:
+    """Independent scalar equations an estimator gets per epoch (structurally, any geometry)."""
+    per_type = independent_differences(pairs, n_sensors)
+    return 2 * per_type if kind == "joint" else per_type
+
+
+def all_pairs(n_sensors: int) -> np.ndarray:
+    """Every pair (i < j) of ``n_sensors`` sensors."""
+    return np.array(list(itertools.combinations(range(n_sensors), 2)), dtype=np.int64).reshape(-1, 2)
