@@ -189,31 +189,53 @@ def run_cmd(data, trackers, out_path, rrd_path, no_rrd, spawn, recover, sets, re
 # --------------------------------------------------------------------------- simulate / convert
 
 
-@main.command("simulate")
+def _parameter_options(args) -> dict:
+    """Extra ``--name value`` / ``--name=value`` options of ``simulate`` → scenario overrides
+    (``--emitter-velocity-mps`` names ``emitter_velocity_mps``), exactly like ``--set name=value``."""
+    out, i = {}, 0
+    while i < len(args):
+        arg = args[i]
+        if not arg.startswith("--") or arg == "--":
+            raise InputError(f"unexpected argument {arg!r} (scenario parameters go as --name value or --set name=value)")
+        name, eq, value = arg[2:].partition("=")
+        if not eq:
+            if i + 1 >= len(args) or args[i + 1].startswith("--"):
+                raise InputError(f"option --{name} needs a value")
+            value, i = args[i + 1], i + 1
+        out[name.replace("-", "_")] = value
+        i += 1
+    return out
+
+
+@main.command("simulate", context_settings={"ignore_unknown_options": True, "allow_extra_args": True})
 @click.argument("scenario")
 @click.option("--runs", default=100, show_default=True, type=click.IntRange(min=1), help="Monte Carlo runs.")
 @click.option("--seed", default=0, show_default=True, type=int, help="Random seed (same seed, same bytes).")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--set", "sets", multiple=True, metavar="NAME=VALUE", help="Override a scenario parameter.")
-def simulate_cmd(scenario, runs, seed, output, sets):
+@click.pass_context
+def simulate_cmd(ctx, scenario, runs, seed, output, sets):
     """Simulate a scenario (a name from data/scenarios/ or a TOML path) into an MCAP file.
+
+    Any scenario parameter also works as an option: --name value means --set name=value.
 
     \b
     Example:
       replay simulate radar-tws --runs 500 --seed 7 -o radar.mcap --set sigma_bearing_deg=0.5
+      replay simulate tdoa-fdoa --geometry line --emitter 1 --runs 1000 -o emitter.mcap
     """
     from recorders import recorder_module
     from recorders.scenarios import load_scenario, parse_assignments
     from recorders.simulated import write_simulated
     from pipeline.contract import scenario_metadata
 
-    sc = load_scenario(scenario).with_overrides(parse_assignments(sets))
+    sc = load_scenario(scenario).with_overrides({**_parameter_options(ctx.args), **parse_assignments(sets)})
     rec = recorder_module(sc.recorder)
     t0 = time.perf_counter()
     data = rec.simulate(sc.params, runs, seed)
     with click.progressbar(length=len(data.times), label=f"writing {output.name}", file=sys.stderr) as bar:
         n = write_simulated(output, data, scenario_metadata(sc.name, sc.params, seed), bar.update)
-    click.echo(f"wrote {output}: {n} messages, {runs} runs × {len(data.times)} scans, seed {seed} "
+    click.echo(f"wrote {output}: {n} messages, {data.n_runs} runs × {len(data.times)} scans, seed {seed} "
                f"({time.perf_counter() - t0:.2f} s)")
 
 
@@ -409,6 +431,10 @@ def view_cmd(rrd, png, size):
 # Paper-specific commands (e.g. `replay crlb`) live next to their paper's code; each module
 # listed here exposes COMMANDS, a list of click commands added to `replay`.
 EXTENSION_MODULES: tuple[str, ...] = (
+    "pipeline.cli_emitter",
+    "pipeline.cli_colored_noise",
+    "pipeline.cli_xcorr",
+    "pipeline.cli_array",
     # one line per module: "pipeline.cli_<paper>",
 )
 

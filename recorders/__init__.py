@@ -13,6 +13,11 @@ from pipeline.errors import InputError
 
 RECORDERS = {
     "radar-tws": "recorders.radar_tws",
+    "xcorr-peaks": "recorders.xcorr_peaks",
+    "xcorr-signals": "recorders.xcorr_signals",
+    "array-snapshots": "recorders.array_snapshots",
+    "colored-noise": "recorders.colored_noise",
+    "tdoa-fdoa": "recorders.tdoa_fdoa",
     # one line per recorder: "name": "recorders.module",
 }
 

@@ -54,7 +54,17 @@ class Scenario:
 
 
 def coerce(key: str, raw, default):
-    """Parse ``raw`` (string or number) to the type of ``default``."""
+    """Parse ``raw`` (string or number) to the type of ``default``.
+
+    List parameters take comma-separated values (``snr_db=0,5,10``), each parsed to the type
+    of the default's elements (float when the default is empty).
+    """
+    if isinstance(default, list):
+        items = raw if isinstance(raw, (list, tuple)) else [v for v in str(raw).split(",") if v.strip() != ""]
+        if not items:
+            raise InputError(f"parameter {key!r} has an empty value list")
+        element = default[0] if default else 0.0
+        return [coerce(key, v, element) for v in items]
     if not isinstance(raw, str):
         value = raw
     else:

@@ -9,6 +9,10 @@ import importlib
 
 STAGE_CLASSES = (
     "pipeline.stages.radar_tws:RadarTwsStage",
+    "pipeline.stages.bearing_peaks:BearingPeaksStage",
+    "pipeline.stages.array_bearing:ArrayBearingStage",
+    "pipeline.stages.emitter_localisation:EmitterLocalisationStage",
+    "pipeline.stages.colored_noise_imm:ColoredNoiseImmStage",
     # one line per stage: "pipeline.stages.module:ClassName",
 )
 

@@ -1,0 +1,49 @@
+"""``replay convert array-wav``: a multichannel WAV array recording → snapshot channels.
+
+Registered under the existing ``replay convert`` group (this module is listed in
+``pipeline.cli.EXTENSION_MODULES``; it adds no top-level command).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+COMMANDS: list = []  # defined first: importing pipeline.cli below may re-enter this module
+
+
+@click.command("array-wav")
+@click.argument("wav_path", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--spacing-m", required=True, type=float, help="Sensor spacing d (m); channel 1 is sensor 1.")
+@click.option("--frequency-hz", required=True, type=float, help="Narrowband frequency; the nearest STFT bin is used.")
+@click.option("--sound-speed-mps", default=343.0, show_default=True, type=float, help="Propagation speed c.")
+@click.option("--nfft", default=512, show_default=True, type=int, help="STFT window length (samples, Hann).")
+@click.option("--hop", type=int, help="STFT hop (samples; default nfft/2).")
+@click.option("--snapshots-per-scan", default=30, show_default=True, type=int, help="STFT frames grouped into one scan (Ns).")
+@click.option("--complex128", "wide", is_flag=True, help="Store complex128 snapshots (default complex64).")
+def array_wav_cmd(wav_path, output, spacing_m, frequency_hz, sound_speed_mps, nfft, hop, snapshots_per_scan, wide):
+    """Multichannel WAV (uniform linear array) → /array/snapshots, ready for `replay`.
+
+    \b
+    Example:
+      replay convert array-wav array.wav -o rec.mcap --spacing-m 0.04 --frequency-hz 2000
+      replay rec.mcap --set n_sources=2
+    """
+    from recorders.wav_array import convert_array_wav
+
+    info = convert_array_wav(wav_path, output, spacing_m, frequency_hz, sound_speed_mps, nfft, hop,
+                             snapshots_per_scan, "complex128" if wide else "complex64")
+    click.echo(f"wrote {output}: {info['scans']} scans × {info['sensors']} sensors × {snapshots_per_scan} snapshots "
+               f"at {info['bin_hz']:.1f} Hz (d = {info['spacing_wavelengths']:.3f} λ, T = {info['scan_period_s']:.3f} s)")
+
+
+def _register() -> None:
+    from pipeline import cli
+
+    if "array-wav" not in cli.convert_group.commands:
+        cli.convert_group.add_command(array_wav_cmd)
+
+
+_register()

@@ -1,0 +1,213 @@
+"""``replay fit-peaks``: fit the cross-correlation peak model (λV, σ_p, ẑ_a, σ_a, α) to a data set."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+import numpy as np
+
+from pipeline.errors import InputError
+
+PAPER = {"strong": {"clutter_per_gate": 2.0, "amplitude_mean": 21000.0, "amplitude_std": 2500.0, "sigma_p_deg": 1.3},
+         "weak": {"clutter_per_gate": 3.0, "amplitude_mean": 12000.0, "amplitude_std": 3500.0, "sigma_p_deg": 1.8},
+         "background": {"clutter_per_gate": 2.0, "clutter_alpha": 4e-4}}
+
+
+def reference_bearings(dataset, reference: str):
+    """Reference bearings ``(R, K, T)``: the truth, or a tracker's estimates (as the paper's PDA tracks)."""
+    from pipeline.stages.bearing_peaks import TRUTH, BearingPeaksStage
+
+    truth = dataset.channels.get(TRUTH)
+    if reference == "auto":
+        reference = "truth" if truth is not None and "bearing_rad" in truth.arrays else "jpda_a"
+    if reference == "truth":
+        if truth is None or "bearing_rad" not in truth.arrays:
+            raise InputError(f"no {TRUTH} channel: use --reference jpda_a (tracker estimates)", dataset.path)
+        return truth.grid("bearing_rad"), reference
+    stage = BearingPeaksStage()
+    overrides = {} if truth is not None else {"track_start": "two-point"}
+    design = stage.design(dataset, overrides)
+    out = stage.run(dataset, [reference], design)["tracks"][reference]
+    return out["state"][..., 0], reference
+
+
+def fit_dataset(path, reference: str = "auto", gate_deg: float | None = None, threshold: float = 0.0):
+    """Read a peak data set and fit the model; returns ``(PeakModelFit, roles)``."""
+    from pipeline.contract import read_dataset
+    from pipeline.peak_model_fit import fit_peak_model
+    from pipeline.stages.bearing_peaks import read_peaks
+
+    ds = read_dataset(path)
+    peaks = read_peaks(ds)
+    params = ds.scenario.get("params", {})
+    gate = float(np.deg2rad(gate_deg if gate_deg is not None else params.get("gate_deg", 10.0)))
+    if not gate > 0:
+        raise InputError("--gate-deg must be > 0")
+    ref, name = reference_bearings(ds, reference)
+    field = (np.deg2rad(float(params.get("field_min_deg", 0.0))), np.deg2rad(float(params.get("field_max_deg", 180.0))))
+    fit = fit_peak_model(peaks["bearing"], peaks["amplitude"], peaks["run"], peaks["scan"], ref, gate, threshold,
+                         field, name)
+    pair = str(params.get("pair", "strong-weak")).split("-")
+    roles = pair if len(pair) == len(fit.tracks) else [f"track{t}" for t in range(len(fit.tracks))]
+    return fit, roles
+
+
+def format_fit(fit, roles) -> str:
+    lines = [f"peak model fitted in gates of V = {fit.gate_deg:g}° around the {fit.reference} bearings, "
+             f"amplitude threshold {fit.threshold:g} (± one standard error)",
+             f"{'':<12} {'λV':>14} {'σ_p (°)':>16} {'ẑ_a':>18} {'σ_a':>16} {'α (clutter)':>20} {'P_D':>14} {'gates':>7}"]
+    for role, tf in zip(roles, fit.tracks):
+        v, e = tf.values, tf.stderr
+        lines.append(f"{role:<12} {v['clutter_per_gate']:>7.3f} ± {e['clutter_per_gate']:<5.3f}"
+                     f"{v['sigma_p_deg']:>8.3f} ± {e['sigma_p_deg']:<6.3f}"
+                     f"{v['amplitude_mean']:>9.0f} ± {e['amplitude_mean']:<6.0f}"
+                     f"{v['amplitude_std']:>8.0f} ± {e['amplitude_std']:<5.0f}"
+                     f"{v['clutter_alpha']:>11.3e} ± {e['clutter_alpha']:<8.1e}"
+                     f"{v['detection_probability']:>6.3f} ± {e['detection_probability']:<5.3f}{tf.gates:>7d}")
+    bg = fit.background
+    if bg is not None:
+        lines.append(f"{'background':<12} {bg.clutter_per_gate:>7.3f}{'':<41}{'':<25}{bg.clutter_alpha:>11.3e}"
+                     f"{'':<25}{bg.gates:>7d}")
+        lines.append(f"model checks (background): count variance/mean {bg.count_dispersion:.3f} (Poisson: 1), "
+                     f"KS p-value positions uniform {bg.uniform_ks_pvalue:.3g}, amplitudes exponential "
+                     f"{bg.exponential_ks_pvalue:.3g}")
+    lines += [f"note: {n}" for n in fit.notes]
+    lines.append("paper (sea trial): strong λV 2, ẑ_a 21000, σ_a 2500, σ_p 1.3°; weak λV 3, ẑ_a 12000, σ_a 3500, "
+                 "σ_p 1.8°; background λV 2, α 4e-4")
+    sets = []
+    for role, tf in zip(roles, fit.tracks):
+        if role in ("strong", "weak"):
+            v = tf.values
+            sets += [f"{role}_clutter_per_gate={v['clutter_per_gate']:.3g}", f"{role}_amplitude_mean={v['amplitude_mean']:.5g}",
+                     f"{role}_amplitude_std={v['amplitude_std']:.4g}", f"{role}_sigma_p_deg={v['sigma_p_deg']:.3g}"]
+    if bg is not None:
+        sets += [f"background_clutter_per_gate={bg.clutter_per_gate:.3g}", f"clutter_alpha={bg.clutter_alpha:.3g}"]
+    if sets:
+        lines.append("calibrate the simulator: replay simulate xcorr-crossing " + " ".join(f"--set {s}" for s in sets) + " -o sim.mcap")
+    return "\n".join(lines)
+
+
+def fit_records(fit, roles) -> list[dict]:
+    recs = []
+    for role, tf in zip(roles, fit.tracks):
+        for k, v in tf.values.items():
+            recs.append({"track": role, "parameter": k, "value": v, "stderr": tf.stderr[k], "gates": tf.gates})
+    if fit.background is not None:
+        bg = fit.background
+        for k in ("clutter_per_gate", "clutter_alpha", "count_dispersion", "uniform_ks_pvalue", "exponential_ks_pvalue"):
+            recs.append({"track": "background", "parameter": k, "value": getattr(bg, k), "stderr": None, "gates": bg.gates})
+    return recs
+
+
+@click.command("fit-peaks")
+@click.argument("data", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--reference", type=click.Choice(["auto", "truth", "jpda", "jpda_a"]), default="auto", show_default=True,
+              help="Gate centres: the truth bearings, or a tracker's estimates (auto: truth if the file has it).")
+@click.option("--gate-deg", type=float, help="Gate width V in degrees (default: the file's gate_deg, else 10).")
+@click.option("--threshold", type=float, default=0.0, show_default=True, help="Amplitude threshold before fitting.")
+@click.option("--json", "as_json", is_flag=True, help="Print records {track, parameter, value, stderr, gates}.")
+def fit_peaks_cmd(data, reference, gate_deg, threshold, as_json):
+    """Fit the paper's peak model (λV, σ_p, ẑ_a, σ_a, α, P_D) to a peak data set and print it.
+
+    Peaks within half a gate of each reference bearing are a mixture of at most one true peak
+    (Gaussian position and amplitude) and Poisson clutter (uniform position, exponential
+    amplitude); the fit is maximum likelihood over that mixture. The last line is a
+    `replay simulate` command that makes artificial data with the fitted values.
+
+    \b
+    Example:
+      replay simulate xcorr-signals --runs 20 --seed 1 -o sig.mcap
+      replay fit-peaks sig.mcap
+      replay fit-peaks recorded.mcap --reference jpda_a --threshold 0 --json
+    """
+    fit, roles = fit_dataset(data, reference, gate_deg, threshold)
+    if as_json:
+        click.echo(json.dumps(fit_records(fit, roles)))
+    else:
+        click.echo(format_fit(fit, roles))
+
+
+def association_table(table, swept: list[str]):
+    """Fig. 8 rows from a sweep table: one row per grid point and tracker, success/swap/loss."""
+    import polars as pl
+
+    wide = table.pivot(on="metric", index=[*swept, "tracker"], values="value", aggregate_function="first")
+    if "success_rate" not in wide.columns:
+        raise InputError("the sweep has no success_rate metric (needs /xcorr/truth): not an xcorr-peaks study")
+    return wide.select(*swept, "tracker", "success_rate", "success_rate_stderr", "swap_rate", "loss_rate", "runs").sort(
+        [*swept[1:], swept[0], "tracker"])
+
+
+def plot_association(panels, path: Path) -> Path:
+    """Success rate vs the swept parameter, one panel per study, one line per tracker (± 1.96 SE)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from pipeline.contract import atomic_output
+
+    fig, axes = plt.subplots(1, len(panels), figsize=(5.5 * len(panels), 3.8), squeeze=False)
+    for ax, (title, rows, swept) in zip(axes[0], panels):
+        x = swept[0]
+        keys = ["tracker", *swept[1:]]
+        for key, part in rows.group_by(keys, maintain_order=True):
+            label = " ".join(f"{k}={v}" if k != "tracker" else str(v) for k, v in zip(keys, key))
+            part = part.sort(x)
+            ax.errorbar(part[x].to_numpy(), 100 * part["success_rate"].to_numpy(),
+                        yerr=196 * part["success_rate_stderr"].to_numpy(), marker="o", capsize=3, label=label)
+        ax.set_xlabel(x)
+        ax.set_ylabel("success (%)")
+        ax.set_ylim(0, 100)
+        ax.grid(alpha=0.3)
+        ax.set_title(title, fontsize="medium")
+        ax.legend(fontsize="small")
+    fig.suptitle("track-association success, JPDA vs JPDA_A (cf. Park, Ryu & Lee 1994, Fig. 8)")
+    fig.tight_layout()
+    with atomic_output(path) as f:
+        fig.savefig(f, format="png", dpi=110)
+    plt.close(fig)
+    return path
+
+
+@click.command("association-table")
+@click.argument("studies", nargs=-1, required=True, type=click.Path(file_okay=False, path_type=Path))
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path),
+              help="The figure (default: fig8.png in the first study folder).")
+def association_table_cmd(studies, output):
+    """Print the Fig. 8 table (success / swap / loss per grid point) of xcorr sweeps and plot it.
+
+    One panel per study folder written by `replay sweep` (e.g. one crossing, one maneuver).
+
+    \b
+    Example:
+      replay sweep xcorr-crossing --param crossing_angle_deg=2,5,10,20,30 --runs 100 -o crossing/
+      replay sweep xcorr-maneuver --param min_distance_deg=0.5,1,2,4,8 --runs 100 -o maneuver/
+      replay association-table crossing/ maneuver/
+    """
+    import polars as pl
+
+    panels = []
+    for study in studies:
+        table_path, spec_path = study / "sweep.parquet", study / "sweep.json"
+        if not table_path.exists() or not spec_path.exists():
+            raise InputError("not a sweep folder (no sweep.parquet / sweep.json)", study)
+        spec = json.loads(spec_path.read_text())
+        swept = list(spec.get("params", {}))
+        rows = association_table(pl.read_parquet(table_path), swept)
+        click.echo(f"{spec.get('scenario', study)} ({study}); success = every track ends on its own target and was "
+                   "never on another; ± 1.96 SE")
+        click.echo(f"{'  '.join(f'{s:>18}' for s in swept)} {'tracker':<8} {'success %':>14} {'swap %':>7} {'loss %':>7} {'runs':>5}")
+        for r in rows.iter_rows(named=True):
+            click.echo(f"{'  '.join(f'{r[s]!s:>18}' for s in swept)} {r['tracker']:<8} "
+                       f"{100 * r['success_rate']:>6.1f} ± {196 * r['success_rate_stderr']:>4.1f} "
+                       f"{100 * r['swap_rate']:>7.1f} {100 * r['loss_rate']:>7.1f} {int(r['runs']):>5d}")
+        click.echo("")
+        panels.append((str(spec.get("scenario", study)), rows, swept))
+    path = plot_association(panels, output or studies[0] / "fig8.png")
+    click.echo(f"figure: {path}")
+
+
+COMMANDS = [fit_peaks_cmd, association_table_cmd]

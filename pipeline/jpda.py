@@ -1,0 +1,508 @@
+"""JPDA and amplitude-aided JPDA_A for bearing tracks of cross-correlation peaks.
+
+Spec: ``shared/spec/xcorr-peaks-jpda.md`` (Park, Ryu & Lee 1994, appendix eqs. A.1–A.7; JPDA of
+Fortmann, Bar-Shalom & Scheffe 1983). One core, batched over a leading Monte Carlo run axis:
+
+* motion: state ``[θ, θ̇]`` (rad, rad/s), continuous white-noise acceleration
+  ``Q' = q [[T³/3, T²/2], [T²/2, T]]`` (eq. 8b), two-point start ``P(0|0) = [[σ², σ²/T],
+  [σ²/T, 2σ²/T²]]`` (eq. 8c with T = 1); predict/gain through :mod:`pipeline.kalman`;
+* gating: a window of width V (``|ν| ≤ V/2``) around each predicted bearing, after the
+  amplitude threshold; ``P_G = erf(V / (2√(2S)))``;
+* event likelihoods (eq. A.5) as per-pair *likelihood ratios* against clutter: a peak j
+  assigned to track t contributes ``r_tj = P_D N(ν_tj; 0, S_t) / λ`` times, for JPDA_A, the
+  pluggable amplitude term ``N(z_a; ẑ_a, σ_a²) / (α e^{−α z_a})`` (both densities conditioned
+  on ``z_a ≥`` threshold); a missed track contributes ``1 − P_D P_G``; clutter peaks contribute
+  1 (their ``λ V⁻¹ α e^{−α z_a}`` factor is common to all events and cancels);
+* exact marginals β_j^t (eq. A.6) without enumerating joint events: a forward–backward
+  recursion over the peaks whose state is the *set of tracks already assigned* (an
+  EHM-style net, transposed: nodes keyed by used tracks instead of used measurements). Cost
+  O(m · s · 2^s) for s tracks and m peaks of a cluster, i.e. linear in the number of peaks;
+  the number of joint events it sums is exponential in both;
+* track clustering: tracks sharing a gated peak, transitively, form a cluster; clusters are
+  solved independently (exact, since the joint-event sum factorises over clusters) and all
+  clusters of the same size across runs go through one batched recursion;
+* clusters of more than ``max_cluster_tracks`` tracks (default 12, i.e. 4096 states per peak)
+  are cut, in bearing order, into groups of at most that many tracks, each solved exactly but
+  blind to the others (a peak may then be shared across a cut): approximate, and flagged with
+  :data:`FLAG_CLUSTER_SPLIT`. Peaks cost linear time and the recursion is run in batches of
+  bounded memory, so hundreds of peaks per scan stay cheap;
+* PDA update per track (eq. A.7): combined innovation, covariance with the spread term;
+* optional amplitude tracking (eq. 9): ``ẑ_a(k) = 0.7 ẑ_a(k−1) + 0.3 max_j z_a`` over the
+  peaks in the track's gate (unchanged when the gate is empty).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+from scipy.special import erf, ndtr
+
+from pipeline.kalman import apply_gain, kalman_gain, kf_predict
+
+FLAG_INITIALISING = 1   # before the track start
+FLAG_NO_GATED_PEAK = 2  # coasted: no peak in the gate
+FLAG_CLUSTER_SPLIT = 4  # the track's cluster exceeded max_cluster_tracks (approximate β)
+MEMORY_BUDGET_FLOATS = 1 << 22  # forward table of one recursion batch (32 MB)
+TOP_WEIGHTS = 3
+MATRIX_FORM_TRACKS = 6  # clusters up to this size use the transfer-matrix form (≤ 64×64)
+JOINT_WITHOUT_CLUSTERING = 4  # up to this many tracks the joint recursion beats clustering bookkeeping
+COMPRESS_PEAKS = 8  # with more peaks per scan, drop the ones outside every gate first
+
+
+# --------------------------------------------------------------------------- design
+
+
+@dataclass(frozen=True)
+class AssociationStrategy:
+    """A named variant of the one JPDA core: which likelihood terms enter the events."""
+
+    name: str
+    amplitude: bool
+
+
+STRATEGIES = {
+    "jpda": AssociationStrategy("jpda", amplitude=False),
+    "jpda_a": AssociationStrategy("jpda_a", amplitude=True),
+}
+
+
+@dataclass(frozen=True)
+class BearingTrackerDesign:
+    """Filter parameters (SI units, radians). Per-track arrays have one entry per track."""
+
+    scan_period_s: float
+    gate_rad: float
+    q_rad2: float  # spectral density of the bearing acceleration, rad²/s³
+    amplitude_threshold: float
+    detection_probability: float
+    clutter_per_gate: float  # λV before the threshold
+    clutter_alpha: float
+    sigma_p_rad: np.ndarray
+    strength: np.ndarray
+    sigma_a: np.ndarray
+    amplitude_tracking: bool = False
+    initial_strength: float = 15000.0
+    tracked_sigma_a: float = 3500.0
+    max_cluster_tracks: int = 12
+
+    @property
+    def clutter_density(self) -> float:
+        """λ of peaks above the threshold, per radian (exponential amplitudes: e^{−ατ} survive)."""
+        return self.clutter_per_gate / self.gate_rad * np.exp(-self.clutter_alpha * self.amplitude_threshold)
+
+
+def bearing_motion_model(dt: float, q: float):
+    """``F = [[1, T], [0, 1]]`` and the continuous white-noise acceleration ``Q`` (eq. 8b)."""
+    F = np.array([[1.0, dt], [0.0, 1.0]])
+    Q = q * np.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]])
+    return F, Q
+
+
+def two_point_start(z0: np.ndarray, z1: np.ndarray, dt: float, sigma_p: np.ndarray):
+    """State and covariance from two bearings one scan apart (eq. 8c for T = 1).
+
+    Returns
+    -------
+    x : ndarray (..., 2)
+    P : ndarray (..., 2, 2)
+    """
+    x = np.stack([z1, (z1 - z0) / dt], axis=-1)
+    s2 = np.broadcast_to(np.asarray(sigma_p, float) ** 2, x.shape[:-1])
+    P = np.stack([np.stack([s2, s2 / dt], -1), np.stack([s2 / dt, 2 * s2 / dt**2], -1)], -2)
+    return x, P
+
+
+# --------------------------------------------------------------------------- likelihood terms
+
+
+def window_gate_probability(S: np.ndarray, gate: float) -> np.ndarray:
+    """P_G of a window ``|ν| ≤ V/2`` for a Gaussian innovation of variance S."""
+    return erf(gate / (2.0 * np.sqrt(2.0 * S)))
+
+
+def position_likelihood_ratio(innovation: np.ndarray, S: np.ndarray, detection_probability,
+                              clutter_density: float) -> np.ndarray:
+    """``P_D N(ν; 0, S) / λ`` per track and peak; ``innovation`` (…, T, m), ``S`` (…, T)."""
+    S = S[..., None]
+    pdf = np.exp(-0.5 * innovation * innovation / S) / np.sqrt(2.0 * np.pi * S)
+    return np.asarray(detection_probability)[..., None] * pdf / clutter_density
+
+
+def amplitude_likelihood_ratio(amplitude: np.ndarray, strength: np.ndarray, sigma_a: np.ndarray,
+                               alpha: float, threshold: float):
+    """The JPDA_A term: true-peak over clutter amplitude density, both above the threshold.
+
+    ``N(z_a; ẑ_a, σ_a²)/Φ((ẑ_a − τ)/σ_a)`` over ``α e^{−α (z_a − τ)}``, computed in logs so
+    that strong peaks far in the exponential's tail stay finite.
+
+    Returns
+    -------
+    ratio : ndarray (…, T, m)
+    detection_factor : ndarray (…, T)
+        ``Φ((ẑ_a − τ)/σ_a)``: the chance that a true peak clears the threshold.
+    """
+    strength = np.asarray(strength, float)[..., None]
+    sigma_a = np.asarray(sigma_a, float)[..., None]
+    z = amplitude[..., None, :]
+    survive = ndtr((strength - threshold) / sigma_a)
+    log_true = (-0.5 * ((z - strength) / sigma_a) ** 2 - np.log(np.sqrt(2 * np.pi) * sigma_a)
+                - np.log(np.maximum(survive, 1e-300)))
+    log_clutter = np.log(alpha) - alpha * (z - threshold)
+    with np.errstate(over="ignore"):
+        ratio = np.exp(np.minimum(log_true - log_clutter, 700.0))
+    return ratio, survive[..., 0]
+
+
+# --------------------------------------------------------------------------- joint events
+
+
+def association_marginals(ratio: np.ndarray, miss: np.ndarray):
+    """Exact JPDA marginals of one batch of clusters of the same size (eq. A.6).
+
+    Every joint event assigns each track either one peak or none, each peak to at most one
+    track; its weight is ``Π_{t→j} ratio[t, j] · Π_{t missed} miss[t]``. The sum over events is
+    built peak by peak: ``F_j(A)`` is the weight of all ways to assign peaks 1…j to exactly the
+    track set A, ``B_j(A)`` the weight of all completions with peaks j+1…m given A, so
+    ``β[t, j] = ratio[t, j] Σ_{A ∌ t} F_{j−1}(A) B_j(A ∪ {t}) / Z``. In matrix form peak j is a
+    transfer matrix ``M_j = I + Σ_t ratio[t, j] E_t`` over the 2^s track sets (``E_t`` adds
+    track t), ``F_j = F_{j−1} M_j`` and ``B_{j−1} = M_j B_j``; small clusters use that form
+    (one batched product per peak), larger ones update the 2^s states track by track.
+
+    Parameters
+    ----------
+    ratio : ndarray (B, s, m)
+        Likelihood ratio of peak j against clutter for track t (0 where not gated).
+    miss : ndarray (B, s)
+        Weight of the track having no peak (``1 − P_D P_G``).
+
+    Returns
+    -------
+    beta : ndarray (B, s, m)
+        ``β_j^t``.
+    beta0 : ndarray (B, s)
+        ``β_0^t`` (no peak from track t); ``beta0 + beta.sum(-1) == 1``.
+    """
+    B, s, m = ratio.shape
+    if B == 0 or s == 0:
+        return np.zeros((B, s, m)), np.ones((B, s))
+    n_states = 1 << s
+    chunk = max(1, MEMORY_BUDGET_FLOATS // ((m + 1) * n_states * (n_states if s <= MATRIX_FORM_TRACKS else 1)))
+    if B > chunk:
+        beta, beta0 = np.zeros((B, s, m)), np.ones((B, s))
+        for lo in range(0, B, chunk):
+            beta[lo:lo + chunk], beta0[lo:lo + chunk] = association_marginals(ratio[lo:lo + chunk], miss[lo:lo + chunk])
+        return beta, beta0
+    # Scaling a track's row (its ratios and its miss weight) by one constant scales every
+    # event by the same factor, so β is unchanged; with all factors ≤ 1 nothing overflows.
+    scale = np.maximum(miss, ratio.max(axis=2, initial=0.0))
+    scale = np.where(scale > 0, scale, 1.0)
+    r = ratio / scale[..., None]
+    m0 = miss / scale
+    bits = _state_bits(s)  # (states, s)
+    end = np.prod(np.where(bits[None], 1.0, m0[:, None, :]), axis=2)  # tracks left unassigned miss
+    F = np.empty((m + 1, B, n_states))
+    back = np.empty((m + 1, B, n_states))
+    F[0] = 0.0
+    F[0, :, 0] = 1.0
+    back[m] = end
+    if s <= MATRIX_FORM_TRACKS:
+        E = _adders(s)  # (s, states, states)
+        M = np.einsum("btj,tik->jbik", r, E)
+        M += np.eye(n_states)
+        # forward rows F_j = F_{j−1} M_j and backward rows B_{j−1}ᵀ = B_jᵀ M_jᵀ in one product per step
+        both = np.concatenate([M, np.swapaxes(M[::-1], -1, -2)], axis=1)  # (m, 2B, n, n)
+        rows = np.concatenate([F[0], back[m]])[:, None, :]
+        for j in range(m):
+            rows = np.matmul(rows, both[j])
+            F[j + 1], back[m - 1 - j] = rows[:B, 0], rows[B:, 0]
+        added = np.einsum("tik,jbk->jbti", E, back[1:])  # B_j(A ∪ {t}) for A ∌ t, else 0
+        beta = r * np.einsum("jbi,jbti->btj", F[:m], added)
+    else:
+        with_t = [np.flatnonzero(bits[:, t]) for t in range(s)]
+        without_t = [w ^ (1 << t) for t, w in enumerate(with_t)]
+        for j in range(m):
+            F[j + 1] = F[j]
+            for t in range(s):
+                F[j + 1][:, with_t[t]] += F[j][:, without_t[t]] * r[:, t, j, None]
+        beta = np.empty((B, s, m))
+        for j in range(m - 1, -1, -1):
+            back[j] = back[j + 1]
+            for t in range(s):
+                beta[:, t, j] = r[:, t, j] * np.einsum("bi,bi->b", F[j][:, without_t[t]], back[j + 1][:, with_t[t]])
+                back[j][:, without_t[t]] += r[:, t, j, None] * back[j + 1][:, with_t[t]]
+    Z = back[0][:, 0]
+    beta0 = np.einsum("bi,is->bs", F[m] * end, ~bits)
+    ok = Z > 0
+    Zs = np.where(ok, Z, 1.0)
+    beta = np.where(ok[:, None, None], beta / Zs[:, None, None], 0.0)
+    beta0 = np.where(ok[:, None], beta0 / Zs[:, None], 1.0)
+    return beta, beta0
+
+
+@lru_cache(maxsize=None)
+def _state_bits(s: int) -> np.ndarray:
+    """``bits[A, t]``: whether track t is in the track set with index A (a bitmask)."""
+    return ((np.arange(1 << s)[:, None] >> np.arange(s)) & 1).astype(bool)
+
+
+@lru_cache(maxsize=None)
+def _adders(s: int) -> np.ndarray:
+    """``E[t, A, A ∪ {t}] = 1`` for every track set A without t."""
+    n = 1 << s
+    E = np.zeros((s, n, n))
+    for t in range(s):
+        A = np.flatnonzero(~_state_bits(s)[:, t])
+        E[t, A, A | (1 << t)] = 1.0
+    return E
+
+
+def cluster_tracks(gated: np.ndarray) -> np.ndarray:
+    """Connected components of the tracks-share-a-gated-peak graph.
+
+    Parameters
+    ----------
+    gated : ndarray of bool (R, T, m)
+
+    Returns
+    -------
+    labels : ndarray of int (R, T)
+        The smallest track index of each track's cluster.
+    """
+    R, T, _ = gated.shape
+    g = gated.astype(np.float64)
+    reach = (g @ np.swapaxes(g, 1, 2) > 0) | np.eye(T, dtype=bool)
+    for _ in range(int(np.ceil(np.log2(max(T, 2))))):
+        r = reach.astype(np.float64)
+        reach = (r @ r) > 0
+    return np.argmax(reach, axis=2)
+
+
+def joint_association_probabilities(ratio: np.ndarray, miss: np.ndarray, gated: np.ndarray,
+                                    predicted_bearing: np.ndarray, max_cluster_tracks: int = 12,
+                                    clustering: bool | None = None):
+    """β for every run: cluster, batch clusters by size, run the exact recursion.
+
+    The joint-event sum factorises over clusters, so solving each cluster alone is exact.
+    With few tracks (≤ ``JOINT_WITHOUT_CLUSTERING``) one recursion over all of them costs less
+    than the clustering bookkeeping and gives the same β (``clustering=None`` picks that
+    automatically; tests compare both paths).
+
+    Parameters
+    ----------
+    ratio : ndarray (R, T, m)
+        Likelihood ratios (any value where not gated; masked here).
+    miss : ndarray (R, T)
+    gated : ndarray of bool (R, T, m)
+    predicted_bearing : ndarray (R, T)
+        Orders the tracks of a cluster that has to be cut.
+    max_cluster_tracks : int
+        Largest cluster solved exactly as a whole.
+    clustering : bool, optional
+        Force (True) or skip (False) clustering; default: automatic.
+
+    Returns
+    -------
+    beta : ndarray (R, T, m)
+    beta0 : ndarray (R, T)
+    split : ndarray of bool (R, T)
+        Tracks whose cluster was cut (their β are approximate).
+    """
+    R, T, m = ratio.shape
+    split = np.zeros((R, T), bool)
+    if R == 0 or T == 0:
+        return np.zeros((R, T, m)), np.ones((R, T)), split
+    r = np.where(gated, ratio, 0.0)
+    cols = None
+    somewhere = gated.any(axis=(0, 1))
+    if not somewhere.all():  # peaks outside every gate of every run are clutter for sure
+        full = np.zeros((R, T, m))
+        b, b0, split = joint_association_probabilities(ratio[..., somewhere], miss, gated[..., somewhere],
+                                                       predicted_bearing, max_cluster_tracks, clustering)
+        full[..., somewhere] = b
+        return full, b0, split
+    if m > COMPRESS_PEAKS:
+        # Only peaks inside some gate matter: move them to the front and drop the rest, so
+        # hundreds of peaks in a scan cost what the few gated ones cost.
+        any_gate = gated.any(axis=1)
+        width = int(any_gate.sum(axis=1).max())
+        cols = np.argsort(~any_gate, axis=1, kind="stable")[:, :width]
+        g = np.take_along_axis(gated, cols[:, None, :], axis=2)
+        r = np.take_along_axis(r, cols[:, None, :], axis=2)
+    else:
+        g = gated
+    if clustering is None:
+        clustering = T > min(JOINT_WITHOUT_CLUSTERING, max_cluster_tracks)
+    if not clustering and T <= max_cluster_tracks:
+        b_c, beta0 = association_marginals(r, miss)
+    else:
+        b_c, beta0 = _clustered_marginals(r, miss, g, predicted_bearing, max_cluster_tracks, split)
+    if cols is None:
+        return b_c, beta0, split
+    beta = np.zeros((R, T, m))
+    np.put_along_axis(beta, np.broadcast_to(cols[:, None, :], b_c.shape), b_c, axis=2)
+    return beta, beta0, split
+
+
+def _clustered_marginals(r, miss, gated, predicted_bearing, max_cluster_tracks, split):
+    """Cluster per run, cut clusters larger than the limit, batch equal sizes across runs."""
+    R, T, m = r.shape
+    labels = cluster_tracks(gated) if T > 1 else np.zeros((R, 1), np.int64)
+    key = (labels + T * np.arange(R)[:, None]).ravel()
+    order = np.lexsort((predicted_bearing.ravel(), key))
+    k_sorted = key[order]
+    new_cluster = np.r_[True, k_sorted[1:] != k_sorted[:-1]]
+    cluster_id = np.cumsum(new_cluster) - 1
+    cluster_start = np.flatnonzero(new_cluster)
+    cluster_size = np.diff(np.r_[cluster_start, key.size])
+    rank = np.arange(key.size) - cluster_start[cluster_id]
+    too_big = cluster_size[cluster_id] > max_cluster_tracks
+    split.ravel()[order[too_big]] = True
+    new_group = new_cluster | (too_big & (rank % max_cluster_tracks == 0))
+    group_start = np.flatnonzero(new_group)
+    group_size = np.diff(np.r_[group_start, key.size])
+    beta = np.zeros((R, T, m))
+    beta0 = np.ones((R, T))
+    for s in np.unique(group_size):
+        first = group_start[group_size == s]
+        flat = order[first[:, None] + np.arange(s)]  # (batch, s) flat (run, track) indices
+        run, trk = np.divmod(flat, T)
+        bb, b0 = association_marginals(r[run, trk], miss[run, trk])
+        beta[run, trk] = bb
+        beta0[run, trk] = b0
+    return beta, beta0
+
+
+# --------------------------------------------------------------------------- state update
+
+
+def pda_update(x, P, innovation, beta, beta0, K, S):
+    """PDA combination of the per-peak updates (eq. A.7).
+
+    ``x⁺ = x + K ν̄`` with ``ν̄ = Σ β_j ν_j``; ``P⁺ = P − (1 − β₀) K S Kᵀ + K (Σ β_j ν_j² − ν̄²) Kᵀ``.
+
+    Parameters
+    ----------
+    x : (…, 2), P : (…, 2, 2), innovation : (…, m), beta : (…, m), beta0 : (…,),
+    K : (…, 2, 1) gain, S : (…, 1, 1) innovation variance.
+    """
+    nu = np.where(beta > 0, innovation, 0.0)
+    nu_bar = np.sum(beta * nu, axis=-1)
+    spread = np.sum(beta * nu * nu, axis=-1) - nu_bar**2
+    x_post, _ = apply_gain(x, P, K, nu_bar[..., None], None, None)
+    KKt = K @ np.swapaxes(K, -1, -2)
+    w = (spread - (1.0 - beta0) * S[..., 0, 0])[..., None, None]
+    P_post = P + w * KKt
+    return x_post, 0.5 * (P_post + np.swapaxes(P_post, -1, -2))
+
+
+def update_strength(strength: np.ndarray, amplitude: np.ndarray, gated: np.ndarray) -> np.ndarray:
+    """Eq. 9: ``0.7 ẑ_a(k−1) + 0.3 max_j z_a`` over gated peaks; unchanged with an empty gate."""
+    peak = np.max(np.where(gated, amplitude[..., None, :], -np.inf), axis=-1)
+    return np.where(np.isfinite(peak), 0.7 * strength + 0.3 * peak, strength)
+
+
+# --------------------------------------------------------------------------- the filter
+
+
+@dataclass
+class ScanPeaks:
+    """The peaks of one scan for every run, padded: ``(R, m)`` arrays, ``valid`` marks real ones."""
+
+    bearing: np.ndarray
+    amplitude: np.ndarray
+    valid: np.ndarray
+
+
+def scans_from_padded(bearing: np.ndarray, amplitude: np.ndarray, counts: np.ndarray) -> list[ScanPeaks]:
+    """``(R, K, W)`` padded arrays + counts → one :class:`ScanPeaks` per scan, trimmed per scan."""
+    out = []
+    W = bearing.shape[2]
+    for k in range(bearing.shape[1]):
+        w = int(counts[:, k].max()) if counts.size else 0
+        valid = np.arange(min(w, W))[None, :] < counts[:, k, None]
+        out.append(ScanPeaks(np.where(valid, bearing[:, k, :w], 0.0), np.where(valid, amplitude[:, k, :w], 0.0), valid))
+    return out
+
+
+def track_bearing_peaks(scans: list[ScanPeaks], x0: np.ndarray, P0: np.ndarray, design: BearingTrackerDesign,
+                        strategy: AssociationStrategy, start_scan: int = 1) -> dict:
+    """Run JPDA / JPDA_A over all scans for all runs at once.
+
+    Parameters
+    ----------
+    scans : list of ScanPeaks
+        One entry per scan, ``(R, m_k)`` arrays (bearing in rad).
+    x0, P0 : ndarray (R, T, 2), (R, T, 2, 2)
+        Track states at ``start_scan``; filtering starts at the next scan.
+    design : BearingTrackerDesign
+    strategy : AssociationStrategy
+
+    Returns
+    -------
+    dict of ndarray with a leading ``(R, K, T)``:
+        ``state`` (…, 2), ``covariance`` (…, 2, 2), ``beta0``, ``beta_top`` / ``beta_index``
+        (…, 3: the largest peak weights and their index in the scan's peak list, −1 for
+        none), ``strength`` (ẑ_a used), ``n_gated``, ``gate_center`` (predicted bearing),
+        ``flags``.
+    """
+    K = len(scans)
+    R, T, _ = x0.shape
+    F, Q = bearing_motion_model(design.scan_period_s, design.q_rad2)
+    H = np.array([[1.0, 0.0]])
+    Rm = (np.asarray(design.sigma_p_rad, float) ** 2)[..., None, None] * np.ones((R, T, 1, 1))
+    out = {
+        "state": np.full((R, K, T, 2), np.nan), "covariance": np.full((R, K, T, 2, 2), np.nan),
+        "beta0": np.full((R, K, T), np.nan), "beta_top": np.full((R, K, T, TOP_WEIGHTS), np.nan),
+        "beta_index": np.full((R, K, T, TOP_WEIGHTS), -1, np.int32), "strength": np.full((R, K, T), np.nan),
+        "n_gated": np.zeros((R, K, T), np.int32), "gate_center": np.full((R, K, T), np.nan),
+        "flags": np.zeros((R, K, T), np.uint8),
+    }
+    out["flags"][:, :start_scan] = FLAG_INITIALISING
+    x, P = np.array(x0, float), np.array(P0, float)
+    out["state"][:, start_scan], out["covariance"][:, start_scan] = x, P
+    if design.amplitude_tracking:
+        strength = np.full((R, T), float(design.initial_strength))
+        sigma_a = np.full((R, T), float(design.tracked_sigma_a))
+    else:
+        strength = np.broadcast_to(np.asarray(design.strength, float), (R, T)).copy()
+        sigma_a = np.broadcast_to(np.asarray(design.sigma_a, float), (R, T)).copy()
+    out["strength"][:, start_scan] = strength
+    half_gate = design.gate_rad / 2
+    lam = design.clutter_density
+    for k in range(start_scan + 1, K):
+        sp = scans[k]
+        x, P = kf_predict(x, P, F, Q)
+        Kg, S = kalman_gain(P, H, Rm)
+        S1 = S[..., 0, 0]
+        nu = sp.bearing[:, None, :] - x[..., 0, None]  # (R, T, m)
+        usable = sp.valid & (sp.amplitude >= design.amplitude_threshold)
+        gated = usable[:, None, :] & (np.abs(nu) <= half_gate)
+        pd = np.full((R, T), design.detection_probability)
+        if strategy.amplitude:
+            amp_ratio, survive = amplitude_likelihood_ratio(sp.amplitude, strength, sigma_a,
+                                                            design.clutter_alpha, design.amplitude_threshold)
+            pd = pd * survive
+        ratio = position_likelihood_ratio(nu, S1, pd, lam)
+        if strategy.amplitude:
+            ratio = ratio * amp_ratio
+        miss = 1.0 - pd * window_gate_probability(S1, design.gate_rad)
+        beta, beta0, split = joint_association_probabilities(ratio, miss, gated, x[..., 0], design.max_cluster_tracks)
+        out["gate_center"][:, k] = x[..., 0]
+        x, P = pda_update(x, P, nu, beta, beta0, Kg, S)
+        if design.amplitude_tracking:
+            strength = update_strength(strength, sp.amplitude, gated)
+        n_gated = gated.sum(axis=2)
+        out["state"][:, k], out["covariance"][:, k] = x, P
+        out["beta0"][:, k] = beta0
+        out["strength"][:, k] = strength
+        out["n_gated"][:, k] = n_gated
+        out["flags"][:, k] = np.where(n_gated == 0, FLAG_NO_GATED_PEAK, 0) | np.where(split, FLAG_CLUSTER_SPLIT, 0)
+        if beta.shape[2]:
+            top = np.argsort(-beta, axis=2, kind="stable")[..., :TOP_WEIGHTS]
+            w = np.take_along_axis(beta, top, axis=2)
+            n = top.shape[2]
+            out["beta_top"][:, k, :, :n] = np.where(w > 0, w, np.nan)
+            out["beta_index"][:, k, :, :n] = np.where(w > 0, top, -1)
+    return out

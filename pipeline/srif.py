@@ -1,0 +1,236 @@
+"""The square-root information filter (SRIF; Bierman 1977, as in Kwon 1997 ch. IV.2).
+
+Spec ``shared/spec/colored-noise-imm-srif.md``, "Square-root information filter" (thesis
+eqs. 4.2.3–4.2.4, 4.2.18–4.2.22, 4.3.5–4.3.13). The filter carries ``(R, z)`` with
+``P⁻¹ = Rᵀ R`` and ``x = R⁻¹ z``. With ``Q⁻¹ = R_wᵀ R_w`` and ``R⁻¹ = R_νᵀ R_ν``:
+
+* time update (4.2.18 / 4.3.5): an orthogonal triangularisation (Householder QR) of
+  ``[[R_w, 0, R_w w̄], [−R Φ⁻¹ Ψ, R Φ⁻¹, z]]`` leaves ``[0, R_{k|k−1}, z_{k|k−1}]`` in its
+  last n rows;
+* measurement update (4.2.21 / 4.3.9): triangularising ``[[R_{k|k−1}, z_{k|k−1}],
+  [R_ν Ĥ, R_ν y_k]]`` gives ``[[R_{k|k}, z_{k|k}], [0, e_k]]``;
+* likelihood (4.3.11–4.3.13): ``eᵀe`` is the innovation's normalised square and, by the
+  matrix determinant lemma, ``|S_k| = (|R_{k|k}| / (|R_{k|k−1}| |R_ν|))²``. The thesis prints
+  eq. 4.3.12 without the square, which is ``√|S|``; the tests check the squared form against
+  the Kalman filter's ``S``.
+
+No covariance is formed and no matrix is inverted inside the recursion: symmetry and positive
+definiteness of ``P = R⁻¹ R⁻ᵀ`` hold by construction, which is what keeps the SRIF usable in
+single precision or with a huge initial covariance and a tiny R, where the Kalman filter's
+covariance goes indefinite (tests/test_colored_srif.py shows both).
+
+Every function works on stacks: leading axes are Monte Carlo runs (numpy's ``linalg.qr`` and
+``solve`` are batched), so a whole study advances one scan per call. Triangular factors are
+returned with a non-negative diagonal (rows of ``[R | z]`` flipped as needed), which makes
+them unique and comparable (``R_{k|k}`` is then the transposed Cholesky factor of ``P⁻¹``).
+Arrays keep the caller's floating-point type.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.errors import InputError
+
+LOG_2PI = float(np.log(2.0 * np.pi))
+
+
+def _eye(n: int, like: np.ndarray) -> np.ndarray:
+    return np.eye(n, dtype=like.dtype)
+
+
+def _positive_diagonal(R: np.ndarray, z: np.ndarray):
+    """Flip rows of ``[R | z]`` so that ``diag(R) ≥ 0`` (an orthogonal change, nothing else)."""
+    s = np.where(np.diagonal(R, axis1=-2, axis2=-1) < 0, -1.0, 1.0).astype(R.dtype)
+    return R * s[..., :, None], z * s
+
+
+def information_factor(C, name: str = "covariance") -> np.ndarray:
+    """Square-root information factor ``F`` of a covariance: ``Fᵀ F = C⁻¹``.
+
+    ``F = L⁻¹`` with ``C = L Lᵀ`` (lower triangular, so ``F`` is lower triangular too), from a
+    Cholesky factorisation and a triangular solve.
+
+    Parameters
+    ----------
+    C : array_like (..., m, m)
+        Symmetric positive definite.
+    name : str
+        What ``C`` is, for the error message.
+
+    Raises
+    ------
+    InputError
+        If ``C`` is not positive definite (or not finite).
+    """
+    C = np.asarray(C)
+    if not np.all(np.isfinite(C)):
+        raise InputError(f"{name} holds NaN/Inf")
+    try:
+        L = np.linalg.cholesky(C)
+    except np.linalg.LinAlgError:
+        raise InputError(f"{name} is not positive definite") from None
+    return np.linalg.solve(L, np.broadcast_to(_eye(C.shape[-1], L), L.shape))
+
+
+def srif_from_moments(x: np.ndarray, P: np.ndarray):
+    """``(R, z)`` of a Gaussian ``N(x, P)``: ``R = L⁻¹`` (``P = L Lᵀ``), ``z = R x`` (one solve)."""
+    n = x.shape[-1]
+    L = np.linalg.cholesky(P)
+    rhs = np.concatenate([np.broadcast_to(_eye(n, L), L.shape), x[..., None]], axis=-1)
+    sol = np.linalg.solve(L, rhs)
+    return sol[..., :n], sol[..., n]
+
+
+def srif_moments(R: np.ndarray, z: np.ndarray):
+    """``x = R⁻¹ z`` and ``P = R⁻¹ R⁻ᵀ`` (4.2.7, 4.2.22) from one solve with ``[I | z]``."""
+    n = z.shape[-1]
+    rhs = np.concatenate([np.broadcast_to(_eye(n, R), R.shape), z[..., None]], axis=-1)
+    sol = np.linalg.solve(R, rhs)
+    S = sol[..., :n]
+    return sol[..., n], S @ np.swapaxes(S, -1, -2)
+
+
+def srif_time_update(R: np.ndarray, z: np.ndarray, Phi_inv: np.ndarray, Psi: np.ndarray,
+                     Rw: np.ndarray, w_mean: np.ndarray | None = None):
+    """SRIF time update (eq. 4.2.18 / 4.3.5) by one batched QR.
+
+    Parameters
+    ----------
+    R : ndarray (..., n, n)
+        Information square root at k−1 (any square root; need not be triangular).
+    z : ndarray (..., n)
+    Phi_inv : ndarray (n, n) or (..., n, n)
+        Inverse state transition Φ⁻¹.
+    Psi : ndarray (n, p) or (..., n, p)
+        Process-noise gain Ψ.
+    Rw : ndarray (p, p)
+        Information square root of the process noise, ``Q⁻¹ = R_wᵀ R_w``.
+    w_mean : ndarray (p,), optional
+        Process-noise mean ``w̄`` (zero by default).
+
+    Returns
+    -------
+    R_pred : ndarray (..., n, n)
+        Upper triangular, non-negative diagonal.
+    z_pred : ndarray (..., n)
+    """
+    n = R.shape[-1]
+    p = Rw.shape[-1]
+    batch = R.shape[:-2]
+    R_Phi_inv = R @ Phi_inv
+    M = np.zeros(batch + (p + n, p + n + 1), dtype=R.dtype)
+    M[..., :p, :p] = Rw
+    if w_mean is not None:
+        M[..., :p, -1] = Rw @ w_mean
+    M[..., p:, :p] = -(R_Phi_inv @ Psi)
+    M[..., p:, p:p + n] = R_Phi_inv
+    M[..., p:, -1] = z
+    T = np.linalg.qr(M, mode="r")
+    return _positive_diagonal(T[..., p:, p:p + n], T[..., p:, -1])
+
+
+def srif_measurement_update(R: np.ndarray, z: np.ndarray, H: np.ndarray, y: np.ndarray,
+                            Rv: np.ndarray):
+    """SRIF measurement update (eq. 4.2.21 / 4.3.9) and the likelihood terms (4.3.11–4.3.13).
+
+    Parameters
+    ----------
+    R : ndarray (..., n, n)
+        Predicted information square root, triangular (as :func:`srif_time_update` returns).
+    z : ndarray (..., n)
+    H : ndarray (m, n) or (..., m, n)
+        Measurement matrix (``Ĥ`` for decorrelated measurements).
+    y : ndarray (..., m)
+    Rv : ndarray (m, m) or (..., m, m)
+        Triangular information square root of the measurement noise (:func:`information_factor`).
+
+    Returns
+    -------
+    R_post : ndarray (..., n, n)
+        Upper triangular, non-negative diagonal.
+    z_post : ndarray (..., n)
+    residual_norm : ndarray (...)
+        ``‖e_k‖`` (``‖e‖² = νᵀ S⁻¹ ν``; QR fixes e only up to an orthogonal change, so its norm
+        is what it determines).
+    log_likelihood : ndarray (...)
+        ``log N(ν; 0, S) = −½ (‖e‖² + log|S| + m log 2π)`` with
+        ``log|S| = 2 (log|R_{k|k}| − log|R_{k|k−1}| − log|R_ν|)``.
+    """
+    n = R.shape[-1]
+    m = y.shape[-1]
+    batch = np.broadcast_shapes(R.shape[:-2], y.shape[:-1])
+    M = np.zeros(batch + (n + m, n + 1), dtype=R.dtype)
+    M[..., :n, :n] = R
+    M[..., :n, n] = z
+    M[..., n:, :n] = Rv @ H
+    M[..., n:, n] = np.einsum("...ij,...j->...i", Rv, y)
+    T = np.linalg.qr(M, mode="r")
+    R_post, z_post = _positive_diagonal(T[..., :n, :n], T[..., :n, n])
+    residual = np.abs(T[..., n, n])
+
+    def logdet(A):
+        return np.sum(np.log(np.abs(np.diagonal(A, axis1=-2, axis2=-1))), axis=-1)
+
+    log_det_S = 2.0 * (logdet(R_post) - logdet(R) - logdet(Rv))
+    log_likelihood = -0.5 * (residual * residual + log_det_S + m * LOG_2PI)
+    return R_post, z_post, residual, log_likelihood
+
+
+def srif_filter(x0, P0, Phi, Psi, q, H, y, meas_cov, start: int = 1):
+    """Run the SRIF over a whole record, every run at once (carries ``(R, z)`` throughout).
+
+    Parameters
+    ----------
+    x0 : ndarray (runs, n)
+    P0 : ndarray (runs, n, n) or (n, n)
+    Phi : ndarray (n, n)
+    Psi : ndarray (n, p)
+    q : ndarray (p, p)
+        Process-noise covariance (positive definite: the SRIF needs ``Q⁻¹``).
+    H : ndarray (m, n) or (runs, scans, m, n)
+    y : ndarray (runs, scans, m)
+        Measurements (scans before ``start`` are not used).
+    meas_cov : ndarray (m, m) or (runs, scans, m, m)
+    start : int
+        First scan with a measurement update (scan ``start − 1`` holds ``x0, P0``).
+
+    Returns
+    -------
+    dict
+        ``state`` (runs, scans, n), ``covariance`` (runs, scans, n, n), ``log_likelihood`` and
+        ``residual_norm`` (runs, scans; NaN before ``start``), ``R`` (runs, scans, n, n)
+        information square roots.
+    """
+    dtype = np.asarray(y).dtype if np.asarray(y).dtype.kind == "f" else np.float64
+    y = np.asarray(y, dtype=dtype)
+    runs, scans, m = y.shape
+    n = Phi.shape[0]
+    Phi = np.asarray(Phi, dtype=dtype)
+    cond = np.linalg.cond(Phi.astype(np.float64))
+    if not np.isfinite(cond) or cond > 1.0 / np.finfo(float).eps:
+        raise InputError(f"Phi is singular (condition number {cond:.3g}); the SRIF time update needs Φ⁻¹")
+    Phi_inv = np.linalg.solve(Phi, _eye(n, Phi))
+    Psi = np.asarray(Psi, dtype=dtype)
+    Rw = information_factor(np.asarray(q, dtype=dtype), "process-noise covariance Q")
+    H = np.asarray(H, dtype=dtype)
+    meas_cov = np.asarray(meas_cov, dtype=dtype)
+    Rv_all = information_factor(meas_cov, "measurement-noise covariance R")
+    P0 = np.broadcast_to(np.asarray(P0, dtype=dtype), (runs, n, n))
+    R, z = srif_from_moments(np.asarray(x0, dtype=dtype), P0)
+    out = {"state": np.full((runs, scans, n), np.nan, dtype), "covariance": np.full((runs, scans, n, n), np.nan, dtype),
+           "R": np.full((runs, scans, n, n), np.nan, dtype),
+           "log_likelihood": np.full((runs, scans), np.nan, dtype), "residual_norm": np.full((runs, scans), np.nan, dtype)}
+    first = max(start - 1, 0)
+    out["state"][:, first], out["covariance"][:, first] = srif_moments(R, z)
+    out["R"][:, first] = R
+    for k in range(start, scans):
+        Hk = H if H.ndim == 2 else H[:, k]
+        Rv = Rv_all if Rv_all.ndim == 2 else Rv_all[:, k]
+        R, z = srif_time_update(R, z, Phi_inv, Psi, Rw)
+        R, z, e, ll = srif_measurement_update(R, z, Hk, y[:, k], Rv)
+        out["state"][:, k], out["covariance"][:, k] = srif_moments(R, z)
+        out["R"][:, k] = R
+        out["log_likelihood"][:, k] = ll
+        out["residual_norm"][:, k] = e
+    return out

@@ -1,0 +1,130 @@
+"""Converter: a multichannel WAV recording of a uniform linear array → the snapshot channels.
+
+One narrowband frequency bin of a short-time Fourier transform gives one complex snapshot per
+channel and frame; consecutive frames are grouped into scans of ``snapshots_per_scan`` frames
+(the interval [(k−1)T, kT] of the spec, T = Ns · hop / fs). The result is written to
+``/array/snapshots`` exactly as the simulator writes it (one run, no truth), so a recording goes
+through the same trackers (``replay out.mcap``).
+
+Conventions:
+
+* channel 1 of the file is sensor 1 (the reference, left end); channels are equally spaced by
+  ``spacing_m``; the electrical spacing d/λ = spacing_m · f_bin / c is recorded as the data set's
+  ``spacing_wavelengths`` (must be ≤ 1/2: no grating lobes);
+* a wave that reaches channel 1 first has θ > 0: channel m lags by τ = (m−1) d sin θ / c, its
+  STFT carries exp(−jωτ), and the snapshots are conjugated to the paper's exp(+jωτ) model
+  (conjugation keeps every subspace property);
+* the STFT uses a Hann window of ``nfft`` samples and hop ``hop``; only the chosen bin is
+  computed (one windowed DFT row per frame, not a full FFT).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.contract import scenario_metadata
+from pipeline.errors import InputError, require_finite
+from recorders.array_snapshots import SNAPSHOTS_TOPIC
+from recorders.simulated import SimulatedData, write_simulated
+
+
+def read_wav(path: str | Path) -> tuple[int, np.ndarray]:
+    """Sample rate and samples ``(n_samples, channels)`` as float (integers scaled to ±1)."""
+    from scipy.io import wavfile
+
+    path = Path(path)
+    if not path.exists():
+        raise InputError("no such file", path)
+    if path.is_dir():
+        raise InputError("is a directory, expected a WAV file", path)
+    try:
+        fs, data = wavfile.read(path)
+    except (ValueError, EOFError, OSError) as exc:
+        raise InputError(f"not a readable WAV file ({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})", path) from None
+    if data.ndim != 2 or data.shape[1] < 2:
+        raise InputError(f"{1 if data.ndim == 1 else data.shape[1]} channel(s); an array recording needs at least 2", path)
+    if data.dtype.kind in "iu":
+        info = np.iinfo(data.dtype)
+        data = (data.astype(float) - (info.max + info.min + 1) / 2) / (info.max + 1)
+    else:
+        data = data.astype(float)
+    require_finite("samples", data, path)
+    return int(fs), data
+
+
+def narrowband_snapshots(samples: np.ndarray, fs: int, frequency_hz: float, nfft: int, hop: int):
+    """STFT value of every channel at the bin nearest ``frequency_hz``, frame by frame.
+
+    Returns
+    -------
+    snapshots : ndarray, complex, shape (channels, frames)
+        Conjugated (paper's exp(+jωτ) convention).
+    bin_hz : float
+        The bin's centre frequency.
+    """
+    n, C = samples.shape
+    k = int(round(frequency_hz * nfft / fs))
+    frames = 1 + (n - nfft) // hop if n >= nfft else 0
+    window = np.hanning(nfft + 2)[1:-1]  # Hann without the zero end points
+    kernel = window * np.exp(-2j * np.pi * k * np.arange(nfft) / nfft)
+    view = np.lib.stride_tricks.sliding_window_view(samples, nfft, axis=0)[::hop][:frames]  # (frames, C, nfft)
+    stft = view @ kernel  # (frames, C)
+    return np.conj(stft).T, k * fs / nfft
+
+
+def convert_array_wav(src, dst, spacing_m: float, frequency_hz: float, sound_speed_mps: float = 343.0,
+                      nfft: int = 512, hop: int | None = None, snapshots_per_scan: int = 30,
+                      snapshot_dtype: str = "complex64") -> dict:
+    """Convert ``src`` (WAV) to ``dst`` (MCAP); returns a summary of what was written.
+
+    Parameters
+    ----------
+    spacing_m : float
+        Sensor spacing d (m).
+    frequency_hz : float
+        Narrowband frequency (the nearest STFT bin is used).
+    sound_speed_mps : float
+        c.
+    nfft, hop : int
+        STFT window length and hop (default nfft / 2).
+    snapshots_per_scan : int
+        Frames per scan (Ns).
+    """
+    hop = nfft // 2 if hop is None else hop
+    checks = [
+        (spacing_m > 0, "spacing_m must be > 0"), (sound_speed_mps > 0, "sound_speed_mps must be > 0"),
+        (nfft >= 8, "nfft must be ≥ 8"), (0 < hop <= nfft, "hop must be in (0, nfft]"),
+        (snapshots_per_scan >= 1, "snapshots_per_scan must be ≥ 1"), (frequency_hz > 0, "frequency_hz must be > 0"),
+        (snapshot_dtype in ("complex64", "complex128"), "snapshot_dtype must be complex64 or complex128"),
+    ]
+    for ok, msg in checks:
+        if not ok:
+            raise InputError(msg)
+    fs, samples = read_wav(src)
+    if frequency_hz >= fs / 2:
+        raise InputError(f"frequency_hz = {frequency_hz:g} is not below the Nyquist frequency {fs / 2:g} Hz", src)
+    snaps, bin_hz = narrowband_snapshots(samples, fs, frequency_hz, nfft, hop)
+    if bin_hz <= 0:
+        raise InputError(f"frequency_hz = {frequency_hz:g} falls in the DC bin (nfft = {nfft} at {fs} Hz)", src)
+    spacing_wavelengths = spacing_m * bin_hz / sound_speed_mps
+    if spacing_wavelengths > 0.5:
+        raise InputError(f"spacing {spacing_m:g} m is {spacing_wavelengths:.3f} wavelengths at {bin_hz:g} Hz; "
+                         "above 1/2 the array has grating lobes (choose a lower frequency)", src)
+    M, frames = snaps.shape
+    K = frames // snapshots_per_scan
+    if K < 3:
+        raise InputError(f"{frames} STFT frames make {K} scan(s) of {snapshots_per_scan}; the tracker needs ≥ 3 "
+                         "(a longer recording, a smaller hop or fewer snapshots per scan)", src)
+    blocks = snaps[:, : K * snapshots_per_scan].reshape(M, K, snapshots_per_scan).transpose(1, 0, 2)
+    scan_period_s = snapshots_per_scan * hop / fs
+    data = SimulatedData(times=np.arange(K) * scan_period_s,
+                         fixed={SNAPSHOTS_TOPIC: {"snapshots": blocks[None].astype(snapshot_dtype)}})
+    params = {"source_wav": Path(src).name, "sample_rate_hz": fs, "frequency_hz": float(bin_hz),
+              "spacing_m": float(spacing_m), "sound_speed_mps": float(sound_speed_mps), "nfft": int(nfft),
+              "hop": int(hop), "snapshots_per_scan": int(snapshots_per_scan), "n_sensors": int(M),
+              "spacing_wavelengths": float(spacing_wavelengths), "scan_period_s": float(scan_period_s)}
+    n = write_simulated(dst, data, scenario_metadata("array-wav", params, 0))
+    return {"messages": n, "scans": K, "sensors": M, "bin_hz": bin_hz,
+            "spacing_wavelengths": spacing_wavelengths, "scan_period_s": scan_period_s}
