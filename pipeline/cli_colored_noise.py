@@ -26,7 +26,7 @@ def colored_report_cmd(data, outputs, out_dir):
     \b
     Example:
       replay simulate colored-imm --runs 50 -o imm.mcap
-      replay colored-report imm.mcap -o figs/            # rmse.png, model_probabilities.png, ar_estimates.png
+      replay colored-report imm.mcap -o figs/   # rmse.png, model_probabilities.png, ar_alpha.png, ar_noise_variance.png
       replay simulate colored-ar --runs 250 -o ar.mcap && replay colored-report ar.mcap -o ar-figs/
     """
     from evaluators.colored_noise_imm import write_figures

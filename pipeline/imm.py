@@ -318,6 +318,9 @@ def check_transition(transition, n_models: int) -> np.ndarray:
     if bad.size:
         i = int(bad[0])
         raise InputError(f"transition matrix row {i + 1} sums to {sums[i]:.6g}, not 1")
+    unreachable = np.nonzero(p.sum(axis=0) == 0)[0]
+    if unreachable.size:
+        raise InputError(f"transition matrix column {int(unreachable[0]) + 1} is all zero: that model can never be entered")
     return p
 
 

@@ -36,10 +36,11 @@ TRUTH_TOPIC = "/colored/truth"
 TRAJECTORIES = ("manoeuvre", "circle", "constant-velocity")
 
 
-def parse_values(text: str, name: str) -> np.ndarray:
-    """``"0.8, 0.4, 0"`` → array; an empty or unreadable list is an :class:`InputError`."""
+def parse_values(text, name: str) -> np.ndarray:
+    """A list of numbers or ``"0.8, 0.4, 0"`` → array; an empty or unreadable list is an :class:`InputError`."""
+    items = text if isinstance(text, (list, tuple)) else str(text).replace(";", ",").split(",")
     try:
-        values = np.array([float(v) for v in str(text).replace(";", ",").split(",") if v.strip()])
+        values = np.array([float(v) for v in items if str(v).strip()])
     except ValueError:
         raise InputError(f"parameter {name!r}: cannot read {text!r} as a comma-separated list of numbers") from None
     if values.size == 0:

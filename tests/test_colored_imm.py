@@ -207,7 +207,8 @@ def test_before_the_estimator_is_warm_the_decorrelating_imm_is_the_plain_one(the
 
 @pytest.mark.parametrize("bad", [[[0.9, 0.2, 0.0], [0.33, 0.34, 0.33], [0.0, 0.01, 0.99]],
                                  [[0.99, 0.01], [0.01, 0.99]],
-                                 [[1.1, -0.1, 0.0], [0.33, 0.34, 0.33], [0.0, 0.01, 0.99]]])
+                                 [[1.1, -0.1, 0.0], [0.33, 0.34, 0.33], [0.0, 0.01, 0.99]],
+                                 [[0.99, 0.01, 0.0], [0.5, 0.5, 0.0], [0.0, 1.0, 0.0]]])
 def test_bad_transition_matrix_is_a_clear_error(bad):
     z, truth, _ = small_record(runs=1, scans=10)
     models = [kinematic_model("cv", 2, T, 50.0), kinematic_model("a", 3, T, 6400.0), kinematic_model("b", 3, T, 16.0)]
