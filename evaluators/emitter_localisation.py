@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import numpy as np
 import polars as pl
-from scipy.stats import chi2
 
 from evaluators.tracking_metrics import long_form
 from pipeline.batched_least_squares import information_covariance
@@ -77,6 +76,8 @@ def classify(flags, error, A_truth, singular, cost, dof, has_truth=True):
     q = error.shape[-1]
     with np.errstate(all="ignore"):
         d2 = np.sum(np.einsum("...mq,...q->...m", A_truth, error) ** 2, axis=-1)
+    from scipy.stats import chi2  # deferred: scipy.stats costs ~0.5 s to import in every worker
+
     gate = chi2.isf(TRUTH_GATE_TAIL, q)
     resid_gate = chi2.isf(RESIDUAL_GATE_TAIL, max(dof, 1))
     out = np.full(flags.shape, NOT_CONVERGED_CLASS, np.int8)

@@ -48,7 +48,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import lfilter
 
 from pipeline.errors import InputError, require_finite
 
@@ -128,6 +127,8 @@ def filtered_second_difference(z: np.ndarray, rho: float) -> np.ndarray:
     """Steps 1–2: ``u`` from measurements ``z`` ``(runs, scans, axes)`` (zero for scans 0–1)."""
     ubar = np.zeros_like(z, dtype=float)
     ubar[:, 2:] = z[:, 2:] - 2.0 * z[:, 1:-1] + z[:, :-2]
+    from scipy.signal import lfilter  # deferred: scipy.signal costs ~0.5 s in every sweep worker
+
     return lfilter([1.0], [1.0, -2.0 * rho, rho * rho], ubar, axis=1)
 
 
@@ -176,6 +177,8 @@ def estimate_ar1(z, beta: float = 0.99, rho: float = 0.9, normalised: bool = Tru
     prod1[:, 1:] = u[:, 1:] * u[:, :-1]
     prod0[:, :first] = 0.0
     prod1[:, :first + 1] = 0.0
+    from scipy.signal import lfilter
+
     r0 = lfilter([1.0 - beta], [1.0, -beta], prod0, axis=1)
     r1 = lfilter([1.0 - beta], [1.0, -beta], prod1, axis=1)
     k = np.arange(scans, dtype=float)

@@ -181,6 +181,11 @@ def _iter_process(tasks, workers):
             yield f.result()
 
 
+def _preload_worker() -> None:
+    import pipeline.replay  # noqa: F401
+    import recorders.simulated  # noqa: F401
+
+
 def _iter_dask(tasks, workers, scheduler):
     from dask.distributed import Client, LocalCluster, as_completed
 
@@ -192,6 +197,9 @@ def _iter_dask(tasks, workers, scheduler):
                                host="127.0.0.1", dashboard_address=None)
         client = Client(cluster)
     try:
+        # import the numerics on every worker at once, before the first point, as the
+        # forkserver preload does for the process pool
+        client.run(_preload_worker)
         futures = client.map(run_point, tasks, pure=False)
         for f in as_completed(futures):
             yield f.result()

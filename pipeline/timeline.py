@@ -12,8 +12,28 @@ import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
+import importlib
+
 import numpy as np
-import rerun as rr
+
+
+class LazyModule:
+    """A module imported on first attribute access.
+
+    Stage modules are imported by every replay and every sweep worker, but only a replay that
+    writes a recording needs rerun (~0.6 s to import): deferring it keeps worker start-up, and
+    so a sweep's per-point overhead, small.
+    """
+
+    def __init__(self, name: str):
+        self._name = name
+
+    def __getattr__(self, attr):
+        return getattr(importlib.import_module(self._name), attr)
+
+
+rr = LazyModule("rerun")
+rrb = LazyModule("rerun.blueprint")
 
 PALETTE = {
     "truth": (230, 230, 230),
@@ -79,8 +99,6 @@ def north_up(rec, entity: str) -> None:
 
 def north_up_bounds(lo, hi, pad: float):
     """Visual bounds of a :func:`north_up` world box ``lo``..``hi`` (x, y) in view coordinates."""
-    import rerun.blueprint as rrb
-
     return rrb.VisualBounds2D(x_range=[lo[0] - pad, hi[0] + pad], y_range=[-hi[1] - pad, -lo[1] + pad])
 
 

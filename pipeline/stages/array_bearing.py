@@ -16,8 +16,6 @@ from __future__ import annotations
 
 import numpy as np
 import polars as pl
-import rerun as rr
-import rerun.blueprint as rrb
 
 from evaluators import array_bearing as array_eval
 from pipeline.angular_innovation import INNOVATIONS
@@ -25,7 +23,7 @@ from pipeline.errors import InputError, require_finite
 from pipeline.flop_counts import ANALYTIC
 from pipeline.stages.base import Stage
 from pipeline.subspace_angle_tracker import SUBSPACES, SubspaceTrackerDesign, music_waterfall, track_bearings
-from pipeline.timeline import color, log_series
+from pipeline.timeline import color, log_series, rr, rrb
 
 SNAPSHOTS = "/array/snapshots"
 TRUTH = "/array/truth"

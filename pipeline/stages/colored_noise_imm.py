@@ -25,14 +25,13 @@ Only I/O and bookkeeping live here: the numbers come from :mod:`pipeline.ar1_est
 from __future__ import annotations
 
 import numpy as np
-import rerun.blueprint as rrb
 
 from evaluators import colored_noise_imm as colored_eval
 from pipeline.ar1_estimation import estimate_ar1
 from pipeline.errors import InputError, require_finite
 from pipeline.imm import MeasurementStream, ModelFilter, check_transition, imm_filter, kinematic_model, single_model_filter
 from pipeline.stages.base import Stage
-from pipeline.timeline import color, log_series
+from pipeline.timeline import color, log_series, rrb
 
 MEASUREMENTS = "/colored/measurements"
 TRUTH = "/colored/truth"

@@ -19,8 +19,6 @@ Output ``/emitter/estimates/<estimator>``: ``state`` (4), ``covariance`` (4×4 a
 from __future__ import annotations
 
 import numpy as np
-import rerun as rr
-import rerun.blueprint as rrb
 
 from evaluators import emitter_localisation as emitter_eval
 from pipeline.coarse_grid_search import coarse_grid_start
@@ -30,7 +28,7 @@ from pipeline.gauss_newton import UNDERDETERMINED, gauss_newton
 from pipeline.stages.base import Stage
 from pipeline.tdoa_fdoa_model import (MEASUREMENT_KINDS, independent_equations, measurement_model,
                                       measurement_rows, unknowns)
-from pipeline.timeline import color, north_up, north_up_bounds
+from pipeline.timeline import color, north_up, north_up_bounds, rr, rrb
 
 MEASUREMENTS = "/emitter/measurements"
 SENSORS = "/emitter/sensors"

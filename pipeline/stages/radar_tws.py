@@ -10,15 +10,13 @@ come from :mod:`pipeline.decoupled_tracker` and :mod:`evaluators.radar_tws`.
 from __future__ import annotations
 
 import numpy as np
-import rerun as rr
-import rerun.blueprint as rrb
 
 from evaluators import radar_tws as radar_eval
 from pipeline.converted_measurements import polar_to_cartesian
 from pipeline.decoupled_tracker import STRATEGIES, TrackerDesign, track_plots
 from pipeline.errors import InputError, require_finite
 from pipeline.stages.base import Stage
-from pipeline.timeline import color, log_path, log_points, log_series, north_up, north_up_bounds
+from pipeline.timeline import color, log_path, log_points, log_series, north_up, north_up_bounds, rr, rrb
 
 PLOTS = "/radar/plots"
 TRUTH = "/radar/truth"
