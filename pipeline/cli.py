@@ -118,14 +118,22 @@ def _export_tables(res, out_dir: Path) -> list[Path]:
     return written
 
 
-def _report_plot(res, out_dir: Path) -> Path | None:
+def _report_plot(res, out_dir: Path) -> list[Path]:
+    """The generic per-scan figure plus every applicable stage's own figures."""
     from evaluators.report_plots import plot_metrics_vs
+    from pipeline.stages import STAGES
 
+    paths = []
+    title = Path(res.dataset.path).name
     metrics = [m for m in ("rmse_position_m", "rmse_velocity_mps", "npe", "alpha_cross") if m in res.per_scan.columns]
-    if not metrics:
-        return None
-    return plot_metrics_vs(res.per_scan, "scan", metrics, out_dir / "report.png",
-                           title=Path(res.dataset.path).name, hlines={"npe": [1.0]})
+    if metrics:
+        part = res.per_scan.filter(pl.col(metrics[0]).is_not_null()) if "stage" in res.per_scan.columns else res.per_scan
+        paths.append(plot_metrics_vs(part, "scan", metrics, out_dir / "report.png", title=title, hlines={"npe": [1.0]}))
+    for stage in STAGES:
+        if stage.name in res.results:
+            own = res.per_scan.filter(pl.col("stage") == stage.name) if "stage" in res.per_scan.columns else res.per_scan
+            paths += stage.figures(own, out_dir, title=title)
+    return paths
 
 
 @main.command("run")
@@ -169,14 +177,14 @@ def run_cmd(data, trackers, out_path, rrd_path, no_rrd, spawn, recover, sets, re
     _print_summary(res.summary, f"metrics for {data.name} ({res.dataset.channel(next(iter(res.dataset.channels))).n_runs} runs)")
     _print_stage_reports(res)
     tables = _export_tables(res, out_dir)
-    plot = _report_plot(res, out_dir)
+    plots = _report_plot(res, out_dir)
     click.echo("")
     click.echo(f"outputs:   {res.out_path}")
     if res.rrd_path:
         click.echo(f"recording: {res.rrd_path}   (view: replay view {res.rrd_path})")
     click.echo(f"tables:    {', '.join(str(p) for p in tables if p.suffix == '.csv')} (+ .parquet)")
-    if plot:
-        click.echo(f"plot:      {plot}")
+    if plots:
+        click.echo(f"plots:     {', '.join(str(p) for p in plots)}")
     t = res.timings
     click.echo(f"time:      {t['total_s']:.2f} s (read {t['read_s']:.2f}, filter {t['filter_s']:.2f}, "
                f"evaluate {t['evaluate_s']:.2f}, write {t.get('write_s', 0):.2f}, rerun {t.get('rerun_s', 0):.2f})")

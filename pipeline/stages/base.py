@@ -83,6 +83,10 @@ class Stage:
         """Optional extra text after the generic metrics table (e.g. a paper's table layout)."""
         return ""
 
+    def figures(self, per_scan, out_dir, title: str = "") -> list:
+        """Optional paper-style PNG figures written by ``replay`` and ``replay eval --export``."""
+        return []
+
     # --- to implement
 
     def run(self, dataset, trackers, design: dict) -> dict:  # pragma: no cover - interface

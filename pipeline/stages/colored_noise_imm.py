@@ -145,6 +145,11 @@ class ColoredNoiseImmStage(Stage):
                                      float(design["measurement_variance_m2"]), float(design["ar_forgetting_factor"]),
                                      MODEL_NAMES)
 
+    def figures(self, per_scan, out_dir, title: str = "") -> list:
+        from evaluators.colored_noise_imm import write_figures
+
+        return write_figures(per_scan, out_dir, title=title)
+
     def report(self, summary, per_scan) -> str:
         part = summary.filter(summary["stage"] == self.name) if "stage" in summary.columns else summary
         return colored_eval.report_text(part, list(TRACKERS), MODEL_NAMES)
