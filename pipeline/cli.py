@@ -401,7 +401,7 @@ def sweep_cmd(scenario, params, sets, runs, seed, trackers, out_dir, executor, w
     with click.progressbar(length=len(tasks), label=f"sweep {scenario} ({len(tasks)} points, {executor})",
                            file=sys.stderr, show_pos=True) as bar:
         report = run_sweep(tasks, list(specs), out_dir, executor, workers, scheduler, resume, bar.update)
-    paths = write_sweep_outputs(report, list(specs), spec)
+    write_sweep_outputs(report, list(specs), spec)
     click.echo(f"points: {report.done} done, {report.skipped} resumed, {len(report.failed)} failed; "
                f"wall {report.wall_s:.1f} s, median point {report.median_point_s:.2f} s")
     for label, err in report.failed.items():

@@ -131,7 +131,6 @@ def fit_peaks_cmd(data, reference, gate_deg, threshold, as_json):
 
 def association_table(table, swept: list[str]):
     """Fig. 8 rows from a sweep table: one row per grid point and tracker, success/swap/loss."""
-    import polars as pl
 
     wide = table.pivot(on="metric", index=[*swept, "tracker"], values="value", aggregate_function="first")
     if "success_rate" not in wide.columns:

@@ -20,7 +20,9 @@ Fortmann, Bar-Shalom & Scheffe 1983). One core, batched over a leading Monte Car
   the number of joint events it sums is exponential in both;
 * track clustering: tracks sharing a gated peak, transitively, form a cluster; clusters are
   solved independently (exact, since the joint-event sum factorises over clusters) and all
-  clusters of the same size across runs go through one batched recursion;
+  clusters of the same size across runs go through one batched recursion; with at most
+  ``JOINT_WITHOUT_CLUSTERING`` tracks one recursion over all of them gives the same β for less
+  bookkeeping, and peaks outside every gate are dropped first;
 * clusters of more than ``max_cluster_tracks`` tracks (default 12, i.e. 4096 states per peak)
   are cut, in bearing order, into groups of at most that many tracks, each solved exactly but
   blind to the others (a peak may then be shared across a cut): approximate, and flagged with

@@ -12,7 +12,6 @@ from click.testing import CliRunner
 
 from pipeline import sweep as sw
 from pipeline.cli import main
-from pipeline.errors import InputError
 
 SPECS = {"sigma_bearing_deg": ["0.5", "1", "2"], "nominal_cross_range_m": ["120", "150"]}
 

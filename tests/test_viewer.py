@@ -1,7 +1,6 @@
 """A headless screenshot of the bundled recording in the real Rerun viewer is not blank."""
 
 import numpy as np
-import pytest
 from click.testing import CliRunner
 
 from pipeline.cli import main

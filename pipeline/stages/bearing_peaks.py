@@ -15,14 +15,12 @@ from __future__ import annotations
 
 import numpy as np
 import polars as pl
-import rerun as rr
-import rerun.blueprint as rrb
 
 from evaluators import track_association as assoc_eval
 from pipeline.errors import InputError, require_finite
 from pipeline.jpda import STRATEGIES, BearingTrackerDesign, ScanPeaks, track_bearing_peaks, two_point_start
 from pipeline.stages.base import Stage
-from pipeline.timeline import color, log_points, log_series
+from pipeline.timeline import color, log_points, log_series, rr, rrb
 
 PEAKS = "/xcorr/peaks"
 TRUTH = "/xcorr/truth"
