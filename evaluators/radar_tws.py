@@ -36,7 +36,8 @@ def evaluate(times, tracks: dict, measured_xy, truth_state=None, cross_range_std
     tracks : dict
         ``tracker -> {"state", "alpha", "beta", "lambda_cross", "innovation", "flags"}`` grids.
     measured_xy : ndarray (runs, scans, 2)
-        Converted plot per scan (NaN when missed), for NPE.
+        Converted plot per scan (NaN when missed), for NPE; a tracker's own ``measurement``
+        (the plot it used, which differs when a scan holds several) takes precedence.
     truth_state : ndarray (runs, scans, 4), optional
         Without truth only innovation statistics are reported.
     cross_range_std : ndarray (runs, scans), optional
@@ -75,7 +76,7 @@ def evaluate(times, tracks: dict, measured_xy, truth_state=None, cross_range_std
                "coasted_scans": float(np.sum((out["flags"] & FLAG_COASTED) > 0))}
         rows = [row]
         if truth_state is not None:
-            npe = normalised_position_error(est[..., :2], truth_state[..., :2], measured_xy)
+            npe = normalised_position_error(est[..., :2], truth_state[..., :2], out.get("measurement", measured_xy))
             cols["rmse_position_m"] = rmse_per_scan(est[..., :2], truth_state[..., :2])
             cols["rmse_velocity_mps"] = rmse_per_scan(est[..., 2:], truth_state[..., 2:])
             cols["npe"] = npe

@@ -29,9 +29,14 @@ def plot_metrics_vs(table: pl.DataFrame, x: str, metrics: list[str], path: str |
     axes[-1, 0].set_xlabel(x)
     if title:
         fig.suptitle(title)
+    return save_figure(fig, path)
+
+
+def save_figure(fig, path: str | Path, dpi: int = 110) -> Path:
+    """Lay out, write atomically as PNG and close a matplotlib figure (the one way figures leave)."""
     fig.tight_layout()
     path = Path(path)
     with atomic_output(path) as f:
-        fig.savefig(f, format="png", dpi=110)
+        fig.savefig(f, format="png", dpi=dpi)
     plt.close(fig)
     return path

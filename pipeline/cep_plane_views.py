@@ -28,7 +28,7 @@ def write_cep_png(plane: CepPlane, path: str | Path, sensors=None, emitter=None,
     import matplotlib.pyplot as plt
     from matplotlib.colors import LogNorm
 
-    from pipeline.contract import atomic_output
+    from evaluators.report_plots import save_figure
 
     panels = _panels(plane)
     fig, axes = plt.subplots(1, len(panels), figsize=(6.2 * len(panels), 5.4), squeeze=False)
@@ -53,12 +53,7 @@ def write_cep_png(plane: CepPlane, path: str | Path, sensors=None, emitter=None,
         ax.set_title(f"{label}, {plane.method} CEP, P = {plane.probability:g}", fontsize=10)
     if title:
         fig.suptitle(title)
-    fig.tight_layout()
-    path = Path(path)
-    with atomic_output(path) as f:
-        fig.savefig(f, format="png", dpi=100)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=100)
 
 
 def _to_pixels(plane: CepPlane, xy):

@@ -146,7 +146,7 @@ def plot_association(panels, path: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from pipeline.contract import atomic_output
+    from evaluators.report_plots import save_figure
 
     fig, axes = plt.subplots(1, len(panels), figsize=(5.5 * len(panels), 3.8), squeeze=False)
     for ax, (title, rows, swept) in zip(axes[0], panels):
@@ -164,11 +164,7 @@ def plot_association(panels, path: Path) -> Path:
         ax.set_title(title, fontsize="medium")
         ax.legend(fontsize="small")
     fig.suptitle("track-association success, JPDA vs JPDA_A (cf. Park, Ryu & Lee 1994, Fig. 8)")
-    fig.tight_layout()
-    with atomic_output(path) as f:
-        fig.savefig(f, format="png", dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 @click.command("association-table")

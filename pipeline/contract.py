@@ -99,12 +99,18 @@ class ChannelData:
         Scan time per frame.
     arrays : dict of str to list of ndarray
         One list per array name, one entry per frame.
+    topic : str
+        The channel's topic (named in error messages).
+    path : str, optional
+        The file it was read from (named in error messages).
     """
 
     run: np.ndarray
     scan: np.ndarray
     time_s: np.ndarray
     arrays: dict[str, list[np.ndarray]]
+    topic: str = "channel"
+    path: str | None = None
 
     @property
     def n_runs(self) -> int:
@@ -114,14 +120,43 @@ class ChannelData:
     def n_scans(self) -> int:
         return int(self.scan.max()) + 1 if self.scan.size else 0
 
-    def grid(self, name: str) -> np.ndarray:
-        """Stack a fixed-shape array into ``[run, scan, ...]`` (NaN where a frame is missing)."""
+    def array(self, name: str) -> list[np.ndarray]:
+        """One array's entries, one per frame.
+
+        Raises
+        ------
+        InputError
+            The channel has no array ``name``, or only some of its frames carry it.
+        """
+        if name not in self.arrays:
+            have = ", ".join(sorted(self.arrays)) or "none"
+            raise InputError(f"{self.topic} lacks array {name!r} (have: {have})", self.path)
         items = self.arrays[name]
+        if len(items) != self.run.size:
+            raise InputError(f"{self.topic} array {name!r} is in {len(items)} of {self.run.size} frames; "
+                             "every frame must carry it", self.path)
+        return items
+
+    def _where(self, i: int) -> str:
+        return f"run {int(self.run[i])} scan {int(self.scan[i])}"
+
+    def grid(self, name: str) -> np.ndarray:
+        """Stack a fixed-shape array into ``[run, scan, ...]`` (NaN where a frame is missing).
+
+        Raises
+        ------
+        InputError
+            The array is missing or its shape differs between frames.
+        """
+        items = self.array(name)
         if not items:
             return np.zeros((0, 0))
         inner = items[0].shape
-        if any(a.shape != inner for a in items):
-            raise InputError(f"array {name!r} changes shape between frames; use ragged()")
+        bad = next((i for i, a in enumerate(items) if a.shape != inner), None)
+        if bad is not None:
+            raise InputError(f"{self.topic} array {name!r} has shape {inner} in {self._where(0)} but "
+                             f"{items[bad].shape} in {self._where(bad)}; it must keep one shape in every frame",
+                             self.path)
         dtype = np.result_type(items[0].dtype, np.float64) if items[0].dtype.kind in "iub" else items[0].dtype
         out = np.full((self.n_runs, self.n_scans, *inner), np.nan, dtype=dtype)
         out[self.run, self.scan] = np.stack(items)
@@ -136,13 +171,28 @@ class ChannelData:
             Padded values.
         counts : ndarray of int, shape (run, scan)
             How many entries each frame held (0 where the frame is missing).
+
+        Raises
+        ------
+        InputError
+            The array is missing, 0-d in some frame (no entry axis), or its entries change
+            shape between frames.
         """
-        items = self.arrays[name]
+        items = self.array(name)
+        bad = next((i for i, a in enumerate(items) if a.ndim == 0), None)
+        if bad is not None:
+            raise InputError(f"{self.topic} array {name!r} is a scalar in {self._where(bad)}; "
+                             "it must hold a list of entries (at least 1-D) in every frame", self.path)
+        tail = items[0].shape[1:] if items else ()
+        bad = next((i for i, a in enumerate(items) if a.shape[1:] != tail), None)
+        if bad is not None:
+            raise InputError(f"{self.topic} array {name!r} has entries of shape {tail} in {self._where(0)} but "
+                             f"{items[bad].shape[1:]} in {self._where(bad)}; entries must keep one shape",
+                             self.path)
         counts = np.zeros((self.n_runs, self.n_scans), dtype=np.int64)
         lengths = np.array([a.shape[0] for a in items], dtype=np.int64)
         counts[self.run, self.scan] = lengths
         width = int(lengths.max()) if lengths.size else 0
-        tail = items[0].shape[1:] if items else ()
         out = np.full((self.n_runs, self.n_scans, width, *tail), np.nan)
         if width:
             # one scatter instead of a Python loop over frames
@@ -179,7 +229,12 @@ class Dataset:
         rec = self.metadata.get(METADATA_SCENARIO, {})
         out = dict(rec)
         if "params" in out:
-            out["params"] = json.loads(out["params"])
+            try:
+                out["params"] = json.loads(out["params"])
+            except ValueError:
+                raise InputError(f"{METADATA_SCENARIO} metadata: params is not valid JSON", self.path) from None
+            if not isinstance(out["params"], dict):
+                raise InputError(f"{METADATA_SCENARIO} metadata: params must be a JSON object", self.path)
         return out
 
 
@@ -219,6 +274,17 @@ def decode_frame(data: bytes) -> tuple[int, int, float, dict[str, np.ndarray], i
     return msg.run, msg.scan, msg.time_s, arrays, max(msg.run_count, 1)
 
 
+def publish(tmp: str | Path, path: str | Path) -> None:
+    """Rename a finished temporary file over ``path`` with the permissions open() would give.
+
+    ``mkstemp`` creates files 0600; outputs are meant to be shared like any other file.
+    """
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)
+    os.replace(tmp, path)
+
+
 @contextmanager
 def atomic_output(path: str | Path, mode: str = "wb"):
     """Open a temporary file next to ``path`` and rename it over ``path`` on success.
@@ -233,11 +299,7 @@ def atomic_output(path: str | Path, mode: str = "wb"):
             yield f
             f.flush()
             os.fsync(f.fileno())
-        # mkstemp creates 0600; give the result the permissions a plain open() would.
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
+        publish(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
@@ -367,7 +429,7 @@ def _collect(messages, path, topics) -> tuple[dict[str, ChannelData], int]:
         count += 1
     channels = {
         topic: ChannelData(np.asarray(r, dtype=np.int64), np.asarray(k, dtype=np.int64),
-                           np.asarray(t, dtype=np.float64), arrs)
+                           np.asarray(t, dtype=np.float64), arrs, topic=topic, path=str(path))
         for topic, (r, k, t, arrs) in buckets.items()
     }
     return channels, count

@@ -98,12 +98,17 @@ class AlphaBetaGains:
         self.name = name
         self._cross_gains = cross_gains
 
-    def update(self, c_pred, r_cov, z_range, cos_b, sin_b, n_plots, design: TrackerDesign):
-        """Gain ``K = D₂ K̄₂ Dᵀ`` and the steady-state covariance those gains imply."""
-        T = design.scan_period_s
+    def update(self, c_pred, r_cov, z_range, cos_b, sin_b, n_plots, design: TrackerDesign, dt: float):
+        """Gain ``K = D₂ K̄₂ Dᵀ`` and the steady-state covariance those gains imply.
+
+        λ_k and β/T use this scan's interval ``dt`` (recorded scan times jitter); the fixed
+        filter's nominal λ̄ stays at the design period.
+        """
+        T = dt
         sigma_cross = z_range * design.sigma_bearing_rad
         lam_c = tracking_index(design.sigma_v, T, sigma_cross)
-        alpha_r, beta_r = kalata_gains(np.full(z_range.shape, design.lam_along))
+        lam_r = tracking_index(design.sigma_v, T, design.sigma_range_m)
+        alpha_r, beta_r = kalata_gains(np.full(z_range.shape, lam_r))
         alpha_c, beta_c, clamped = self._cross_gains(lam_c, design.lam_nominal)
         if design.startup:
             alpha_r, beta_r = with_startup(alpha_r, beta_r, n_plots)
@@ -140,8 +145,8 @@ class KalmanGains:
 
     name = "kalman"
 
-    def update(self, c_pred, r_cov, z_range, cos_b, sin_b, n_plots, design: TrackerDesign):
-        T = design.scan_period_s
+    def update(self, c_pred, r_cov, z_range, cos_b, sin_b, n_plots, design: TrackerDesign, dt: float):
+        T = dt
         gain = cv_position_gain_components(c_pred, *r_cov)
         c_post = cv_posterior_components(c_pred, gain)
         # the gain seen in the (along-range, cross-range) frame, for comparison with α-β
@@ -203,7 +208,8 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
     dict of ndarray
         ``state (runs, scans, 4)``, ``covariance (runs, scans, 4, 4)``, ``alpha``/``beta``
         ``(runs, scans, 2)`` as (along-range, cross-range), ``lambda_cross``, ``innovation
-        (runs, scans, 2)`` and ``flags (runs, scans)`` (bit mask, ``FLAG_*``).
+        (runs, scans, 2)``, ``measurement (runs, scans, 2)`` (the converted plot used, NaN when
+        the scan had none) and ``flags (runs, scans)`` (bit mask, ``FLAG_*``).
     """
     n_runs, n_scans = counts.shape
     if plot_range.ndim != 3:
@@ -217,6 +223,7 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
     beta = np.full((n_scans, 2, n_runs), nan)
     lam = np.full((n_scans, n_runs), nan)
     innov = np.full((n_scans, 2, n_runs), nan)
+    used = np.full((n_scans, 2, n_runs), nan)  # the plot each run used (for NPE against it)
     flags = np.zeros((n_scans, n_runs), np.uint8)
 
     x = np.zeros((4, n_runs))
@@ -234,6 +241,7 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
         z_r, z_b = _select_plots(plot_range[:, k], plot_bearing[:, k], counts[:, k], xp, started)
         cos_b, sin_b = np.cos(z_b), np.sin(z_b)
         zx, zy = z_r * cos_b, z_r * sin_b
+        used[k, 0], used[k, 1] = zx, zy
         r_cov = rotated_diagonal(cos_b, sin_b, var_r, (z_r * design.sigma_bearing_rad) ** 2)
 
         upd = started & has
@@ -248,7 +256,7 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
             nu[1] = zy[sel] - xp[1, sel]
             n_plots[sel] += 1
             gain, c_post, diag = strategy.update(cp[:, sel], tuple(r[sel] for r in r_cov), z_r[sel],
-                                                 cos_b[sel], sin_b[sel], n_plots[sel], design)
+                                                 cos_b[sel], sin_b[sel], n_plots[sel], design, dt)
             xu = cv_apply_gain_components(xp[:, sel], gain, nu)
             if isinstance(sel, slice):
                 x_new, c_new = xu, c_post
@@ -298,5 +306,6 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
         "beta": beta.transpose(2, 0, 1),
         "lambda_cross": lam.T,
         "innovation": innov.transpose(2, 0, 1),
+        "measurement": used.transpose(2, 0, 1),
         "flags": flags.T.copy(),
     }

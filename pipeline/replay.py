@@ -6,6 +6,7 @@ writes what they return and collects their tables.
 
 from __future__ import annotations
 
+import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -75,6 +76,8 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
     t1 = time.perf_counter()
     for stage in stages:
         design = stage.design(ds, design_overrides)
+        # later calls of stage.design(ds) (Rerun logging, figures) see the values this run used
+        ds.cache[("design", stage.name)] = design
         result = stage.run(ds, _select_trackers(stage, trackers), design)
         results[stage.name] = result
         designs[stage.name] = design
@@ -92,7 +95,8 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
     if out_path is not None:
         t3 = time.perf_counter()
         meta = {METADATA_PROVENANCE: {"input": Path(ds.path).name, "package_version": __version__,
-                                      "stages": ",".join(s.name for s in stages)}}
+                                      "stages": ",".join(s.name for s in stages),
+                                      "design": json.dumps(designs, sort_keys=True, default=str)}}
         if "replay.scenario" in ds.metadata:
             meta["replay.scenario"] = ds.metadata["replay.scenario"]
         with write_dataset(out_path, meta) as w:
@@ -128,7 +132,10 @@ def evaluate_files(data_path, out_path=None, recover=False) -> ReplayResult:
     if stage is None:
         raise InputError("holds no tracker output channels (expected /tracks/...)", out_path)
     result = stage.outputs_from_dataset(out)
-    design = stage.design(ds)
+    # score with the design the replay used (including its --set overrides), not the file's
+    used = json.loads(out.metadata.get(METADATA_PROVENANCE, {}).get("design", "{}")).get(stage.name)
+    design = stage.design(ds, {k: v for k, v in (used or {}).items() if k in stage.design_keys})
+    ds.cache[("design", stage.name)] = design
     p, s = stage.evaluate(ds, result, design)
     return ReplayResult(ds, p.with_columns(pl.lit(stage.name).alias("stage")),
                         s.with_columns(pl.lit(stage.name).alias("stage")), {stage.name: result})

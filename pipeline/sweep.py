@@ -167,15 +167,27 @@ def _iter_serial(tasks):
         yield run_point(t)
 
 
-def _iter_process(tasks, workers):
+PRELOAD = ["pipeline.sweep", "pipeline.replay", "recorders.simulated"]
+
+
+def _forkserver_context(extra=()):
+    """The forkserver context, with the numerics (and ``extra`` modules) preloaded.
+
+    Workers fork from a clean server with the numerics already imported, so they start fast
+    without inheriting this process's threads (polars, rerun, an event loop) the way plain
+    fork would. The preload list only takes effect if the server is not running yet.
+    """
     import multiprocessing as mp
+
+    ctx = mp.get_context("forkserver")
+    ctx.set_forkserver_preload([*PRELOAD, *extra])
+    return ctx
+
+
+def _iter_process(tasks, workers):
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    # forkserver: workers fork from a clean server with the numerics preloaded, so they start
-    # fast without inheriting this process's threads (polars, rerun) the way plain fork would.
-    ctx = mp.get_context("forkserver")
-    ctx.set_forkserver_preload(["pipeline.sweep", "pipeline.replay", "recorders.simulated"])
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+    with ProcessPoolExecutor(max_workers=workers, mp_context=_forkserver_context()) as pool:
         futures = [pool.submit(run_point, t) for t in tasks]
         for f in as_completed(futures):
             yield f.result()
@@ -193,8 +205,14 @@ def _iter_dask(tasks, workers, scheduler):
         client = Client(scheduler)
         cluster = None
     else:
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               host="127.0.0.1", dashboard_address=None)
+        import dask
+
+        # Local workers fork from the same preloaded server as the process pool instead of
+        # spawning fresh interpreters that each import numpy, polars and distributed again.
+        _forkserver_context(["distributed"])
+        with dask.config.set({"distributed.worker.multiprocessing-method": "forkserver"}):
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                   host="127.0.0.1", dashboard_address=None)
         client = Client(cluster)
     try:
         # import the numerics on every worker at once, before the first point, as the

@@ -16,6 +16,8 @@ import importlib
 
 import numpy as np
 
+from pipeline.contract import publish
+
 
 class LazyModule:
     """A module imported on first attribute access.
@@ -115,10 +117,7 @@ def recording(path: str | Path, app_id: str, recording_id: str, blueprint=None):
         yield rec
         rec.flush()
         rec.disconnect()
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
+        publish(tmp, path)
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)

@@ -14,6 +14,22 @@ import numpy as np
 from pipeline.errors import InputError
 
 
+def _recorded_value(key: str, raw, default):
+    """A design value from a file's scenario record, parsed like ``--set`` and type-checked.
+
+    JSON metadata may hold a string (``"5"``), ``null`` or ``true`` where a number belongs;
+    :func:`recorders.scenarios.coerce` parses strings, this also refuses the non-strings that
+    would fail later, far from the file.
+    """
+    from recorders.scenarios import coerce
+
+    value = coerce(key, raw, default)
+    numeric = isinstance(default, (int, float)) and not isinstance(default, bool)
+    if value is None or (numeric and (isinstance(value, bool) or not isinstance(value, (int, float)))):
+        raise InputError(f"parameter {key!r}: cannot read {raw!r} as {type(default).__name__}")
+    return value
+
+
 class Stage:
     """Base class of stage processors.
 
@@ -47,12 +63,21 @@ class Stage:
         return self.output_prefix + tracker
 
     def design(self, dataset, overrides: dict | None = None) -> dict:
-        """Design values: the file's scenario record, else the bundled scenario's defaults."""
+        """Design values: those of the replay in progress if there is one, else the file's
+        scenario record, else the bundled scenario's defaults, then ``overrides``."""
         from recorders.scenarios import coerce, load_scenario
+
+        if not overrides and ("design", self.name) in dataset.cache:
+            return dataset.cache[("design", self.name)]
 
         defaults = load_scenario(self.scenario).params
         recorded = dataset.scenario.get("params", {})
-        out = {k: recorded.get(k, defaults[k]) for k in self.design_keys}
+        out = {}
+        for k in self.design_keys:
+            try:
+                out[k] = _recorded_value(k, recorded[k], defaults[k]) if k in recorded else defaults[k]
+            except InputError as exc:  # the file's metadata, not the command line, is at fault
+                raise InputError(f"scenario record: {exc.problem}", dataset.path) from None
         for k, v in (overrides or {}).items():
             if k not in self.design_keys:
                 raise InputError(f"unknown tracker parameter {k!r} (known: {', '.join(self.design_keys)})")
