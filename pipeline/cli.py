@@ -145,7 +145,7 @@ def _report_plot(res, out_dir: Path) -> list[Path]:
 @click.option("--spawn", is_flag=True, help="Open the Rerun viewer on the recording.")
 @click.option("--recover", is_flag=True, help="Accept a truncated MCAP: keep its complete chunks.")
 @click.option("--set", "sets", multiple=True, metavar="NAME=VALUE", help="Override a tracker design value (e.g. nominal_cross_range_m=120).")
-@click.option("--rerun-run", default=0, show_default=True, help="Monte Carlo run shown in the per-run Rerun views.")
+@click.option("--rerun-run", type=click.IntRange(min=0), default=0, show_default=True, help="Monte Carlo run shown in the per-run Rerun views.")
 def run_cmd(data, trackers, out_path, rrd_path, no_rrd, spawn, recover, sets, rerun_run):
     """Replay a data set through every tracker that applies.
 

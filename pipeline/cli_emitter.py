@@ -42,8 +42,8 @@ def _singular_message(A) -> str:
 
 def crlb_summary(es, epoch: int = 0, kind: str = "joint", stationary: bool = False, probability: float = 0.5) -> dict:
     """CRLB, projections, slices, ellipses and CEPs of one resolved scenario epoch (plain numbers)."""
-    from pipeline.crlb import (cep_approx, cep_exact, cep_paper, crlb, error_ellipse, fisher_information,
-                               projection_covariance, slice_covariance)
+    from pipeline.crlb import (cep_approx, cep_exact, cep_paper, crlb, error_ellipse, projection_covariance,
+                               slice_covariance, whitened_jacobian)
     from pipeline.stages.emitter_localisation import underdetermined_reason
     from pipeline.tdoa_fdoa_model import STATE_NAMES, independent_equations, measurement_model, measurement_rows, unknowns
 
@@ -57,10 +57,10 @@ def crlb_summary(es, epoch: int = 0, kind: str = "joint", stationary: bool = Fal
     _, H = measurement_model(theta, es.sensor_pos[epoch], es.sensor_vel[epoch], es.pairs, es.carrier_hz)
     Hs, sigma = H[rows][:, free], es.sigma[epoch, rows]
     cov, singular = crlb(Hs[None], sigma[None])
+    A = whitened_jacobian(Hs, sigma)
     if singular[0]:
-        raise InputError(_singular_message(Hs / sigma[:, None]))
+        raise InputError(_singular_message(A))
     cov = cov[0]
-    fim = fisher_information(Hs, sigma)
     out = {"estimator": kind, "state_names": [STATE_NAMES[i] for i in free], "emitter": theta.tolist(),
            "independent_equations": independent_equations(kind, es.pairs, es.sensor_pos.shape[1]),
            "unknowns": len(free), "crlb": cov.tolist(), "std": np.sqrt(np.diag(cov)).tolist(),
@@ -68,7 +68,7 @@ def crlb_summary(es, epoch: int = 0, kind: str = "joint", stationary: bool = Fal
     blocks = [("position", [0, 1], "m")] + ([("velocity", [2, 3], "m/s")] if len(free) == 4 else [])
     for label, comps, unit in blocks:
         entry = {"unit": unit}
-        for how, c2 in (("projection", projection_covariance(cov, comps)), ("slice", slice_covariance(fim, comps))):
+        for how, c2 in (("projection", projection_covariance(cov, comps)), ("slice", slice_covariance(A, comps))):
             major, minor, angle = error_ellipse(c2, probability)
             entry[how] = {"covariance": c2.tolist(), "semi_major": float(major), "semi_minor": float(minor),
                           "angle_deg": float(np.degrees(angle)), "cep_exact": float(cep_exact(c2, probability)),

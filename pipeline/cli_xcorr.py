@@ -17,15 +17,17 @@ PAPER = {"strong": {"clutter_per_gate": 2.0, "amplitude_mean": 21000.0, "amplitu
 
 def reference_bearings(dataset, reference: str):
     """Reference bearings ``(R, K, T)``: the truth, or a tracker's estimates (as the paper's PDA tracks)."""
-    from pipeline.stages.bearing_peaks import TRUTH, BearingPeaksStage
+    from pipeline.stages.bearing_peaks import PEAKS, TRUTH, BearingPeaksStage, read_truth
 
     truth = dataset.channels.get(TRUTH)
     if reference == "auto":
         reference = "truth" if truth is not None and "bearing_rad" in truth.arrays else "jpda_a"
     if reference == "truth":
-        if truth is None or "bearing_rad" not in truth.arrays:
+        peaks = dataset.channel(PEAKS)
+        bearings = read_truth(dataset, peaks.n_runs, peaks.n_scans)
+        if bearings is None:
             raise InputError(f"no {TRUTH} channel: use --reference jpda_a (tracker estimates)", dataset.path)
-        return truth.grid("bearing_rad"), reference
+        return bearings, reference
     stage = BearingPeaksStage()
     overrides = {} if truth is not None else {"track_start": "two-point"}
     design = stage.design(dataset, overrides)
@@ -37,16 +39,16 @@ def fit_dataset(path, reference: str = "auto", gate_deg: float | None = None, th
     """Read a peak data set and fit the model; returns ``(PeakModelFit, roles)``."""
     from pipeline.contract import read_dataset
     from pipeline.peak_model_fit import fit_peak_model
-    from pipeline.stages.bearing_peaks import read_peaks
+    from pipeline.stages.bearing_peaks import field_deg, read_peaks, recorded_float
 
     ds = read_dataset(path)
     peaks = read_peaks(ds)
     params = ds.scenario.get("params", {})
-    gate = float(np.deg2rad(gate_deg if gate_deg is not None else params.get("gate_deg", 10.0)))
+    gate = float(np.deg2rad(gate_deg if gate_deg is not None else recorded_float(ds, "gate_deg", 10.0)))
     if not gate > 0:
         raise InputError("--gate-deg must be > 0")
     ref, name = reference_bearings(ds, reference)
-    field = (np.deg2rad(float(params.get("field_min_deg", 0.0))), np.deg2rad(float(params.get("field_max_deg", 180.0))))
+    field = tuple(np.deg2rad(field_deg(ds)))
     fit = fit_peak_model(peaks["bearing"], peaks["amplitude"], peaks["run"], peaks["scan"], ref, gate, threshold,
                          field, name)
     pair = str(params.get("pair", "strong-weak")).split("-")
@@ -129,12 +131,47 @@ def fit_peaks_cmd(data, reference, gate_deg, threshold, as_json):
         click.echo(format_fit(fit, roles))
 
 
-def association_table(table, swept: list[str]):
+def read_study(study: Path):
+    """A ``replay sweep`` folder's spec and table, checked: ``(spec, swept parameter names, table)``.
+
+    Raises
+    ------
+    InputError
+        Naming the folder: no sweep files, a sweep.json that is not JSON or has no swept
+        ``params``, an unreadable sweep.parquet or one without the sweep table's columns.
+    """
+    import polars as pl
+
+    table_path, spec_path = study / "sweep.parquet", study / "sweep.json"
+    if not table_path.exists() or not spec_path.exists():
+        raise InputError("not a sweep folder (no sweep.parquet / sweep.json)", study)
+    try:
+        spec = json.loads(spec_path.read_text())
+    except (ValueError, OSError) as exc:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
+        raise InputError(f"sweep.json is not readable JSON ({exc})", study) from None
+    params = spec.get("params") if isinstance(spec, dict) else None
+    if not isinstance(params, dict) or not params:
+        raise InputError("sweep.json names no swept parameters (expected \"params\": {name: [values, ...]})", study)
+    swept = [str(k) for k in params]
+    try:
+        table = pl.read_parquet(table_path)
+    except (pl.exceptions.PolarsError, OSError) as exc:
+        raise InputError(f"sweep.parquet is unreadable ({str(exc).splitlines()[0]})", study) from None
+    missing = [c for c in (*swept, "tracker", "metric", "value") if c not in table.columns]
+    if missing:
+        raise InputError(f"sweep.parquet lacks column(s) {', '.join(missing)}", study)
+    return spec, swept, table
+
+
+def association_table(table, swept: list[str], path=None):
     """Fig. 8 rows from a sweep table: one row per grid point and tracker, success/swap/loss."""
 
     wide = table.pivot(on="metric", index=[*swept, "tracker"], values="value", aggregate_function="first")
     if "success_rate" not in wide.columns:
-        raise InputError("the sweep has no success_rate metric (needs /xcorr/truth): not an xcorr-peaks study")
+        raise InputError("the sweep has no success_rate metric (needs /xcorr/truth): not an xcorr-peaks study", path)
+    missing = [c for c in ("success_rate_stderr", "swap_rate", "loss_rate", "runs") if c not in wide.columns]
+    if missing:
+        raise InputError(f"the sweep lacks metric(s) {', '.join(missing)}: not an xcorr-peaks study", path)
     return wide.select(*swept, "tracker", "success_rate", "success_rate_stderr", "swap_rate", "loss_rate", "runs").sort(
         [*swept[1:], swept[0], "tracker"])
 
@@ -182,16 +219,10 @@ def association_table_cmd(studies, output):
       replay sweep xcorr-maneuver --param min_distance_deg=0.5,1,2,4,8 --runs 100 -o maneuver/
       replay association-table crossing/ maneuver/
     """
-    import polars as pl
-
     panels = []
     for study in studies:
-        table_path, spec_path = study / "sweep.parquet", study / "sweep.json"
-        if not table_path.exists() or not spec_path.exists():
-            raise InputError("not a sweep folder (no sweep.parquet / sweep.json)", study)
-        spec = json.loads(spec_path.read_text())
-        swept = list(spec.get("params", {}))
-        rows = association_table(pl.read_parquet(table_path), swept)
+        spec, swept, table = read_study(study)
+        rows = association_table(table, swept, study)
         click.echo(f"{spec.get('scenario', study)} ({study}); success = every track ends on its own target and was "
                    "never on another; ± 1.96 SE")
         click.echo(f"{'  '.join(f'{s:>18}' for s in swept)} {'tracker':<8} {'success %':>14} {'swap %':>7} {'loss %':>7} {'runs':>5}")

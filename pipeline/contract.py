@@ -137,6 +137,22 @@ class ChannelData:
                              "every frame must carry it", self.path)
         return items
 
+    def require_every_frame(self, n_runs: int | None = None, n_scans: int | None = None) -> None:
+        """Raise :class:`InputError` naming the first (run, scan) without a frame.
+
+        :meth:`grid` fills a missing frame with NaN; a stage that cannot work with gaps calls
+        this first so the user learns which frame is missing rather than that NaNs appeared.
+        """
+        n_runs = self.n_runs if n_runs is None else n_runs
+        n_scans = self.n_scans if n_scans is None else n_scans
+        seen = np.zeros((n_runs, n_scans), bool)
+        inside = (self.run < n_runs) & (self.scan < n_scans)
+        seen[self.run[inside], self.scan[inside]] = True
+        if not seen.all():
+            r, k = (int(v[0]) for v in np.nonzero(~seen))
+            raise InputError(f"{self.topic} has no frame for run {r} scan {k} (it must cover all {n_runs} run(s) × "
+                             f"{n_scans} scan(s))", self.path)
+
     def _where(self, i: int) -> str:
         return f"run {int(self.run[i])} scan {int(self.scan[i])}"
 

@@ -10,7 +10,7 @@ Spec ``tdoa-fdoa-gauss-newton.md``, "CRLB and its subspaces" (paper eqs. 18–22
 Functions return the subspace *covariances* (I_p⁻¹ = the 2×2 block of the CRLB, I_s⁻¹), since
 ellipses and CEPs are drawn from covariances. The CRLB itself comes from the QR factor of the
 whitened, column-scaled Jacobian (:func:`pipeline.batched_least_squares.information_covariance`),
-not from inverting I.
+not from inverting I; so does the slice, from the Jacobian's columns of the kept components.
 
 CEP, three ways (all for a zero-mean 2-D Gaussian with covariance eigenvalues λ₁ ≥ λ₂):
 
@@ -63,12 +63,28 @@ def projection_covariance(cov: np.ndarray, components) -> np.ndarray:
     return cov[..., c[:, None], c[None, :]]
 
 
-def slice_covariance(fim: np.ndarray, components) -> np.ndarray:
-    """(D I Dᵀ)⁻¹: covariance of ``components`` when the others are known (eq. 20's I_s⁻¹)."""
+def slice_covariance(whitened: np.ndarray, components) -> np.ndarray:
+    """(D I Dᵀ)⁻¹: covariance of ``components`` when the others are known (eq. 20's I_s⁻¹).
+
+    Knowing the other components removes their columns from the whitened Jacobian
+    ``A = Ψ^{-1/2} H``, and ``D I Dᵀ = A_cᵀ A_c`` for the kept columns ``A_c``, so the slice is
+    the QR-based covariance of ``A_c`` (:func:`pipeline.batched_least_squares.information_covariance`):
+    the information matrix is neither formed nor inverted.
+
+    Parameters
+    ----------
+    whitened : ndarray (..., m, q)
+        Whitened Jacobian (:func:`whitened_jacobian`).
+    components : sequence of int
+        Columns of the slice.
+
+    Returns
+    -------
+    ndarray (..., k, k)
+        NaN where ``A_c`` is rank deficient.
+    """
     c = np.asarray(components)
-    block = fim[..., c[:, None], c[None, :]]
-    eye = np.broadcast_to(np.eye(len(c)), block.shape)
-    return np.linalg.solve(block, eye)
+    return information_covariance(np.asarray(whitened, float)[..., c])[0]
 
 
 def eigen_2x2(cov2: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -19,6 +19,40 @@ import numpy as np
 from pipeline.errors import InputError
 
 
+def transition_inverse_check(Phi, name: str = "Phi",
+                             needed_by: str = "the decorrelation process (eq. 3.1.3)") -> np.ndarray:
+    """Validate a state transition whose inverse is used (decorrelation, SRIF time update).
+
+    Parameters
+    ----------
+    Phi : array_like (n, n)
+    name : str
+        What Φ is (for the message).
+    needed_by : str
+        What needs Φ⁻¹ (for the message).
+
+    Returns
+    -------
+    ndarray (n, n)
+        Φ as float64.
+
+    Raises
+    ------
+    InputError
+        If Φ is not square, holds NaN/Inf, or is singular to working precision
+        (condition number above 1/ε).
+    """
+    Phi = np.asarray(Phi, dtype=float)
+    if Phi.ndim != 2 or Phi.shape[0] != Phi.shape[1]:
+        raise InputError(f"{name} must be square, got shape {Phi.shape}")
+    if not np.all(np.isfinite(Phi)):
+        raise InputError(f"{name} holds NaN/Inf")
+    cond = np.linalg.cond(Phi)
+    if not np.isfinite(cond) or cond > 1.0 / np.finfo(float).eps:
+        raise InputError(f"{name} is singular (condition number {cond:.3g}); {needed_by} needs Φ⁻¹")
+    return Phi
+
+
 def inverse_transition_rows(H: np.ndarray, Phi: np.ndarray, name: str = "Phi") -> np.ndarray:
     """``H Φ⁻¹`` through a solve (``Φᵀ Xᵀ = Hᵀ``); a singular Φ is an :class:`InputError`.
 
@@ -29,15 +63,7 @@ def inverse_transition_rows(H: np.ndarray, Phi: np.ndarray, name: str = "Phi") -
     name : str
         What Φ is (for the message).
     """
-    Phi = np.asarray(Phi, dtype=float)
-    if Phi.ndim != 2 or Phi.shape[0] != Phi.shape[1]:
-        raise InputError(f"{name} must be square, got shape {Phi.shape}")
-    if not np.all(np.isfinite(Phi)):
-        raise InputError(f"{name} holds NaN/Inf")
-    cond = np.linalg.cond(Phi)
-    if not np.isfinite(cond) or cond > 1.0 / np.finfo(float).eps:
-        raise InputError(f"{name} is singular (condition number {cond:.3g}); the decorrelation "
-                         "process needs Φ⁻¹ (eq. 3.1.3)")
+    Phi = transition_inverse_check(Phi, name)
     return np.linalg.solve(Phi.T, np.asarray(H, dtype=float).T).T
 
 

@@ -37,3 +37,47 @@ def require_finite(name: str, values, path: str | Path | None = None) -> None:
     if arr.dtype.kind in "fc" and not np.all(np.isfinite(arr)):
         bad = int(np.size(arr) - np.count_nonzero(np.isfinite(arr)))
         raise InputError(f"{name} holds {bad} NaN/Inf value(s)", path)
+
+
+def check_all(checks, path: str | Path | None = None) -> None:
+    """Raise :class:`InputError` with the message of the first failed check.
+
+    Parameters
+    ----------
+    checks : iterable of (bool, str)
+        ``(condition, message)`` pairs, in the order they should be reported; a condition
+        that is false makes its message the error.
+    path : str or Path, optional
+        The file the checked values came from.
+
+    Raises
+    ------
+    InputError
+        At the first false condition.
+    """
+    for ok, message in checks:
+        if not ok:
+            raise InputError(message, path)
+
+
+def require_finite_params(params, path: str | Path | None = None) -> None:
+    """Raise :class:`InputError` if a float parameter is NaN or ±Inf.
+
+    Parameters
+    ----------
+    params : mapping of str to value
+        Scenario or design parameters; only float values are checked (lists and strings
+        have their own parsers and checks).
+    path : str or Path, optional
+        The file the parameters came from.
+
+    Raises
+    ------
+    InputError
+        ``parameter '<key>' must be finite`` for the first offending key.
+    """
+    import math
+
+    for key, value in params.items():
+        if isinstance(value, float) and not math.isfinite(value):
+            raise InputError(f"parameter {key!r} must be finite", path)

@@ -10,8 +10,8 @@ Models are strategies over the same core:
 * a :class:`MotionModel` (Φ, Ψ, q, H, and where its states sit in the common state);
 * a filter kind: ``"kf"`` (:func:`pipeline.kalman.kf_predict` / :func:`~pipeline.kalman.kf_update`
   and :func:`~pipeline.kalman.gaussian_log_likelihood`) or ``"srif"``
-  (:mod:`pipeline.srif`: QR time and measurement updates, likelihood from the residual and the
-  triangular factors);
+  (:func:`pipeline.srif.srif_predict_update`, the one SRIF recursion: QR time and measurement
+  updates, likelihood from the residual and the triangular factors);
 * the measurement of the whole IMM (:class:`MeasurementStream`): plain ``(z_k, H, R)`` or
   decorrelated ``(y_k, Ĥ, diag σ_η²)`` (:mod:`pipeline.decorrelation`; ``Ĥ`` per model, since it
   depends on Φ). All models of one IMM see the same measurement, so their likelihoods compare.
@@ -42,11 +42,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.decorrelation import decorrelated_measurement_matrix, inverse_transition_rows, pseudo_measurements
+from pipeline.decorrelation import (decorrelated_measurement_matrix, inverse_transition_rows, pseudo_measurements,
+                                    transition_inverse_check)
 from pipeline.errors import InputError, require_finite
-from pipeline.kalman import gaussian_log_likelihood, kf_predict, kf_update
-from pipeline.srif import (LOG_2PI, information_factor, srif_from_moments, srif_measurement_update,
-                           srif_moments, srif_time_update)
+from pipeline.kalman import (gaussian_log_likelihood, kf_predict, kf_update, kinematic_transition,
+                             piecewise_white_noise_gain)
+from pipeline.srif import information_factor, srif_from_moments, srif_moments, srif_predict_update
 
 FILTER_KINDS = ("kf", "srif")
 
@@ -72,6 +73,9 @@ class MotionModel:
         Position of each of the model's states in the common state.
     fill_mean, fill_cov : ndarray (N,), (N, N)
         Mean and covariance of the common components the model does not carry (zero on its own).
+    F_inv : ndarray (n, n), optional
+        The exact Φ⁻¹ when the model knows it (a kinematic model: Φ(−T)); otherwise ``H Φ⁻¹``
+        (eq. 3.1.3) comes from a solve with Φ.
     """
 
     name: str
@@ -82,15 +86,22 @@ class MotionModel:
     index: np.ndarray
     fill_mean: np.ndarray
     fill_cov: np.ndarray
+    F_inv: np.ndarray | None = None
     Q: np.ndarray = field(init=False)
-    Phi_inv: np.ndarray = field(init=False)
     H_Phi_inv: np.ndarray = field(init=False)
 
     def __post_init__(self):
         self.F, self.G, self.q, self.H = (np.asarray(a, dtype=float) for a in (self.F, self.G, self.q, self.H))
         self.Q = self.G @ self.q @ self.G.T
-        self.H_Phi_inv = inverse_transition_rows(self.H, self.F, f"Φ of model {self.name!r}")
-        self.Phi_inv = np.linalg.solve(self.F, np.eye(self.n))
+        name = f"Φ of model {self.name!r}"
+        if self.F_inv is None:
+            self.H_Phi_inv = inverse_transition_rows(self.H, self.F, name)
+        else:
+            transition_inverse_check(self.F, name, "the decorrelated measurement and the SRIF time update")
+            self.F_inv = np.asarray(self.F_inv, dtype=float)
+            if not np.allclose(self.F @ self.F_inv, np.eye(self.n), rtol=0.0, atol=1e-9):
+                raise InputError(f"F_inv of model {self.name!r} is not the inverse of its Φ")
+            self.H_Phi_inv = self.H @ self.F_inv
         self.index = np.asarray(self.index, dtype=np.int64)
 
     @property
@@ -137,19 +148,18 @@ def kinematic_model(name: str, order: int, T: float, q: float, axes: int = 1, no
     -------
     MotionModel
     """
-    if order == 2:
-        F1 = np.array([[1.0, T], [0.0, 1.0]])
-        G1 = np.array([[T * T / 2], [T]])
-    elif order == 3:
-        F1 = np.array([[1.0, T, T * T / 2], [0.0, 1.0, T], [0.0, 0.0, 1.0]])
-        if noise == "white":
-            G1 = np.array([[T**3 / 6], [T * T / 2], [T]])
-        elif noise == "increment":
-            G1 = np.array([[T * T / 2], [T], [1.0]])
-        else:
-            raise ValueError(f"unknown noise form {noise!r}")
-    else:
+    if order not in (2, 3):
         raise ValueError("order must be 2 or 3")
+    if noise not in ("white", "increment") or (noise == "increment" and order != 3):
+        raise ValueError(f"unknown noise form {noise!r} for order {order}")
+    F1 = kinematic_transition(T, order)
+    if noise == "white":
+        # piecewise-constant white noise on the highest derivative: for CV exactly the
+        # per-axis model of pipeline.kalman.white_acceleration_model (Q = q Ψ Ψᵀ)
+        G1 = piecewise_white_noise_gain(T, order)[:, None]
+    else:
+        # the increment is applied at the start of the sample and propagates through Φ: Ψ = Φ e_a
+        G1 = F1[:, -1:]
     H1 = np.zeros((1, order))
     H1[0, 0] = 1.0
     N = 3 * axes
@@ -159,7 +169,7 @@ def kinematic_model(name: str, order: int, T: float, q: float, axes: int = 1, no
         acc = 3 * np.arange(axes) + 2
         fill_cov[acc, acc] = q if fill_variance is None else fill_variance
     return MotionModel(name, _per_axis(F1, axes), _per_axis(G1, axes), q * np.eye(axes), _per_axis(H1, axes),
-                       index, np.zeros(N), fill_cov)
+                       index, np.zeros(N), fill_cov, F_inv=_per_axis(kinematic_transition(-T, order), axes))
 
 
 @dataclass
@@ -259,7 +269,7 @@ class _Group:
         self.identity = self.model.identity_embedding
         self.index = self.model.index
         stack = lambda name: np.stack([getattr(m, name) for m in mods])  # noqa: E731
-        self.F, self.Q, self.G, self.Phi_inv, self.H_Phi_inv = (stack(a) for a in ("F", "Q", "G", "Phi_inv", "H_Phi_inv"))
+        self.F, self.Q, self.G, self.H_Phi_inv = (stack(a) for a in ("F", "Q", "G", "H_Phi_inv"))
         self.H = self.model.H
         self.fill_mean, self.fill_cov = stack("fill_mean"), stack("fill_cov")
         if self.kind == "srif":
@@ -285,17 +295,15 @@ def kf_step(g: _Group, x, P, y, H, R_meas, Rv):
     """Model-matched Kalman step (thesis eqs. 4.1.1–4.1.5) plus ``log Λ`` and the NIS."""
     x, P = kf_predict(x, P, g.F, g.Q)
     x, P, nu, S, _ = kf_update(x, P, y, H, R_meas)
-    ll = gaussian_log_likelihood(nu, S)
-    m = y.shape[-1]
-    logdet = np.log(S[..., 0, 0]) if m == 1 else np.linalg.slogdet(S)[1]
-    return x, P, ll, -2.0 * ll - logdet - m * LOG_2PI
+    ll, nis, _ = gaussian_log_likelihood(nu, S, return_parts=True)
+    return x, P, ll, nis
 
 
 def srif_step(g: _Group, x, P, y, H, R_meas, Rv):
-    """Model-matched SRIF step (4.3.5–4.3.13) from the mixed moments (4.3.6–4.3.7)."""
+    """Model-matched SRIF step (4.3.5–4.3.13) from the mixed moments (4.3.6–4.3.7): the one SRIF
+    recursion (:func:`pipeline.srif.srif_predict_update`) between the moment conversions."""
     R, z = srif_from_moments(x, P)
-    R, z = srif_time_update(R, z, g.Phi_inv, g.G, g.Rw)
-    R, z, e, ll = srif_measurement_update(R, z, H, y, Rv)
+    R, z, e, ll = srif_predict_update(R, z, g.F, g.G, g.Rw, H, y, Rv)
     x, P = srif_moments(R, z)
     return x, P, ll, e * e
 

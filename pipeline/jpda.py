@@ -41,7 +41,8 @@ from functools import lru_cache
 import numpy as np
 from scipy.special import erf, ndtr
 
-from pipeline.kalman import apply_gain, kalman_gain, kf_predict
+from pipeline.kalman import apply_gain, continuous_white_noise_model, kalman_gain, kf_predict
+from pipeline.kalman import two_point_start  # noqa: F401  (eq. 8c; importable from here as before)
 
 FLAG_INITIALISING = 1   # before the track start
 FLAG_NO_GATED_PEAK = 2  # coasted: no peak in the gate
@@ -96,24 +97,9 @@ class BearingTrackerDesign:
 
 
 def bearing_motion_model(dt: float, q: float):
-    """``F = [[1, T], [0, 1]]`` and the continuous white-noise acceleration ``Q`` (eq. 8b)."""
-    F = np.array([[1.0, dt], [0.0, 1.0]])
-    Q = q * np.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]])
-    return F, Q
-
-
-def two_point_start(z0: np.ndarray, z1: np.ndarray, dt: float, sigma_p: np.ndarray):
-    """State and covariance from two bearings one scan apart (eq. 8c for T = 1).
-
-    Returns
-    -------
-    x : ndarray (..., 2)
-    P : ndarray (..., 2, 2)
-    """
-    x = np.stack([z1, (z1 - z0) / dt], axis=-1)
-    s2 = np.broadcast_to(np.asarray(sigma_p, float) ** 2, x.shape[:-1])
-    P = np.stack([np.stack([s2, s2 / dt], -1), np.stack([s2 / dt, 2 * s2 / dt**2], -1)], -2)
-    return x, P
+    """``F = [[1, T], [0, 1]]`` and the continuous white-noise acceleration ``Q`` (eq. 8b):
+    :func:`pipeline.kalman.continuous_white_noise_model` of order 2."""
+    return continuous_white_noise_model(dt, q, 2)
 
 
 # --------------------------------------------------------------------------- likelihood terms
@@ -451,7 +437,7 @@ def track_bearing_peaks(scans: list[ScanPeaks], x0: np.ndarray, P0: np.ndarray, 
     """
     K = len(scans)
     R, T, _ = x0.shape
-    F, Q = bearing_motion_model(design.scan_period_s, design.q_rad2)
+    F, Q = continuous_white_noise_model(design.scan_period_s, design.q_rad2, 2)  # eq. 8b
     H = np.array([[1.0, 0.0]])
     Rm = (np.asarray(design.sigma_p_rad, float) ** 2)[..., None, None] * np.ones((R, T, 1, 1))
     out = {

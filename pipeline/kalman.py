@@ -7,6 +7,8 @@ one call, so a study costs one pass over the scans, not one Python loop per run.
 
 from __future__ import annotations
 
+from math import factorial
+
 import numpy as np
 
 
@@ -50,13 +52,33 @@ def apply_gain(x: np.ndarray, P: np.ndarray, K: np.ndarray, innovation: np.ndarr
     return x_post, 0.5 * (P_post + np.swapaxes(P_post, -1, -2))
 
 
-def gaussian_log_likelihood(innovation: np.ndarray, S: np.ndarray) -> np.ndarray:
-    """``log N(ν; 0, S)`` per batch element, through a Cholesky factor of ``S``."""
+def gaussian_log_likelihood(innovation: np.ndarray, S: np.ndarray, return_parts: bool = False):
+    """``log N(ν; 0, S)`` per batch element, through a Cholesky factor of ``S``.
+
+    Parameters
+    ----------
+    innovation : ndarray (..., m)
+    S : ndarray (..., m, m)
+        Innovation covariance, symmetric positive definite.
+    return_parts : bool
+        Also return the two terms the factor gives, so that callers needing the NIS or
+        ``log|S|`` do not factorise ``S`` a second time.
+
+    Returns
+    -------
+    log_likelihood : ndarray (...)
+    nis : ndarray (...)
+        ``νᵀ S⁻¹ ν`` (only with ``return_parts``).
+    log_det : ndarray (...)
+        ``log|S|`` (only with ``return_parts``).
+    """
     L = np.linalg.cholesky(S)
     w = np.linalg.solve(L, innovation[..., None])[..., 0]
     m = innovation.shape[-1]
     logdet = 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
-    return -0.5 * (np.sum(w * w, axis=-1) + logdet + m * np.log(2.0 * np.pi))
+    nis = np.sum(w * w, axis=-1)
+    ll = -0.5 * (nis + logdet + m * np.log(2.0 * np.pi))
+    return (ll, nis, logdet) if return_parts else ll
 
 
 def kf_update(x: np.ndarray, P: np.ndarray, z: np.ndarray, H: np.ndarray, R: np.ndarray):
@@ -86,10 +108,112 @@ def white_acceleration_model(dt: float | np.ndarray, sigma_v: float, axes: int =
     I = np.eye(axes)
     Z = np.zeros((axes, axes))
     F = np.block([[I, Z], [Z, I]]) + np.kron(np.array([[0.0, 1.0], [0.0, 0.0]]), I) * dt[..., None, None]
-    g = np.stack(np.broadcast_arrays(0.5 * dt**2, dt), axis=-1)  # (..., 2)
+    g = piecewise_white_noise_gain(dt, 2)  # (..., 2): [dt²/2, dt]
     q1 = sigma_v**2 * g[..., :, None] * g[..., None, :]  # (..., 2, 2) per-axis block
     Q = np.einsum("...ab,ij->...aibj", q1, I).reshape(*dt.shape, 2 * axes, 2 * axes)
     return F, Q
+
+
+def kinematic_transition(T: float, order: int) -> np.ndarray:
+    """Transition ``Φ(T)`` of one axis of an ``order``-state kinematic chain ``[p, ṗ, p̈, …]``.
+
+    ``Φ_ij = T^(j−i) / (j−i)!`` for ``j ≥ i``. It is a group in T, so the exact inverse is
+    ``Φ(T)⁻¹ = Φ(−T)``: callers that need the inverse evaluate ``kinematic_transition(-T, order)``
+    instead of inverting.
+
+    Parameters
+    ----------
+    T : float
+        Sample period (s); negative for the inverse.
+    order : int
+        Number of states per axis (2: constant velocity, 3: constant acceleration).
+
+    Returns
+    -------
+    ndarray (order, order)
+    """
+    F = np.eye(order)
+    for k in range(1, order):
+        F += np.eye(order, k=k) * (T**k / factorial(k))
+    return F
+
+
+def piecewise_white_noise_gain(T: float | np.ndarray, order: int) -> np.ndarray:
+    """Gain ``Ψ = [T^n/n!, …, T²/2, T]`` of a white noise on the highest derivative held constant
+    over each sample (the *piecewise-constant* white-noise model, ``Q = q Ψ Ψᵀ``).
+
+    ``order = 2``: white acceleration on ``[p, v]`` (what :func:`white_acceleration_model` uses
+    per axis); ``order = 3``: white jerk on ``[p, v, a]``.
+
+    Parameters
+    ----------
+    T : float or ndarray
+        Sample period (s); an array gives a batch.
+    order : int
+        Number of states per axis.
+
+    Returns
+    -------
+    ndarray (..., order)
+    """
+    T = np.asarray(T, dtype=float)
+    return np.stack([T**k / factorial(k) for k in range(order, 0, -1)], axis=-1)
+
+
+def continuous_white_noise_model(T: float, q: float, order: int = 2):
+    """One axis of a kinematic chain driven by *continuous-time* white noise of spectral density q
+    on its highest derivative (not the piecewise-constant model of :func:`white_acceleration_model`,
+    whose ``Q = q Ψ Ψᵀ`` is rank one).
+
+    ``Q = q ∫₀ᵀ Φ(s) e eᵀ Φ(s)ᵀ ds``, i.e. ``Q_ij = q T^(2n−1−i−j) / ((n−1−i)! (n−1−j)! (2n−1−i−j))``;
+    for ``order = 2``: ``Q = q [[T³/3, T²/2], [T²/2, T]]``.
+
+    Parameters
+    ----------
+    T : float
+        Sample period (s).
+    q : float
+        Spectral density (units of the highest derivative² per second).
+    order : int
+        Number of states per axis.
+
+    Returns
+    -------
+    F, Q : ndarray (order, order)
+    """
+    n = order
+    M = np.empty((n, n))
+    for i in range(n):
+        for j in range(n):
+            p = 2 * n - 1 - i - j
+            M[i, j] = T**p / (factorial(n - 1 - i) * factorial(n - 1 - j) * p)
+    return kinematic_transition(T, order), q * M
+
+
+def two_point_start(z0: np.ndarray, z1: np.ndarray, dt: float, sigma_p: np.ndarray):
+    """Two-point track start ``[z₁, (z₁ − z₀)/T]`` from two position measurements one sample apart.
+
+    With independent measurement errors of variance σ²:
+    ``P(0|0) = [[σ², σ²/T], [σ²/T, 2σ²/T²]]``.
+
+    Parameters
+    ----------
+    z0, z1 : ndarray (...)
+        Measurements at the previous and the current sample.
+    dt : float
+        Sample period T (s).
+    sigma_p : float or ndarray (...)
+        Measurement standard deviation σ.
+
+    Returns
+    -------
+    x : ndarray (..., 2)
+    P : ndarray (..., 2, 2)
+    """
+    x = np.stack([z1, (z1 - z0) / dt], axis=-1)
+    s2 = np.broadcast_to(np.asarray(sigma_p, float) ** 2, x.shape[:-1])
+    P = np.stack([np.stack([s2, s2 / dt], -1), np.stack([s2 / dt, 2 * s2 / dt**2], -1)], -2)
+    return x, P
 
 
 # --------------------------------------------------------------------------- CV kernel

@@ -6,13 +6,17 @@ eqs. 4.2.3–4.2.4, 4.2.18–4.2.22, 4.3.5–4.3.13). The filter carries ``(R, z
 
 * time update (4.2.18 / 4.3.5): an orthogonal triangularisation (Householder QR) of
   ``[[R_w, 0, R_w w̄], [−R Φ⁻¹ Ψ, R Φ⁻¹, z]]`` leaves ``[0, R_{k|k−1}, z_{k|k−1}]`` in its
-  last n rows;
+  last n rows; ``R Φ⁻¹`` comes from a solve with ``Φᵀ`` (Φ⁻¹ is never formed);
 * measurement update (4.2.21 / 4.3.9): triangularising ``[[R_{k|k−1}, z_{k|k−1}],
   [R_ν Ĥ, R_ν y_k]]`` gives ``[[R_{k|k}, z_{k|k}], [0, e_k]]``;
 * likelihood (4.3.11–4.3.13): ``eᵀe`` is the innovation's normalised square and, by the
   matrix determinant lemma, ``|S_k| = (|R_{k|k}| / (|R_{k|k−1}| |R_ν|))²``. The thesis prints
   eq. 4.3.12 without the square, which is ``√|S|``; the tests check the squared form against
   the Kalman filter's ``S``.
+
+The recursion is written once, :func:`srif_predict_update` (time update, measurement update,
+likelihood); :func:`srif_filter` carries ``(R, z)`` through a record with it and the IMM's SRIF
+models (:mod:`pipeline.imm`) call it from their mixed moments.
 
 No covariance is formed and no matrix is inverted inside the recursion: symmetry and positive
 definiteness of ``P = R⁻¹ R⁻ᵀ`` hold by construction, which is what keeps the SRIF usable in
@@ -30,6 +34,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline.decorrelation import transition_inverse_check
 from pipeline.errors import InputError
 
 LOG_2PI = float(np.log(2.0 * np.pi))
@@ -91,7 +96,20 @@ def srif_moments(R: np.ndarray, z: np.ndarray):
     return sol[..., n], S @ np.swapaxes(S, -1, -2)
 
 
-def srif_time_update(R: np.ndarray, z: np.ndarray, Phi_inv: np.ndarray, Psi: np.ndarray,
+def times_transition_inverse(R: np.ndarray, Phi: np.ndarray) -> np.ndarray:
+    """``R Φ⁻¹`` as ``(Φ⁻ᵀ Rᵀ)ᵀ``: a solve with ``Φᵀ``, no inverse.
+
+    A shared ``Φ`` (n, n) is factorised once for every leading index (the rows of all ``R`` are
+    one right-hand side); a stacked ``Φ`` (..., n, n) broadcasts against ``R`` (..., n, n).
+    """
+    if Phi.ndim == 2:
+        n = Phi.shape[-1]
+        rows = R.reshape(-1, n)
+        return np.linalg.solve(Phi.T, rows.T).T.reshape(R.shape)
+    return np.swapaxes(np.linalg.solve(np.swapaxes(Phi, -1, -2), np.swapaxes(R, -1, -2)), -1, -2)
+
+
+def srif_time_update(R: np.ndarray, z: np.ndarray, Phi: np.ndarray, Psi: np.ndarray,
                      Rw: np.ndarray, w_mean: np.ndarray | None = None):
     """SRIF time update (eq. 4.2.18 / 4.3.5) by one batched QR.
 
@@ -100,8 +118,8 @@ def srif_time_update(R: np.ndarray, z: np.ndarray, Phi_inv: np.ndarray, Psi: np.
     R : ndarray (..., n, n)
         Information square root at k−1 (any square root; need not be triangular).
     z : ndarray (..., n)
-    Phi_inv : ndarray (n, n) or (..., n, n)
-        Inverse state transition Φ⁻¹.
+    Phi : ndarray (n, n) or (..., n, n)
+        State transition Φ (non-singular; ``R Φ⁻¹`` is computed by a solve).
     Psi : ndarray (n, p) or (..., n, p)
         Process-noise gain Ψ.
     Rw : ndarray (p, p)
@@ -118,7 +136,7 @@ def srif_time_update(R: np.ndarray, z: np.ndarray, Phi_inv: np.ndarray, Psi: np.
     n = R.shape[-1]
     p = Rw.shape[-1]
     batch = R.shape[:-2]
-    R_Phi_inv = R @ Phi_inv
+    R_Phi_inv = times_transition_inverse(R, Phi)
     M = np.zeros(batch + (p + n, p + n + 1), dtype=R.dtype)
     M[..., :p, :p] = Rw
     if w_mean is not None:
@@ -177,14 +195,39 @@ def srif_measurement_update(R: np.ndarray, z: np.ndarray, H: np.ndarray, y: np.n
     return R_post, z_post, residual, log_likelihood
 
 
+def srif_predict_update(R: np.ndarray, z: np.ndarray, Phi: np.ndarray, Psi: np.ndarray, Rw: np.ndarray,
+                        H: np.ndarray, y: np.ndarray, Rv: np.ndarray, w_mean: np.ndarray | None = None):
+    """One scan of the SRIF recursion: :func:`srif_time_update` then :func:`srif_measurement_update`.
+
+    Parameters
+    ----------
+    R, z : ndarray (..., n, n), (..., n)
+        Information square root and vector at k−1.
+    Phi, Psi, Rw, w_mean
+        As in :func:`srif_time_update`.
+    H, y, Rv
+        As in :func:`srif_measurement_update`.
+
+    Returns
+    -------
+    R_post, z_post, residual_norm, log_likelihood
+        As :func:`srif_measurement_update` returns them.
+    """
+    R, z = srif_time_update(R, z, Phi, Psi, Rw, w_mean)
+    return srif_measurement_update(R, z, H, y, Rv)
+
+
 def srif_filter(x0, P0, Phi, Psi, q, H, y, meas_cov, start: int = 1):
     """Run the SRIF over a whole record, every run at once (carries ``(R, z)`` throughout).
+
+    A driver of :func:`srif_predict_update`: validates the model once, then one call per scan.
 
     Parameters
     ----------
     x0 : ndarray (runs, n)
     P0 : ndarray (runs, n, n) or (n, n)
     Phi : ndarray (n, n)
+        Non-singular (an :class:`~pipeline.errors.InputError` otherwise).
     Psi : ndarray (n, p)
     q : ndarray (p, p)
         Process-noise covariance (positive definite: the SRIF needs ``Q⁻¹``).
@@ -205,12 +248,9 @@ def srif_filter(x0, P0, Phi, Psi, q, H, y, meas_cov, start: int = 1):
     dtype = np.asarray(y).dtype if np.asarray(y).dtype.kind == "f" else np.float64
     y = np.asarray(y, dtype=dtype)
     runs, scans, m = y.shape
-    n = Phi.shape[0]
+    transition_inverse_check(Phi, "Phi", "the SRIF time update")
     Phi = np.asarray(Phi, dtype=dtype)
-    cond = np.linalg.cond(Phi.astype(np.float64))
-    if not np.isfinite(cond) or cond > 1.0 / np.finfo(float).eps:
-        raise InputError(f"Phi is singular (condition number {cond:.3g}); the SRIF time update needs Φ⁻¹")
-    Phi_inv = np.linalg.solve(Phi, _eye(n, Phi))
+    n = Phi.shape[0]
     Psi = np.asarray(Psi, dtype=dtype)
     Rw = information_factor(np.asarray(q, dtype=dtype), "process-noise covariance Q")
     H = np.asarray(H, dtype=dtype)
@@ -227,8 +267,7 @@ def srif_filter(x0, P0, Phi, Psi, q, H, y, meas_cov, start: int = 1):
     for k in range(start, scans):
         Hk = H if H.ndim == 2 else H[:, k]
         Rv = Rv_all if Rv_all.ndim == 2 else Rv_all[:, k]
-        R, z = srif_time_update(R, z, Phi_inv, Psi, Rw)
-        R, z, e, ll = srif_measurement_update(R, z, Hk, y[:, k], Rv)
+        R, z, e, ll = srif_predict_update(R, z, Phi, Psi, Rw, Hk, y[:, k], Rv)
         out["state"][:, k], out["covariance"][:, k] = srif_moments(R, z)
         out["R"][:, k] = R
         out["log_likelihood"][:, k] = ll

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.angular_innovation import INNOVATIONS
-from pipeline.kalman import apply_gain, kalman_gain, kf_predict
+from pipeline.kalman import apply_gain, continuous_white_noise_model, kalman_gain, kf_predict, two_point_start
 from pipeline.music import angle_grid, eigen_decomposition, music_spectrum, pick_peaks, sample_covariance, source_count
 from pipeline.past_subspace import batch_signal_subspace, initial_state, largest_principal_angle, past_update
 
@@ -83,9 +83,7 @@ class SubspaceTrackerDesign:
 
     def model(self):
         """``F, Q, H, R`` of the constant-angular-velocity filter."""
-        T = self.scan_period_s
-        F = np.array([[1.0, T], [0.0, 1.0]])
-        Q = self.process_noise_q * np.array([[T**3 / 3, T**2 / 2], [T**2 / 2, T]])
+        F, Q = continuous_white_noise_model(self.scan_period_s, self.process_noise_q, 2)
         H = np.array([[1.0, 0.0]])
         R = np.array([[self.innovation_variance]])
         return F, Q, H, R
@@ -157,11 +155,8 @@ def _track_group(subspaces, theta_minus1, theta_0, design: SubspaceTrackerDesign
     """Steps 2–5 for a group of runs with the same number of tracks."""
     B, K, M, n = subspaces.shape
     F, Q, H, R = design.model()
-    T = design.scan_period_s
-    s2 = design.innovation_variance
     innovation_fn = INNOVATIONS[strategy]
-    x = np.stack([theta_0, (theta_0 - theta_minus1) / T], axis=-1)  # (B, n, 2)
-    P = np.broadcast_to(s2 * np.array([[1.0, 1.0 / T], [1.0 / T, 2.0 / T**2]]), (B, n, 2, 2)).copy()
+    x, P = two_point_start(theta_minus1, theta_0, design.scan_period_s, np.sqrt(design.innovation_variance))  # (B, n, 2)
     out = {
         "angle_rad": np.full((B, K, n), np.nan), "rate_radps": np.full((B, K, n), np.nan),
         "angle_std_rad": np.full((B, K, n), np.nan), "predicted_rad": np.full((B, K, n), np.nan),

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.errors import InputError
+from pipeline.errors import InputError, check_all, require_finite_params
 from pipeline.linear_array import steering_vectors
 from recorders.simulated import SimulatedData
 
@@ -88,12 +88,8 @@ def validate(p: dict) -> None:
         (p["snapshot_dtype"] in SNAPSHOT_DTYPES, f"snapshot_dtype must be one of {', '.join(SNAPSHOT_DTYPES)}"),
         (all(np.isfinite(snrs)) and all(np.isfinite(offsets)) and np.all(np.isfinite(table)), "SNRs and angles must be finite"),
     ]
-    for ok, msg in checks:
-        if not ok:
-            raise InputError(msg)
-    for key, value in p.items():
-        if isinstance(value, float) and not np.isfinite(value):
-            raise InputError(f"parameter {key!r} must be finite")
+    check_all(checks)
+    require_finite_params(p)
 
 
 def truth_angles(p: dict) -> tuple[np.ndarray, np.ndarray]:

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.errors import InputError
+from pipeline.errors import InputError, check_all, require_finite_params
 from recorders.simulated import SimulatedData
 
 MEASUREMENTS_TOPIC = "/colored/measurements"
@@ -60,9 +60,7 @@ def validate(p: dict) -> None:
     if traj not in TRAJECTORIES:
         raise InputError(f"trajectory must be one of {', '.join(TRAJECTORIES)}, got {traj!r}")
     _need(p, "sample_period_s", "n_samples", "measurement_variance_m2")
-    for key, value in p.items():
-        if isinstance(value, float) and not np.isfinite(value):
-            raise InputError(f"parameter {key!r} must be finite")
+    require_finite_params(p)
     checks = [(p["sample_period_s"] > 0, "sample_period_s must be > 0"),
               (p["n_samples"] >= 4, "n_samples must be ≥ 4 (the AR estimator needs three samples)"),
               (p["measurement_variance_m2"] > 0, "measurement_variance_m2 must be > 0 (R positive definite)")]
@@ -81,9 +79,7 @@ def validate(p: dict) -> None:
         _need(p, "start_position_m", "start_velocity_mps", "alpha_values")
         alphas = list(parse_values(p["alpha_values"], "alpha_values"))
     checks += [(all(-1 < a < 1 for a in alphas), "AR coefficients must lie in (−1, 1) (a stationary AR(1) noise)")]
-    for ok, msg in checks:
-        if not ok:
-            raise InputError(msg)
+    check_all(checks)
 
 
 def _truth(p: dict, runs: int, w: np.ndarray):

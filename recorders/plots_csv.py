@@ -59,11 +59,15 @@ def read_plots_csv(path: str | Path) -> tuple[SimulatedData, float]:
     width = int(counts.max())
     rng = np.full((runs, times.size, width), np.nan)
     brg = np.full_like(rng, np.nan)
-    slot = np.zeros_like(counts)
-    for r, k, rv, bv in zip(run, scan, df["range_m"].to_numpy(), np.deg2rad(df["bearing_deg"].to_numpy())):
-        j = slot[r, k]
-        rng[r, k, j], brg[r, k, j] = rv, bv
-        slot[r, k] += 1
+    # Each row's slot is its rank among the rows of its (run, scan) in file order: a stable sort
+    # by (run, scan) keeps file order within a group, and the rank is the distance to the group's start.
+    key = run * times.size + scan
+    order = np.argsort(key, kind="stable")
+    sorted_key = key[order]
+    slot = np.empty_like(order)
+    slot[order] = np.arange(order.size) - np.searchsorted(sorted_key, sorted_key, side="left")
+    rng[run, scan, slot] = df["range_m"].to_numpy()
+    brg[run, scan, slot] = np.deg2rad(df["bearing_deg"].to_numpy())
     # MCAP log times are unsigned: scan times start at 0 and the first CSV time goes to metadata.
     data = SimulatedData(times=times - times[0], ragged={PLOTS_TOPIC: ({"range_m": rng, "bearing_rad": brg}, counts)})
     return data, float(times[0])

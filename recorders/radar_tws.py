@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.errors import InputError
+from pipeline.errors import check_all, require_finite_params
 from recorders.simulated import SimulatedData
 
 PLOTS_TOPIC = "/radar/plots"
@@ -29,12 +29,8 @@ def validate(p: dict) -> None:
         (p["design_sigma_v_mps2"] > 0, "design_sigma_v_mps2 must be > 0"),
         (p["nominal_cross_range_m"] > 0, "nominal_cross_range_m must be > 0"),
     ]
-    for ok, msg in checks:
-        if not ok:
-            raise InputError(msg)
-    for key, value in p.items():
-        if isinstance(value, float) and not np.isfinite(value):
-            raise InputError(f"parameter {key!r} must be finite")
+    check_all(checks)
+    require_finite_params(p)
 
 
 def simulate(p: dict, runs: int, seed: int) -> SimulatedData:

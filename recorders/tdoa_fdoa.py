@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.errors import InputError
+from pipeline.errors import InputError, check_all, require_finite_params
 from pipeline.tdoa_fdoa_model import all_pairs, measurement_model
 from recorders.simulated import SimulatedData
 
@@ -158,12 +158,8 @@ def resolve(p: dict) -> EmitterScenario:
         (p["epoch_interval_s"] >= 0, "epoch_interval_s must be ≥ 0"),
         (p["initial_relative_mse"] >= 0, "initial_relative_mse must be ≥ 0"),
     ]
-    for ok, msg in checks:
-        if not ok:
-            raise InputError(msg)
-    for key, value in p.items():
-        if isinstance(value, float) and not np.isfinite(value):
-            raise InputError(f"parameter {key!r} must be finite")
+    check_all(checks)
+    require_finite_params(p)
     for a in range(len(pos0)):
         for b in range(a + 1, len(pos0)):
             if np.all(pos0[a] == pos0[b]) and np.all(vel0[a] == vel0[b]):

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.contract import scenario_metadata
-from pipeline.errors import InputError, require_finite
+from pipeline.errors import InputError, check_all, require_finite
 from recorders.array_snapshots import SNAPSHOTS_TOPIC
 from recorders.simulated import SimulatedData, write_simulated
 
@@ -99,9 +99,7 @@ def convert_array_wav(src, dst, spacing_m: float, frequency_hz: float, sound_spe
         (snapshots_per_scan >= 1, "snapshots_per_scan must be ≥ 1"), (frequency_hz > 0, "frequency_hz must be > 0"),
         (snapshot_dtype in ("complex64", "complex128"), "snapshot_dtype must be complex64 or complex128"),
     ]
-    for ok, msg in checks:
-        if not ok:
-            raise InputError(msg)
+    check_all(checks)
     fs, samples = read_wav(src)
     if frequency_hz >= fs / 2:
         raise InputError(f"frequency_hz = {frequency_hz:g} is not below the Nyquist frequency {fs / 2:g} Hz", src)

@@ -39,7 +39,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import ndtr, ndtri
 
-from pipeline.errors import InputError
+from pipeline.errors import InputError, check_all, require_finite_params
 from recorders.simulated import SimulatedData
 
 PEAKS_TOPIC = "/xcorr/peaks"
@@ -117,9 +117,7 @@ def validate(p: dict) -> None:
     """Reject parameter sets the simulator cannot honour (before any work starts)."""
     if p.get("geometry") not in GEOMETRIES:
         raise InputError(f"geometry must be one of {', '.join(GEOMETRIES)} (got {p.get('geometry')!r})")
-    for key, value in p.items():
-        if isinstance(value, float) and not np.isfinite(value):
-            raise InputError(f"parameter {key!r} must be finite")
+    require_finite_params(p)
     track_roles(p)
     checks = [
         (p["scan_period_s"] > 0, "scan_period_s must be > 0"),
@@ -149,9 +147,7 @@ def validate(p: dict) -> None:
             (p["approach_rate_deg_per_s"] > 0, "approach_rate_deg_per_s must be > 0"),
             (p["turn_duration_s"] >= 0, "turn_duration_s must be ≥ 0"),
         ]
-    for ok, msg in checks:
-        if not ok:
-            raise InputError(msg)
+    check_all(checks)
     n = _duration_s(p) / p["scan_period_s"] + 1
     if n > MAX_SCANS:
         raise InputError(f"the geometry needs {n:.0f} scans (> {MAX_SCANS}); use a larger angle/rate "

@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.errors import InputError
+from pipeline.errors import check_all
 from recorders.simulated import SimulatedData
 from recorders.xcorr_peaks import (ORIGIN_CLUTTER, PEAKS_TOPIC, TRUTH_TOPIC, pack_peaks, target_bearings,
                                    track_roles)
@@ -61,9 +61,7 @@ def validate(p: dict) -> None:
     ]
     max_lag = p["sensor_spacing_m"] / p["sound_speed_mps"] * p["sample_rate_hz"]
     checks.append((2 * max_lag + 3 < p["window_samples"], "window_samples must exceed twice d/C in samples"))
-    for ok, msg in checks:
-        if not ok:
-            raise InputError(msg)
+    check_all(checks)
 
 
 def _complex_gaussian(rng, shape) -> np.ndarray:

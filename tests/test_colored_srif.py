@@ -169,7 +169,7 @@ def test_moment_round_trip_and_time_update_against_kalman_prediction():
     np.testing.assert_allclose(x2, x, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(P2, P, rtol=1e-12, atol=1e-12)
     q = np.array([[5.0]])
-    Rp, zp = srif_time_update(R, z, np.linalg.inv(F), G, information_factor(q))
+    Rp, zp = srif_time_update(R, z, F, G, information_factor(q))   # R Φ⁻¹ by a solve with Φᵀ
     assert np.allclose(np.tril(Rp, -1), 0.0) and np.all(np.diagonal(Rp, axis1=1, axis2=2) >= 0)
     xp, Pp = srif_moments(Rp, zp)
     xk, Pk = kf_predict(x, P, F, G @ q @ G.T)

@@ -8,7 +8,7 @@ from scipy.special import ndtri
 from pipeline.cep_plane import cep_plane, grid_axis
 from pipeline.crlb import (cep_approx, cep_exact, cep_exact_direct, cep_paper, crlb, disc_probability,
                            eigen_2x2, error_ellipse, fisher_information, projection_covariance,
-                           slice_covariance)
+                           slice_covariance, whitened_jacobian)
 from pipeline.tdoa_fdoa_model import all_pairs, measurement_model
 from recorders.scenarios import load_scenario
 from recorders.tdoa_fdoa import resolve
@@ -45,7 +45,7 @@ def test_slice_is_below_projection_in_loewner_order_and_projection_is_the_schur_
     fim = fisher_information(H, sigma)
     for comps, others in (([0, 1], [2, 3]), ([2, 3], [0, 1])):
         proj = projection_covariance(cov, comps)
-        sl = slice_covariance(fim, comps)
+        sl = slice_covariance(whitened_jacobian(H, sigma), comps)
         # projection − slice is positive semi-definite (eigenvalues ≥ −rounding)
         gap = np.linalg.eigvalsh(proj - sl)
         assert gap.min() >= -1e-9 * np.abs(np.linalg.eigvalsh(proj)).max()
@@ -55,6 +55,8 @@ def test_slice_is_below_projection_in_loewner_order_and_projection_is_the_schur_
         # both routes lose ~cond(I)·ε of relative accuracy on near-singular random geometries
         rtol = max(1e-9, 1e-14 * np.linalg.cond(fim))
         np.testing.assert_allclose(np.linalg.inv(proj), schur, rtol=rtol, atol=1e-9 * np.abs(schur).max())
+        # eq. 20: the slice (from the Jacobian's kept columns, by QR) is the inverse of the FIM block
+        np.testing.assert_allclose(np.linalg.inv(sl), fim[c], rtol=rtol, atol=1e-9 * np.abs(fim[c]).max())
 
 
 def test_crlb_equals_the_inverse_fisher_information_for_the_paper_geometries():

@@ -74,9 +74,7 @@ class ArrayBearingStage(Stage):
     def _snapshots(self, dataset, design: dict | None = None) -> np.ndarray:
         """Validated snapshots ``(runs, scans, M, Ns)``: complex, one fixed shape, finite."""
         ch = dataset.channel(SNAPSHOTS)
-        if "snapshots" not in ch.arrays:
-            raise InputError(f"{SNAPSHOTS} frames lack the 'snapshots' array (have: {', '.join(ch.arrays)})", dataset.path)
-        items = ch.arrays["snapshots"]
+        items = ch.array("snapshots")
         first = items[0]
         if first.dtype.kind != "c":
             raise InputError(f"{SNAPSHOTS} snapshots must be complex (complex64/complex128), got {first.dtype}", dataset.path)
@@ -110,7 +108,11 @@ class ArrayBearingStage(Stage):
                 raise InputError(f"{Ns} snapshots per scan are fewer than the {n_req} targets requested", dataset.path)
         truth = dataset.channels.get(TRUTH)
         if truth is not None and "angle_rad" in truth.arrays:
-            n_true = truth.arrays["angle_rad"][0].shape[-1] if truth.arrays["angle_rad"] else 0
+            first_truth = truth.array("angle_rad")[0]
+            if first_truth.ndim != 1:
+                raise InputError(f"{TRUTH} angle_rad must be 1-D (one angle per target) in every frame, got shape "
+                                 f"{first_truth.shape}", dataset.path)
+            n_true = first_truth.shape[0]
             if n_true > M - 1:
                 raise InputError(f"{TRUTH} holds {n_true} targets, more than M − 1 = {M - 1}", dataset.path)
             if n_true > Ns:
@@ -139,7 +141,7 @@ class ArrayBearingStage(Stage):
 
     def evaluate(self, dataset, result: dict, design: dict):
         ch = dataset.channel(SNAPSHOTS)
-        M = ch.arrays["snapshots"][0].shape[0]
+        M = ch.array("snapshots")[0].shape[0]
         truth, snr = self._truth(dataset, (ch.n_runs, ch.n_scans))
         return array_eval.evaluate(result["times"], result["tracks"], truth, snr,
                                    np.deg2rad(float(design["track_gate_deg"])), M)

@@ -23,6 +23,8 @@ def _recorded_value(key: str, raw, default):
     """
     from recorders.scenarios import coerce
 
+    if isinstance(default, str) and isinstance(raw, str):
+        return raw  # as recorded (an empty string may be meaningful, e.g. "use the preset")
     value = coerce(key, raw, default)
     numeric = isinstance(default, (int, float)) and not isinstance(default, bool)
     if value is None or (numeric and (isinstance(value, bool) or not isinstance(value, (int, float)))):

@@ -17,7 +17,7 @@ import numpy as np
 import polars as pl
 
 from evaluators import track_association as assoc_eval
-from pipeline.errors import InputError, require_finite
+from pipeline.errors import InputError, check_all, require_finite
 from pipeline.jpda import STRATEGIES, BearingTrackerDesign, ScanPeaks, track_bearing_peaks, two_point_start
 from pipeline.stages.base import Stage
 from pipeline.timeline import color, log_points, log_series, rr, rrb
@@ -37,6 +37,23 @@ def time_unit_s(duration_s: float, span_deg: float) -> float:
     return 1000.0
 
 
+def recorded_float(dataset, key: str, default: float) -> float:
+    """A number from the file's scenario record (``default`` if absent), checked finite."""
+    raw = dataset.scenario.get("params", {}).get(key, default)
+    try:
+        value = float(raw)
+    except (TypeError, ValueError):
+        raise InputError(f"scenario record: parameter {key!r}: cannot read {raw!r} as float", dataset.path) from None
+    if not np.isfinite(value):
+        raise InputError(f"scenario record: parameter {key!r} must be finite", dataset.path)
+    return value
+
+
+def field_deg(dataset) -> tuple[float, float]:
+    """The sensor's field of bearings ``(min, max)`` in degrees from the scenario record (default 0…180)."""
+    return recorded_float(dataset, "field_min_deg", 0.0), recorded_float(dataset, "field_max_deg", 180.0)
+
+
 def read_peaks(dataset):
     """Flat peaks of a data set, checked: bearings in the sensor's field, amplitudes ≥ 0, finite.
 
@@ -46,15 +63,22 @@ def read_peaks(dataset):
     ``origin`` (−1 where unlabelled), ``n_runs``, ``n_scans``, ``times``.
     """
     ch = dataset.channel(PEAKS)
-    for name in ("bearing_rad", "amplitude"):
-        if name not in ch.arrays:
-            raise InputError(f"{PEAKS} lacks the {name!r} array", dataset.path)
-    lengths = np.array([a.shape[0] for a in ch.arrays["bearing_rad"]], np.int64)
-    if any(a.shape[0] != n for a, n in zip(ch.arrays["amplitude"], lengths)):
-        raise InputError(f"{PEAKS}: bearing_rad and amplitude differ in length in some frame", dataset.path)
+    columns = {name: ch.array(name) for name in ("bearing_rad", "amplitude", "origin")
+               if name != "origin" or "origin" in ch.arrays}
+    for name, items in columns.items():
+        bad = next((i for i, a in enumerate(items) if a.ndim != 1), None)
+        if bad is not None:
+            raise InputError(f"{PEAKS} {name} must be 1-D (one value per peak) in every frame; run {ch.run[bad]} "
+                             f"scan {ch.scan[bad]} holds shape {items[bad].shape}", dataset.path)
+    lengths = np.array([a.shape[0] for a in columns["bearing_rad"]], np.int64)
+    for name, items in columns.items():
+        bad = next((i for i, (a, n) in enumerate(zip(items, lengths)) if a.shape[0] != n), None)
+        if bad is not None:
+            raise InputError(f"{PEAKS}: bearing_rad and {name} differ in length in run {ch.run[bad]} scan "
+                             f"{ch.scan[bad]} ({lengths[bad]} vs {items[bad].shape[0]})", dataset.path)
     frame = np.repeat(np.arange(lengths.size), lengths)
     starts = np.r_[0, np.cumsum(lengths)[:-1]]
-    flat = lambda name, dt: (np.concatenate([np.asarray(a, dt).ravel() for a in ch.arrays[name]])
+    flat = lambda name, dt: (np.concatenate([np.asarray(a, dt) for a in columns[name]])
                              if lengths.sum() else np.zeros(0, dt))
     bearing, amplitude = flat("bearing_rad", float), flat("amplitude", float)
     origin = flat("origin", np.int64) if "origin" in ch.arrays else np.full(bearing.size, -1, np.int64)
@@ -63,8 +87,7 @@ def read_peaks(dataset):
     if np.any(amplitude < 0):
         raise InputError(f"{PEAKS} holds {int(np.sum(amplitude < 0))} peak(s) with negative amplitude "
                          "(correlation peak amplitudes are ≥ 0)", dataset.path)
-    params = dataset.scenario.get("params", {})
-    lo, hi = float(params.get("field_min_deg", 0.0)), float(params.get("field_max_deg", 180.0))
+    lo, hi = field_deg(dataset)
     outside = (bearing < np.deg2rad(lo) - 1e-12) | (bearing > np.deg2rad(hi) + 1e-12)
     if np.any(outside):
         raise InputError(f"{PEAKS} holds {int(outside.sum())} peak(s) with bearings outside the sensor's field "
@@ -106,6 +129,38 @@ def start_peaks(peaks: dict, n_tracks: int, path) -> tuple[np.ndarray, np.ndarra
     return z[0], z[1]
 
 
+def read_truth(dataset, n_runs: int, n_scans: int) -> np.ndarray | None:
+    """True bearings ``(R, K, T)`` of :data:`TRUTH`, checked against the peaks' ``(R, K)``.
+
+    Returns
+    -------
+    ndarray or None
+        None when the file has no truth bearings.
+
+    Raises
+    ------
+    InputError
+        Frames that are not one bearing per target (1-D), a missing frame, a run × scan
+        coverage other than the peaks', no targets, or NaN/Inf.
+    """
+    truth = dataset.channels.get(TRUTH)
+    if truth is None or "bearing_rad" not in truth.arrays:
+        return None
+    items = truth.array("bearing_rad")
+    bad = next((i for i, a in enumerate(items) if a.ndim != 1), None)
+    if bad is not None:
+        raise InputError(f"{TRUTH} bearing_rad must be 1-D (one bearing per target) in every frame; run "
+                         f"{truth.run[bad]} scan {truth.scan[bad]} holds shape {items[bad].shape}", dataset.path)
+    b = truth.grid("bearing_rad")
+    if b.shape[:2] != (n_runs, n_scans):
+        raise InputError(f"{TRUTH} covers {b.shape[:2]} run×scan, peaks {(n_runs, n_scans)}", dataset.path)
+    if b.shape[2] < 1:
+        raise InputError(f"{TRUTH} bearing_rad holds no targets", dataset.path)
+    truth.require_every_frame(n_runs, n_scans)
+    require_finite(f"{TRUTH} bearing_rad", b, dataset.path)
+    return b
+
+
 class BearingPeaksStage(Stage):
     name = "xcorr-peaks"
     input_topics = (PEAKS,)
@@ -122,9 +177,9 @@ class BearingPeaksStage(Stage):
     # ------------------------------------------------------------------ inputs
 
     def _n_tracks(self, dataset, peaks) -> int:
-        truth = dataset.channels.get(TRUTH)
-        if truth is not None and "bearing_rad" in truth.arrays:
-            return int(truth.arrays["bearing_rad"][0].shape[-1])
+        truth = read_truth(dataset, peaks["n_runs"], peaks["n_scans"])
+        if truth is not None:
+            return int(truth.shape[2])
         n = int(peaks["origin"].max()) + 1 if peaks["origin"].size else 0
         if n < 1:
             raise InputError(f"{PEAKS} carries no labelled true peaks and there is no {TRUTH}: cannot start tracks",
@@ -149,9 +204,7 @@ class BearingPeaksStage(Stage):
                   (design["max_cluster_tracks"] >= 1, "max_cluster_tracks must be ≥ 1"),
                   (np.all(per("sigma_p_deg") > 0) and np.all(per("amplitude_std") > 0),
                    "σ_p and σ_a of every role must be > 0")]
-        for ok, msg in checks:
-            if not ok:
-                raise InputError(msg)
+        check_all(checks)
         return BearingTrackerDesign(
             scan_period_s=float(design["scan_period_s"]), gate_rad=float(np.deg2rad(design["gate_deg"])),
             q_rad2=float(design["q_deg2"]) * np.deg2rad(1.0) ** 2,
@@ -175,23 +228,19 @@ class BearingPeaksStage(Stage):
         if truth is None or "bearing_rate_radps" not in truth.arrays:
             raise InputError(f"track_start='truth' needs {TRUTH} (bearing_rad, bearing_rate_radps); "
                              "use --set track_start=two-point for data without truth", dataset.path)
-        b = self._truth(dataset, peaks["n_runs"], peaks["n_scans"])
+        b = read_truth(dataset, peaks["n_runs"], peaks["n_scans"])
+        if b is None:
+            raise InputError(f"track_start='truth' needs {TRUTH} bearing_rad; use --set track_start=two-point "
+                             "for data without truth", dataset.path)
         rate = truth.grid("bearing_rate_radps")
+        if rate.shape != b.shape:
+            raise InputError(f"{TRUTH} bearing_rate_radps has shape {rate.shape} (run×scan×target) but bearing_rad "
+                             f"{b.shape}; they must match", dataset.path)
         require_finite(f"{TRUTH} bearing_rate_radps", rate, dataset.path)
         x0 = np.stack([b[:, 0], rate[:, 0]], axis=-1)
         # eq. 8c: the covariance of a two-point start, here around the true initial state
         _, P0 = two_point_start(b[:, 0], b[:, 0], d.scan_period_s, d.sigma_p_rad)
         return x0, P0, 0
-
-    def _truth(self, dataset, n_runs, n_scans):
-        truth = dataset.channels.get(TRUTH)
-        if truth is None or "bearing_rad" not in truth.arrays:
-            return None
-        b = truth.grid("bearing_rad")
-        if b.shape[:2] != (n_runs, n_scans):
-            raise InputError(f"{TRUTH} covers {b.shape[:2]} run×scan, peaks {(n_runs, n_scans)}", dataset.path)
-        require_finite(f"{TRUTH} bearing_rad", b, dataset.path)
-        return b
 
     # ------------------------------------------------------------------ run / evaluate
 
@@ -207,9 +256,10 @@ class BearingPeaksStage(Stage):
     def evaluate(self, dataset, result: dict, design: dict):
         any_out = next(iter(result["tracks"].values()))
         R, K, T = any_out["beta0"].shape
-        truth = self._truth(dataset, R, K)
+        truth = read_truth(dataset, R, K)
         return assoc_eval.evaluate(result["times"], result["tracks"], truth, float(np.deg2rad(design["gate_deg"])),
-                                   self._roles(design, T))
+                                   self._roles(design, T),
+                                   first_filtered_scan=2 if design["track_start"] == "two-point" else 1)
 
     def report(self, summary, per_scan) -> str:
         if "stage" in summary.columns:
@@ -248,8 +298,7 @@ class BearingPeaksStage(Stage):
         )
 
     def _field_deg(self, dataset) -> tuple[float, float]:
-        params = dataset.scenario.get("params", {})
-        return float(params.get("field_min_deg", 0.0)), float(params.get("field_max_deg", 180.0))
+        return field_deg(dataset)
 
     def log_rerun(self, rec, dataset, result: dict, per_scan, run: int = 0) -> None:
         """Bearing–time record of one run: all peaks (viridis by amplitude, 0 … 30,000), truth
@@ -272,7 +321,7 @@ class BearingPeaksStage(Stage):
         rec.log("/btr/peaks", rr.Points2D(xy, colors=rgb, radii=[-2.5]), static=True)
         by_scan = np.split(xy, np.searchsorted(peaks["scan"][sel][order], scans[1:]))
         log_points(rec, "/btr/current_peaks", scans, times, by_scan, (255, 255, 255), radius=-4.5)
-        truth = self._truth(dataset, peaks["n_runs"], peaks["n_scans"])
+        truth = read_truth(dataset, peaks["n_runs"], peaks["n_scans"])
         if truth is not None:
             strips = [np.stack([np.rad2deg(truth[run, :, t]), ys], 1) for t in range(truth.shape[2])]
             rec.log("/btr/truth", rr.LineStrips2D(strips, colors=[(235, 235, 235)], radii=[-1.0]), static=True)

@@ -71,9 +71,13 @@ class ColoredNoiseImmStage(Stage):
 
     def _inputs(self, dataset):
         ch = dataset.channel(MEASUREMENTS)
+        ch.require_every_frame()
         z = ch.grid("position_m")
         if z.ndim == 2:
             z = z[..., None]
+        if z.ndim != 3:
+            raise InputError(f"{MEASUREMENTS} position_m must be a number or one value per axis in every frame, "
+                             f"got frames of shape {z.shape[2:]}", dataset.path)
         require_finite(f"{MEASUREMENTS} position_m", z, dataset.path)
         times = ch.times()
         if z.shape[1] < 4:
@@ -84,12 +88,19 @@ class ColoredNoiseImmStage(Stage):
         truth = dataset.channels.get(TRUTH)
         if truth is None:
             raise InputError(f"missing channel {TRUTH!r}: the filters start at the true state (thesis ch. V)", dataset.path)
+        # a missing truth frame would start or score its run from NaN, silently
+        truth.require_every_frame(*z.shape[:2])
         state = truth.grid("state")
         alpha = truth.grid("alpha") if "alpha" in truth.arrays else None
-        if state.shape[:2] != z.shape[:2] or state.shape[-1] != 3 * z.shape[-1]:
+        if state.shape[:2] != z.shape[:2] or state.ndim != 3 or state.shape[-1] != 3 * z.shape[-1]:
             raise InputError(f"{TRUTH} state {state.shape} does not match the measurements {z.shape}", dataset.path)
-        if alpha is not None and alpha.ndim == 2:
-            alpha = alpha[..., None]
+        require_finite(f"{TRUTH} state", state, dataset.path)
+        if alpha is not None:
+            if alpha.ndim == 2:
+                alpha = alpha[..., None]
+            if alpha.shape != z.shape:
+                raise InputError(f"{TRUTH} alpha {alpha.shape} does not match the measurements {z.shape}", dataset.path)
+            require_finite(f"{TRUTH} alpha", alpha, dataset.path)
         return z, times, float(dt[0]), state, alpha
 
     def _design_arrays(self, design, T, axes):

@@ -48,16 +48,28 @@ def read_observations(dataset) -> dict:
     sens = dataset.channel(SENSORS)
     path = dataset.path
     arrays = {}
+    # ChannelData.grid names a missing array, and a shape that changes between frames, itself
     for name in ("tdoa_s", "fdoa_hz", "sigma_tdoa_s", "sigma_fdoa_hz", "pairs", "carrier_hz"):
-        if name not in ch.arrays:
-            raise InputError(f"{MEASUREMENTS} lacks array {name!r}", path)
         arrays[name] = ch.grid(name)
     for name in ("position_m", "velocity_mps"):
-        if name not in sens.arrays:
-            raise InputError(f"{SENSORS} lacks array {name!r}", path)
         arrays[name] = sens.grid(name)
     for name, a in arrays.items():
         require_finite(f"{MEASUREMENTS if name not in ('position_m', 'velocity_mps') else SENSORS} {name}", a, path)
+    for name in ("tdoa_s", "fdoa_hz", "sigma_tdoa_s", "sigma_fdoa_hz"):
+        if arrays[name].ndim != 3:
+            raise InputError(f"{MEASUREMENTS} {name} must be 1-D (one value per pair) in every frame, got frames of "
+                             f"shape {arrays[name].shape[2:]}", path)
+    if arrays["carrier_hz"].ndim != 2:
+        raise InputError(f"{MEASUREMENTS} carrier_hz must be one number per frame, got frames of shape "
+                         f"{arrays['carrier_hz'].shape[2:]}", path)
+    for name in ("position_m", "velocity_mps"):
+        a = arrays[name]
+        if a.ndim != 4 or a.shape[3] != 2:
+            raise InputError(f"{SENSORS} {name} must be (sensors, 2) in every frame, got frames of shape {a.shape[2:]}",
+                             path)
+    if arrays["velocity_mps"].shape != arrays["position_m"].shape:
+        raise InputError(f"{SENSORS} velocity_mps {arrays['velocity_mps'].shape[2:]} and position_m "
+                         f"{arrays['position_m'].shape[2:]} differ in shape", path)
     shape = arrays["tdoa_s"].shape[:2]
     if arrays["position_m"].shape[:2] != shape:
         raise InputError(f"{SENSORS} covers {arrays['position_m'].shape[:2]} run×epoch, measurements {shape}", path)
@@ -66,13 +78,17 @@ def read_observations(dataset) -> dict:
     if np.any(pairs_all != pairs):
         raise InputError(f"{MEASUREMENTS} pairs change between frames (one pair list per file)", path)
     n_sensors = arrays["position_m"].shape[2]
-    if pairs.ndim != 2 or pairs.shape[1] != 2 or pairs.min() < 0 or pairs.max() >= n_sensors \
-            or np.any(pairs[:, 0] == pairs[:, 1]):
-        raise InputError(f"{MEASUREMENTS} pairs must be distinct sensor indexes 0..{n_sensors - 1}", path)
+    if pairs.ndim != 2 or pairs.shape[1] != 2 or pairs.shape[0] == 0 or pairs.min() < 0 \
+            or pairs.max() >= n_sensors or np.any(pairs[:, 0] == pairs[:, 1]):
+        raise InputError(f"{MEASUREMENTS} pairs must be a non-empty (N, 2) list of distinct sensor indexes "
+                         f"0..{n_sensors - 1}", path)
     n = len(pairs)
     if arrays["tdoa_s"].shape[2] != n or arrays["fdoa_hz"].shape[2] != n:
         raise InputError(f"{MEASUREMENTS} has {n} pairs but {arrays['tdoa_s'].shape[2]} TDOAs / "
                          f"{arrays['fdoa_hz'].shape[2]} FDOAs", path)
+    if arrays["sigma_tdoa_s"].shape[2] != n or arrays["sigma_fdoa_hz"].shape[2] != n:
+        raise InputError(f"{MEASUREMENTS} has {n} pairs but {arrays['sigma_tdoa_s'].shape[2]} TDOA σ / "
+                         f"{arrays['sigma_fdoa_hz'].shape[2]} FDOA σ values", path)
     sigma = np.concatenate([arrays["sigma_tdoa_s"], arrays["sigma_fdoa_hz"]], axis=-1)
     if np.any(sigma <= 0):
         raise InputError(f"{MEASUREMENTS} holds non-positive sigma values", path)
@@ -109,6 +125,9 @@ class EmitterLocalisationStage(Stage):
         state = truth.grid("state")
         if state.shape[:2] != shape:
             raise InputError(f"{TRUTH} covers {state.shape[:2]} run×epoch, measurements {shape}", dataset.path)
+        if state.shape[2:] != (4,):
+            raise InputError(f"{TRUTH} state must be [x, y, vx, vy] (4 values) per frame, got frames of shape "
+                             f"{state.shape[2:]}", dataset.path)
         require_finite(f"{TRUTH} state", state, dataset.path)
         return state
 
@@ -121,6 +140,9 @@ class EmitterLocalisationStage(Stage):
             start = prior.grid("state")
             if start.shape[:2] != (R, E):
                 raise InputError(f"{PRIOR} covers {start.shape[:2]} run×epoch, measurements {(R, E)}", dataset.path)
+            if start.shape[2:] != (4,):
+                raise InputError(f"{PRIOR} state must be [x, y, vx, vy] (4 values) per frame, got frames of shape "
+                                 f"{start.shape[2:]}", dataset.path)
             require_finite(f"{PRIOR} state", start, dataset.path)
             return start.reshape(R * E, 4).copy()
         if design["initial_guess"] == "grid":

@@ -1,0 +1,398 @@
+"""Bad input gives one line ``replay: error: <file>: <problem>`` and exit 2, never a traceback.
+
+Every data set here is written by hand with :func:`pipeline.contract.write_dataset` (frames
+as dicts), starting from a small valid set that replays cleanly, then broken in one way.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+import pytest
+from click.testing import CliRunner
+
+import pipeline.cli
+from pipeline.contract import ChannelData, METADATA_SCENARIO, read_dataset, scenario_metadata, write_dataset
+from pipeline.errors import InputError, check_all, require_finite_params
+from recorders.scenarios import load_scenario
+
+# --------------------------------------------------------------------------- helpers
+
+
+def invoke(*args):
+    return CliRunner().invoke(pipeline.cli.main, [str(a) for a in args])
+
+
+def assert_one_line_error(res, path, *fragments):
+    """Exit 2, one error line on stderr naming the file and every fragment, no traceback."""
+    errors = [line for line in res.stderr.splitlines() if line.startswith("replay: error: ")]
+    assert res.exit_code == 2, res.output
+    assert len(errors) == 1 and res.stderr.strip().splitlines()[-1] == errors[0], res.output
+    text = errors[0]
+    assert text.startswith(f"replay: error: {path}: "), text
+    for fragment in fragments:
+        assert fragment in text, text
+    assert "Traceback" not in res.output and isinstance(res.exception, SystemExit)
+
+
+def write_frames(path: Path, channels: dict, metadata: dict | None = None) -> Path:
+    """``channels``: topic -> list of ``(run, scan, time_s, {name: array})``."""
+    with write_dataset(path, metadata) as w:
+        for topic, frames in channels.items():
+            for run, scan, t, arrays in frames:
+                w.write(topic, run, scan, t, arrays)
+    return path
+
+
+def frames_from_simulated(data) -> dict:
+    """Per-frame dicts of a recorder's in-memory output (the frames write_simulated writes)."""
+    out = {}
+    for k, t in enumerate(data.times):
+        for topic, (arrays, counts) in data.ragged.items():
+            for r in range(counts.shape[0]):
+                out.setdefault(topic, []).append(
+                    (r, k, float(t), {n: np.array(a[r, k, :counts[r, k]]) for n, a in arrays.items()}))
+        for topic, arrays in data.fixed.items():
+            for r in range(next(iter(arrays.values())).shape[0]):
+                out.setdefault(topic, []).append((r, k, float(t), {n: np.array(a[r, k]) for n, a in arrays.items()}))
+    return out
+
+
+def replace_array(frames: list, name: str, make, where=lambda run, scan: True) -> list:
+    """A copy of ``frames`` with array ``name`` replaced by ``make(old)`` (dropped if None) where chosen."""
+    out = []
+    for run, scan, t, arrays in frames:
+        arrays = dict(arrays)
+        if where(run, scan):
+            new = make(arrays[name])
+            if new is None:
+                del arrays[name]
+            else:
+                arrays[name] = new
+        out.append((run, scan, t, arrays))
+    return out
+
+
+# --- radar: plots (range, bearing) per scan, optional truth state
+
+def radar_frames(n_scans: int = 5) -> dict:
+    noise = np.random.default_rng(1).normal(size=(n_scans, 2)) * [100.0, 0.01]
+    plots, truth = [], []
+    for k in range(n_scans):
+        x, y = 9000.0 + 30 * k, 3000.0 - 20 * k
+        plots.append((0, k, 5.0 * k, {"range_m": np.array([np.hypot(x, y) + noise[k, 0]]),
+                                       "bearing_rad": np.array([np.arctan2(y, x) + noise[k, 1]])}))
+        truth.append((0, k, 5.0 * k, {"state": np.array([x, y, 6.0, -4.0])}))
+    return {"/radar/plots": plots, "/radar/truth": truth}
+
+
+def radar_metadata(params: dict | str) -> dict:
+    text = params if isinstance(params, str) else json.dumps(params)
+    return {METADATA_SCENARIO: {"scenario": "radar-tws", "params": text, "seed": "0"}}
+
+
+# --- xcorr peaks: two targets at 85° and 95° (strong, weak) plus one clutter peak per scan
+
+def xcorr_frames(n_scans: int = 6) -> dict:
+    bearings = np.deg2rad([85.0, 95.0])
+    peaks, truth = [], []
+    for k in range(n_scans):
+        peaks.append((0, k, float(k), {"bearing_rad": np.r_[bearings, np.deg2rad(100.0)],
+                                       "amplitude": np.array([21000.0, 12000.0, 3000.0]),
+                                       "origin": np.array([0, 1, -1], np.int32)}))
+        truth.append((0, k, float(k), {"bearing_rad": bearings.copy(), "bearing_rate_radps": np.zeros(2)}))
+    return {"/xcorr/peaks": peaks, "/xcorr/truth": truth}
+
+
+@pytest.fixture(scope="module")
+def emitter_frames():
+    from recorders.tdoa_fdoa import simulate
+
+    return frames_from_simulated(simulate(load_scenario("tdoa-fdoa").params, 2, 0))
+
+
+@pytest.fixture(scope="module")
+def colored_frames():
+    from recorders.colored_noise import simulate
+
+    params = dict(load_scenario("colored-imm").params, n_samples=12, manoeuvre_first_sample=4,
+                  manoeuvre_last_sample=7)
+    return frames_from_simulated(simulate(params, 2, 0)), params
+
+
+# --------------------------------------------------------------------------- the valid sets replay
+
+
+def test_the_hand_written_sets_replay_cleanly(tmp_path, emitter_frames, colored_frames):
+    """Controls: every breakage below starts from a set the replay accepts."""
+    frames, params = colored_frames
+    for name, channels, meta in [("radar", radar_frames(), None), ("xcorr", xcorr_frames(), None),
+                                 ("emitter", emitter_frames, None),
+                                 ("colored", frames, scenario_metadata("colored-imm", params, 0))]:
+        res = invoke(write_frames(tmp_path / f"{name}.mcap", channels, meta), "--no-rrd")
+        assert res.exit_code == 0, (name, res.output)
+
+
+# --------------------------------------------------------------------------- ChannelData (contract)
+
+
+def test_missing_array_names_channel_file_and_what_is_there(tmp_path):
+    ch = radar_frames()
+    ch["/radar/plots"] = replace_array(ch["/radar/plots"], "bearing_rad", lambda a: None)
+    p = write_frames(tmp_path / "nobearing.mcap", ch)
+    assert_one_line_error(invoke(p, "--no-rrd"), p, "/radar/plots lacks array 'bearing_rad'", "(have: range_m)")
+
+
+def test_array_missing_from_some_frames(tmp_path):
+    ch = radar_frames()
+    ch["/radar/plots"] = replace_array(ch["/radar/plots"], "bearing_rad", lambda a: None, lambda r, k: k == 2)
+    p = write_frames(tmp_path / "gap.mcap", ch)
+    assert_one_line_error(invoke(p, "--no-rrd"), p, "/radar/plots array 'bearing_rad' is in 4 of 5 frames")
+
+
+def test_scalar_frame_in_a_ragged_array(tmp_path):
+    ch = radar_frames()
+    ch["/radar/plots"] = replace_array(ch["/radar/plots"], "range_m", lambda a: np.float64(a[0]), lambda r, k: k == 3)
+    p = write_frames(tmp_path / "scalar.mcap", ch)
+    assert_one_line_error(invoke(p, "--no-rrd"), p, "/radar/plots array 'range_m' is a scalar in run 0 scan 3")
+
+
+def test_ragged_entries_that_change_shape(tmp_path):
+    ch = radar_frames()
+    ch["/radar/plots"] = replace_array(ch["/radar/plots"], "range_m", lambda a: np.repeat(a[:, None], 2, 1),
+                                       lambda r, k: k == 1)
+    p = write_frames(tmp_path / "tail.mcap", ch)
+    assert_one_line_error(invoke(p, "--no-rrd"), p, "/radar/plots array 'range_m' has entries of shape ()",
+                          "but (2,) in run 0 scan 1")
+
+
+def test_fixed_array_that_changes_shape_names_channel_not_api(tmp_path):
+    ch = radar_frames()
+    ch["/radar/truth"] = replace_array(ch["/radar/truth"], "state", lambda a: np.r_[a, 0.0], lambda r, k: k == 4)
+    p = write_frames(tmp_path / "truthshape.mcap", ch)
+    res = invoke(p, "--no-rrd")
+    assert_one_line_error(res, p, "/radar/truth array 'state' has shape (4,)", "(5,) in run 0 scan 4")
+    assert "ragged()" not in res.output
+
+
+def test_channel_data_keeps_its_old_constructor_and_names_itself():
+    ch = ChannelData(np.array([0, 0]), np.array([0, 1]), np.zeros(2), {"x": [np.zeros(2), np.ones(2)]})
+    assert ch.grid("x").shape == (1, 2, 2)
+    with pytest.raises(InputError, match=r"channel lacks array 'y' \(have: x\)"):
+        ch.array("y")
+    named = ChannelData(ch.run, ch.scan, ch.time_s, ch.arrays, topic="/t", path="f.mcap")
+    with pytest.raises(InputError) as exc:
+        named.grid("y")
+    assert str(exc.value) == "f.mcap: /t lacks array 'y' (have: x)"
+
+
+# --------------------------------------------------------------------------- recorded design values
+
+
+def test_design_values_recorded_as_strings_are_parsed(tmp_path):
+    """A file whose metadata holds " 60 " replays exactly as one holding 60.0."""
+    typed = write_frames(tmp_path / "typed.mcap", radar_frames(8), radar_metadata({"nominal_cross_range_m": 60.0}))
+    text = write_frames(tmp_path / "text.mcap", radar_frames(8), radar_metadata({"nominal_cross_range_m": " 60 "}))
+    a, b = invoke("eval", typed, "--json"), invoke("eval", text, "--json")
+    assert a.exit_code == 0 and b.exit_code == 0, a.output + b.output
+    assert json.loads(a.output) == json.loads(b.output)
+    default = invoke("eval", write_frames(tmp_path / "none.mcap", radar_frames(8)), "--json")
+    assert json.loads(default.output) != json.loads(a.output)  # the recorded value is used, not the default
+
+
+def test_xcorr_gate_recorded_as_string(tmp_path):
+    def meta(gate):
+        return {METADATA_SCENARIO: {"scenario": "xcorr-crossing", "params": json.dumps({"gate_deg": gate}), "seed": "0"}}
+
+    text = invoke("eval", write_frames(tmp_path / "s.mcap", xcorr_frames(), meta("5")), "--json")
+    typed = invoke("eval", write_frames(tmp_path / "f.mcap", xcorr_frames(), meta(5.0)), "--json")
+    assert text.exit_code == 0, text.output
+    assert json.loads(text.output) == json.loads(typed.output)
+
+
+@pytest.mark.parametrize("params, fragment", [
+    ({"sigma_bearing_deg": "abc"}, "scenario record: parameter 'sigma_bearing_deg': cannot read 'abc' as float"),
+    ({"nominal_cross_range_m": None}, "scenario record: parameter 'nominal_cross_range_m': cannot read None"),
+    ({"scan_period_s": True}, "scenario record: parameter 'scan_period_s': cannot read True as float"),
+    ("{not json", "params is not valid JSON"),
+    ("[1, 2]", "params must be a JSON object"),
+])
+def test_unreadable_recorded_design_values(tmp_path, params, fragment):
+    p = write_frames(tmp_path / "meta.mcap", radar_frames(), radar_metadata(params))
+    assert_one_line_error(invoke(p, "--no-rrd"), p, fragment)
+
+
+# --------------------------------------------------------------------------- stage decode paths
+
+
+def test_xcorr_origin_length_differs_from_bearings(tmp_path):
+    ch = xcorr_frames()
+    ch["/xcorr/peaks"] = replace_array(ch["/xcorr/peaks"], "origin", lambda a: a[:2], lambda r, k: k == 2)
+    p = write_frames(tmp_path / "origin.mcap", ch)
+    assert_one_line_error(invoke(p, "--no-rrd"), p, "/xcorr/peaks: bearing_rad and origin differ in length",
+                          "run 0 scan 2 (3 vs 2)")
+
+
+def test_xcorr_peaks_lacking_amplitude(tmp_path):
+    ch = xcorr_frames()
+    ch["/xcorr/peaks"] = replace_array(ch["/xcorr/peaks"], "amplitude", lambda a: None)
+    p = write_frames(tmp_path / "noamp.mcap", ch)
+    assert_one_line_error(invoke(p, "--no-rrd"), p, "/xcorr/peaks lacks array 'amplitude'")
+
+
+def test_xcorr_scalar_truth_frames(tmp_path):
+    ch = xcorr_frames()
+    ch["/xcorr/truth"] = replace_array(ch["/xcorr/truth"], "bearing_rad", lambda a: np.float64(a[0]))
+    p = write_frames(tmp_path / "truth0d.mcap", ch)
+    assert_one_line_error(invoke(p, "--no-rrd"), p, "/xcorr/truth bearing_rad must be 1-D", "holds shape ()")
+    # fit-peaks reads the truth through the same checks
+    assert_one_line_error(invoke("fit-peaks", p, "--reference", "truth"), p, "/xcorr/truth bearing_rad must be 1-D")
+
+
+def test_xcorr_truth_rate_shape_differs_from_bearings(tmp_path):
+    ch = xcorr_frames()
+    ch["/xcorr/truth"] = replace_array(ch["/xcorr/truth"], "bearing_rate_radps", lambda a: np.zeros(3))
+    p = write_frames(tmp_path / "rate.mcap", ch)
+    assert_one_line_error(invoke(p, "--no-rrd"), p, "/xcorr/truth bearing_rate_radps has shape (1, 6, 3)",
+                          "bearing_rad (1, 6, 2)")
+
+
+def test_xcorr_missing_truth_frame(tmp_path):
+    ch = xcorr_frames()
+    ch["/xcorr/truth"] = [f for f in ch["/xcorr/truth"] if f[1] != 3]
+    p = write_frames(tmp_path / "truthgap.mcap", ch)
+    assert_one_line_error(invoke(p, "--no-rrd"), p, "/xcorr/truth has no frame for run 0 scan 3")
+
+
+@pytest.mark.parametrize("topic, name, make, fragment", [
+    ("/emitter/prior", "state", lambda a: a[:3], "/emitter/prior state must be [x, y, vx, vy] (4 values) per frame"),
+    ("/emitter/sensors", "position_m", lambda a: np.c_[a, np.zeros(len(a))],
+     "/emitter/sensors position_m must be (sensors, 2) in every frame, got frames of shape (3, 3)"),
+    ("/emitter/sensors", "velocity_mps", lambda a: a[:2],
+     "/emitter/sensors velocity_mps (2, 2) and position_m (3, 2) differ in shape"),
+    ("/emitter/measurements", "tdoa_s", lambda a: a[:, None],
+     "/emitter/measurements tdoa_s must be 1-D (one value per pair) in every frame"),
+    ("/emitter/measurements", "fdoa_hz", lambda a: np.float64(a[0]),
+     "/emitter/measurements fdoa_hz must be 1-D (one value per pair) in every frame"),
+    ("/emitter/measurements", "sigma_tdoa_s", lambda a: a[:2], "3 pairs but 2 TDOA σ / 3 FDOA σ values"),
+    ("/emitter/measurements", "carrier_hz", lambda a: None, "/emitter/measurements lacks array 'carrier_hz'"),
+    ("/emitter/truth", "state", lambda a: a[:2], "/emitter/truth state must be [x, y, vx, vy]"),
+])
+def test_emitter_inputs_of_the_wrong_shape(tmp_path, emitter_frames, topic, name, make, fragment):
+    ch = dict(emitter_frames)
+    ch[topic] = replace_array(ch[topic], name, make)
+    p = write_frames(tmp_path / "emitter.mcap", ch)
+    assert_one_line_error(invoke(p, "--no-rrd"), p, fragment)
+
+
+def test_colored_noise_missing_truth_frame_is_an_error(tmp_path, colored_frames):
+    frames, params = colored_frames
+    ch = dict(frames)
+    ch["/colored/truth"] = [f for f in ch["/colored/truth"] if (f[0], f[1]) != (1, 5)]
+    p = write_frames(tmp_path / "gap.mcap", ch, scenario_metadata("colored-imm", params, 0))
+    assert_one_line_error(invoke(p, "--no-rrd"), p, "/colored/truth has no frame for run 1 scan 5")
+
+
+@pytest.mark.parametrize("name", ["state", "alpha"])
+def test_colored_noise_nonfinite_truth(tmp_path, colored_frames, name):
+    frames, params = colored_frames
+    ch = dict(frames)
+    ch["/colored/truth"] = replace_array(ch["/colored/truth"], name, lambda a: np.full_like(a, np.nan),
+                                         lambda r, k: (r, k) == (0, 2))
+    p = write_frames(tmp_path / f"nan_{name}.mcap", ch, scenario_metadata("colored-imm", params, 0))
+    assert_one_line_error(invoke(p, "--no-rrd"), p, f"/colored/truth {name} holds", "NaN/Inf")
+
+
+# --------------------------------------------------------------------------- CLI
+
+
+def test_rerun_run_must_not_be_negative(tmp_path):
+    p = write_frames(tmp_path / "radar.mcap", radar_frames())
+    res = invoke(p, "--no-rrd", "--rerun-run", "-1")
+    assert res.exit_code == 2 and "--rerun-run" in res.output and "Traceback" not in res.output
+
+
+def _study(tmp_path, spec, table) -> Path:
+    study = tmp_path / "study"
+    study.mkdir()
+    (study / "sweep.json").write_text(spec if isinstance(spec, str) else json.dumps(spec))
+    if isinstance(table, bytes):
+        (study / "sweep.parquet").write_bytes(table)
+    else:
+        table.write_parquet(study / "sweep.parquet")
+    return study
+
+
+GOOD_TABLE = pl.DataFrame({"crossing_angle_deg": [10.0], "tracker": ["jpda"], "metric": ["success_rate"],
+                           "value": [0.5]})
+
+
+@pytest.mark.parametrize("spec, table, fragment", [
+    ("{broken", GOOD_TABLE, "sweep.json is not readable JSON"),
+    ({"scenario": "xcorr-crossing"}, GOOD_TABLE, "sweep.json names no swept parameters"),
+    ({"params": {}}, GOOD_TABLE, "sweep.json names no swept parameters"),
+    ([1, 2], GOOD_TABLE, "sweep.json names no swept parameters"),
+    ({"params": {"crossing_angle_deg": [10]}}, b"not parquet", "sweep.parquet is unreadable"),
+    ({"params": {"min_distance_deg": [1]}}, GOOD_TABLE, "sweep.parquet lacks column(s) min_distance_deg"),
+    ({"params": {"crossing_angle_deg": [10]}}, GOOD_TABLE, "the sweep lacks metric(s) success_rate_stderr"),
+])
+def test_association_table_refuses_malformed_studies(tmp_path, spec, table, fragment):
+    study = _study(tmp_path, spec, table)
+    assert_one_line_error(invoke("association-table", study), study, fragment)
+
+
+# --------------------------------------------------------------------------- shared checks
+
+
+def test_check_all_reports_the_first_failed_check_with_the_file():
+    check_all([(True, "fine"), (np.bool_(True), "fine too")])
+    with pytest.raises(InputError) as exc:
+        check_all([(True, "a"), (False, "b must be > 0"), (False, "c")], "f.toml")
+    assert str(exc.value) == "f.toml: b must be > 0"
+
+
+def test_require_finite_params_checks_floats_only():
+    require_finite_params({"a": 1.0, "b": "nan", "c": [float("nan")], "d": 3})
+    for bad in (float("nan"), float("inf"), np.float64(-np.inf)):
+        with pytest.raises(InputError, match=r"^parameter 'x' must be finite$"):
+            require_finite_params({"ok": 2.0, "x": bad})
+
+
+def test_recorders_use_the_shared_checks(tmp_path):
+    res = invoke("simulate", "radar-tws", "--runs", 1, "-o", tmp_path / "r.mcap", "--set", "design_sigma_v_mps2=inf")
+    assert res.exit_code == 2 and "parameter 'design_sigma_v_mps2' must be finite" in res.output
+    res = invoke("simulate", "radar-tws", "--runs", 1, "-o", tmp_path / "r.mcap", "--set", "sigma_range_m=0")
+    assert res.exit_code == 2 and "sigma_range_m must be > 0" in res.output
+    assert not (tmp_path / "r.mcap").exists()
+
+
+# --------------------------------------------------------------------------- plots CSV
+
+
+def test_plots_csv_keeps_file_order_within_each_run_and_scan(tmp_path):
+    """The vectorised scatter agrees with a plain grouping of the rows in file order."""
+    from recorders.plots_csv import read_plots_csv
+
+    rng = np.random.default_rng(3)
+    n = 300
+    rows = {"time": rng.integers(0, 12, n) * 2.5 + 100.0, "range_m": rng.uniform(1e3, 2e4, n),
+            "bearing_deg": rng.uniform(-180, 180, n), "run": rng.integers(0, 3, n)}
+    path = tmp_path / "plots.csv"
+    pl.DataFrame(rows).write_csv(path)
+    data, t0 = read_plots_csv(path)
+    arrays, counts = data.ragged["/radar/plots"]
+    times = np.unique(rows["time"])
+    assert t0 == times[0]
+    groups: dict = {}
+    for t, r, b, run in zip(rows["time"], rows["range_m"], rows["bearing_deg"], rows["run"]):
+        groups.setdefault((int(run), int(np.searchsorted(times, t))), []).append((r, b))
+    assert counts.sum() == n and len(groups) == np.count_nonzero(counts)
+    for (run, scan), plots in groups.items():
+        c = counts[run, scan]
+        assert c == len(plots)
+        np.testing.assert_array_equal(arrays["range_m"][run, scan, :c], [p[0] for p in plots])
+        np.testing.assert_array_equal(arrays["bearing_rad"][run, scan, :c], np.deg2rad([p[1] for p in plots]))
+        assert np.all(np.isnan(arrays["range_m"][run, scan, c:]))
