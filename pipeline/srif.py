@@ -99,14 +99,20 @@ def srif_moments(R: np.ndarray, z: np.ndarray):
 def times_transition_inverse(R: np.ndarray, Phi: np.ndarray) -> np.ndarray:
     """``R Φ⁻¹`` as ``(Φ⁻ᵀ Rᵀ)ᵀ``: a solve with ``Φᵀ``, no inverse.
 
-    A shared ``Φ`` (n, n) is factorised once for every leading index (the rows of all ``R`` are
-    one right-hand side); a stacked ``Φ`` (..., n, n) broadcasts against ``R`` (..., n, n).
+    ``R`` is ``(..., *B, n, n)`` for ``Φ`` of shape ``(*B, n, n)`` (``B`` empty for a shared Φ,
+    the model axis for an IMM group): the rows of every leading index are stacked into one
+    right-hand side, so each Φ is factorised once per call rather than once per run. Other
+    shapes fall back to a broadcast solve.
     """
-    if Phi.ndim == 2:
-        n = Phi.shape[-1]
-        rows = R.reshape(-1, n)
-        return np.linalg.solve(Phi.T, rows.T).T.reshape(R.shape)
-    return np.swapaxes(np.linalg.solve(np.swapaxes(Phi, -1, -2), np.swapaxes(R, -1, -2)), -1, -2)
+    n = Phi.shape[-1]
+    k = Phi.ndim - 2
+    B = Phi.shape[:-2]
+    PhiT = np.swapaxes(Phi, -1, -2)
+    if R.shape[R.ndim - 2 - k:-2] != B:
+        return np.swapaxes(np.linalg.solve(PhiT, np.swapaxes(R, -1, -2)), -1, -2)
+    rows = np.moveaxis(R.reshape((-1,) + B + (n, n)), 0, k).reshape(B + (-1, n))  # (*B, L·n, n)
+    X = np.swapaxes(np.linalg.solve(PhiT, np.swapaxes(rows, -1, -2)), -1, -2)
+    return np.moveaxis(X.reshape(B + (-1, n, n)), k, 0).reshape(R.shape)
 
 
 def srif_time_update(R: np.ndarray, z: np.ndarray, Phi: np.ndarray, Psi: np.ndarray,
