@@ -71,6 +71,20 @@ def log_series(rec, entity: str, scans, times, values, name: str, rgb=None) -> N
                     columns=rr.Scalars.columns(scalars=values[keep]), recording=rec)
 
 
+def log_metric_series(rec, per_scan, tracker: str, metrics, entity, rgb=None) -> None:
+    """Per-scan metric columns of one tracker as series ``entity(metric)/tracker``.
+
+    ``per_scan`` is a stage's per-scan polars table (columns ``tracker``, ``scan``, ``time_s``
+    and the metrics); ``entity`` maps a metric name to its entity path prefix. Metrics the
+    table lacks are skipped.
+    """
+    part = per_scan.filter(per_scan["tracker"] == tracker)
+    for metric in metrics:
+        if metric in part.columns:
+            log_series(rec, f"{entity(metric)}/{tracker}", part["scan"].to_numpy(), part["time_s"].to_numpy(),
+                       part[metric].to_numpy(), tracker, rgb)
+
+
 def log_points(rec, entity: str, scans, times, points_per_scan: list[np.ndarray], rgb, radius=None) -> None:
     """A set of 2-D points per scan (any count, including none)."""
     lengths = np.array([len(p) for p in points_per_scan], np.int64)

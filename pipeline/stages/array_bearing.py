@@ -23,7 +23,7 @@ from pipeline.errors import InputError, require_finite
 from pipeline.flop_counts import ANALYTIC
 from pipeline.stages.base import Stage
 from pipeline.subspace_angle_tracker import SUBSPACES, SubspaceTrackerDesign, music_waterfall, track_bearings
-from pipeline.timeline import color, log_series, rr, rrb
+from pipeline.timeline import color, log_series, rr, rrb, log_metric_series
 
 SNAPSHOTS = "/array/snapshots"
 TRUTH = "/array/truth"
@@ -189,10 +189,8 @@ class ArrayBearingStage(Stage):
                            np.rad2deg(out["innovation_rad"][run, :, n]), f"{name} {n}", _target_color(n))
                 log_series(rec, f"/gain/{name}/target{n}", scans, times, out["gain"][run, :, n, 0], f"{name} {n}",
                            _target_color(n))
-            part = per_scan.filter(pl.col("tracker") == name)
-            if "mse_deg2" in part.columns:
-                log_series(rec, f"/errors/{name}", part["scan"].to_numpy(), part["time_s"].to_numpy(),
-                           part["mse_deg2"].to_numpy(), name, STYLE.get(name, (color(name),))[0])
+            log_metric_series(rec, per_scan, name, ("mse_deg2",), lambda m: "/errors",
+                              STYLE.get(name, (color(name),))[0])
         log_series(rec, "/subspace/past_vs_batch", scans, times, np.rad2deg(any_out["subspace_error_rad"][run]),
                    "PAST vs EVD", (200, 200, 200))
 

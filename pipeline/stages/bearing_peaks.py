@@ -20,7 +20,7 @@ from evaluators import track_association as assoc_eval
 from pipeline.errors import InputError, check_all, require_finite
 from pipeline.jpda import STRATEGIES, BearingTrackerDesign, ScanPeaks, track_bearing_peaks, two_point_start
 from pipeline.stages.base import Stage
-from pipeline.timeline import color, log_points, log_series, rr, rrb
+from pipeline.timeline import color, log_points, log_series, rr, rrb, log_metric_series
 
 PEAKS = "/xcorr/peaks"
 TRUTH = "/xcorr/truth"
@@ -350,11 +350,8 @@ class BearingPeaksStage(Stage):
                            f"max β_j track {t}", tc)
                 log_series(rec, f"/strength/{name}/track{t}", scans, times, out["strength"][run, :, t],
                            f"{name} track {t}", tc if name == "jpda_a" else tuple(v // 2 for v in tc))
-            part = per_scan.filter(pl.col("tracker") == name)
-            for metric in ("rmse_bearing_deg", "on_own_target_fraction"):
-                if metric in part.columns:
-                    log_series(rec, f"/errors/{metric}/{name}", part["scan"].to_numpy(), part["time_s"].to_numpy(),
-                               part[metric].to_numpy(), name, c)
+            log_metric_series(rec, per_scan, name, ("rmse_bearing_deg", "on_own_target_fraction"),
+                              lambda m: f"/errors/{m}", c)
 
     def tracker_half_gate(self, dataset) -> float:
         return float(np.deg2rad(self.design(dataset)["gate_deg"])) / 2

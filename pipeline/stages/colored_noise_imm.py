@@ -31,7 +31,7 @@ from pipeline.ar1_estimation import estimate_ar1
 from pipeline.errors import InputError, require_finite
 from pipeline.imm import MeasurementStream, ModelFilter, check_transition, imm_filter, kinematic_model, single_model_filter
 from pipeline.stages.base import Stage
-from pipeline.timeline import color, log_series, rrb
+from pipeline.timeline import color, log_series, rrb, log_metric_series
 
 MEASUREMENTS = "/colored/measurements"
 TRUTH = "/colored/truth"
@@ -203,11 +203,8 @@ class ColoredNoiseImmStage(Stage):
         for name, out in tracks.items():
             if name == colored_eval.AR_TRACKER:
                 continue
-            part = per_scan.filter(per_scan["tracker"] == name)
-            for metric in ("rmse_position_m", "rmse_velocity_mps", "rmse_acceleration_mps2"):
-                if metric in part.columns:
-                    log_series(rec, f"/rmse/{metric.removeprefix('rmse_')}/{name}", part["scan"].to_numpy(),
-                               part["time_s"].to_numpy(), part[metric].to_numpy(), name, _rgb(name))
+            log_metric_series(rec, per_scan, name, ("rmse_position_m", "rmse_velocity_mps", "rmse_acceleration_mps2"),
+                              lambda m: f"/rmse/{m.removeprefix('rmse_')}", _rgb(name))
             log_series(rec, f"/error/position_m/{name}", scans, times, out["state"][run, :, 0] - truth[run, :, 0], name,
                        _rgb(name))
             mu = out.get("model_probabilities")

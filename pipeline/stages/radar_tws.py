@@ -16,7 +16,7 @@ from pipeline.converted_measurements import polar_to_cartesian
 from pipeline.decoupled_tracker import STRATEGIES, TrackerDesign, track_plots
 from pipeline.errors import InputError, require_finite
 from pipeline.stages.base import Stage
-from pipeline.timeline import color, log_path, log_points, log_series, north_up, north_up_bounds, rr, rrb
+from pipeline.timeline import color, log_path, log_points, log_series, north_up, north_up_bounds, rr, rrb, log_metric_series
 
 PLOTS = "/radar/plots"
 TRUTH = "/radar/truth"
@@ -134,11 +134,8 @@ class RadarTwsStage(Stage):
             log_series(rec, f"/gains/alpha_cross/{name}", scans, times, out["alpha"][run, :, 1], name)
             log_series(rec, f"/gains/beta_cross/{name}", scans, times, out["beta"][run, :, 1], name)
             log_series(rec, f"/gains/alpha_along/{name}", scans, times, out["alpha"][run, :, 0], name)
-            part = per_scan.filter(per_scan["tracker"] == name)
-            for metric in ("rmse_position_m", "rmse_velocity_mps", "npe"):
-                if metric in part.columns:
-                    log_series(rec, f"/errors/{metric}/{name}", part["scan"].to_numpy(),
-                               part["time_s"].to_numpy(), part[metric].to_numpy(), name)
+            log_metric_series(rec, per_scan, name, ("rmse_position_m", "rmse_velocity_mps", "npe"),
+                              lambda m: f"/errors/{m}")
         any_track = next(iter(result["tracks"].values()))
         log_series(rec, "/gains/lambda_cross/measured", scans, times, any_track["lambda_cross"][run],
                    "λ_k", (200, 200, 200))
