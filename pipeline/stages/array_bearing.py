@@ -27,10 +27,6 @@ from pipeline.timeline import color, log_series, rr, rrb, log_metric_series
 
 SNAPSHOTS = "/array/snapshots"
 TRUTH = "/array/truth"
-PAPER_TABLE1 = {  # Ryu, Lee & Lee 2001, Table 1 (printed for comparison only, never asserted)
-    "ryu": {"mse": {0.0: 0.30195, 5.0: 0.17520, 10.0: 0.11273}, "flops": {5: 92482, 6: 158138}},
-    "proposed": {"mse": {0.0: 0.30126, 5.0: 0.17285, 10.0: 0.12803}, "flops": {5: 35895, 6: 45101}},
-}
 LABELS = {"ryu": "Ryu 1999", "proposed": "proposed"}
 BATCH_RUNS = 300  # the paper's 100 runs × 3 SNRs in one vectorised call
 # both trackers give the same tracks to rounding: Ryu drawn wide underneath, proposed thin on top
@@ -292,17 +288,13 @@ def table1(summary: pl.DataFrame, per_scan: pl.DataFrame, time_repeats: int = 20
             else:
                 row += f"{'–':>14}"
         lines.append(row)
-    for t in trackers if M == 15 else ():  # the paper's array; its FLOPs mean nothing for another M
-        paper = PAPER_TABLE1[t]
-        row = f"{'paper ' + LABELS[t]:<20}" + "".join(
-            f"{paper['mse'].get(float(sc[7:]), float('nan')):>12.5f}" for sc in snr_scopes)
-        row += "".join(f"{paper['flops'][n]:>16,} (Matlab flops)" for n in (5, 6))
-        lines.append(row)
+    # The paper's own Table 1 is quoted in the README for comparison; the code reports only what
+    # it measures, so no printed number of the paper can turn into an expected output.
     if M is not None and {"ryu", "proposed"} <= set(trackers):
         ratio = " ".join(f"N={n}: model {ANALYTIC['proposed'](M, n) / ANALYTIC['ryu'](M, n):.3f}, counted "
                          f"{_value(s, 'proposed', 'innovation_flops_counted', f'n_targets={n}') / _value(s, 'ryu', 'innovation_flops_counted', f'n_targets={n}'):.3f}, "
                          f"time {timing[('proposed', n)] / timing[('ryu', n)]:.3f};" for n in (5, 6) if n < M)
-        lines.append(f"proposed / Ryu ratio  {ratio}  paper (Matlab): N=5 0.388, N=6 0.285")
+        lines.append(f"proposed / Ryu ratio  {ratio}")
     if M is not None:
         from pipeline.flop_counts import counted_flops
 
