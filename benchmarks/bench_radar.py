@@ -206,7 +206,7 @@ def main(argv=None) -> int:
         # ------------------------------------------------------------------ figure 2
         heading(f"[2] Filter only: Kalman over {args.runs} runs (same data, same model)")
         ds = read_dataset(data_path)
-        rng, brg, counts, times = RadarTwsStage()._plots(ds)
+        rng, brg, counts, times = RadarTwsStage().decode_plots(ds)
         design = design_from(params)
         T = design.scan_period_s
         if not (np.all(counts == 1) and np.allclose(np.diff(times), T)):

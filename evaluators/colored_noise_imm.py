@@ -122,11 +122,10 @@ def _ar_tables(times, ar: dict, truth_alpha, R: float, beta: float):
     true_var = (1.0 - truth_alpha**2) * R
     scans = np.arange(len(times))
     # runs with the same true-α history form one curve (one for colored-imm, five for colored-ar)
-    groups: dict = {}
-    for r in range(alpha.shape[0]):
-        groups.setdefault(truth_alpha[r, :, 0].tobytes(), []).append(r)
+    _, group_of_run = np.unique(truth_alpha[:, :, 0], axis=0, return_inverse=True)
+    groups = [np.flatnonzero(group_of_run.ravel() == g) for g in range(group_of_run.max() + 1)]
     parts = []
-    for members in groups.values():
+    for members in groups:
         a0 = truth_alpha[members[0], 0, 0]
         label = AR_TRACKER if len(groups) == 1 else f"{AR_TRACKER} (α={a0:g})"
         sl = (members, slice(None))

@@ -44,7 +44,7 @@ def crlb_summary(es, epoch: int = 0, kind: str = "joint", stationary: bool = Fal
     """CRLB, projections, slices, ellipses and CEPs of one resolved scenario epoch (plain numbers)."""
     from pipeline.crlb import (cep_approx, cep_exact, cep_paper, crlb, error_ellipse, projection_covariance,
                                slice_covariance, whitened_jacobian)
-    from pipeline.stages.emitter_localisation import underdetermined_reason
+    from pipeline.tdoa_fdoa_model import underdetermined_reason
     from pipeline.tdoa_fdoa_model import STATE_NAMES, independent_equations, measurement_model, measurement_rows, unknowns
 
     if not 0 <= epoch < len(es.times):
@@ -192,7 +192,7 @@ def cep_plane_cmd(sets, scenario, estimator, emitter, geometry, extent_km, step_
         raise InputError(f"grid of {axis.size} × {axis.size} points is too large (at most {MAX_GRID_POINTS}); "
                          "increase --step-m or reduce --extent-km")
     stationary = bool(sc.params["stationary_emitter"])
-    from pipeline.stages.emitter_localisation import underdetermined_reason
+    from pipeline.tdoa_fdoa_model import underdetermined_reason
 
     reason = underdetermined_reason(estimator, es.pairs, es.sensor_pos.shape[1], stationary)
     if reason:

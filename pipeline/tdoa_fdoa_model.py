@@ -158,3 +158,13 @@ def independent_equations(kind: str, pairs, n_sensors: int) -> int:
 def all_pairs(n_sensors: int) -> np.ndarray:
     """Every pair (i < j) of ``n_sensors`` sensors."""
     return np.array(list(itertools.combinations(range(n_sensors), 2)), dtype=np.int64).reshape(-1, 2)
+
+
+def underdetermined_reason(kind: str, pairs, n_sensors: int, stationary: bool) -> str | None:
+    """Why an estimator cannot run on this pair list (None if it can)."""
+    n_eq = independent_equations(kind, pairs, n_sensors)
+    q = len(unknowns(kind, stationary))
+    if n_eq < q:
+        pair_text = ",".join(f"{i}-{j}" for i, j in pairs)
+        return (f"{kind}: pairs {pair_text} give {n_eq} independent equation(s) for {q} unknowns")
+    return None

@@ -40,14 +40,13 @@ import numpy as np
 from scipy.special import ndtr, ndtri
 
 from pipeline.errors import InputError, check_all, require_finite_params
+from pipeline.peak_roles import track_roles
 from recorders.simulated import SimulatedData
 
 PEAKS_TOPIC = "/xcorr/peaks"
 TRUTH_TOPIC = "/xcorr/truth"
 ORIGIN_CLUTTER = -1
 ROLES = ("strong", "weak")
-PAIRS = {"strong-weak": ("strong", "weak"), "strong-strong": ("strong", "strong"),
-         "weak-weak": ("weak", "weak")}
 GEOMETRIES = ("crossing", "maneuver")
 MAX_SCANS = 20000
 
@@ -60,13 +59,6 @@ def role_model(p: dict, role: str) -> dict:
         "amplitude_std": float(p[f"{role}_amplitude_std"]),
         "sigma_p_rad": float(np.deg2rad(p[f"{role}_sigma_p_deg"])),
     }
-
-
-def track_roles(p: dict) -> tuple[str, ...]:
-    """Roles of the targets in order (``pair = "strong-weak"``: target 0 strong, 1 weak)."""
-    if p["pair"] not in PAIRS:
-        raise InputError(f"pair must be one of {', '.join(PAIRS)} (got {p['pair']!r})")
-    return PAIRS[p["pair"]]
 
 
 def _duration_s(p: dict) -> float:

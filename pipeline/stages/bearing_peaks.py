@@ -187,7 +187,7 @@ class BearingPeaksStage(Stage):
         return n
 
     def _roles(self, design: dict, n_tracks: int) -> tuple[str, ...]:
-        from recorders.xcorr_peaks import track_roles
+        from pipeline.peak_roles import track_roles
 
         roles = track_roles(design)
         if len(roles) != n_tracks:

@@ -26,8 +26,8 @@ from pipeline.crlb import ellipse_points
 from pipeline.errors import InputError, require_finite
 from pipeline.gauss_newton import UNDERDETERMINED, gauss_newton
 from pipeline.stages.base import Stage
-from pipeline.tdoa_fdoa_model import (MEASUREMENT_KINDS, independent_equations, measurement_model,
-                                      measurement_rows, unknowns)
+from pipeline.tdoa_fdoa_model import (MEASUREMENT_KINDS, measurement_model,
+                                      measurement_rows, underdetermined_reason, unknowns)
 from pipeline.timeline import color, north_up, north_up_bounds, rr, rrb
 
 MEASUREMENTS = "/emitter/measurements"
@@ -97,16 +97,6 @@ def read_observations(dataset) -> dict:
     return {"measured": np.concatenate([arrays["tdoa_s"], arrays["fdoa_hz"]], axis=-1), "sigma": sigma,
             "pairs": pairs, "carrier_hz": arrays["carrier_hz"], "sensor_pos": arrays["position_m"],
             "sensor_vel": arrays["velocity_mps"], "times": ch.times()}
-
-
-def underdetermined_reason(kind: str, pairs, n_sensors: int, stationary: bool) -> str | None:
-    """Why an estimator cannot run on this pair list (None if it can)."""
-    n_eq = independent_equations(kind, pairs, n_sensors)
-    q = len(unknowns(kind, stationary))
-    if n_eq < q:
-        pair_text = ",".join(f"{i}-{j}" for i, j in pairs)
-        return (f"{kind}: pairs {pair_text} give {n_eq} independent equation(s) for {q} unknowns")
-    return None
 
 
 class EmitterLocalisationStage(Stage):

@@ -32,7 +32,9 @@ class RadarTwsStage(Stage):
     design_keys = ("scan_period_s", "design_sigma_v_mps2", "sigma_range_m", "sigma_bearing_deg",
                    "nominal_cross_range_m", "startup_gains")
 
-    def _plots(self, dataset):
+    def decode_plots(self, dataset):
+        """Plots as padded ``(runs, scans, width)`` range and bearing, counts and scan times
+        (decoded and checked once per data set)."""
         if "radar_plots" not in dataset.cache:
             dataset.cache["radar_plots"] = self._decode_plots(dataset)
         return dataset.cache["radar_plots"]
@@ -51,7 +53,7 @@ class RadarTwsStage(Stage):
         return rng, brg, counts, ch.times()
 
     def run(self, dataset, trackers, design: dict) -> dict:
-        rng, brg, counts, times = self._plots(dataset)
+        rng, brg, counts, times = self.decode_plots(dataset)
         d = TrackerDesign(scan_period_s=design["scan_period_s"], sigma_v=design["design_sigma_v_mps2"],
                           sigma_range_m=design["sigma_range_m"],
                           sigma_bearing_rad=np.deg2rad(design["sigma_bearing_deg"]),
@@ -61,7 +63,7 @@ class RadarTwsStage(Stage):
         return {"times": times, "tracks": outputs}
 
     def evaluate(self, dataset, result: dict, design: dict):
-        rng, brg, counts, times = self._plots(dataset)
+        rng, brg, counts, times = self.decode_plots(dataset)
         first = np.where(counts > 0, 0, -1)
         measured = polar_to_cartesian(rng[..., 0], brg[..., 0]) if rng.shape[2] else np.full(counts.shape + (2,), np.nan)
         measured[first < 0] = np.nan
@@ -81,7 +83,7 @@ class RadarTwsStage(Stage):
         """Layout: x/y of one run | gains | errors; the x/y view is fitted to that run's plots."""
         bounds = None
         if dataset is not None:
-            rng, brg, counts, _ = self._plots(dataset)
+            rng, brg, counts, _ = self.decode_plots(dataset)
             run = min(run, counts.shape[0] - 1)
             xy = polar_to_cartesian(rng[run], brg[run]).reshape(-1, 2)
             xy = xy[np.all(np.isfinite(xy), axis=1)]
@@ -113,7 +115,7 @@ class RadarTwsStage(Stage):
     def log_rerun(self, rec, dataset, result: dict, per_scan, run: int = 0) -> None:
         times = result["times"]
         scans = np.arange(len(times))
-        rng, brg, counts, _ = self._plots(dataset)
+        rng, brg, counts, _ = self.decode_plots(dataset)
         run = min(run, counts.shape[0] - 1)
         plots_xy = polar_to_cartesian(rng[run], brg[run])
         north_up(rec, XY)
