@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 import polars as pl
 
-from evaluators.tracking_metrics import long_form, nanmean
+from evaluators.tracking_metrics import long_form, nanmean, rms
 from pipeline.flop_counts import ANALYTIC, counted_flops
 from pipeline.subspace_angle_tracker import STARTUP_SCANS
 
@@ -141,14 +141,14 @@ def evaluate(times, tracks: dict, truth_angles=None, snr_db=None, gate_rad: floa
         n_tracks = np.asarray(out["n_tracks"][:, 0], dtype=np.int64)
         cols = {
             "tracker": [name] * len(times), "scan": scans, "time_s": times,
-            "rms_innovation_deg": np.sqrt(nanmean(innov_deg**2, axis=(0, 2))),
+            "rms_innovation_deg": rms(innov_deg, axis=(0, 2)),
             "gain_angle": nanmean(out["gain"][..., 0], axis=(0, 2)),
             "gain_rate_per_s": nanmean(out["gain"][..., 1], axis=(0, 2)),
             "subspace_error_deg": nanmean(sub_err, axis=0),
             "innovation_time_us": nanmean(out["innovation_time_s"], axis=0) * 1e6,
         }
         common = {"n_tracks_mean": float(np.mean(n_tracks)),
-                  "rms_innovation_deg": float(np.sqrt(nanmean(innov_deg[:, STARTUP_SCANS:] ** 2))),
+                  "rms_innovation_deg": float(rms(innov_deg[:, STARTUP_SCANS:])),
                   "subspace_error_deg": float(nanmean(sub_err[:, STARTUP_SCANS:]))}
         if truth_angles is not None:
             truth = truth_angles

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from evaluators.tracking_metrics import long_form, nanmean, rmse_overall, rmse_per_scan
+from evaluators.tracking_metrics import long_form, nanmean, rmse_overall, rmse_per_scan, rms
 
 AR_TRACKER = "ar_estimator"
 KINEMATICS = (("position", "rmse_position_m", 0), ("velocity", "rmse_velocity_mps", 1),
@@ -147,8 +147,8 @@ def _ar_tables(times, ar: dict, truth_alpha, R: float, beta: float):
     if settled.any():
         sel = settled[..., None] & np.ones_like(err, dtype=bool)
         rows.append({"tracker": AR_TRACKER, "scope": "overall", "samples": float(sel.sum()),
-                     "alpha_rmse": float(np.sqrt(nanmean(err[sel] ** 2))),
-                     "alpha_biased_rmse": float(np.sqrt(nanmean((alpha_b - truth_alpha)[sel] ** 2))),
+                     "alpha_rmse": float(rms(err[sel])),
+                     "alpha_biased_rmse": float(rms((alpha_b - truth_alpha)[sel])),
                      "noise_variance_ratio": float(nanmean(ratio[sel])),
                      "flagged_fraction": float(np.mean(flags[sel] > 0))})
         for value in np.unique(truth_alpha[..., 0][settled]):
@@ -158,7 +158,7 @@ def _ar_tables(times, ar: dict, truth_alpha, R: float, beta: float):
             rows.append({"tracker": AR_TRACKER, "scope": f"alpha={value:g}", "samples": float(s.sum()),
                          "alpha_true": float(value),
                          "alpha_mean": float(nanmean(alpha[s])), "alpha_biased_mean": float(nanmean(alpha_b[s])),
-                         "alpha_rmse": float(np.sqrt(nanmean(err[s] ** 2))),
+                         "alpha_rmse": float(rms(err[s])),
                          "noise_variance_true": float((1 - value**2) * R),
                          "noise_variance_mean": float(nanmean(var[s])),
                          "noise_variance_ratio": float(nanmean(ratio[s])),

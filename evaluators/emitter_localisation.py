@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 import polars as pl
 
-from evaluators.tracking_metrics import long_form
+from evaluators.tracking_metrics import long_form, rmse_overall
 from pipeline.batched_least_squares import information_covariance
 from pipeline.crlb import ellipse_scale
 from pipeline.gauss_newton import (CONVERGED, DIVERGED, INVALID_START, RANK_DEFICIENT,
@@ -192,9 +192,9 @@ def evaluate(times, tracks: dict, obs: dict, truth_state, stationary: bool):
             row = {**base, "scope": f"iteration={it:0{len(str(last))}d}"}
             if ok.any() and truth_state is not None:
                 e = iterates[:, :, it][ok] - truth_state[ok]
-                row["rmse_position_m"] = float(np.sqrt(np.mean(np.sum(e[:, :2] ** 2, -1))))
+                row["rmse_position_m"] = rmse_overall(e[:, :2], 0.0)
                 if len(free) == 4:
-                    row["rmse_velocity_mps"] = float(np.sqrt(np.mean(np.sum(e[:, 2:] ** 2, -1))))
+                    row["rmse_velocity_mps"] = rmse_overall(e[:, 2:], 0.0)
                 row["converged_fraction"] = float(np.mean(out["iterations"][ok] <= it))
             summary_rows.append(row)
     per_scan = pl.concat(per_scan_parts, how="diagonal")

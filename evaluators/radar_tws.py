@@ -71,7 +71,7 @@ def evaluate(times, tracks: dict, measured_xy, truth_state=None, cross_range_std
             "clamped_fraction": np.mean((out["flags"] & FLAG_CLAMPED) > 0, axis=0),
         }
         row = {"tracker": name, "scope": "overall",
-               "rms_innovation_m": float(np.sqrt(nanmean(np.sum(innov**2, -1)))) if ok.any() else np.nan,
+               "rms_innovation_m": rmse_overall(innov, 0.0) if ok.any() else np.nan,
                "clamped_scans": float(np.sum((out["flags"] & FLAG_CLAMPED) > 0)),
                "coasted_scans": float(np.sum((out["flags"] & FLAG_COASTED) > 0))}
         rows = [row]
@@ -104,4 +104,4 @@ def _nanmean0(a):
 
 
 def _rms0(v):
-    return np.sqrt(_nanmean0(np.sum(v**2, axis=-1)))
+    return rmse_per_scan(v, 0.0)

@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 import polars as pl
 
-from evaluators.tracking_metrics import long_form, nanmean
+from evaluators.tracking_metrics import long_form, nanmean, rms
 
 SUCCESS, SWAP, LOSS = 0, 1, 2
 
@@ -153,7 +153,7 @@ def evaluate(times, tracks: dict, truth_bearing: np.ndarray | None, gate_rad: fl
             p = float(np.mean(outcome == SUCCESS))
             err = np.rad2deg(est - truth_bearing)
             on = on_target(est, truth_bearing, gate_rad / 2)
-            cols["rmse_bearing_deg"] = np.sqrt(nanmean(err**2, axis=(0, 2)))
+            cols["rmse_bearing_deg"] = rms(err, axis=(0, 2))
             cols["on_own_target_fraction"] = np.mean(on == np.arange(T), axis=(0, 2))
             cols["separation_deg"] = np.rad2deg(np.abs(truth_bearing[0, :, 0] - truth_bearing[0, :, -1]))
             held_err = np.where(held[:, None, :], err, np.nan)
@@ -161,12 +161,12 @@ def evaluate(times, tracks: dict, truth_bearing: np.ndarray | None, gate_rad: fl
                        loss_rate=float(np.mean(outcome == LOSS)),
                        coalescence_rate=float(np.mean(coalesced(est, truth_bearing, gate_rad))),
                        success_rate_stderr=float(np.sqrt(p * (1 - p) / R)),
-                       rmse_bearing_deg_held=float(np.sqrt(nanmean(held_err[:, f:] ** 2))) if held.any() else np.nan)
+                       rmse_bearing_deg_held=float(rms(held_err[:, f:])) if held.any() else np.nan)
             for t in range(T):
                 rows.append({"tracker": name, "scope": f"track={t}:{roles_[t]}",
                              "held_rate": float(held[:, t].mean()), "swapped_rate": float(swapped[:, t].mean()),
                              "lost_rate": float(lost[:, t].mean()),
-                             "rmse_bearing_deg_held": float(np.sqrt(nanmean(held_err[:, f:, t] ** 2)))
+                             "rmse_bearing_deg_held": float(rms(held_err[:, f:, t]))
                              if held[:, t].any() else np.nan,
                              "mean_beta0": float(nanmean(out["beta0"][..., t]))})
         per_scan_parts.append(pl.DataFrame(cols))

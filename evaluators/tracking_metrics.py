@@ -27,6 +27,12 @@ def squared_error(estimate, truth):
     return np.sum(d * d, axis=-1)
 
 
+def rms(values, axis=None):
+    """Root mean square over ``axis``, NaN entries (no estimate) left out."""
+    v = np.asarray(values, float)
+    return np.sqrt(nanmean(v * v, axis=axis))
+
+
 def rmse_per_scan(estimate, truth):
     """RMS error per scan over runs: ``√(mean_runs ‖x̂ − x‖²)``, shape ``(scans,)``."""
     se = squared_error(estimate, truth)

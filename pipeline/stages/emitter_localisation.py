@@ -23,6 +23,7 @@ import numpy as np
 from evaluators import emitter_localisation as emitter_eval
 from pipeline.coarse_grid_search import coarse_grid_start
 from pipeline.crlb import ellipse_points
+from evaluators.tracking_metrics import rmse_per_scan
 from pipeline.errors import InputError, require_finite
 from pipeline.gauss_newton import UNDERDETERMINED, gauss_newton
 from pipeline.stages.base import Stage
@@ -308,8 +309,7 @@ class EmitterLocalisationStage(Stage):
                                               truth[:, :1], stationary)[:, 0]
             ok = classes == emitter_eval.TRUTH
             if ok.any():
-                err = it[ok][:, :, :2] - truth[ok, 0, None, :2]
-                rmse = np.sqrt(np.mean(np.sum(err ** 2, axis=-1), axis=0))
+                rmse = rmse_per_scan(it[ok][:, :, :2], truth[ok, 0, None, :2])  # per iteration
                 rec.log(f"/convergence/{name}", rr.SeriesLines(names=[name], colors=[rgb]), static=True)
                 rr.send_columns(f"/convergence/{name}", indexes=[rr.TimeColumn("iteration", sequence=np.arange(n_it))],
                                 columns=rr.Scalars.columns(scalars=rmse), recording=rec)
