@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import os
 from pathlib import Path
 
@@ -24,6 +25,21 @@ def _isolated_rerun_home(tmp_path_factory):
     for var in ("XDG_CONFIG_HOME", "XDG_DATA_HOME", "XDG_CACHE_HOME"):
         os.environ[var] = str(home)
     yield
+
+
+@pytest.fixture
+def runner(tmp_path, monkeypatch):
+    """A click runner whose working directory is a fresh temporary folder."""
+    from click.testing import CliRunner
+
+    monkeypatch.chdir(tmp_path)
+    return CliRunner()
+
+
+@pytest.fixture
+def sha():
+    """SHA-256 of a file's bytes (to show an input was not modified)."""
+    return lambda path: hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 @pytest.fixture(scope="session")

@@ -1,24 +1,14 @@
 """The `replay` command as a user runs it (click.testing), including bad input."""
 
-import hashlib
 import json
 import shutil
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
 from pipeline.cli import main
 
 
-def sha(path):
-    return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
-@pytest.fixture
-def runner(tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)
-    return CliRunner()
 
 
 def test_no_argument_replays_bundled_demo(runner, tmp_path):
@@ -28,7 +18,7 @@ def test_no_argument_replays_bundled_demo(runner, tmp_path):
     assert (tmp_path / "replay-out" / "radar_tws_demo" / "tracks.mcap").exists()
 
 
-def test_replay_writes_outputs_and_leaves_input_untouched(runner, radar_small, tmp_path):
+def test_replay_writes_outputs_and_leaves_input_untouched(runner, radar_small, tmp_path, sha):
     before = sha(radar_small)
     res = runner.invoke(main, [str(radar_small), "--out", str(tmp_path / "o" / "t.mcap")])
     assert res.exit_code == 0, res.output

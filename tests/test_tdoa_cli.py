@@ -1,6 +1,5 @@
 """TDOA/FDOA as a user runs it: simulate with presets, replay, eval, crlb, cep-plane, bad input."""
 
-import hashlib
 import json
 
 import numpy as np
@@ -12,14 +11,6 @@ from pipeline.contract import read_dataset, write_dataset
 from pipeline.replay import replay
 
 
-def sha(path):
-    return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
-@pytest.fixture
-def runner(tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)
-    return CliRunner()
 
 
 def invoke(runner, *args):
@@ -40,7 +31,7 @@ def triangle3(tmp_path_factory):
 # --------------------------------------------------------------------------- simulate
 
 
-def test_simulate_presets_as_options_equal_set_and_carry_metadata(runner, tmp_path):
+def test_simulate_presets_as_options_equal_set_and_carry_metadata(runner, tmp_path, sha):
     a = invoke(runner, "simulate", "tdoa-fdoa", "--geometry", "line", "--emitter", "1", "--runs", "50", "-o", "a.mcap")
     assert a.exit_code == 0, a.output
     b = invoke(runner, "simulate", "tdoa-fdoa", "--set", "geometry=line", "--set", "emitter=1", "--runs", "50", "-o", "b.mcap")
@@ -80,7 +71,7 @@ def test_simulate_option_pass_through_is_general(runner):
 # --------------------------------------------------------------------------- replay / eval
 
 
-def test_replay_classifies_runs_and_eval_matches_the_output_file(runner, triangle3, tmp_path):
+def test_replay_classifies_runs_and_eval_matches_the_output_file(runner, triangle3, tmp_path, sha):
     before = sha(triangle3)
     res = invoke(runner, triangle3, "--out", tmp_path / "o" / "t.mcap")
     assert res.exit_code == 0, res.output
