@@ -15,7 +15,7 @@ import pytest
 from click.testing import CliRunner
 
 import pipeline.cli
-from pipeline.contract import ChannelData, METADATA_SCENARIO, read_dataset, scenario_metadata, write_dataset
+from pipeline.contract import ChannelData, METADATA_SCENARIO, scenario_metadata, write_dataset
 from pipeline.errors import InputError, check_all, require_finite_params
 from recorders.scenarios import load_scenario
 
