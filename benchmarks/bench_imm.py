@@ -40,7 +40,6 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import statistics
 import sys
 import time
 
@@ -53,16 +52,9 @@ from pipeline.stages.colored_noise_imm import parse_matrix
 from recorders.colored_noise import simulate
 from recorders.scenarios import load_scenario
 
+from timing import timed  # noqa: E402
+
 SPEEDUP_TARGET = 30.0
-
-
-def timed(fn, repeats: int):
-    times, result = [], None
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        result = fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times), result
 
 
 def filterpy_imm(z, x0, P0, p, transition):

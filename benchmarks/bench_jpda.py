@@ -31,7 +31,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from pipeline.jpda import STRATEGIES, ScanPeaks, scans_from_padded, track_bearing_peaks, two_point_start  # noqa: E402
+from pipeline.jpda import STRATEGIES, scans_from_padded, track_bearing_peaks, two_point_start  # noqa: E402
 from pipeline.stages.bearing_peaks import BearingPeaksStage  # noqa: E402
 from recorders.scenarios import load_scenario  # noqa: E402
 from recorders.xcorr_peaks import simulate  # noqa: E402

@@ -38,7 +38,6 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import statistics
 import sys
 import time
 
@@ -60,13 +59,7 @@ def scenario(**overrides):
     return sc.params, resolve(sc.params)
 
 
-def median_time(fn, repeats):
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t)
-    return statistics.median(times), out
+from timing import timed as median_time  # noqa: E402
 
 
 # --------------------------------------------------------------------------- CEP planes

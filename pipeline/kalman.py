@@ -236,9 +236,15 @@ def matrix_to_components(P):
 
 def components_to_matrix(c):
     """(10, …) components → (…, 4, 4) symmetric covariance."""
-    a00, a01, a11, b00, b01, b10, b11, c00, c01, c11 = c
-    rows = [[a00, a01, b00, b01], [a01, a11, b10, b11], [b00, b10, c00, c01], [b01, b11, c01, c11]]
-    return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
+    c = np.asarray(c)
+    out = np.empty(c.shape[1:] + (4, 4), dtype=c.dtype)
+    # (row, column) of each stored entry in state order [x, y, ẋ, ẏ]; written into one
+    # preallocated array because nested np.stack copies the whole output several times
+    slots = ((0, 0), (0, 1), (1, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 2), (2, 3), (3, 3))
+    for comp, (i, j) in zip(c, slots):
+        out[..., i, j] = comp
+        out[..., j, i] = comp
+    return out
 
 
 def cv_predict_components(x, c, dt: float, sigma_v: float):
