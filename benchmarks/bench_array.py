@@ -3,14 +3,14 @@
 What it measures
 ----------------
 1. **Angular innovation, proposed vs Ryu, N = 1 … 10, M = 15.** Both kernels of
-   ``pipeline.angular_innovation`` on the same random subspaces and predictions (the largest
+   ``pipeline.cores.array.angular_innovation`` on the same random subspaces and predictions (the largest
    difference between their δθ is printed). Per N: the best time of one call for the N
    targets of one scan of one run (the paper's setting), the time per run-scan of one
    vectorised call over ``--batch`` runs, their proposed/Ryu ratios, and next to them the
    FLOP ratio of the spec's analytic model and of the FLOPs our kernels execute (counted by
-   ``pipeline.flop_counts.FlopTally`` from the kernels' operand shapes).
+   ``pipeline.cores.array.flop_counts.FlopTally`` from the kernels' operand shapes).
 2. **MUSIC (spectrum + peaks), ours vs pyroomacoustics.** The same snapshot blocks (M = 15,
-   30 snapshots, 5 sources at 10 dB, λ/2 spacing) go through ``pipeline.music`` and through
+   30 snapshots, 5 sources at 10 dB, λ/2 spacing) go through ``pipeline.cores.array.music`` and through
    ``pyroomacoustics.doa.MUSIC.locate_sources`` on the same angle grid (pyroomacoustics' azimuth
    φ from the array axis is 90° − θ); one narrowband bin carries the snapshots. Printed: time per
    call of each (pyroomacoustics as shipped, whose mode vectors are computed on every call, and
@@ -50,10 +50,10 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.angular_innovation import INNOVATIONS
-from pipeline.flop_counts import ANALYTIC, counted_flops, time_innovation
-from pipeline.linear_array import steering_vectors
-from pipeline.music import angle_grid, lag_exponentials, music, pick_peaks
+from pipeline.cores.array.angular_innovation import INNOVATIONS
+from pipeline.cores.array.flop_counts import ANALYTIC, counted_flops, time_innovation
+from pipeline.cores.array.linear_array import steering_vectors
+from pipeline.cores.array.music import angle_grid, lag_exponentials, music, pick_peaks
 
 
 def section(title):
@@ -158,12 +158,12 @@ def full_monte_carlo(runs: int) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "array.mcap"
         t0 = time.perf_counter()
-        subprocess.run([sys.executable, "-m", "pipeline.cli", "simulate", "array-crossing", "--runs", str(runs),
+        subprocess.run([sys.executable, "-m", "pipeline.face.cli", "simulate", "array-crossing", "--runs", str(runs),
                         "--snr-db", "0,5,10", "-o", str(path)], check=True, capture_output=True)
         t_sim = time.perf_counter() - t0
         print(f"simulate: {t_sim:.1f} s, file {path.stat().st_size / 1e6:.1f} MB")
         t0 = time.perf_counter()
-        out = subprocess.run([sys.executable, "-m", "pipeline.cli", "eval", str(path)], check=True,
+        out = subprocess.run([sys.executable, "-m", "pipeline.face.cli", "eval", str(path)], check=True,
                              capture_output=True, text=True)
         wall = time.perf_counter() - t0
         text = out.stdout
@@ -175,7 +175,7 @@ def full_monte_carlo(runs: int) -> None:
 def crossing_rate_sensitivity(runs: int, factors=(1.0, 1.33, 2.0)) -> None:
     """Why the all-runs MSE is far above the paper's: tracks merge at slow crossings."""
     from evaluators.array_bearing import evaluate
-    from pipeline.subspace_angle_tracker import SubspaceTrackerDesign, track_bearings
+    from pipeline.trackers.array_bearing import SubspaceTrackerDesign, track_bearings
     from recorders.array_snapshots import float_list, simulate
     from recorders.scenarios import load_scenario
 
@@ -202,7 +202,7 @@ def crossing_rate_sensitivity(runs: int, factors=(1.0, 1.33, 2.0)) -> None:
 
 def past_lag(runs: int = 50) -> None:
     """Bias of the tracks behind two targets at ±≈1°/s: PAST's exponential memory vs batch EVD."""
-    from pipeline.subspace_angle_tracker import SubspaceTrackerDesign, track_bearings
+    from pipeline.trackers.array_bearing import SubspaceTrackerDesign, track_bearings
     from recorders.array_snapshots import simulate
     from recorders.scenarios import load_scenario
 

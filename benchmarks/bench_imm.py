@@ -6,17 +6,17 @@ What it measures
    coloured noise, R = 100 m²) with ``--runs`` runs (default 50) × 1200 scans is simulated once
    (not timed). The standard IMM (one 2-state CV, two 3-state CA models, the thesis's transition
    matrix, Kalman filters, plain measurements) runs over all runs in one pass of
-   :func:`pipeline.imm.imm_filter`. FilterPy's ``IMMEstimator`` needs equal state sizes, so it
+   :func:`pipeline.cores.filters.imm.imm_filter`. FilterPy's ``IMMEstimator`` needs equal state sizes, so it
    gets three 3-state ``KalmanFilter`` objects, the CV model written as a 3-state model whose
    acceleration row and column of Φ are zero and whose process noise puts the CV model's q on the
-   acceleration: exactly the mixing rule of :mod:`pipeline.imm`, so both compute the same
+   acceleration: exactly the mixing rule of :mod:`pipeline.cores.filters.imm`, so both compute the same
    numbers. FilterPy is stepped run by run, scan by scan (``predict(); update(z)``), on the same
    measurements with the same initial state, P₀, models and transition matrix. Printed: wall
    time of each for the whole Monte Carlo, time per run-step, the speed-up (target ≥ 30×) and
    the largest difference between the two combined state estimates (and model probabilities).
 2. **The three IMMs of the thesis** (IMM, MIMM_K, PIMM) on the same data, wall time each.
 3. **SRIF vs KF cost per step** in our implementation, same CA model, all runs at once:
-   the SRIF carrying its factors (``pipeline.srif.srif_filter``: two QRs and the moments) vs the
+   the SRIF carrying its factors (``pipeline.cores.filters.srif.srif_filter``: two QRs and the moments) vs the
    Kalman filter (``kf_predict`` + ``kf_update`` + ``gaussian_log_likelihood``), and the same two
    as IMM model strategies (the SRIF then also converts the mixed moments to factors). Printed
    as time per run-step and the ratio SRIF / KF.
@@ -45,9 +45,9 @@ import time
 
 import numpy as np
 
-from pipeline.imm import MeasurementStream, ModelFilter, imm_filter, kinematic_model, single_model_filter
-from pipeline.kalman import gaussian_log_likelihood, kf_predict, kf_update
-from pipeline.srif import srif_filter
+from pipeline.cores.filters.imm import MeasurementStream, ModelFilter, imm_filter, kinematic_model, single_model_filter
+from pipeline.cores.filters.kalman import gaussian_log_likelihood, kf_predict, kf_update
+from pipeline.cores.filters.srif import srif_filter
 from pipeline.stages.colored_noise_imm import parse_matrix
 from recorders.colored_noise import simulate
 from recorders.scenarios import load_scenario
@@ -143,13 +143,13 @@ def main(argv=None) -> int:
     speedup = peer_s / ours_s
     print("\n1. The thesis's IMM experiment (whole Monte Carlo)")
     print(f"   {'':34s} {'wall':>10s} {'per run-step':>14s}")
-    print(f"   {'ours: pipeline.imm.imm_filter':34s} {ours_s:9.3f}s {ours_s / steps * 1e6:11.1f} µs")
+    print(f"   {'ours: pipeline.cores.filters.imm.imm_filter':34s} {ours_s:9.3f}s {ours_s / steps * 1e6:11.1f} µs")
     print(f"   {'FilterPy IMMEstimator (3-state)':34s} {peer_s:9.3f}s {peer_s / steps * 1e6:11.1f} µs")
     print(f"   speed-up {speedup:.1f}× (target ≥ {SPEEDUP_TARGET:.0f}×: {'met' if speedup >= SPEEDUP_TARGET else 'MISSED'})")
     print(f"   largest difference: state {dx:.3g} (m, m/s, m/s²), model probability {dmu:.3g}")
 
     # 2. the three IMMs
-    from pipeline.ar1_estimation import estimate_ar1
+    from pipeline.cores.filters.ar1_estimation import estimate_ar1
 
     t0 = time.perf_counter()
     ar = estimate_ar1(z, p["ar_forgetting_factor"], p["ar_zero_pole"])

@@ -31,7 +31,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from pipeline.jpda import STRATEGIES, scans_from_padded, track_bearing_peaks, two_point_start  # noqa: E402
+from pipeline.cores.association.jpda import STRATEGIES, scans_from_padded, track_bearing_peaks, two_point_start  # noqa: E402
 from pipeline.stages.bearing_peaks import BearingPeaksStage  # noqa: E402
 from recorders.scenarios import load_scenario  # noqa: E402
 from recorders.xcorr_peaks import simulate  # noqa: E402
@@ -211,7 +211,7 @@ def main():
 
     print("\n== 3. full crossing-angle sweep (5 angles × 2 filters × 100 runs), as a user runs it")
     with tempfile.TemporaryDirectory() as tmp:
-        cmd = [sys.executable, "-m", "pipeline.cli", "sweep", "xcorr-crossing", "--param",
+        cmd = [sys.executable, "-m", "pipeline.face.cli", "sweep", "xcorr-crossing", "--param",
                "crossing_angle_deg=2,5,10,20,30", "--runs", "100", "-o", str(Path(tmp) / "study")]
         t = time.perf_counter()
         res = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO)

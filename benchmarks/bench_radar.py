@@ -7,7 +7,7 @@ What it measures
    ``pipeline.replay.replay(path, out_path=..., rrd_path=...)`` is then timed with all four
    trackers: wall time, the breakdown from ``ReplayResult.timings`` (read, filter, evaluate,
    write, rerun) and the Rerun logging share ``rerun_s / total_s`` (target < 10 %).
-2. **Filter only.** ``pipeline.decoupled_tracker.track_plots`` with the ``"kalman"`` strategy
+2. **Filter only.** ``pipeline.trackers.radar_tws.track_plots`` with the ``"kalman"`` strategy
    over all runs in one vectorised call, against FilterPy's ``filterpy.kalman.KalmanFilter``
    stepped run by run in a Python loop on the same data: the same converted measurements and
    per-scan converted covariance ``R = converted_covariance(r, θ, σ_r, σ_θ)``, the same ``F``
@@ -51,9 +51,9 @@ import numpy as np
 import rerun  # noqa: F401
 
 from pipeline.contract import read_dataset, scenario_metadata
-from pipeline.converted_measurements import converted_covariance, polar_to_cartesian
-from pipeline.decoupled_tracker import STRATEGIES, TrackerDesign, track_plots
-from pipeline.kalman import white_acceleration_model
+from pipeline.cores.filters.converted_measurements import converted_covariance, polar_to_cartesian
+from pipeline.trackers.radar_tws import STRATEGIES, TrackerDesign, track_plots
+from pipeline.cores.filters.kalman import white_acceleration_model
 from pipeline.replay import replay
 from pipeline.stages.radar_tws import RadarTwsStage
 from recorders import simulator_for

@@ -2,14 +2,14 @@
 
 What it measures
 ----------------
-1. **CEP planes.** ``pipeline.cep_plane.cep_plane`` on the paper's 201 × 201 grid (±50 km,
+1. **CEP planes.** ``pipeline.cores.localisation.cep_plane.cep_plane`` on the paper's 201 × 201 grid (±50 km,
    500 m; position and velocity CEP from the 4-state CRLB at every point), for the line and
    triangle geometries, with the exact CEP and with the paper's eq. 21 (target ≤ 0.5 s).
    Side by side: a per-point Python loop doing the same with ``numpy.linalg.inv`` of the
    Fisher information and ``scipy.optimize.brentq`` on a ``scipy.integrate.quad`` of the 2-D
    Gaussian for the exact CEP, timed on ``--loop-points`` random grid points and scaled to the
    grid (printed as such); the largest relative difference between the two is printed.
-2. **Gauss-Newton.** ``pipeline.gauss_newton.gauss_newton``: ``--runs`` (default 10 000) Monte
+2. **Gauss-Newton.** ``pipeline.cores.localisation.gauss_newton.gauss_newton``: ``--runs`` (default 10 000) Monte
    Carlo runs × 10 iterations in one vectorised call, against
    ``scipy.optimize.least_squares(method="lm")`` called run by run on the same whitened
    residuals, the same analytic Jacobian and the same start (target ≥ 20× faster). The line
@@ -46,10 +46,10 @@ import scipy
 from scipy import integrate, optimize
 from scipy.stats import chi2
 
-from pipeline.cep_plane import cep_plane, grid_axis
-from pipeline.crlb import fisher_information
-from pipeline.gauss_newton import CONVERGED, gauss_newton
-from pipeline.tdoa_fdoa_model import measurement_model
+from pipeline.cores.localisation.cep_plane import cep_plane, grid_axis
+from pipeline.cores.localisation.crlb import fisher_information
+from pipeline.cores.localisation.gauss_newton import CONVERGED, gauss_newton
+from pipeline.cores.localisation.tdoa_fdoa_model import measurement_model
 from recorders.scenarios import load_scenario
 from recorders.tdoa_fdoa import resolve, simulate
 

@@ -29,8 +29,8 @@ import numpy as np
 import polars as pl
 
 from evaluators.tracking_metrics import long_form, nanmean, rms
-from pipeline.flop_counts import ANALYTIC, counted_flops
-from pipeline.subspace_angle_tracker import STARTUP_SCANS
+from pipeline.cores.array.flop_counts import ANALYTIC, counted_flops
+from pipeline.trackers.array_bearing import STARTUP_SCANS
 
 FLOP_TABLE_N = (5, 6)
 

@@ -27,11 +27,11 @@ import numpy as np
 import polars as pl
 
 from evaluators.tracking_metrics import long_form, rmse_overall
-from pipeline.batched_least_squares import information_covariance
-from pipeline.crlb import ellipse_scale
-from pipeline.gauss_newton import (CONVERGED, DIVERGED, INVALID_START, RANK_DEFICIENT,
+from pipeline.cores.localisation.batched_least_squares import information_covariance
+from pipeline.cores.localisation.crlb import ellipse_scale
+from pipeline.cores.localisation.gauss_newton import (CONVERGED, DIVERGED, INVALID_START, RANK_DEFICIENT,
                                    UNDERDETERMINED)
-from pipeline.tdoa_fdoa_model import SPEED_OF_LIGHT_MPS, measurement_model, measurement_rows, unknowns
+from pipeline.cores.localisation.tdoa_fdoa_model import SPEED_OF_LIGHT_MPS, measurement_model, measurement_rows, unknowns
 
 CLASSES = ("truth", "elsewhere", "diverged", "not_converged", "underdetermined", "unclassified")
 TRUTH, ELSEWHERE, DIVERGED_CLASS, NOT_CONVERGED_CLASS, UNDERDETERMINED_CLASS, UNCLASSIFIED = range(6)

@@ -106,7 +106,7 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
         timings["write_s"] = time.perf_counter() - t3
     step(1)
     if rrd_path is not None:
-        from pipeline.timeline import recording
+        from pipeline.face.timeline import recording
 
         t4 = time.perf_counter()
         # One recording per file; with several stages the first stage's blueprint is the default.

@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.errors import InputError, check_all, require_finite_params
-from pipeline.linear_array import steering_vectors
+from pipeline.cores.array.linear_array import steering_vectors
 from recorders.simulated import SimulatedData
 
 SNAPSHOTS_TOPIC = "/array/snapshots"

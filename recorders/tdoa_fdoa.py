@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.errors import InputError, check_all, require_finite_params
-from pipeline.tdoa_fdoa_model import all_pairs, measurement_model
+from pipeline.cores.localisation.tdoa_fdoa_model import all_pairs, measurement_model
 from recorders.simulated import SimulatedData
 
 MEASUREMENTS_TOPIC = "/emitter/measurements"

@@ -40,7 +40,7 @@ import numpy as np
 from scipy.special import ndtr, ndtri
 
 from pipeline.errors import InputError, check_all, require_finite_params
-from pipeline.peak_roles import track_roles
+from pipeline.trackers.peak_roles import track_roles
 from recorders.simulated import SimulatedData
 
 PEAKS_TOPIC = "/xcorr/peaks"

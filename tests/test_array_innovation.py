@@ -5,15 +5,15 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pipeline.angular_innovation import INNOVATIONS, noise_projector, proposed_innovation, ryu_innovation
-from pipeline.flop_counts import (
+from pipeline.cores.array.angular_innovation import INNOVATIONS, noise_projector, proposed_innovation, ryu_innovation
+from pipeline.cores.array.flop_counts import (
     FlopTally,
     counted_flops,
     gaussian_elimination_flops,
     proposed_flops,
     ryu_flops,
 )
-from pipeline.linear_array import steering_derivatives, steering_vectors
+from pipeline.cores.array.linear_array import steering_derivatives, steering_vectors
 
 
 def random_subspace(rng, shape, M, N):

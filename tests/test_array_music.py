@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from pipeline.linear_array import beamwidth_rad, steering_vectors
-from pipeline.music import (
+from pipeline.cores.array.linear_array import beamwidth_rad, steering_vectors
+from pipeline.cores.array.music import (
     angle_grid,
     eigen_decomposition,
     music,

@@ -8,9 +8,9 @@ import pytest
 from click.testing import CliRunner
 
 from evaluators.array_bearing import associate, follow_events
-from pipeline.cli import main
+from pipeline.face.cli import main
 from pipeline.contract import read_dataset, scenario_metadata, write_dataset
-from pipeline.linear_array import beamwidth_rad
+from pipeline.cores.array.linear_array import beamwidth_rad
 from pipeline.replay import replay
 from recorders.array_snapshots import truth_angles
 from recorders.scenarios import load_scenario

@@ -14,7 +14,7 @@ import polars as pl
 import pytest
 from click.testing import CliRunner
 
-import pipeline.cli
+import pipeline.face.cli
 from pipeline.contract import ChannelData, METADATA_SCENARIO, scenario_metadata, write_dataset
 from pipeline.errors import InputError, check_all, require_finite_params
 from recorders.scenarios import load_scenario
@@ -23,7 +23,7 @@ from recorders.scenarios import load_scenario
 
 
 def invoke(*args):
-    return CliRunner().invoke(pipeline.cli.main, [str(a) for a in args])
+    return CliRunner().invoke(pipeline.face.cli.main, [str(a) for a in args])
 
 
 def assert_one_line_error(res, path, *fragments):

@@ -6,7 +6,7 @@ import shutil
 import numpy as np
 import pytest
 
-from pipeline.cli import main
+from pipeline.face.cli import main
 
 
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.ar1_estimation import (FLAG_ALPHA_LIMITED, FLAG_DISCRIMINANT_CLAMPED, bias_corrected_alpha,
+from pipeline.cores.filters.ar1_estimation import (FLAG_ALPHA_LIMITED, FLAG_DISCRIMINANT_CLAMPED, bias_corrected_alpha,
                                      estimate_ar1, transient_samples, white_noise_variance)
-from pipeline.decorrelation import decorrelated_measurement_matrix, inverse_transition_rows, pseudo_measurements
+from pipeline.cores.filters.decorrelation import decorrelated_measurement_matrix, inverse_transition_rows, pseudo_measurements
 from pipeline.errors import InputError
 from recorders.colored_noise import simulate
 from recorders.scenarios import load_scenario

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from pipeline.cli import main
+from pipeline.face.cli import main
 from pipeline.contract import read_dataset, scenario_metadata
 from recorders.colored_noise import simulate
 from recorders.scenarios import load_scenario

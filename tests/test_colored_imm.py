@@ -7,8 +7,8 @@ import polars as pl
 import pytest
 
 from pipeline.errors import InputError
-from pipeline.imm import MeasurementStream, ModelFilter, MotionModel, imm_filter, kinematic_model, single_model_filter
-from pipeline.srif import srif_filter
+from pipeline.cores.filters.imm import MeasurementStream, ModelFilter, MotionModel, imm_filter, kinematic_model, single_model_filter
+from pipeline.cores.filters.srif import srif_filter
 from recorders.colored_noise import simulate
 from recorders.scenarios import load_scenario
 
@@ -24,7 +24,7 @@ def small_record(runs=3, scans=300, seed=0):
 
 
 def textbook_kf(x0, P0, F, Q, z, R, alpha=None, var=None):
-    """A per-run loop written out from the textbook formulas (independent of pipeline.kalman);
+    """A per-run loop written out from the textbook formulas (independent of pipeline.cores.filters.kalman);
     with alpha/var it filters the decorrelated measurement y_k = z_k − α z_{k−1}, Ĥ = H − α H F⁻¹."""
     runs, scans, _ = z.shape
     n = F.shape[0]

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from pipeline.kalman import gaussian_log_likelihood, kf_predict, kf_update, white_acceleration_model
+from pipeline.cores.filters.kalman import gaussian_log_likelihood, kf_predict, kf_update, white_acceleration_model
 
 
 def test_batched_filter_equals_per_run_textbook_loop():
@@ -52,7 +52,7 @@ def test_log_likelihood_matches_dense_formula():
 
 
 def test_cv_kernel_equals_generic_filter_to_rounding():
-    from pipeline.kalman import (
+    from pipeline.cores.filters.kalman import (
         components_to_matrix,
         cv_apply_gain_components,
         cv_position_gain_components,

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from evaluators.radar_tws import evaluate, filtered_mask
-from pipeline.alpha_beta_gains import kalata_gains
-from pipeline.converted_measurements import polar_to_cartesian
-from pipeline.decoupled_tracker import FLAG_CLAMPED, STRATEGIES, TrackerDesign, track_plots
+from pipeline.cores.filters.alpha_beta_gains import kalata_gains
+from pipeline.cores.filters.converted_measurements import polar_to_cartesian
+from pipeline.trackers.radar_tws import FLAG_CLAMPED, STRATEGIES, TrackerDesign, track_plots
 from recorders import radar_tws
 from recorders.scenarios import load_scenario
 

@@ -11,7 +11,7 @@ import pytest
 from click.testing import CliRunner
 
 from pipeline import sweep as sw
-from pipeline.cli import main
+from pipeline.face.cli import main
 
 SPECS = {"sigma_bearing_deg": ["0.5", "1", "2"], "nominal_cross_range_m": ["120", "150"]}
 
@@ -51,7 +51,7 @@ def test_resume_recomputes_only_missing_points(tmp_path):
 
 def test_resume_after_a_killed_sweep(tmp_path):
     out = tmp_path / "study"
-    cmd = [sys.executable, "-m", "pipeline.cli", "sweep", "radar-tws", "--param", "sigma_bearing_deg=0.5,0.7,1,1.5,2,3",
+    cmd = [sys.executable, "-m", "pipeline.face.cli", "sweep", "radar-tws", "--param", "sigma_bearing_deg=0.5,0.7,1,1.5,2,3",
            "--runs", "150", "--executor", "serial", "--no-keep-data", "-o", str(out)]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     deadline = time.monotonic() + 120

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from pipeline.cli import main
+from pipeline.face.cli import main
 from pipeline.contract import read_dataset, write_dataset
 from pipeline.replay import replay
 

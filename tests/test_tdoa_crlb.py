@@ -5,11 +5,11 @@ import pytest
 from hypothesis import assume, given, settings, strategies as st
 from scipy.special import ndtri
 
-from pipeline.cep_plane import cep_plane, grid_axis
-from pipeline.crlb import (cep_approx, cep_exact, cep_exact_direct, cep_paper, crlb, disc_probability,
+from pipeline.cores.localisation.cep_plane import cep_plane, grid_axis
+from pipeline.cores.localisation.crlb import (cep_approx, cep_exact, cep_exact_direct, cep_paper, crlb, disc_probability,
                            eigen_2x2, error_ellipse, fisher_information, projection_covariance,
                            slice_covariance, whitened_jacobian)
-from pipeline.tdoa_fdoa_model import all_pairs, measurement_model
+from pipeline.cores.localisation.tdoa_fdoa_model import all_pairs, measurement_model
 from recorders.scenarios import load_scenario
 from recorders.tdoa_fdoa import resolve
 

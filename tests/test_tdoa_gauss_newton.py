@@ -6,10 +6,10 @@ from hypothesis import given, settings, strategies as st
 from scipy.optimize import least_squares
 
 from evaluators.emitter_localisation import ELSEWHERE, TRUTH, classify, truth_geometry
-from pipeline.batched_least_squares import covariance_from_factor, scaled_least_squares
-from pipeline.crlb import crlb
-from pipeline.gauss_newton import CONVERGED, DIVERGED, NOT_CONVERGED, gauss_newton
-from pipeline.tdoa_fdoa_model import measurement_model
+from pipeline.cores.localisation.batched_least_squares import covariance_from_factor, scaled_least_squares
+from pipeline.cores.localisation.crlb import crlb
+from pipeline.cores.localisation.gauss_newton import CONVERGED, DIVERGED, NOT_CONVERGED, gauss_newton
+from pipeline.cores.localisation.tdoa_fdoa_model import measurement_model
 from recorders.scenarios import load_scenario
 from recorders.tdoa_fdoa import resolve, simulate
 

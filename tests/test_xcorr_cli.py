@@ -9,9 +9,9 @@ import pytest
 from click.testing import CliRunner
 
 from evaluators.baselines import compare, read_baseline
-from pipeline.cli import main
+from pipeline.face.cli import main
 from pipeline.contract import read_dataset, scenario_metadata
-from pipeline.jpda import FLAG_NO_GATED_PEAK
+from pipeline.cores.association.jpda import FLAG_NO_GATED_PEAK
 from pipeline.replay import replay
 from recorders import xcorr_peaks
 from recorders.scenarios import load_scenario

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from pipeline.cli import main
-from pipeline.peak_model_fit import fit_peak_model
+from pipeline.face.cli import main
+from pipeline.cores.association.peak_model_fit import fit_peak_model
 from recorders import xcorr_peaks, xcorr_signals
 from recorders.scenarios import load_scenario
 from recorders.simulated import record

@@ -9,7 +9,7 @@ optionally ``/array/truth`` (``angle_rad`` (N,), ``snr_db``). Output:
 strategies on one tracker: ``proposed`` (closed form) and ``ryu`` ((2N+1)-dim least squares).
 
 Only I/O, validation and bookkeeping live here; the numbers come from
-:mod:`pipeline.subspace_angle_tracker` and :mod:`evaluators.array_bearing`.
+:mod:`pipeline.trackers.array_bearing` and :mod:`evaluators.array_bearing`.
 """
 
 from __future__ import annotations
@@ -18,12 +18,12 @@ import numpy as np
 import polars as pl
 
 from evaluators import array_bearing as array_eval
-from pipeline.angular_innovation import INNOVATIONS
+from pipeline.cores.array.angular_innovation import INNOVATIONS
 from pipeline.errors import InputError, require_finite
-from pipeline.flop_counts import ANALYTIC
+from pipeline.cores.array.flop_counts import ANALYTIC
 from pipeline.stages.base import Stage
-from pipeline.subspace_angle_tracker import SUBSPACES, SubspaceTrackerDesign, music_waterfall, track_bearings
-from pipeline.timeline import color, log_series, rr, rrb, log_metric_series
+from pipeline.trackers.array_bearing import SUBSPACES, SubspaceTrackerDesign, music_waterfall, track_bearings
+from pipeline.face.timeline import color, log_series, rr, rrb, log_metric_series
 
 SNAPSHOTS = "/array/snapshots"
 TRUTH = "/array/truth"
@@ -258,7 +258,7 @@ def _value(summary, tracker, metric, scope):
 
 def table1(summary: pl.DataFrame, per_scan: pl.DataFrame, time_repeats: int = 200) -> str:
     """Text table in the layout of the paper's Table 1, plus swaps/losses and timings."""
-    from pipeline.flop_counts import time_innovation
+    from pipeline.cores.array.flop_counts import time_innovation
 
     s = summary
     trackers = [t for t in ("ryu", "proposed") if t in set(s["tracker"].to_list())]
@@ -296,7 +296,7 @@ def table1(summary: pl.DataFrame, per_scan: pl.DataFrame, time_repeats: int = 20
                          f"time {timing[('proposed', n)] / timing[('ryu', n)]:.3f};" for n in (5, 6) if n < M)
         lines.append(f"proposed / Ryu ratio  {ratio}")
     if M is not None:
-        from pipeline.flop_counts import counted_flops
+        from pipeline.cores.array.flop_counts import counted_flops
 
         for n in (5, 6):
             if n < M:

@@ -8,7 +8,7 @@ not track initiation), or from the labelled true peaks of scans 0 and 1 by two-p
 differencing, whose covariance *is* eq. 8c (``two-point``; filtering then starts at scan 2). Output: ``/tracks/xcorr/<tracker>`` with ``state`` [θ, θ̇] per
 track, ``covariance``, ``beta0``, ``beta_top``/``beta_index`` (largest peak weights),
 ``strength``, ``n_gated``, ``gate_center`` and ``flags``. Only I/O and bookkeeping live here:
-the numbers come from :mod:`pipeline.jpda` and :mod:`evaluators.track_association`.
+the numbers come from :mod:`pipeline.cores.association.jpda` and :mod:`evaluators.track_association`.
 """
 
 from __future__ import annotations
@@ -18,9 +18,9 @@ import polars as pl
 
 from evaluators import track_association as assoc_eval
 from pipeline.errors import InputError, check_all, require_finite
-from pipeline.jpda import STRATEGIES, BearingTrackerDesign, ScanPeaks, track_bearing_peaks, two_point_start
+from pipeline.cores.association.jpda import STRATEGIES, BearingTrackerDesign, ScanPeaks, track_bearing_peaks, two_point_start
 from pipeline.stages.base import Stage
-from pipeline.timeline import color, log_points, log_series, rr, rrb, log_metric_series
+from pipeline.face.timeline import color, log_points, log_series, rr, rrb, log_metric_series
 
 PEAKS = "/xcorr/peaks"
 TRUTH = "/xcorr/truth"
@@ -187,7 +187,7 @@ class BearingPeaksStage(Stage):
         return n
 
     def _roles(self, design: dict, n_tracks: int) -> tuple[str, ...]:
-        from pipeline.peak_roles import track_roles
+        from pipeline.trackers.peak_roles import track_roles
 
         roles = track_roles(design)
         if len(roles) != n_tracks:
@@ -366,7 +366,7 @@ def track_simulated(data, params: dict, trackers=("jpda", "jpda_a"), overrides: 
     dict
         ``{"tracks": {tracker: outputs}, "truth": (R, K, T) bearings, "gate_rad": V, "times": (K,)}``.
     """
-    from pipeline.jpda import scans_from_padded
+    from pipeline.cores.association.jpda import scans_from_padded
 
     stage = BearingPeaksStage()
     design = {k: params[k] for k in stage.design_keys}

@@ -17,9 +17,9 @@ Trackers (spec ``shared/spec/colored-noise-imm-srif.md``; thesis ch. V):
 
 Flags (decorrelating trackers): the AR estimator's bits (1 discriminant clamped, 2 α̂ limited,
 4 σ_η² floored, any axis) and 8 = estimator not warm yet, plain measurement used.
-Only I/O and bookkeeping live here: the numbers come from :mod:`pipeline.ar1_estimation`,
-:mod:`pipeline.imm` (with :mod:`pipeline.kalman`, :mod:`pipeline.srif`,
-:mod:`pipeline.decorrelation`) and :mod:`evaluators.colored_noise_imm`.
+Only I/O and bookkeeping live here: the numbers come from :mod:`pipeline.cores.filters.ar1_estimation`,
+:mod:`pipeline.cores.filters.imm` (with :mod:`pipeline.cores.filters.kalman`, :mod:`pipeline.cores.filters.srif`,
+:mod:`pipeline.cores.filters.decorrelation`) and :mod:`evaluators.colored_noise_imm`.
 """
 
 from __future__ import annotations
@@ -27,11 +27,11 @@ from __future__ import annotations
 import numpy as np
 
 from evaluators import colored_noise_imm as colored_eval
-from pipeline.ar1_estimation import estimate_ar1
+from pipeline.cores.filters.ar1_estimation import estimate_ar1
 from pipeline.errors import InputError, require_finite
-from pipeline.imm import MeasurementStream, ModelFilter, check_transition, imm_filter, kinematic_model, single_model_filter
+from pipeline.cores.filters.imm import MeasurementStream, ModelFilter, check_transition, imm_filter, kinematic_model, single_model_filter
 from pipeline.stages.base import Stage
-from pipeline.timeline import color, log_series, rrb, log_metric_series
+from pipeline.face.timeline import color, log_series, rrb, log_metric_series
 
 MEASUREMENTS = "/colored/measurements"
 TRUTH = "/colored/truth"

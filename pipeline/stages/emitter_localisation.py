@@ -13,7 +13,7 @@ outputs are NaN and every run carries the ``underdetermined`` flag.
 
 Output ``/emitter/estimates/<estimator>``: ``state`` (4), ``covariance`` (4×4 at the estimate),
 ``iterates`` (iterations + 1, 4), ``cost``, ``iterations``, ``step_sigma``, ``flags`` (see
-:mod:`pipeline.gauss_newton`). Only I/O and bookkeeping live here.
+:mod:`pipeline.cores.localisation.gauss_newton`). Only I/O and bookkeeping live here.
 """
 
 from __future__ import annotations
@@ -21,15 +21,15 @@ from __future__ import annotations
 import numpy as np
 
 from evaluators import emitter_localisation as emitter_eval
-from pipeline.coarse_grid_search import coarse_grid_start
-from pipeline.crlb import ellipse_points
+from pipeline.cores.localisation.coarse_grid_search import coarse_grid_start
+from pipeline.cores.localisation.crlb import ellipse_points
 from evaluators.tracking_metrics import rmse_per_scan
 from pipeline.errors import InputError, require_finite
-from pipeline.gauss_newton import UNDERDETERMINED, gauss_newton
+from pipeline.cores.localisation.gauss_newton import UNDERDETERMINED, gauss_newton
 from pipeline.stages.base import Stage
-from pipeline.tdoa_fdoa_model import (MEASUREMENT_KINDS, measurement_model,
+from pipeline.cores.localisation.tdoa_fdoa_model import (MEASUREMENT_KINDS, measurement_model,
                                       measurement_rows, underdetermined_reason, unknowns)
-from pipeline.timeline import color, north_up, north_up_bounds, rr, rrb
+from pipeline.face.timeline import color, north_up, north_up_bounds, rr, rrb
 
 MEASUREMENTS = "/emitter/measurements"
 SENSORS = "/emitter/sensors"
@@ -249,8 +249,8 @@ class EmitterLocalisationStage(Stage):
         )
 
     def log_rerun(self, rec, dataset, result: dict, per_scan, run: int = 0) -> None:
-        from pipeline.cep_plane import cep_plane, grid_axis
-        from pipeline.cep_plane_views import log_cep_plane
+        from pipeline.cores.localisation.cep_plane import cep_plane, grid_axis
+        from pipeline.face.cep_plane_views import log_cep_plane
 
         obs = read_observations(dataset)
         R, E = obs["measured"].shape[:2]

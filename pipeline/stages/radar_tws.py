@@ -4,7 +4,7 @@ Input channels: ``/radar/plots`` (``range_m``, ``bearing_rad`` per run and scan)
 ``/radar/truth`` (``state``). Output: ``/tracks/radar/<tracker>`` with ``state``,
 ``covariance``, ``alpha``, ``beta`` (along-range, cross-range), ``lambda_cross``,
 ``innovation`` and ``flags`` per run and scan. Only I/O and bookkeeping live here; the numbers
-come from :mod:`pipeline.decoupled_tracker` and :mod:`evaluators.radar_tws`.
+come from :mod:`pipeline.trackers.radar_tws` and :mod:`evaluators.radar_tws`.
 """
 
 from __future__ import annotations
@@ -12,11 +12,11 @@ from __future__ import annotations
 import numpy as np
 
 from evaluators import radar_tws as radar_eval
-from pipeline.converted_measurements import polar_to_cartesian
-from pipeline.decoupled_tracker import STRATEGIES, TrackerDesign, track_plots
+from pipeline.cores.filters.converted_measurements import polar_to_cartesian
+from pipeline.trackers.radar_tws import STRATEGIES, TrackerDesign, track_plots
 from pipeline.errors import InputError, require_finite
 from pipeline.stages.base import Stage
-from pipeline.timeline import color, log_path, log_points, log_series, north_up, north_up_bounds, rr, rrb, log_metric_series
+from pipeline.face.timeline import color, log_path, log_points, log_series, north_up, north_up_bounds, rr, rrb, log_metric_series
 
 PLOTS = "/radar/plots"
 TRUTH = "/radar/truth"

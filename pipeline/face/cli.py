@@ -38,7 +38,7 @@ def bundled_data_dir() -> Path:
 
         return Path(str(files("replay_data")))
     except ModuleNotFoundError:
-        return Path(__file__).resolve().parents[1] / "data"
+        return Path(__file__).resolve().parents[2] / "data"
 
 
 class ReplayGroup(click.Group):
@@ -189,7 +189,7 @@ def run_cmd(data, trackers, out_path, rrd_path, no_rrd, spawn, recover, sets, re
     click.echo(f"time:      {t['total_s']:.2f} s (read {t['read_s']:.2f}, filter {t['filter_s']:.2f}, "
                f"evaluate {t['evaluate_s']:.2f}, write {t.get('write_s', 0):.2f}, rerun {t.get('rerun_s', 0):.2f})")
     if spawn and res.rrd_path:
-        from pipeline.viewer import open_viewer
+        from pipeline.face.viewer import open_viewer
 
         open_viewer(res.rrd_path)
 
@@ -425,7 +425,7 @@ def view_cmd(rrd, png, size):
     Example:
       replay view replay-out/radar_tws_demo/tracks.rrd --screenshot fig.png
     """
-    from pipeline.viewer import open_viewer, screenshot
+    from pipeline.face.viewer import open_viewer, screenshot
 
     if not rrd.exists():
         raise InputError("no such recording", rrd)
@@ -439,10 +439,10 @@ def view_cmd(rrd, png, size):
 # Paper-specific commands (e.g. `replay crlb`) live next to their paper's code; each module
 # listed here exposes COMMANDS, a list of click commands added to `replay`.
 EXTENSION_MODULES: tuple[str, ...] = (
-    "pipeline.cli_emitter",
-    "pipeline.cli_colored_noise",
-    "pipeline.cli_xcorr",
-    "pipeline.cli_array",
+    "pipeline.face.cli_emitter",
+    "pipeline.face.cli_colored_noise",
+    "pipeline.face.cli_xcorr",
+    "pipeline.face.cli_array",
     # one line per module: "pipeline.cli_<paper>",
 )
 

@@ -1,7 +1,7 @@
 """``replay convert array-wav``: a multichannel WAV array recording → snapshot channels.
 
 Registered under the existing ``replay convert`` group (this module is listed in
-``pipeline.cli.EXTENSION_MODULES``; it adds no top-level command).
+``pipeline.face.cli.EXTENSION_MODULES``; it adds no top-level command).
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from pathlib import Path
 
 import click
 
-COMMANDS: list = []  # defined first: importing pipeline.cli below may re-enter this module
+COMMANDS: list = []  # defined first: importing pipeline.face.cli below may re-enter this module
 
 
 @click.command("array-wav")
@@ -40,7 +40,7 @@ def array_wav_cmd(wav_path, output, spacing_m, frequency_hz, sound_speed_mps, nf
 
 
 def _register() -> None:
-    from pipeline import cli
+    from pipeline.face import cli
 
     if "array-wav" not in cli.convert_group.commands:
         cli.convert_group.add_command(array_wav_cmd)

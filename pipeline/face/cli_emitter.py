@@ -42,10 +42,10 @@ def _singular_message(A) -> str:
 
 def crlb_summary(es, epoch: int = 0, kind: str = "joint", stationary: bool = False, probability: float = 0.5) -> dict:
     """CRLB, projections, slices, ellipses and CEPs of one resolved scenario epoch (plain numbers)."""
-    from pipeline.crlb import (cep_approx, cep_exact, cep_paper, crlb, error_ellipse, projection_covariance,
+    from pipeline.cores.localisation.crlb import (cep_approx, cep_exact, cep_paper, crlb, error_ellipse, projection_covariance,
                                slice_covariance, whitened_jacobian)
-    from pipeline.tdoa_fdoa_model import underdetermined_reason
-    from pipeline.tdoa_fdoa_model import STATE_NAMES, independent_equations, measurement_model, measurement_rows, unknowns
+    from pipeline.cores.localisation.tdoa_fdoa_model import underdetermined_reason
+    from pipeline.cores.localisation.tdoa_fdoa_model import STATE_NAMES, independent_equations, measurement_model, measurement_rows, unknowns
 
     if not 0 <= epoch < len(es.times):
         raise InputError(f"epoch {epoch} outside 0..{len(es.times) - 1}")
@@ -179,8 +179,8 @@ def cep_plane_cmd(sets, scenario, estimator, emitter, geometry, extent_km, step_
       replay cep-plane --geometry triangle --extent-km 50 --step-m 500
       replay cep-plane --geometry line --cep paper -o line.png --no-rrd
     """
-    from pipeline.cep_plane import POSITION_CONTOURS_M, VELOCITY_CONTOURS_MPS, cep_plane, grid_axis
-    from pipeline.cep_plane_views import log_cep_plane, write_cep_png
+    from pipeline.cores.localisation.cep_plane import POSITION_CONTOURS_M, VELOCITY_CONTOURS_MPS, cep_plane, grid_axis
+    from pipeline.face.cep_plane_views import log_cep_plane, write_cep_png
 
     if not (extent_km > 0 and step_m > 0 and np.isfinite(extent_km) and np.isfinite(step_m)):
         raise InputError("--extent-km and --step-m must be positive")
@@ -192,7 +192,7 @@ def cep_plane_cmd(sets, scenario, estimator, emitter, geometry, extent_km, step_
         raise InputError(f"grid of {axis.size} × {axis.size} points is too large (at most {MAX_GRID_POINTS}); "
                          "increase --step-m or reduce --extent-km")
     stationary = bool(sc.params["stationary_emitter"])
-    from pipeline.tdoa_fdoa_model import underdetermined_reason
+    from pipeline.cores.localisation.tdoa_fdoa_model import underdetermined_reason
 
     reason = underdetermined_reason(estimator, es.pairs, es.sensor_pos.shape[1], stationary)
     if reason:
@@ -218,7 +218,7 @@ def cep_plane_cmd(sets, scenario, estimator, emitter, geometry, extent_km, step_
     click.echo(f"  no CRLB at {int(plane.singular.sum())} grid point(s) (on a sensor or collinear with sensors)")
     click.echo(f"png:       {png}")
     if not no_rrd:
-        from pipeline.timeline import recording
+        from pipeline.face.timeline import recording
 
         rrd_path = rrd_path or png.with_suffix(".rrd")
         with recording(rrd_path, "trackreplay", f"cep-plane-{label}") as rec:

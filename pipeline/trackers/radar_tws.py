@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.alpha_beta_gains import (
+from pipeline.cores.filters.alpha_beta_gains import (
     approximate_gains,
     clamp_to_stability,
     kalata_gains,
@@ -36,8 +36,8 @@ from pipeline.alpha_beta_gains import (
     tracking_index,
     with_startup,
 )
-from pipeline.converted_measurements import rotated_diagonal
-from pipeline.kalman import (
+from pipeline.cores.filters.converted_measurements import rotated_diagonal
+from pipeline.cores.filters.kalman import (
     cv_apply_gain_components,
     cv_position_gain_components,
     cv_posterior_components,
@@ -87,7 +87,7 @@ class TrackerDesign:
         return float(tracking_index(self.sigma_v, self.scan_period_s, self.nominal_cross_range_m))
 
 
-# Strategies work on runs-last arrays: covariance components (10, n) as in pipeline.kalman,
+# Strategies work on runs-last arrays: covariance components (10, n) as in pipeline.cores.filters.kalman,
 # gains (8, n) = K_pos (00, 01, 10, 11) then K_vel (00, 01, 10, 11).
 
 

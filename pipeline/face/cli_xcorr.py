@@ -38,7 +38,7 @@ def reference_bearings(dataset, reference: str):
 def fit_dataset(path, reference: str = "auto", gate_deg: float | None = None, threshold: float = 0.0):
     """Read a peak data set and fit the model; returns ``(PeakModelFit, roles)``."""
     from pipeline.contract import read_dataset
-    from pipeline.peak_model_fit import fit_peak_model
+    from pipeline.cores.association.peak_model_fit import fit_peak_model
     from pipeline.stages.bearing_peaks import field_deg, read_peaks, recorded_float
 
     ds = read_dataset(path)

@@ -6,7 +6,7 @@ Spec ``tdoa-fdoa-gauss-newton.md``, "Gauss-Newton" (paper eqs. 6, 8 and 15–17)
     δ = (Hᵀ Ψ⁻¹ H)⁻¹ Hᵀ Ψ⁻¹ (u − g(θ̂_n)),  θ̂_{n+1} = θ̂_n + δ     (16, 17)
 
 δ is computed as the whitened, column-scaled least-squares solution
-min ‖Ψ^{-1/2}(H δ − (u − g))‖ by Householder QR (:mod:`pipeline.batched_least_squares`),
+min ‖Ψ^{-1/2}(H δ − (u − g))‖ by Householder QR (:mod:`pipeline.cores.localisation.batched_least_squares`),
 never by inverting HᵀΨ⁻¹H. The stopping rule is unit-free: a run has converged when its last
 step was shorter than ``step_tolerance`` standard deviations, i.e. √(δᵀ I(θ̂) δ) < tol with
 I = HᵀΨ⁻¹H (the same quantity as ‖Q₁ᵀ r‖ from the QR).
@@ -24,7 +24,7 @@ from typing import Callable
 
 import numpy as np
 
-from pipeline.batched_least_squares import covariance_from_factor, scaled_least_squares
+from pipeline.cores.localisation.batched_least_squares import covariance_from_factor, scaled_least_squares
 
 CONVERGED = 1        # last step shorter than the tolerance
 NOT_CONVERGED = 2    # iteration budget spent with steps still above the tolerance

@@ -5,21 +5,21 @@ Spec: ``shared/spec/array-angle-tracking.md`` (paper section III.2, steps 1–5,
 
 Scan 0 is the paper's k = −1, scan 1 is k = 0, tracking starts at scan 2 (k = 1):
 
-1. **Start-up** (step 1): MUSIC on scans 0 and 1 (:mod:`pipeline.music`). The number of targets
+1. **Start-up** (step 1): MUSIC on scans 0 and 1 (:mod:`pipeline.cores.array.music`). The number of targets
    N is the source count (MDL or AIC) of scan 1, or the design's fixed ``n_sources``; N peaks
    are picked in both scans and associated by nearest angle (for two sorted sets of N angles,
    pairing by rank is the nearest-angle assignment). Per target
    ``x(0|0) = [θ̂(0), (θ̂(0) − θ̂(−1))/T]``,
    ``P(0|0) = [[σ_z², σ_z²/T], [σ_z²/T, 2σ_z²/T²]]`` (the spec's correction of the printed
    σ_z²/T²).
-2. **Subspace**: PAST (:mod:`pipeline.past_subspace`) initialised from the EVD of scan 0 and run
+2. **Subspace**: PAST (:mod:`pipeline.cores.array.past_subspace`) initialised from the EVD of scan 0 and run
    over every snapshot of scans 1, 2, …; W(k) is its state at the end of scan k. The per-scan
    batch EVD is computed alongside as the reference (``subspace_error_rad`` = largest principal
    angle between the two) and can replace PAST (``subspace="batch"``).
 3. **Kalman filter** per target, constant angular velocity, ``F = [[1, T], [0, 1]]``,
    ``Q = q [[T³/3, T²/2], [T²/2, T]]``, ``H = [1, 0]``, variance σ_z²
-   (:mod:`pipeline.kalman`); the update uses the angular innovation δθ(k) from W(k) and the
-   prediction θ̂(k|k−1) (:mod:`pipeline.angular_innovation`, strategy ``proposed`` or ``ryu``)
+   (:mod:`pipeline.cores.filters.kalman`); the update uses the angular innovation δθ(k) from W(k) and the
+   prediction θ̂(k|k−1) (:mod:`pipeline.cores.array.angular_innovation`, strategy ``proposed`` or ``ryu``)
    in place of z − Hx. A non-finite innovation (prediction at end-fire) leaves the track
    coasting and sets :data:`FLAG_COASTED`.
 
@@ -34,10 +34,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.angular_innovation import INNOVATIONS
-from pipeline.kalman import apply_gain, continuous_white_noise_model, kalman_gain, kf_predict, two_point_start
-from pipeline.music import angle_grid, eigen_decomposition, music_spectrum, pick_peaks, sample_covariance, source_count
-from pipeline.past_subspace import batch_signal_subspace, initial_state, largest_principal_angle, past_update
+from pipeline.cores.array.angular_innovation import INNOVATIONS
+from pipeline.cores.filters.kalman import apply_gain, continuous_white_noise_model, kalman_gain, kf_predict, two_point_start
+from pipeline.cores.array.music import angle_grid, eigen_decomposition, music_spectrum, pick_peaks, sample_covariance, source_count
+from pipeline.cores.array.past_subspace import batch_signal_subspace, initial_state, largest_principal_angle, past_update
 
 FLAG_STARTUP = 1
 FLAG_COASTED = 2
@@ -197,7 +197,7 @@ def track_bearings(snapshots: np.ndarray, design: SubspaceTrackerDesign, strateg
         N ≤ M − 1, Ns ≥ N).
     design : SubspaceTrackerDesign
     strategies : sequence of str
-        Innovation strategies (keys of :data:`pipeline.angular_innovation.INNOVATIONS`).
+        Innovation strategies (keys of :data:`pipeline.cores.array.angular_innovation.INNOVATIONS`).
 
     Returns
     -------

@@ -12,7 +12,7 @@ Analytic model, per scan, all N targets (M sensors)::
     Ryu:     [2(2N+1)³ + 8 M (2N+1)² + 4 M (2N+1)] · N              (N⁴ growth)
 
 :class:`FlopTally` is the instrument: the innovation kernels in
-:mod:`pipeline.angular_innovation` report every arithmetic step they execute with its real
+:mod:`pipeline.cores.array.angular_innovation` report every arithmetic step they execute with its real
 operands, and the tally turns operand shapes and dtypes into FLOPs with the same convention
 (a complex multiply-add costs 6 + 2 = 8, a real one 2, a real × complex product 2).
 Linear solves are counted as the Gaussian elimination LAPACK performs (LU factorisation plus
@@ -166,7 +166,7 @@ def counted_flops(strategy: str, n_sensors: int, n_targets: int, spacing_wavelen
     Runs the kernel once on a random subspace of the given size with a :class:`FlopTally`;
     counts depend only on shapes, not on the values.
     """
-    from pipeline.angular_innovation import INNOVATIONS
+    from pipeline.cores.array.angular_innovation import INNOVATIONS
 
     rng = np.random.default_rng(0)
     W = rng.standard_normal((n_sensors, n_targets)) + 1j * rng.standard_normal((n_sensors, n_targets))
@@ -187,7 +187,7 @@ def time_innovation(strategy: str, n_sensors: int, n_targets: int, batch: int = 
     """
     import time
 
-    from pipeline.angular_innovation import INNOVATIONS
+    from pipeline.cores.array.angular_innovation import INNOVATIONS
 
     rng = np.random.default_rng(1)
     shape = (batch,) if batch > 1 else ()

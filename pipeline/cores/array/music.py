@@ -86,7 +86,7 @@ def lag_exponentials(grid: np.ndarray, n_sensors: int, spacing_wavelengths: floa
     The real and imaginary parts of exp(j κ l sin θ), stacked so that the real part of
     Σ_l c_l exp(j κ l sin θ) is one real matrix product with ``[Re c, −Im c]``.
     """
-    from pipeline.linear_array import electrical_spacing
+    from pipeline.cores.array.linear_array import electrical_spacing
 
     lags = np.arange(1, n_sensors, dtype=float)
     phase = electrical_spacing(spacing_wavelengths) * lags[:, None] * np.sin(np.asarray(grid, float))[None, :]

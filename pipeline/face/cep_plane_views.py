@@ -1,6 +1,6 @@
 """Pictures of CEP planes: a PNG with the paper's contour levels and Rerun images.
 
-Rendering only; the numbers come from :func:`pipeline.cep_plane.cep_plane`. Grid points where
+Rendering only; the numbers come from :func:`pipeline.cores.localisation.cep_plane.cep_plane`. Grid points where
 the bound does not exist are left blank (PNG) or 0 (Rerun depth image, shown as no data).
 """
 
@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.cep_plane import POSITION_CONTOURS_M, VELOCITY_CONTOURS_MPS, CepPlane
+from pipeline.cores.localisation.cep_plane import POSITION_CONTOURS_M, VELOCITY_CONTOURS_MPS, CepPlane
 
 PANELS = (("position_m", "position CEP (m)", POSITION_CONTOURS_M),
           ("velocity_mps", "velocity CEP (m/s)", VELOCITY_CONTOURS_MPS))

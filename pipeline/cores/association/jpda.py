@@ -5,7 +5,7 @@ Fortmann, Bar-Shalom & Scheffe 1983). One core, batched over a leading Monte Car
 
 * motion: state ``[θ, θ̇]`` (rad, rad/s), continuous white-noise acceleration
   ``Q' = q [[T³/3, T²/2], [T²/2, T]]`` (eq. 8b), two-point start ``P(0|0) = [[σ², σ²/T],
-  [σ²/T, 2σ²/T²]]`` (eq. 8c with T = 1); predict/gain through :mod:`pipeline.kalman`;
+  [σ²/T, 2σ²/T²]]`` (eq. 8c with T = 1); predict/gain through :mod:`pipeline.cores.filters.kalman`;
 * gating: a window of width V (``|ν| ≤ V/2``) around each predicted bearing, after the
   amplitude threshold; ``P_G = erf(V / (2√(2S)))``;
 * event likelihoods (eq. A.5) as per-pair *likelihood ratios* against clutter: a peak j
@@ -41,8 +41,8 @@ from functools import lru_cache
 import numpy as np
 from scipy.special import erf, ndtr
 
-from pipeline.kalman import apply_gain, continuous_white_noise_model, kalman_gain, kf_predict
-from pipeline.kalman import two_point_start  # noqa: F401  (eq. 8c; importable from here as before)
+from pipeline.cores.filters.kalman import apply_gain, continuous_white_noise_model, kalman_gain, kf_predict
+from pipeline.cores.filters.kalman import two_point_start  # noqa: F401  (eq. 8c; importable from here as before)
 
 FLAG_INITIALISING = 1   # before the track start
 FLAG_NO_GATED_PEAK = 2  # coasted: no peak in the gate
@@ -98,7 +98,7 @@ class BearingTrackerDesign:
 
 def bearing_motion_model(dt: float, q: float):
     """``F = [[1, T], [0, 1]]`` and the continuous white-noise acceleration ``Q`` (eq. 8b):
-    :func:`pipeline.kalman.continuous_white_noise_model` of order 2."""
+    :func:`pipeline.cores.filters.kalman.continuous_white_noise_model` of order 2."""
     return continuous_white_noise_model(dt, q, 2)
 
 

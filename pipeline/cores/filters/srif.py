@@ -16,7 +16,7 @@ eqs. 4.2.3–4.2.4, 4.2.18–4.2.22, 4.3.5–4.3.13). The filter carries ``(R, z
 
 The recursion is written once, :func:`srif_predict_update` (time update, measurement update,
 likelihood); :func:`srif_filter` carries ``(R, z)`` through a record with it and the IMM's SRIF
-models (:mod:`pipeline.imm`) call it from their mixed moments.
+models (:mod:`pipeline.cores.filters.imm`) call it from their mixed moments.
 
 No covariance is formed and no matrix is inverted inside the recursion: symmetry and positive
 definiteness of ``P = R⁻¹ R⁻ᵀ`` hold by construction, which is what keeps the SRIF usable in
@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.decorrelation import transition_inverse_check
+from pipeline.cores.filters.decorrelation import transition_inverse_check
 from pipeline.errors import InputError
 
 LOG_2PI = float(np.log(2.0 * np.pi))

@@ -8,12 +8,12 @@ combination). Every Monte Carlo run advances in one call per scan (leading run a
 Models are strategies over the same core:
 
 * a :class:`MotionModel` (Φ, Ψ, q, H, and where its states sit in the common state);
-* a filter kind: ``"kf"`` (:func:`pipeline.kalman.kf_predict` / :func:`~pipeline.kalman.kf_update`
-  and :func:`~pipeline.kalman.gaussian_log_likelihood`) or ``"srif"``
-  (:func:`pipeline.srif.srif_predict_update`, the one SRIF recursion: QR time and measurement
+* a filter kind: ``"kf"`` (:func:`pipeline.cores.filters.kalman.kf_predict` / :func:`~pipeline.cores.filters.kalman.kf_update`
+  and :func:`~pipeline.cores.filters.kalman.gaussian_log_likelihood`) or ``"srif"``
+  (:func:`pipeline.cores.filters.srif.srif_predict_update`, the one SRIF recursion: QR time and measurement
   updates, likelihood from the residual and the triangular factors);
 * the measurement of the whole IMM (:class:`MeasurementStream`): plain ``(z_k, H, R)`` or
-  decorrelated ``(y_k, Ĥ, diag σ_η²)`` (:mod:`pipeline.decorrelation`; ``Ĥ`` per model, since it
+  decorrelated ``(y_k, Ĥ, diag σ_η²)`` (:mod:`pipeline.cores.filters.decorrelation`; ``Ĥ`` per model, since it
   depends on Φ). All models of one IMM see the same measurement, so their likelihoods compare.
 
 The thesis's sets: IMM = plain + KF, MIMM_K = decorrelated + KF, PIMM = decorrelated + SRIF, each
@@ -42,12 +42,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.decorrelation import (decorrelated_measurement_matrix, inverse_transition_rows, pseudo_measurements,
+from pipeline.cores.filters.decorrelation import (decorrelated_measurement_matrix, inverse_transition_rows, pseudo_measurements,
                                     transition_inverse_check)
 from pipeline.errors import InputError, require_finite
-from pipeline.kalman import (gaussian_log_likelihood, kf_predict, kf_update, kinematic_transition,
+from pipeline.cores.filters.kalman import (gaussian_log_likelihood, kf_predict, kf_update, kinematic_transition,
                              piecewise_white_noise_gain)
-from pipeline.srif import information_factor, srif_from_moments, srif_moments, srif_predict_update
+from pipeline.cores.filters.srif import information_factor, srif_from_moments, srif_moments, srif_predict_update
 
 FILTER_KINDS = ("kf", "srif")
 
@@ -155,7 +155,7 @@ def kinematic_model(name: str, order: int, T: float, q: float, axes: int = 1, no
     F1 = kinematic_transition(T, order)
     if noise == "white":
         # piecewise-constant white noise on the highest derivative: for CV exactly the
-        # per-axis model of pipeline.kalman.white_acceleration_model (Q = q Ψ Ψᵀ)
+        # per-axis model of pipeline.cores.filters.kalman.white_acceleration_model (Q = q Ψ Ψᵀ)
         G1 = piecewise_white_noise_gain(T, order)[:, None]
     else:
         # the increment is applied at the start of the sample and propagates through Φ: Ψ = Φ e_a
@@ -301,7 +301,7 @@ def kf_step(g: _Group, x, P, y, H, R_meas, Rv):
 
 def srif_step(g: _Group, x, P, y, H, R_meas, Rv):
     """Model-matched SRIF step (4.3.5–4.3.13) from the mixed moments (4.3.6–4.3.7): the one SRIF
-    recursion (:func:`pipeline.srif.srif_predict_update`) between the moment conversions."""
+    recursion (:func:`pipeline.cores.filters.srif.srif_predict_update`) between the moment conversions."""
     R, z = srif_from_moments(x, P)
     R, z, e, ll = srif_predict_update(R, z, g.F, g.G, g.Rw, H, y, Rv)
     x, P = srif_moments(R, z)
