@@ -49,7 +49,7 @@ FRAME_SCHEMA = f"{CONTRACT_VERSION}.Frame"
 METADATA_SCENARIO = "replay.scenario"
 METADATA_PROVENANCE = "replay.provenance"
 MCAP_MAGIC = b"\x89MCAP0\r\n"
-_ALLOWED_DTYPES = {"<f8", "<f4", "<c16", "<c8", "<i8", "<i4", "<u4", "|u1", "|b1"}
+_ALLOWED_DTYPES = {"<f8", "<f4", "<c16", "<c8", "<i8", "<i4", "<u4", "<u2", "|u1", "|b1"}
 
 
 def _build_frame_class():

@@ -30,19 +30,61 @@ class ReplayResult:
     out_path: Path | None = None
     rrd_path: Path | None = None
     timings: dict = field(default_factory=dict)
+    failures: list = field(default_factory=list)  # TrackerErrors of trackers left out
 
 
-def _select_trackers(stage, trackers):
-    if not trackers:
-        return list(stage.trackers)
-    unknown = [t for t in trackers if t not in stage.trackers]
-    if unknown:
-        raise InputError(f"unknown tracker(s) {', '.join(unknown)} for {stage.name} (have: {', '.join(stage.trackers)})")
-    return list(trackers)
+def _legacy(stage) -> bool:
+    # a stage not yet on the tracker interface runs its own strategies by name
+    from pipeline.stages.base import Stage
+
+    return type(stage).decode is Stage.decode
+
+
+def select_trackers(stages, names=None, specs=()) -> dict:
+    """Stage name → the tracker entries to run: every built-in and plugged (``specs``) tracker
+    of the stage's family, or the ones ``names`` selects.
+
+    Raises
+    ------
+    InputError
+        A name no applicable stage has, or a plugged tracker of a family the file does not hold.
+    """
+    from pipeline.trackers.registry import available_trackers
+
+    table = available_trackers(specs)
+    plugged = {name for name, e in table.items() if e.source in specs}
+    families = {s.family for s in stages}
+    for name in plugged:
+        if table[name].family not in families:
+            raise InputError(f"tracker {name!r} consumes {table[name].family} measurements; this file holds "
+                             f"{', '.join(sorted(families))}")
+    chosen = {}
+    for stage in stages:
+        if _legacy(stage):
+            pool = [e for e in stage.trackers if not names or e in names]
+        else:
+            # by default the built-ins and the --tracker ones; installed (entry-point) trackers by name
+            pool = [e for e in table.values() if e.family == stage.family and
+                    (e.name in names if names else (e.builtin or e.name in plugged))]
+        chosen[stage.name] = pool
+    if names:
+        have = {(e if isinstance(e, str) else e.name) for pool in chosen.values() for e in pool}
+        unknown = [n for n in names if n not in have]
+        if unknown:
+            known = sorted({(e if isinstance(e, str) else e.name) for s in stages for e in
+                            (s.trackers if _legacy(s) else [x for x in table.values() if x.family == s.family])})
+            raise InputError(f"unknown tracker(s) {', '.join(unknown)} for this file (have: {', '.join(known)})")
+    return chosen
+
+
+def _canonical(specs):
+    from pipeline.trackers.registry import canonical_spec
+
+    return [canonical_spec(s) for s in specs]
 
 
 def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, design_overrides=None,
-           rerun_run: int = 0, dataset: Dataset | None = None, progress=None) -> ReplayResult:
+           rerun_run: int = 0, dataset: Dataset | None = None, progress=None, tracker_specs=()) -> ReplayResult:
     """Replay every applicable stage over a data set.
 
     Parameters
@@ -63,6 +105,14 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
         An already decoded data set (skips reading ``path``).
     progress : callable, optional
         Called with 1 after each of the four phases (filter, evaluate, write, rerun).
+    tracker_specs : sequence of str
+        Plugged trackers (``file.py:Class`` or ``module:Class``) to run beside the built-ins.
+
+    Raises
+    ------
+    InputError
+        Bad input; also, after every output is written, a plugged or built-in tracker that
+        failed (its message names the tracker, the run and the scan).
     """
     step = progress or (lambda n: None)
     t0 = time.perf_counter()
@@ -72,13 +122,18 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
     if not stages:
         have = ", ".join(sorted(ds.channels)) or "none"
         raise InputError(f"no stage applies to the channels in this file ({have})", ds.path)
-    results, per_scan, summary, designs = {}, [], [], {}
+    results, per_scan, summary, designs, failures = {}, [], [], {}, []
+    chosen = select_trackers(stages, trackers, tracker_specs)
     t1 = time.perf_counter()
     for stage in stages:
-        design = stage.design(ds, design_overrides)
+        legacy = _legacy(stage)
+        design = stage.design(ds, design_overrides) if legacy else stage.design(ds, design_overrides, chosen[stage.name])
         # later calls of stage.design(ds) (Rerun logging, figures) see the values this run used
         ds.cache[("design", stage.name)] = design
-        result = stage.run(ds, _select_trackers(stage, trackers), design)
+        result = stage.run(ds, chosen[stage.name], design)
+        failures += result.pop("errors", [])
+        if not result["tracks"]:
+            raise failures[0] if failures else InputError(f"no tracker ran on {stage.name}", ds.path)
         results[stage.name] = result
         designs[stage.name] = design
     timings["filter_s"] = time.perf_counter() - t1
@@ -96,6 +151,7 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
         t3 = time.perf_counter()
         meta = {METADATA_PROVENANCE: {"input": Path(ds.path).name, "package_version": __version__,
                                       "stages": ",".join(s.name for s in stages),
+                                      "tracker_specs": json.dumps(list(_canonical(tracker_specs))),
                                       "design": json.dumps(designs, sort_keys=True, default=str)}}
         if "replay.scenario" in ds.metadata:
             meta["replay.scenario"] = ds.metadata["replay.scenario"]
@@ -119,6 +175,7 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
         timings["rerun_s"] = time.perf_counter() - t4
     step(1)
     timings["total_s"] = time.perf_counter() - t0
+    res.failures = failures
     return res
 
 

@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline import vocabulary as vocab
 from pipeline.errors import InputError
+from pipeline.trackers.interface import TrackerError, call_tracker
 
 
 def _recorded_value(key: str, raw, default):
@@ -33,30 +35,42 @@ def _recorded_value(key: str, raw, default):
 
 
 class Stage:
-    """Base class of stage processors.
+    """Base class of stage processors: one per measurement family.
+
+    A stage decodes its family's channels into the family's measurement object
+    (:mod:`pipeline.trackers.interface`), calls every selected tracker through the one tracker
+    interface, and scores the outputs with its evaluator. It holds no numerics of its own.
 
     Class attributes
     ----------------
     name : str
-        Stage name (also the scenario family it serves).
-    input_topics : tuple of str
-        Channels that must all be present for the stage to apply.
-    trackers : tuple of str
-        Tracker (strategy) names the stage can run.
-    output_prefix : str
-        Output channels are ``output_prefix + tracker``.
+        Stage name.
+    family : str
+        The measurement family (a key of :data:`pipeline.vocabulary.FAMILIES`); it fixes the
+        input channels and the output channel prefix.
     scenario : str
         Bundled scenario whose parameters give the design defaults.
     design_keys : tuple of str
-        Scenario parameters the trackers use (overridable with ``replay FILE --set``).
+        Scenario parameters the stage itself uses (decoding, evaluation); each tracker's
+        ``params`` add to them.
     """
 
     name = ""
-    input_topics: tuple = ()
-    trackers: tuple = ()
-    output_prefix = ""
+    family = ""
     scenario = ""
     design_keys: tuple = ()
+
+    @property
+    def input_topics(self) -> tuple:
+        return vocab.FAMILIES[self.family].inputs
+
+    @property
+    def output_prefix(self) -> str:
+        return vocab.FAMILIES[self.family].output_prefix
+
+    @property
+    def truth_topic(self) -> str:
+        return vocab.FAMILIES[self.family].truth
 
     def applies(self, topics) -> bool:
         return all(t in topics for t in self.input_topics)
@@ -64,27 +78,89 @@ class Stage:
     def output_topic(self, tracker: str) -> str:
         return self.output_prefix + tracker
 
-    def design(self, dataset, overrides: dict | None = None) -> dict:
-        """Design values: those of the replay in progress if there is one, else the file's
-        scenario record, else the bundled scenario's defaults, then ``overrides``."""
-        from recorders.scenarios import coerce, load_scenario
+    def entries(self, specs=()) -> list:
+        """Trackers of this stage's family (built-in, entry points and ``specs``)."""
+        from pipeline.trackers.registry import trackers_of_family
 
-        if not overrides and ("design", self.name) in dataset.cache:
+        return trackers_of_family(self.family, specs)
+
+    @property
+    def trackers(self) -> tuple:
+        """Names of the built-in trackers of this family."""
+        return tuple(e.name for e in self.entries() if e.builtin)
+
+    def parameter_defaults(self, entries=None) -> dict:
+        """Design keys of the stage and of ``entries`` → default value (bundled scenario first)."""
+        from recorders.scenarios import load_scenario
+
+        scenario = load_scenario(self.scenario).params
+        out = {k: scenario[k] for k in self.design_keys}
+        for e in (self.entries() if entries is None else entries):
+            for p in e.cls.params:
+                if p.name not in out:
+                    out[p.name] = scenario[p.name] if p.name in scenario and p.default is None else p.default
+                    if out[p.name] is None:
+                        raise InputError(f"tracker {e.name!r}: parameter {p.name!r} has no default and the "
+                                         f"{self.scenario} scenario does not define it")
+        return out
+
+    def design(self, dataset, overrides: dict | None = None, entries=None) -> dict:
+        """Design values: those of the replay in progress if there is one, else the file's
+        scenario record, else the defaults (bundled scenario, then the trackers' own), then
+        ``overrides``."""
+        from recorders.scenarios import coerce
+
+        if not overrides and entries is None and ("design", self.name) in dataset.cache:
             return dataset.cache[("design", self.name)]
 
-        defaults = load_scenario(self.scenario).params
+        defaults = self.parameter_defaults(entries)
         recorded = dataset.scenario.get("params", {})
         out = {}
-        for k in self.design_keys:
+        for k, default in defaults.items():
             try:
-                out[k] = _recorded_value(k, recorded[k], defaults[k]) if k in recorded else defaults[k]
+                out[k] = _recorded_value(k, recorded[k], default) if k in recorded else default
             except InputError as exc:  # the file's metadata, not the command line, is at fault
                 raise InputError(f"scenario record: {exc.problem}", dataset.path) from None
         for k, v in (overrides or {}).items():
-            if k not in self.design_keys:
-                raise InputError(f"unknown tracker parameter {k!r} (known: {', '.join(self.design_keys)})")
+            if k not in defaults:
+                raise InputError(f"unknown tracker parameter {k!r} (known: {', '.join(defaults)})")
             out[k] = coerce(k, v, defaults[k])
         return out
+
+    def build(self, entry, design: dict):
+        """Construct ``entry``'s tracker with its design values."""
+        values = {p.name: design[p.name] for p in entry.cls.params}
+        if entry.builtin:
+            return entry.cls(**values)  # a built-in refuses bad design values with an InputError
+        try:
+            return entry.cls(**values)
+        except InputError:
+            raise
+        except Exception as exc:
+            raise TrackerError(f"tracker {entry.name!r}: constructing it raised {type(exc).__name__}: {exc}",
+                               entry.source) from None
+
+    def run(self, dataset, entries, design: dict) -> dict:
+        """Decode once, call every tracker, collect outputs and tracker failures.
+
+        Returns ``{"times", "tracks": {name: outputs}, "errors": [TrackerError, ...]}``: a
+        tracker that fails is reported and left out, the others' outputs are kept.
+        """
+        measurements = self.decode(dataset, design)
+        tracks, errors = {}, []
+        for entry in entries:
+            tracker = self.build(entry, design)
+            try:
+                tracks[entry.name] = call_tracker(tracker, measurements, None if entry.builtin else entry.source)
+            except TrackerError as exc:
+                errors.append(exc)
+        if tracks:
+            tracks.update(self.extras(measurements, design))
+        return {"times": np.asarray(measurements.times_s, dtype=float), "tracks": tracks, "errors": errors}
+
+    def extras(self, measurements, design: dict) -> dict:
+        """Outputs of the stage's own estimators that are not trackers (written beside them)."""
+        return {}
 
     # --- outputs: {"times": (scans,), "tracks": {tracker: {array: (runs, scans, ...)}}}
 
@@ -100,7 +176,7 @@ class Stage:
                 name = topic[len(self.output_prefix):]
                 tracks[name] = {k: ch.grid(k) for k in ch.arrays}
                 if "flags" in tracks[name]:
-                    tracks[name]["flags"] = np.nan_to_num(tracks[name]["flags"]).astype(np.uint8)
+                    tracks[name]["flags"] = np.nan_to_num(tracks[name]["flags"]).astype(np.uint16)
                 times = ch.times()
         if not tracks:
             raise InputError(f"no {self.output_prefix}* channels: not a {self.name} replay output", out_dataset.path)
@@ -116,7 +192,8 @@ class Stage:
 
     # --- to implement
 
-    def run(self, dataset, trackers, design: dict) -> dict:  # pragma: no cover - interface
+    def decode(self, dataset, design: dict):  # pragma: no cover - interface
+        """The family's measurement object (:mod:`pipeline.trackers.interface`), checked."""
         raise NotImplementedError
 
     def evaluate(self, dataset, result: dict, design: dict):  # pragma: no cover - interface

@@ -13,24 +13,23 @@ import numpy as np
 
 from evaluators import radar_tws as radar_eval
 from pipeline.cores.filters.converted_measurements import polar_to_cartesian
-from pipeline.trackers.radar_tws import STRATEGIES, TrackerDesign, track_plots
+from pipeline import vocabulary as vocab
+from pipeline.trackers.interface import RadarPlots
 from pipeline.errors import InputError, require_finite
 from pipeline.stages.base import Stage
 from pipeline.face.timeline import color, log_path, log_points, log_series, north_up, north_up_bounds, rr, rrb, log_metric_series
 
-PLOTS = "/radar/plots"
-TRUTH = "/radar/truth"
+PLOTS = vocab.CHANNELS["radar_plots"]
+TRUTH = vocab.CHANNELS["radar_truth"]
 XY = "/xy/world"  # under the x/y view's origin, flipped north-up (see timeline.north_up)
 
 
 class RadarTwsStage(Stage):
     name = "radar-tws"
-    input_topics = (PLOTS,)
-    trackers = tuple(STRATEGIES)
-    output_prefix = "/tracks/radar/"
+    family = "radar-plots"
     scenario = "radar-tws"
-    design_keys = ("scan_period_s", "design_sigma_v_mps2", "sigma_range_m", "sigma_bearing_deg",
-                   "nominal_cross_range_m", "startup_gains")
+    # what the evaluator needs: the bearing noise (cross-range error) and the fixed gains' design point
+    design_keys = ("sigma_bearing_deg", "nominal_cross_range_m")
 
     def decode_plots(self, dataset):
         """Plots as padded ``(runs, scans, width)`` range and bearing, counts and scan times
@@ -52,15 +51,11 @@ class RadarTwsStage(Stage):
             raise InputError(f"{PLOTS} has {ch.n_scans} scan(s); a track needs at least 3", dataset.path)
         return rng, brg, counts, ch.times()
 
-    def run(self, dataset, trackers, design: dict) -> dict:
+    def decode(self, dataset, design: dict) -> RadarPlots:
         rng, brg, counts, times = self.decode_plots(dataset)
-        d = TrackerDesign(scan_period_s=design["scan_period_s"], sigma_v=design["design_sigma_v_mps2"],
-                          sigma_range_m=design["sigma_range_m"],
-                          sigma_bearing_rad=np.deg2rad(design["sigma_bearing_deg"]),
-                          nominal_cross_range_m=design["nominal_cross_range_m"],
-                          startup=bool(design["startup_gains"]))
-        outputs = {t: track_plots(rng, brg, counts, times, d, STRATEGIES[t]) for t in trackers}
-        return {"times": times, "tracks": outputs}
+        truth = dataset.channels.get(TRUTH)
+        return RadarPlots(range_m=rng, bearing_rad=brg, counts=counts, times_s=times,
+                          truth_state=truth.grid("state") if truth is not None else None)
 
     def evaluate(self, dataset, result: dict, design: dict):
         rng, brg, counts, times = self.decode_plots(dataset)

@@ -254,3 +254,6 @@ def music_waterfall(snapshots: np.ndarray, n_sources: np.ndarray, design: Subspa
     grid = angle_grid(design.grid_step_rad)
     _, vectors = eigen_decomposition(sample_covariance(np.asarray(snapshots).astype(complex, copy=False)))
     return grid, music_spectrum(vectors, np.maximum(n_sources, 1), grid, design.spacing_wavelengths)
+
+
+TRACKERS = ()  # (being moved onto the tracker interface)

@@ -1,11 +1,15 @@
-"""Track-while-scan tracker on converted radar plots, with four gain strategies over one core.
+"""Kim & Lee (2006): track-while-scan α-β filtering with gains that follow the tracking index.
 
-Spec: ``shared/spec/radar-alpha-beta.md`` (Kim & Lee 2006, after Kalata 1984 and Fitzgerald's
-decoupled filter). State ``[x, y, ẋ, ẏ]``; plots ``(r, θ)`` are converted to ``(x, y)``.
+The paper (after Kalata 1984 and Fitzgerald's decoupled filter) filters converted radar plots
+with α-β gains designed at a nominal cross-range error, and proposes gains linearised in the
+tracking index λ_k so they follow the plot's range. See ``docs/papers/radar-tws.md``.
+State ``[x, y, ẋ, ẏ]``; plots ``(r, θ)`` are converted to ``(x, y)``.
 
-The core (:func:`track_plots`) predicts with the white-acceleration model, picks the plot
-nearest to the prediction (no clutter in the paper's scenario; misses coast), and asks a
-**gain strategy** for the gain of the scan:
+The loop (:func:`track_plots`) predicts with the white-acceleration model, picks the plot
+nearest to the prediction (no clutter in the paper's scenario; misses coast), and hands the
+prediction and the plot to an **update strategy**, which returns the posterior state and
+covariance, the innovation and its diagnostics. A polar EKF or a UKF is one more strategy (or a
+plugged tracker, see ``docs/trackers.md``); the loop does not change. The strategies:
 
 ``fixed``        Kalata gains at the nominal cross-range index λ̄ (the paper's "conventional").
 ``approximate``  α_k = ᾱ + m_α Δλ, β_k = β̄ + m_β Δλ with λ_k from the plot's range (the paper's
@@ -45,10 +49,14 @@ from pipeline.cores.filters.kalman import (
     components_to_matrix,
 )
 
-FLAG_CLAMPED = 1
-FLAG_COASTED = 2
-FLAG_NO_TRACK = 4
-FLAG_INITIALISING = 8
+from pipeline import vocabulary as vocab
+from pipeline.errors import InputError
+from pipeline.trackers.interface import Param, Tracker
+
+FLAG_CLAMPED = vocab.CLAMPED
+FLAG_COASTED = vocab.COASTED
+FLAG_NO_TRACK = vocab.NO_TRACK
+FLAG_INITIALISING = vocab.INITIALISING
 
 
 @dataclass(frozen=True)
@@ -98,8 +106,8 @@ class AlphaBetaGains:
         self.name = name
         self._cross_gains = cross_gains
 
-    def update(self, c_pred, r_cov, z_range, cos_b, sin_b, n_plots, design: TrackerDesign, dt: float):
-        """Gain ``K = D₂ K̄₂ Dᵀ`` and the steady-state covariance those gains imply.
+    def update(self, x_pred, c_pred, z_range, cos_b, sin_b, r_cov, n_plots, design: TrackerDesign, dt: float):
+        """Posterior with the gain ``K = D₂ K̄₂ Dᵀ`` and the steady-state covariance those gains imply.
 
         λ_k and β/T use this scan's interval ``dt`` (recorded scan times jitter); the fixed
         filter's nominal λ̄ stays at the design period.
@@ -122,7 +130,8 @@ class AlphaBetaGains:
         B = rotated_diagonal(cos_b, sin_b, along[1], cross[1])
         C = rotated_diagonal(cos_b, sin_b, along[2], cross[2])
         c_post = np.stack([A[0], A[1], A[2], B[0], B[1], B[1], B[2], C[0], C[1], C[2]])
-        return gain, c_post, {"alpha": np.stack([alpha_r, alpha_c]), "beta": np.stack([beta_r, beta_c]),
+        x_post, innovation = _linear_update(x_pred, gain, z_range, cos_b, sin_b)
+        return x_post, c_post, innovation, gain, {"alpha": np.stack([alpha_r, alpha_c]), "beta": np.stack([beta_r, beta_c]),
                               "lambda_cross": lam_c, "clamped": clamped}
 
 
@@ -145,7 +154,7 @@ class KalmanGains:
 
     name = "kalman"
 
-    def update(self, c_pred, r_cov, z_range, cos_b, sin_b, n_plots, design: TrackerDesign, dt: float):
+    def update(self, x_pred, c_pred, z_range, cos_b, sin_b, r_cov, n_plots, design: TrackerDesign, dt: float):
         T = dt
         gain = cv_position_gain_components(c_pred, *r_cov)
         c_post = cv_posterior_components(c_pred, gain)
@@ -159,8 +168,17 @@ class KalmanGains:
         beta[0] = T * (cc * g00 + gx + ss * g11)
         beta[1] = T * (ss * g00 - gx + cc * g11)
         lam_c = tracking_index(design.sigma_v, T, z_range * design.sigma_bearing_rad)
-        return gain, c_post, {"alpha": alpha, "beta": beta, "lambda_cross": lam_c,
-                              "clamped": np.zeros(z_range.shape, bool)}
+        x_post, innovation = _linear_update(x_pred, gain, z_range, cos_b, sin_b)
+        return x_post, c_post, innovation, gain, {"alpha": alpha, "beta": beta, "lambda_cross": lam_c,
+                                                  "clamped": np.zeros(z_range.shape, bool)}
+
+
+def _linear_update(x_pred, gain, z_range, cos_b, sin_b):
+    """``x + K ν`` with the converted plot's innovation ``ν = (r cos θ, r sin θ) − H x``."""
+    nu = np.empty((2,) + z_range.shape)
+    nu[0] = z_range * cos_b - x_pred[0]
+    nu[1] = z_range * sin_b - x_pred[1]
+    return cv_apply_gain_components(x_pred, gain, nu), nu
 
 
 STRATEGIES = {
@@ -208,8 +226,9 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
     dict of ndarray
         ``state (runs, scans, 4)``, ``covariance (runs, scans, 4, 4)``, ``alpha``/``beta``
         ``(runs, scans, 2)`` as (along-range, cross-range), ``lambda_cross``, ``innovation
-        (runs, scans, 2)``, ``measurement (runs, scans, 2)`` (the converted plot used, NaN when
-        the scan had none) and ``flags (runs, scans)`` (bit mask, ``FLAG_*``).
+        (runs, scans, 2)`` and its covariance ``(runs, scans, 2, 2)``, ``gain (runs, scans, 4, 2)``,
+        ``measurement (runs, scans, 2)`` (the converted plot used, NaN when the scan had none) and
+        ``flags (runs, scans)`` (bits of :data:`pipeline.vocabulary.FLAGS`).
     """
     n_runs, n_scans = counts.shape
     if plot_range.ndim != 3:
@@ -224,7 +243,9 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
     lam = np.full((n_scans, n_runs), nan)
     innov = np.full((n_scans, 2, n_runs), nan)
     used = np.full((n_scans, 2, n_runs), nan)  # the plot each run used (for NPE against it)
-    flags = np.zeros((n_scans, n_runs), np.uint8)
+    s_cov = np.full((n_scans, 3, n_runs), nan)  # innovation covariance components s00, s01, s11
+    gains = np.full((n_scans, 8, n_runs), nan)
+    flags = np.zeros((n_scans, n_runs), np.uint16)
 
     x = np.zeros((4, n_runs))
     c = np.zeros((10, n_runs))
@@ -251,13 +272,9 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
             sel = np.flatnonzero(upd)
         x_new, c_new = xp, cp
         if upd.any():
-            nu = np.empty((2, n_runs) if isinstance(sel, slice) else (2, sel.size))
-            nu[0] = zx[sel] - xp[0, sel]
-            nu[1] = zy[sel] - xp[1, sel]
             n_plots[sel] += 1
-            gain, c_post, diag = strategy.update(cp[:, sel], tuple(r[sel] for r in r_cov), z_r[sel],
-                                                 cos_b[sel], sin_b[sel], n_plots[sel], design, dt)
-            xu = cv_apply_gain_components(xp[:, sel], gain, nu)
+            xu, c_post, nu, gain, diag = strategy.update(xp[:, sel], cp[:, sel], z_r[sel], cos_b[sel], sin_b[sel],
+                                                         tuple(r[sel] for r in r_cov), n_plots[sel], design, dt)
             if isinstance(sel, slice):
                 x_new, c_new = xu, c_post
             else:
@@ -267,8 +284,12 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
             beta[k][:, sel] = diag["beta"]
             lam[k][sel] = diag["lambda_cross"]
             innov[k][:, sel] = nu
+            # S = H P⁻ Hᵀ + R: the covariance the innovation has if the prediction is right
+            s_cov[k][:, sel] = np.stack([cp[0, sel] + r_cov[0][sel], cp[1, sel] + r_cov[1][sel],
+                                         cp[2, sel] + r_cov[2][sel]])
+            gains[k][:, sel] = gain
             if diag["clamped"].any():
-                flags[k][sel] |= np.where(diag["clamped"], FLAG_CLAMPED, 0).astype(np.uint8)
+                flags[k][sel] |= np.where(diag["clamped"], FLAG_CLAMPED, 0).astype(np.uint16)
         if not upd.all():
             init = ~started & has & have_prev
             first = ~started & has & ~have_prev
@@ -299,9 +320,13 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
             x, c = x_new, c_new
             state[k] = x
             cov[k] = c
+    s = s_cov.transpose(2, 0, 1)
+    g = gains.transpose(2, 0, 1)
     return {
         "state": state.transpose(2, 0, 1),
         "covariance": components_to_matrix(cov.transpose(1, 2, 0)),
+        "innovation_covariance": np.stack([s[..., 0], s[..., 1], s[..., 1], s[..., 2]], axis=-1).reshape(s.shape[:2] + (2, 2)),
+        "gain": g.reshape(g.shape[:2] + (4, 2)),  # rows x, y, ẋ, ẏ; columns the converted x, y
         "alpha": alpha.transpose(2, 0, 1),
         "beta": beta.transpose(2, 0, 1),
         "lambda_cross": lam.T,
@@ -309,3 +334,65 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
         "measurement": used.transpose(2, 0, 1),
         "flags": flags.T.copy(),
     }
+
+
+# --------------------------------------------------------------------------- the trackers
+
+PARAMS = (
+    Param("scan_period_s", None, "s", "nominal scan period T of the gains"),
+    Param("design_sigma_v_mps2", None, "m/s²", "design acceleration noise σ_v"),
+    Param("sigma_range_m", None, "m", "plot range noise the filter assumes"),
+    Param("sigma_bearing_deg", None, "deg", "plot bearing noise the filter assumes"),
+    Param("nominal_cross_range_m", None, "m", "cross-range error std at which the fixed gains are designed"),
+    Param("startup_gains", None, "", "least-squares start-up gains while they exceed the steady-state ones"),
+)
+
+
+class _RadarStrategyTracker(Tracker):
+    """One of the four strategies of :data:`STRATEGIES` run by :func:`track_plots`."""
+
+    family = "radar-plots"
+    params = PARAMS
+
+    def __init__(self, **design):
+        super().__init__(**design)
+        for key in ("scan_period_s", "design_sigma_v_mps2", "sigma_range_m", "sigma_bearing_deg",
+                    "nominal_cross_range_m"):
+            value = float(self.design[key])
+            if not (np.isfinite(value) and value > 0):
+                raise InputError(f"{key} must be a finite number > 0 (got {self.design[key]!r})")
+        self.tracker_design = TrackerDesign(
+            scan_period_s=float(self.scan_period_s), sigma_v=float(self.design_sigma_v_mps2),
+            sigma_range_m=float(self.sigma_range_m), sigma_bearing_rad=float(np.deg2rad(self.sigma_bearing_deg)),
+            nominal_cross_range_m=float(self.nominal_cross_range_m), startup=bool(self.startup_gains))
+
+    def track(self, plots):
+        return track_plots(plots.range_m, plots.bearing_rad, plots.counts, plots.times_s, self.tracker_design,
+                           STRATEGIES[self.name])
+
+
+class FixedGains(_RadarStrategyTracker):
+    """Kalata gains at the nominal tracking index λ̄ (the paper's conventional filter)."""
+
+    name = "fixed"
+
+
+class ApproximateGains(_RadarStrategyTracker):
+    """Gains linearised in λ_k around λ̄ (Kim & Lee 2006, the proposed filter)."""
+
+    name = "approximate"
+
+
+class ExactGains(_RadarStrategyTracker):
+    """Kalata gains recomputed at λ_k every scan (reference)."""
+
+    name = "exact"
+
+
+class KalmanReference(_RadarStrategyTracker):
+    """Kalman filter on converted plots with the converted covariance (reference)."""
+
+    name = "kalman"
+
+
+TRACKERS = (FixedGains, ApproximateGains, ExactGains, KalmanReference)

@@ -1,0 +1,3 @@
+"""Trackers of this paper (being moved onto the tracker interface)."""
+
+TRACKERS = ()

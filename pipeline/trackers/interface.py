@@ -1,0 +1,360 @@
+"""The tracker interface: what every tracker, built in or plugged, implements and returns.
+
+A tracker is a class with four class attributes and one method (see ``docs/trackers.md``)::
+
+    class MyTracker(Tracker):
+        name = "my_tracker"            # how the CLI, tables and output channels name it
+        family = "radar-plots"         # the measurement family it consumes (vocabulary.FAMILIES)
+        form = "batch"                 # "batch": all runs at once; "run": one run at a time
+        params = (Param("sigma_range_m", 50.0, "m", "plot range noise"),)
+
+        def track(self, plots):        # form "batch"; form "run" implements track_run instead
+            ...
+            return {"state": ..., "flags": ..., "covariance": ...}
+
+Design values (``params``) arrive as attributes (``self.sigma_range_m``) and in ``self.design``;
+a value of the same name recorded in the data set, or given with ``replay --set``, overrides the
+default exactly as it does for the built-in trackers.
+
+The **batch** form receives the family's measurement object with a leading run axis and returns
+arrays of shape ``(runs, scans, ...)``: one Python call per data set, so a vectorised tracker
+costs what its numpy kernels cost. The **run** form receives the same object for one run (no
+run axis) and returns ``(scans, ...)`` arrays; the pipeline loops over runs and stacks the
+results, which costs one Python call per run on top of the tracker's own work (measured by
+``benchmarks/bench_tracker_forms.py``). Outputs follow :data:`pipeline.vocabulary.OUTPUTS`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import traceback
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import ClassVar
+
+import numpy as np
+
+from pipeline import vocabulary as vocab
+from pipeline.errors import InputError
+
+
+@dataclass(frozen=True)
+class Param:
+    """A design parameter of a tracker.
+
+    Attributes
+    ----------
+    name : str
+        Name used by ``--set name=value``; angles in degrees end in ``_deg``.
+    default : bool, int, float or str
+        Default value; its type is the type ``--set`` parses into.
+    unit : str
+        Unit shown by ``replay trackers``.
+    doc : str
+        One-line meaning.
+    """
+
+    name: str
+    default: object
+    unit: str = ""
+    doc: str = ""
+
+
+class Tracker:
+    """Base class of every tracker (see the module docstring and ``docs/trackers.md``)."""
+
+    name: ClassVar[str] = ""
+    family: ClassVar[str] = ""
+    form: ClassVar[str] = "batch"
+    params: ClassVar[tuple[Param, ...]] = ()
+    label: ClassVar[str] = ""  # legend label in figures (default: name)
+
+    def __init__(self, **design):
+        defaults = {p.name: p.default for p in self.params}
+        unknown = sorted(set(design) - set(defaults))
+        if unknown:
+            raise TypeError(f"{type(self).__name__} has no design parameter(s) {', '.join(unknown)}")
+        self.design = {**defaults, **design}
+        for key, value in self.design.items():
+            setattr(self, key, value)
+
+    def track(self, measurements) -> dict:  # pragma: no cover - interface
+        """Batch form: all runs at once; returns ``(runs, scans, ...)`` arrays."""
+        raise NotImplementedError(f"{type(self).__name__} implements neither track nor track_run")
+
+    def track_run(self, measurements) -> dict:  # pragma: no cover - interface
+        """Run form: one run's scans in, ``(scans, ...)`` arrays out."""
+        raise NotImplementedError(f"{type(self).__name__} implements neither track nor track_run")
+
+
+def tracker_name(cls) -> str:
+    return getattr(cls, "name", "") or cls.__name__.lower()
+
+
+# --------------------------------------------------------------------------- measurements
+# One object per family. Fields marked per_run carry a leading run axis in the batch form and
+# none in the run form; the rest (scan times, sensor layout) are shared by all runs.
+
+
+def _per_run(default=dataclasses.MISSING):
+    if default is dataclasses.MISSING:
+        return field(metadata={"per_run": True})
+    return field(default=default, metadata={"per_run": True})
+
+
+@dataclass
+class Measurements:
+    """Base of the per-family measurement objects."""
+
+    def run(self, i: int):
+        """The same measurements for run ``i`` alone (per-run fields lose their run axis)."""
+        values = {}
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            values[f.name] = v[i] if f.metadata.get("per_run") and v is not None else v
+        return type(self)(**values)
+
+    @property
+    def n_runs(self) -> int:
+        first = next(f for f in dataclasses.fields(self) if f.metadata.get("per_run"))
+        return int(getattr(self, first.name).shape[0])
+
+    @property
+    def n_scans(self) -> int:
+        return int(len(self.times_s))
+
+
+@dataclass
+class RadarPlots(Measurements):
+    """Radar plots, NaN-padded to the largest count of a scan.
+
+    ``range_m``, ``bearing_rad`` : (R, K, W); ``counts`` : (R, K) real plots per scan;
+    ``times_s`` : (K,); ``truth_state`` : (R, K, 4) ``[x, y, vx, vy]`` or None.
+    Bearing is measured from the x axis towards the y axis (x = r cos θ, y = r sin θ).
+    """
+
+    range_m: np.ndarray = _per_run()
+    bearing_rad: np.ndarray = _per_run()
+    counts: np.ndarray = _per_run()
+    times_s: np.ndarray = None
+    truth_state: np.ndarray | None = _per_run(None)
+
+
+@dataclass
+class BearingPeaks(Measurements):
+    """Cross-correlation peaks, NaN-padded per scan.
+
+    ``bearing_rad``, ``amplitude`` : (R, K, W); ``origin`` : (R, K, W) target index of a true peak,
+    -1 for clutter or unknown; ``counts`` : (R, K); ``times_s`` : (K,); ``field_rad`` : (min, max)
+    bearings the sensor can report; ``n_targets`` : track slots to fill;
+    ``truth_bearing_rad``, ``truth_rate_radps`` : (R, K, T) or None.
+    """
+
+    bearing_rad: np.ndarray = _per_run()
+    amplitude: np.ndarray = _per_run()
+    origin: np.ndarray = _per_run()
+    counts: np.ndarray = _per_run()
+    times_s: np.ndarray = None
+    field_rad: tuple = (0.0, np.pi)
+    n_targets: int = 0
+    truth_bearing_rad: np.ndarray | None = _per_run(None)
+    truth_rate_radps: np.ndarray | None = _per_run(None)
+
+
+@dataclass
+class ArraySnapshots(Measurements):
+    """Narrowband array snapshots: ``snapshots`` (R, K, M sensors, N snapshots) complex;
+    ``times_s`` : (K,); ``truth_angle_rad`` : (R, K, T) or None."""
+
+    snapshots: np.ndarray = _per_run()
+    times_s: np.ndarray = None
+    truth_angle_rad: np.ndarray | None = _per_run(None)
+
+
+@dataclass
+class TdoaFdoa(Measurements):
+    """TDOA/FDOA measurement vectors per epoch.
+
+    ``measured`` : (R, E, 2P) TDOAs (s) then FDOAs (Hz) of the P ``pairs`` (P, 2);
+    ``sigma`` : (R, E, 2P); ``carrier_hz`` : (R, E); ``sensor_position_m``,
+    ``sensor_velocity_mps`` : (R, E, S, 2); ``times_s`` : (E,); ``prior_state`` : (R, E, 4) or None.
+    """
+
+    measured: np.ndarray = _per_run()
+    sigma: np.ndarray = _per_run()
+    carrier_hz: np.ndarray = _per_run()
+    sensor_position_m: np.ndarray = _per_run()
+    sensor_velocity_mps: np.ndarray = _per_run()
+    times_s: np.ndarray = None
+    pairs: np.ndarray = None
+    prior_state: np.ndarray | None = _per_run(None)
+
+
+@dataclass
+class ColoredPositions(Measurements):
+    """Position measurements in coloured noise: ``position_m`` (R, K, axes), ``times_s`` (K,)
+    evenly spaced; ``truth_state`` (R, K, 3·axes) ``[p, v, a]`` per axis or None."""
+
+    position_m: np.ndarray = _per_run()
+    times_s: np.ndarray = None
+    truth_state: np.ndarray | None = _per_run(None)
+
+
+MEASUREMENTS = {"radar-plots": RadarPlots, "bearing-peaks": BearingPeaks, "array-snapshots": ArraySnapshots,
+                "tdoa-fdoa": TdoaFdoa, "colored-position": ColoredPositions}
+
+
+# --------------------------------------------------------------------------- calling a tracker
+
+
+class TrackerError(InputError):
+    """A tracker failed or returned outputs outside the vocabulary; names the tracker."""
+
+
+def _where_raised(exc: BaseException) -> str:
+    frames = traceback.extract_tb(exc.__traceback__)
+    if not frames:
+        return ""
+    last = frames[-1]
+    return f" (at {Path(last.filename).name}:{last.lineno})"
+
+
+def call_tracker(tracker: Tracker, measurements, source: str | None = None) -> dict:
+    """Run ``tracker`` over every run of ``measurements`` and check what it returns.
+
+    Parameters
+    ----------
+    tracker : Tracker
+        A constructed tracker of either form.
+    measurements : Measurements
+        The family's measurement object with its run axis.
+    source : str, optional
+        Where the tracker came from (named in error messages).
+
+    Returns
+    -------
+    dict of ndarray
+        Outputs with a leading ``(runs, scans)``, checked by :func:`validate_outputs`.
+
+    Raises
+    ------
+    TrackerError
+        The tracker raised, or its outputs break the vocabulary; the message names the tracker,
+        and the run and scan where known.
+    """
+    name = tracker_name(type(tracker))
+    where = source or name
+    R = measurements.n_runs
+    if tracker.form == "run":
+        per_run = []
+        for i in range(R):
+            try:
+                out = tracker.track_run(measurements.run(i))
+            except Exception as exc:
+                raise TrackerError(f"tracker {name!r}: run {i}: raised {type(exc).__name__}: {exc}"
+                                   f"{_where_raised(exc)}", where) from None
+            if not isinstance(out, dict):
+                raise TrackerError(f"tracker {name!r}: run {i}: track_run returned {type(out).__name__}, "
+                                   "expected a dict of arrays", where)
+            if per_run and set(out) != set(per_run[0]):
+                raise TrackerError(f"tracker {name!r}: run {i} returned {sorted(out)} but run 0 {sorted(per_run[0])}",
+                                   where)
+            per_run.append(out)
+        outputs = {}
+        for key in per_run[0] if per_run else ():
+            arrays = [np.asarray(o[key]) for o in per_run]
+            bad = next((i for i, a in enumerate(arrays) if a.shape != arrays[0].shape), None)
+            if bad is not None:
+                raise TrackerError(f"tracker {name!r}: {key!r} has shape {arrays[0].shape} in run 0 but "
+                                   f"{arrays[bad].shape} in run {bad}", where)
+            outputs[key] = np.stack(arrays)
+    else:
+        try:
+            outputs = tracker.track(measurements)
+        except Exception as exc:
+            raise TrackerError(f"tracker {name!r}: raised {type(exc).__name__}: {exc}{_where_raised(exc)}",
+                               where) from None
+        if not isinstance(outputs, dict):
+            raise TrackerError(f"tracker {name!r}: track returned {type(outputs).__name__}, expected a dict of "
+                               "arrays", where)
+    return validate_outputs(outputs, R, measurements.n_scans, name, where)
+
+
+def _first(mask) -> str:
+    idx = tuple(int(v[0]) for v in np.nonzero(mask))
+    text = f"run {idx[0]} scan {idx[1]}"
+    return text + (f" slot {idx[2]}" if len(idx) > 2 else "")
+
+
+def validate_outputs(outputs: dict, n_runs: int, n_scans: int, name: str, where: str | None = None) -> dict:
+    """Check a tracker's outputs against the vocabulary; return them with flags as uint16.
+
+    Checks: the required names; every array ``(runs, scans, ...)`` and numeric; ``flags``
+    shaped like ``state`` without its last axis; NaN in ``state`` only where the flags say
+    ``NO_TRACK`` or ``NOT_ESTIMATED``; ``covariance`` symmetric positive definite wherever the
+    state is finite. Paper-specific extra arrays pass through with the shape check alone.
+    """
+    where = where or name
+    out = {}
+    for key in vocab.REQUIRED_OUTPUTS:
+        if key not in outputs:
+            raise TrackerError(f"tracker {name!r}: outputs lack {key!r} (have: {', '.join(sorted(outputs)) or 'none'})",
+                               where)
+    for key, value in outputs.items():
+        a = np.asarray(value)
+        if a.dtype.kind not in "biufc":
+            raise TrackerError(f"tracker {name!r}: output {key!r} has dtype {a.dtype}, expected numbers", where)
+        if a.ndim < 2 or a.shape[:2] != (n_runs, n_scans):
+            raise TrackerError(f"tracker {name!r}: output {key!r} has shape {a.shape}, expected ({n_runs} runs, "
+                               f"{n_scans} scans, ...)", where)
+        out[key] = a
+    state = out["state"]
+    if state.ndim < 3 or state.dtype.kind not in "f":
+        raise TrackerError(f"tracker {name!r}: state has shape {state.shape} and dtype {state.dtype}, expected "
+                           "floats (runs, scans, [slots,] n)", where)
+    flags = out["flags"]
+    if flags.dtype.kind not in "iub" or flags.shape != state.shape[:-1]:
+        raise TrackerError(f"tracker {name!r}: flags have shape {flags.shape} and dtype {flags.dtype}, expected "
+                           f"integers of shape {state.shape[:-1]}", where)
+    if flags.size and (flags.min() < 0 or flags.max() > np.iinfo(np.uint16).max):
+        raise TrackerError(f"tracker {name!r}: flags outside 0..65535 (see vocabulary.FLAGS)", where)
+    flags = flags.astype(np.uint16)
+    out["flags"] = flags
+    if np.isinf(state).any():
+        raise TrackerError(f"tracker {name!r}: {_first(np.isinf(state).any(axis=-1))}: infinite state", where)
+    excused = (flags & (vocab.NO_TRACK | vocab.NOT_ESTIMATED)) > 0
+    bad = np.isnan(state).any(axis=-1) & ~excused
+    if bad.any():
+        raise TrackerError(f"tracker {name!r}: {_first(bad)}: NaN state without the NO_TRACK or NOT_ESTIMATED "
+                           "flag", where)
+    if "covariance" in out:
+        _check_covariance(out["covariance"], state, name, where)
+    return out
+
+
+def _check_covariance(cov, state, name, where) -> None:
+    n = state.shape[-1]
+    if cov.shape != state.shape + (n,):
+        raise TrackerError(f"tracker {name!r}: covariance has shape {cov.shape}, expected {state.shape + (n,)}", where)
+    live = np.isfinite(state).all(axis=-1)
+    if not live.any():
+        return
+    c = cov[live]
+    if not np.isfinite(c).all():
+        bad = np.zeros(live.shape, bool)
+        bad[live] = ~np.isfinite(c).all(axis=(-2, -1))
+        raise TrackerError(f"tracker {name!r}: {_first(bad)}: covariance not finite where the state is", where)
+    scale = np.maximum(np.abs(np.diagonal(c, axis1=-2, axis2=-1)).max(axis=-1), np.finfo(float).tiny)
+    asym = np.abs(c - np.swapaxes(c, -1, -2)).max(axis=(-2, -1)) > 1e-8 * scale
+    if asym.any():
+        bad = np.zeros(live.shape, bool)
+        bad[live] = asym
+        raise TrackerError(f"tracker {name!r}: {_first(bad)}: covariance not symmetric", where)
+    lowest = np.linalg.eigvalsh(c)[..., 0]
+    indefinite = lowest <= -1e-9 * scale
+    if indefinite.any():
+        bad = np.zeros(live.shape, bool)
+        bad[live] = indefinite
+        i = int(np.flatnonzero(indefinite)[0])
+        raise TrackerError(f"tracker {name!r}: {_first(bad)}: covariance not positive definite (smallest eigenvalue "
+                           f"{lowest[i]:.3g})", where)

@@ -1,0 +1,169 @@
+"""Where trackers come from: built in, installed packages (entry points), or a file or module
+given on the command line.
+
+A *spec* says how to load a tracker and travels to sweep workers as text, so a tracker given
+by path loads the same way on a process-pool or Dask worker:
+
+* ``path/to/file.py:ClassName`` — a class in a plain Python file;
+* ``package.module:ClassName`` — a class in an importable module;
+* a name registered in the entry-point group ``trackreplay.trackers`` (the entry point's object
+  is a :class:`~pipeline.trackers.interface.Tracker` subclass, or a list of them).
+
+See ``docs/trackers.md``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+import importlib.util
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+from pipeline import vocabulary as vocab
+from pipeline.errors import InputError
+from pipeline.trackers.interface import Tracker, tracker_name
+
+ENTRY_POINT_GROUP = "trackreplay.trackers"
+
+# One line per paper: the module that holds its trackers exposes TRACKERS, a tuple of classes.
+BUILTIN_MODULES = (
+    "pipeline.trackers.radar_tws",
+    "pipeline.trackers.bearing_peaks",
+    "pipeline.trackers.array_bearing",
+    "pipeline.trackers.emitter",
+    "pipeline.trackers.colored_noise",
+)
+
+
+@dataclass(frozen=True)
+class TrackerEntry:
+    """A tracker the registry knows: its class, where it came from and how to load it again."""
+
+    name: str
+    cls: type
+    source: str  # "built-in", "entry point <dist>", or the spec it was loaded from
+    spec: str    # loads the class again in another process ("" for built-ins)
+
+    @property
+    def family(self) -> str:
+        return self.cls.family
+
+    @property
+    def builtin(self) -> bool:
+        return self.source == "built-in"
+
+
+def _check_class(obj, spec: str) -> type:
+    if not (isinstance(obj, type) and issubclass(obj, Tracker)):
+        raise InputError(f"{spec}: {obj!r} is not a Tracker subclass (see docs/trackers.md)")
+    if obj.family not in vocab.FAMILIES:
+        raise InputError(f"{spec}: tracker {tracker_name(obj)!r} has family {obj.family!r}; known families: "
+                         f"{', '.join(vocab.FAMILIES)}")
+    if obj.form not in ("batch", "run"):
+        raise InputError(f"{spec}: tracker {tracker_name(obj)!r} has form {obj.form!r}; use 'batch' or 'run'")
+    method = "track" if obj.form == "batch" else "track_run"
+    if getattr(obj, method) is getattr(Tracker, method):
+        raise InputError(f"{spec}: tracker {tracker_name(obj)!r} has form {obj.form!r} but does not implement "
+                         f"{method}()")
+    return obj
+
+
+def _load_file_module(path: Path, spec: str):
+    if not path.is_file():
+        raise InputError("no such file" if not path.exists() else "not a file", path)
+    resolved = path.resolve()
+    mod_name = "trackreplay_user_" + hashlib.sha1(str(resolved).encode()).hexdigest()[:12]
+    if mod_name in sys.modules:
+        return sys.modules[mod_name]
+    module_spec = importlib.util.spec_from_file_location(mod_name, resolved)
+    if module_spec is None or module_spec.loader is None:
+        raise InputError("cannot be loaded as a Python module", path)
+    module = importlib.util.module_from_spec(module_spec)
+    sys.modules[mod_name] = module
+    try:
+        module_spec.loader.exec_module(module)
+    except Exception as exc:
+        del sys.modules[mod_name]
+        raise InputError(f"importing it raised {type(exc).__name__}: {exc}", path) from None
+    return module
+
+
+def load_spec(spec: str) -> type:
+    """The tracker class a ``--tracker`` spec names (``file.py:Class`` or ``module:Class``)."""
+    target, sep, attr = spec.rpartition(":")
+    if not sep or not target or not attr:
+        raise InputError(f"--tracker {spec!r}: expected FILE.py:CLASS or MODULE:CLASS")
+    if target.endswith(".py") or "/" in target or "\\" in target:
+        module = _load_file_module(Path(target), spec)
+        where = target
+    else:
+        try:
+            module = importlib.import_module(target)
+        except Exception as exc:
+            raise InputError(f"--tracker {spec!r}: cannot import {target!r} ({type(exc).__name__}: {exc})") from None
+        where = target
+    if not hasattr(module, attr):
+        have = sorted(n for n, v in vars(module).items()
+                      if isinstance(v, type) and issubclass(v, Tracker) and v is not Tracker)
+        raise InputError(f"no class {attr!r} (trackers defined there: {', '.join(have) or 'none'})", where)
+    return _check_class(getattr(module, attr), spec)
+
+
+def canonical_spec(spec: str) -> str:
+    """A spec with its file made absolute, so that workers in other folders load the same file."""
+    target, sep, attr = spec.rpartition(":")
+    if sep and (target.endswith(".py") or "/" in target):
+        return f"{Path(target).resolve()}:{attr}"
+    return spec
+
+
+def _builtin_entries() -> list[TrackerEntry]:
+    out = []
+    for module in BUILTIN_MODULES:
+        for cls in importlib.import_module(module).TRACKERS:
+            out.append(TrackerEntry(tracker_name(cls), cls, "built-in", ""))
+    return out
+
+
+def _entry_point_entries() -> list[TrackerEntry]:
+    from importlib.metadata import entry_points
+
+    out = []
+    for ep in entry_points(group=ENTRY_POINT_GROUP):
+        where = f"entry point {ep.name} ({ep.value})"
+        try:
+            obj = ep.load()
+        except Exception as exc:
+            raise InputError(f"{where}: loading raised {type(exc).__name__}: {exc}") from None
+        for cls in (obj if isinstance(obj, (list, tuple)) else [obj]):
+            cls = _check_class(cls, where)
+            out.append(TrackerEntry(tracker_name(cls), cls, f"entry point {ep.dist.name if ep.dist else ep.name}",
+                                    f"{cls.__module__}:{cls.__qualname__}"))
+    return out
+
+
+def available_trackers(specs=()) -> dict[str, TrackerEntry]:
+    """Every tracker the registry can find: built-in, entry points, then ``specs`` (``--tracker``).
+
+    Raises
+    ------
+    InputError
+        A spec that does not load, or two trackers of one family with the same name.
+    """
+    entries = _builtin_entries() + _entry_point_entries()
+    for spec in specs:
+        cls = load_spec(spec)
+        entries.append(TrackerEntry(tracker_name(cls), cls, spec, canonical_spec(spec)))
+    table: dict[str, TrackerEntry] = {}
+    for e in entries:
+        if e.name in table and table[e.name].cls is not e.cls:
+            raise InputError(f"two trackers are named {e.name!r} ({table[e.name].source} and {e.source}); "
+                             "give one of them another name")
+        table[e.name] = e
+    return table
+
+
+def trackers_of_family(family: str, specs=()) -> list[TrackerEntry]:
+    return [e for e in available_trackers(specs).values() if e.family == family]

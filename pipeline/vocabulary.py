@@ -1,0 +1,163 @@
+"""The shared vocabulary of the data contract: channel names, measurement families, the tracker
+output vocabulary and the one table of flag bits.
+
+This module is the *what* of the contract; :mod:`pipeline.contract` is the *how* (MCAP frames on
+disk). It imports nothing but the standard library, so numerical cores, recorders, trackers,
+stages and evaluators can all name a channel or a flag without pulling in file I/O.
+See ``docs/contract.md`` for the full description with shapes and units.
+
+Units are SI and angles are radians everywhere inside; degrees appear only in configuration
+values whose names end in ``_deg``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+# --------------------------------------------------------------------------- channels
+# One table of channel names. Recorders write them, stages read them, nothing else spells them.
+
+CHANNELS = {
+    "radar_plots": "/radar/plots",            # ragged range_m, bearing_rad per run and scan
+    "radar_truth": "/radar/truth",            # state [x, y, vx, vy] (m, m/s)
+    "xcorr_peaks": "/xcorr/peaks",            # ragged bearing_rad, amplitude, origin (target or -1)
+    "xcorr_truth": "/xcorr/truth",            # bearing_rad, bearing_rate_radps per target
+    "array_snapshots": "/array/snapshots",    # complex snapshots (sensors, snapshots)
+    "array_truth": "/array/truth",            # angle_rad per target, snr_db
+    "emitter_measurements": "/emitter/measurements",  # tdoa_s, fdoa_hz, sigmas, pairs, carrier_hz
+    "emitter_sensors": "/emitter/sensors",    # position_m, velocity_mps (sensors, 2)
+    "emitter_prior": "/emitter/prior",        # state [x, y, vx, vy] initial guess
+    "emitter_truth": "/emitter/truth",        # state [x, y, vx, vy]
+    "colored_measurements": "/colored/measurements",  # position_m per axis
+    "colored_truth": "/colored/truth",        # state [p, v, a] per axis, alpha
+}
+
+
+@dataclass(frozen=True)
+class Family:
+    """A measurement family: what a tracker consumes and what its state means.
+
+    Attributes
+    ----------
+    name : str
+        The family's name (``Tracker.family`` names it).
+    inputs : tuple of str
+        Channels that must all be present.
+    truth : str
+        The channel holding ground truth, when a file has it.
+    output_prefix : str
+        Tracker ``NAME`` writes its outputs on ``output_prefix + NAME``.
+    state : str
+        The state vector's components and units.
+    space : str
+        The space the generic evaluators compare tracks and truth in.
+    """
+
+    name: str
+    inputs: tuple[str, ...]
+    truth: str
+    output_prefix: str
+    state: str
+    space: str
+
+
+FAMILIES = {
+    f.name: f for f in (
+        Family("radar-plots", (CHANNELS["radar_plots"],), CHANNELS["radar_truth"], "/tracks/radar/",
+               "[x, y, vx, vy] in m and m/s, one track per run", "position (m)"),
+        Family("bearing-peaks", (CHANNELS["xcorr_peaks"],), CHANNELS["xcorr_truth"], "/tracks/xcorr/",
+               "[bearing, bearing rate] in rad and rad/s per track slot", "bearing (rad)"),
+        Family("array-snapshots", (CHANNELS["array_snapshots"],), CHANNELS["array_truth"], "/tracks/array/",
+               "[bearing, bearing rate] in rad and rad/s per track slot", "bearing (rad)"),
+        Family("tdoa-fdoa", (CHANNELS["emitter_measurements"], CHANNELS["emitter_sensors"]),
+               CHANNELS["emitter_truth"], "/emitter/estimates/",
+               "[x, y, vx, vy] in m and m/s, one estimate per epoch", "position (m)"),
+        Family("colored-position", (CHANNELS["colored_measurements"],), CHANNELS["colored_truth"],
+               "/tracks/colored/", "[p, v, a] in m, m/s, m/s² per axis, axes concatenated",
+               "position (m)"),
+    )
+}
+
+
+# --------------------------------------------------------------------------- tracker outputs
+
+
+@dataclass(frozen=True)
+class OutputArray:
+    """One name of the output vocabulary.
+
+    ``shape`` uses R runs, K scans, T track slots (absent for single-track families), n state
+    components, m measurement components, M models. ``required`` outputs every tracker returns.
+    """
+
+    name: str
+    shape: str
+    dtype: str
+    meaning: str
+    required: bool = False
+
+
+OUTPUTS = {
+    o.name: o for o in (
+        OutputArray("state", "(R, K, [T,] n)", "float64",
+                    "posterior state estimate in the family's units; NaN only where flags say NO_TRACK "
+                    "or NOT_ESTIMATED", required=True),
+        OutputArray("flags", "(R, K[, T])", "uint16", "bit mask of FLAGS", required=True),
+        OutputArray("covariance", "(R, K, [T,] n, n)", "float64",
+                    "posterior covariance, symmetric positive definite where the state is finite"),
+        OutputArray("track_id", "(R, K, T)", "int64",
+                    "identity of the track in each slot, -1 where the slot is empty; without it slot j is "
+                    "track j for the whole run"),
+        OutputArray("innovation", "(R, K, [T,] m)", "float64", "measurement minus predicted measurement"),
+        OutputArray("innovation_covariance", "(R, K, [T,] m, m)", "float64", "covariance of the innovation"),
+        OutputArray("gain", "(R, K, [T,] n, m)", "float64", "gain applied to the innovation"),
+        OutputArray("model_probabilities", "(R, K, M)", "float64", "posterior model probabilities (IMM)"),
+    )
+}
+REQUIRED_OUTPUTS = tuple(name for name, o in OUTPUTS.items() if o.required)
+
+
+# --------------------------------------------------------------------------- flags
+# One table of flag bits for every tracker and estimator. Outputs store them as uint16.
+
+FLAGS = {
+    "NO_TRACK": 1 << 0,         # no track in this slot at this scan (state is NaN)
+    "INITIALISING": 1 << 1,     # track in start-up: not yet filtered
+    "COASTED": 1 << 2,          # no measurement used this scan: the state is the prediction
+    "CLAMPED": 1 << 3,          # a gain or estimate was clamped into its valid range
+    "CLUSTER_SPLIT": 1 << 4,    # association approximated: the cluster had too many tracks
+    "NOT_WARM": 1 << 5,         # an online estimate (e.g. AR(1) coefficient) has not settled yet
+    "CONVERGED": 1 << 6,        # iterative estimator: last step below its tolerance
+    "NOT_CONVERGED": 1 << 7,    # iterative estimator: iteration budget spent
+    "DIVERGED": 1 << 8,         # iterative estimator: non-finite or out-of-bounds iterate
+    "RANK_DEFICIENT": 1 << 9,   # the problem was numerically singular
+    "UNDERDETERMINED": 1 << 10, # fewer independent equations than unknowns: not estimated
+    "INVALID_START": 1 << 11,   # the initial guess was not finite
+    "NOT_ESTIMATED": 1 << 12,   # some state components are not estimated (NaN)
+    "DELETED": 1 << 13,         # the track ended at this scan
+    "FLOORED": 1 << 14,         # a variance was raised to its floor
+    "LIMITED": 1 << 15,         # a coefficient was limited to its stable range
+}
+FLAG_DTYPE = "uint16"
+
+NO_TRACK = FLAGS["NO_TRACK"]
+INITIALISING = FLAGS["INITIALISING"]
+COASTED = FLAGS["COASTED"]
+CLAMPED = FLAGS["CLAMPED"]
+CLUSTER_SPLIT = FLAGS["CLUSTER_SPLIT"]
+NOT_WARM = FLAGS["NOT_WARM"]
+CONVERGED = FLAGS["CONVERGED"]
+NOT_CONVERGED = FLAGS["NOT_CONVERGED"]
+DIVERGED = FLAGS["DIVERGED"]
+RANK_DEFICIENT = FLAGS["RANK_DEFICIENT"]
+UNDERDETERMINED = FLAGS["UNDERDETERMINED"]
+INVALID_START = FLAGS["INVALID_START"]
+NOT_ESTIMATED = FLAGS["NOT_ESTIMATED"]
+DELETED = FLAGS["DELETED"]
+FLOORED = FLAGS["FLOORED"]
+LIMITED = FLAGS["LIMITED"]
+
+
+def flag_names(mask: int) -> list[str]:
+    """Names of the bits set in ``mask`` (for messages and docs)."""
+    return [name for name, bit in FLAGS.items() if int(mask) & bit]
