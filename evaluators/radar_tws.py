@@ -16,7 +16,7 @@ import numpy as np
 import polars as pl
 
 from evaluators.tracking_metrics import long_form, nanmean, normalised_position_error, rmse_overall, rmse_per_scan
-from pipeline.trackers.radar_tws import FLAG_CLAMPED, FLAG_COASTED, FLAG_INITIALISING, FLAG_NO_TRACK
+from pipeline.vocabulary import CLAMPED as FLAG_CLAMPED, COASTED as FLAG_COASTED, INITIALISING as FLAG_INITIALISING, NO_TRACK as FLAG_NO_TRACK
 
 SCOPES = ("overall", "cross_range_above_nominal", "cross_range_below_nominal")
 

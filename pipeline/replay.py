@@ -49,7 +49,7 @@ def select_trackers(stages, names=None, specs=()) -> dict:
     InputError
         A name no applicable stage has, or a plugged tracker of a family the file does not hold.
     """
-    from pipeline.trackers.registry import available_trackers
+    from pipeline.registry import available_trackers
 
     table = available_trackers(specs)
     plugged = {name for name, e in table.items() if e.source in specs}
@@ -78,7 +78,7 @@ def select_trackers(stages, names=None, specs=()) -> dict:
 
 
 def _canonical(specs):
-    from pipeline.trackers.registry import canonical_spec
+    from pipeline.registry import canonical_spec
 
     return [canonical_spec(s) for s in specs]
 
@@ -162,15 +162,16 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
         timings["write_s"] = time.perf_counter() - t3
     step(1)
     if rrd_path is not None:
+        from pipeline.face.rerun_views import views_for
         from pipeline.face.timeline import recording
 
         t4 = time.perf_counter()
         # One recording per file; with several stages the first stage's blueprint is the default.
-        bp = stages[0].blueprint(list(results[stages[0].name]["tracks"]), ds, rerun_run)
+        bp = views_for(stages[0]).blueprint(stages[0], list(results[stages[0].name]["tracks"]), ds, rerun_run)
         with recording(rrd_path, "trackreplay", Path(ds.path).stem, bp) as rec:
             for st in stages:
                 part = res.per_scan.filter(pl.col("stage") == st.name)
-                st.log_rerun(rec, ds, results[st.name], part, rerun_run)
+                views_for(st).log_rerun(st, rec, ds, results[st.name], part, rerun_run)
         res.rrd_path = Path(rrd_path)
         timings["rerun_s"] = time.perf_counter() - t4
     step(1)

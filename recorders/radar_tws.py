@@ -1,6 +1,6 @@
 """Track-while-scan radar simulator: one target, plots (range, bearing) per scan, plus truth.
 
-Spec: ``shared/spec/radar-alpha-beta.md`` ("Paper's simulation"). Radar at the origin, bearing
+Kim & Lee (2006), the paper's simulation (``docs/papers/radar-tws.md``). Radar at the origin, bearing
 counter-clockwise from +x. Random numbers are drawn in a fixed order and shape whatever the
 parameters (process noise, range noise, bearing noise, detection draws), so two data sets that
 differ in one parameter share their noise (common random numbers) and a seed fixes every byte.
@@ -10,11 +10,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline import vocabulary as vocab
 from pipeline.errors import check_all, require_finite_params
 from recorders.simulated import SimulatedData
 
-PLOTS_TOPIC = "/radar/plots"
-TRUTH_TOPIC = "/radar/truth"
+PLOTS_TOPIC = vocab.CHANNELS["radar_plots"]
+TRUTH_TOPIC = vocab.CHANNELS["radar_truth"]
 
 
 def validate(p: dict) -> None:

@@ -3,8 +3,9 @@
 Input channels: ``/radar/plots`` (``range_m``, ``bearing_rad`` per run and scan), optionally
 ``/radar/truth`` (``state``). Output: ``/tracks/radar/<tracker>`` with ``state``,
 ``covariance``, ``alpha``, ``beta`` (along-range, cross-range), ``lambda_cross``,
-``innovation`` and ``flags`` per run and scan. Only I/O and bookkeeping live here; the numbers
-come from :mod:`pipeline.trackers.radar_tws` and :mod:`evaluators.radar_tws`.
+``innovation`` and ``flags`` per run and scan. Only decoding and bookkeeping live here; the numbers
+come from :mod:`pipeline.trackers.radar_tws` and :mod:`evaluators.radar_tws`, the Rerun views from
+:mod:`pipeline.face.rerun_radar_tws`.
 """
 
 from __future__ import annotations
@@ -17,7 +18,6 @@ from pipeline import vocabulary as vocab
 from pipeline.trackers.interface import RadarPlots
 from pipeline.errors import InputError, require_finite
 from pipeline.stages.base import Stage
-from pipeline.face.timeline import color, log_path, log_points, log_series, north_up, north_up_bounds, rr, rrb, log_metric_series
 
 PLOTS = vocab.CHANNELS["radar_plots"]
 TRUTH = vocab.CHANNELS["radar_truth"]
@@ -71,68 +71,3 @@ class RadarTwsStage(Stage):
             cross_std = np.hypot(truth_state[..., 0], truth_state[..., 1]) * np.deg2rad(design["sigma_bearing_deg"])
         return radar_eval.evaluate(result["times"], result["tracks"], measured, truth_state, cross_std,
                                    design["nominal_cross_range_m"])
-
-    # ------------------------------------------------------------------ Rerun
-
-    def blueprint(self, trackers, dataset=None, run: int = 0):
-        """Layout: x/y of one run | gains | errors; the x/y view is fitted to that run's plots."""
-        bounds = None
-        if dataset is not None:
-            rng, brg, counts, _ = self.decode_plots(dataset)
-            run = min(run, counts.shape[0] - 1)
-            xy = polar_to_cartesian(rng[run], brg[run]).reshape(-1, 2)
-            xy = xy[np.all(np.isfinite(xy), axis=1)]
-            if len(xy):
-                lo, hi = xy.min(axis=0), xy.max(axis=0)
-                pad = 0.08 * float(max(hi - lo)) + 1.0
-                bounds = north_up_bounds(lo, hi, pad)
-        hidden = rrb.PlotLegend(visible=False)
-        shown = rrb.PlotLegend(corner=rrb.Corner2D.RightTop, visible=True)
-        return rrb.Blueprint(
-            rrb.Horizontal(
-                rrb.Spatial2DView(origin="/xy", name=f"x / y (run {run})", visual_bounds=bounds),
-                rrb.Vertical(
-                    rrb.TimeSeriesView(origin="/gains/alpha_cross", name="α cross-range", plot_legend=shown),
-                    rrb.TimeSeriesView(origin="/gains/beta_cross", name="β cross-range", plot_legend=hidden),
-                    rrb.TimeSeriesView(origin="/gains/lambda_cross", name="λ_k cross-range", plot_legend=hidden),
-                ),
-                rrb.Vertical(
-                    rrb.TimeSeriesView(origin="/errors/rmse_position_m", name="position RMSE (m)", plot_legend=shown),
-                    rrb.TimeSeriesView(origin="/errors/rmse_velocity_mps", name="velocity RMSE (m/s)", plot_legend=hidden),
-                    rrb.TimeSeriesView(origin="/errors/npe", name="NPE", plot_legend=hidden),
-                ),
-                column_shares=[2, 1.2, 1.2],
-            ),
-            rrb.TimePanel(state="collapsed"),
-            collapse_panels=True,
-        )
-
-    def log_rerun(self, rec, dataset, result: dict, per_scan, run: int = 0) -> None:
-        times = result["times"]
-        scans = np.arange(len(times))
-        rng, brg, counts, _ = self.decode_plots(dataset)
-        run = min(run, counts.shape[0] - 1)
-        plots_xy = polar_to_cartesian(rng[run], brg[run])
-        north_up(rec, XY)
-        log_points(rec, f"{XY}/plots/current", scans, times,
-                   [plots_xy[k, : counts[run, k]] for k in scans], (250, 250, 250), radius=-4.0)
-        history = plots_xy.reshape(-1, 2)
-        history = history[np.all(np.isfinite(history), axis=1)]
-        rec.log(f"{XY}/plots/all", rr.Points2D(history, colors=[color("plots")], radii=[-1.5]), static=True)
-        truth = dataset.channels.get(TRUTH)
-        if truth is not None:
-            log_path(rec, f"{XY}/truth", truth.grid("state")[run, :, :2], color("truth"))
-        for name, out in result["tracks"].items():
-            ok = radar_eval.filtered_mask(out["flags"][run])
-            xy = np.where(ok[:, None], out["state"][run, :, :2], np.nan)
-            log_path(rec, f"{XY}/tracks/{name}/path", xy, color(name))
-            log_points(rec, f"{XY}/tracks/{name}/estimate", scans, times,
-                       [xy[k : k + 1] if ok[k] else np.zeros((0, 2)) for k in scans], color(name), radius=-5.0)
-            log_series(rec, f"/gains/alpha_cross/{name}", scans, times, out["alpha"][run, :, 1], name)
-            log_series(rec, f"/gains/beta_cross/{name}", scans, times, out["beta"][run, :, 1], name)
-            log_series(rec, f"/gains/alpha_along/{name}", scans, times, out["alpha"][run, :, 0], name)
-            log_metric_series(rec, per_scan, name, ("rmse_position_m", "rmse_velocity_mps", "npe"),
-                              lambda m: f"/errors/{m}")
-        any_track = next(iter(result["tracks"].values()))
-        log_series(rec, "/gains/lambda_cross/measured", scans, times, any_track["lambda_cross"][run],
-                   "λ_k", (200, 200, 200))

@@ -29,7 +29,6 @@ from __future__ import annotations
 import dataclasses
 import traceback
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
@@ -216,7 +215,7 @@ def _where_raised(exc: BaseException) -> str:
     if not frames:
         return ""
     last = frames[-1]
-    return f" (at {Path(last.filename).name}:{last.lineno})"
+    return f" (at {last.filename.replace(chr(92), '/').rsplit('/', 1)[-1]}:{last.lineno})"
 
 
 def call_tracker(tracker: Tracker, measurements, source: str | None = None) -> dict:

@@ -1,0 +1,90 @@
+"""The layout stays true: import rules between the folders (see docs/architecture.md).
+
+* numerical cores (``pipeline/cores``) and per-paper trackers (``pipeline/trackers``) import none
+  of mcap, rerun, click, polars, matplotlib or dask, do no timing and no file I/O, and know nothing
+  of stages, the face, the contract's file layer or the evaluators;
+* stages are thin: no Rerun, click or plotting;
+* evaluators read outputs through the contract and its vocabulary only: no cores, trackers or
+  stages;
+* the face (CLI, Rerun) does no numerics of its own: no scipy.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+FRAMEWORKS = {"mcap", "mcap_protobuf", "rerun", "click", "polars", "matplotlib", "dask", "distributed"}
+TIMING_AND_IO = {"time", "timeit", "io", "tempfile", "shutil", "pathlib", "os"}
+NUMERIC_INTERNALS = {"pipeline.contract", "pipeline.stages", "pipeline.face", "pipeline.replay", "pipeline.sweep",
+                     "evaluators", "recorders"}
+
+RULES = {
+    "pipeline/cores": FRAMEWORKS | TIMING_AND_IO | NUMERIC_INTERNALS | {"pipeline.trackers"},
+    "pipeline/trackers": FRAMEWORKS | TIMING_AND_IO | NUMERIC_INTERNALS,
+    "pipeline/stages": {"rerun", "click", "matplotlib", "dask", "distributed", "pipeline.face", "pipeline.sweep"},
+    "evaluators": {"pipeline.cores", "pipeline.trackers", "pipeline.stages", "pipeline.face", "rerun", "click"},
+    "pipeline/face": {"scipy"},
+}
+# the import-free vocabulary and the interface are what cores and trackers may use
+ALLOWED_EVERYWHERE = {"pipeline.vocabulary", "pipeline.errors", "pipeline.trackers.interface"}
+
+
+def _imports(path: Path) -> list[tuple[int, str]]:
+    tree = ast.parse(path.read_text(), filename=str(path))
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            found += [(node.lineno, a.name) for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            found.append((node.lineno, node.module))
+            if node.module == "pipeline":  # from pipeline import vocabulary
+                found += [(node.lineno, f"pipeline.{a.name}") for a in node.names]
+    return found
+
+
+def _forbidden(module: str, rule: set[str]) -> bool:
+    if module in ALLOWED_EVERYWHERE or module == "pipeline":
+        return False
+    return any(module == f or module.startswith(f + ".") for f in rule)
+
+
+def _files(folder: str):
+    return sorted((ROOT / folder).rglob("*.py"))
+
+
+@pytest.mark.parametrize("folder", sorted(RULES))
+def test_import_rules(folder):
+    assert _files(folder), f"{folder} holds no modules"
+    broken = [f"{p.relative_to(ROOT)}:{line} imports {mod}" for p in _files(folder) for line, mod in _imports(p)
+              if _forbidden(mod, RULES[folder])]
+    assert not broken, "\n".join(broken)
+
+
+@pytest.mark.parametrize("folder", ["pipeline/cores", "pipeline/trackers"])
+def test_cores_and_trackers_open_no_files(folder):
+    calls = []
+    for p in _files(folder):
+        for node in ast.walk(ast.parse(p.read_text())):
+            if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in ("open", "print"):
+                calls.append(f"{p.relative_to(ROOT)}:{node.lineno} calls {node.func.id}()")
+    assert not calls, "\n".join(calls)
+
+
+def test_docstrings_cite_nothing_outside_the_repository():
+    # a user's clone has no shared/ folder: cite the paper and docs/ instead
+    bad = [f"{p.relative_to(ROOT)}" for folder in ("pipeline", "recorders", "evaluators", "benchmarks", "examples")
+           for p in _files(folder) if "shared/spec" in p.read_text() or "shared/seeds" in p.read_text()]
+    assert not bad, "cite docs/ and the paper, not shared/: " + ", ".join(bad)
+
+
+def test_the_rules_catch_a_violation(tmp_path):
+    # the checker itself can fail: a core that imports polars and times itself is caught
+    core = tmp_path / "bad_core.py"
+    core.write_text("import time\nimport polars as pl\nfrom pipeline import vocabulary\n")
+    found = [m for _, m in _imports(core) if _forbidden(m, RULES["pipeline/cores"])]
+    assert found == ["time", "polars"]
