@@ -80,7 +80,7 @@ class Stage:
 
     def entries(self, specs=()) -> list:
         """Trackers of this stage's family (built-in, entry points and ``specs``)."""
-        from pipeline.trackers.registry import trackers_of_family
+        from pipeline.registry import trackers_of_family
 
         return trackers_of_family(self.family, specs)
 
