@@ -5,6 +5,10 @@ records ``(tracker, metric, scope, value)`` of a data set plus a tolerance per r
 (``rtol``, ``atol``: the check fails when ``|new − old| > atol + rtol·|old|``). Replays are
 deterministic, so the default tolerance is tight (rtol 1e-6): any change in what a tracker
 computes shows up; loosen a record by hand where a metric is legitimately noisy.
+
+Records of plugged trackers (``replay check --tracker SPEC --update``) sit beside the built-ins'
+and the baseline's ``plugged`` table maps each such tracker to its spec: a check that does not
+run it skips its records, and an update that does not run it keeps them.
 """
 
 from __future__ import annotations
@@ -49,8 +53,16 @@ def baseline_path(data_dir: str | Path, name: str) -> Path:
     return Path(data_dir) / "baselines" / f"{name}.json"
 
 
-def write_baseline(path: str | Path, name: str, summary: pl.DataFrame, previous: dict | None = None) -> Path:
-    """Write (atomically) the baseline of ``summary``; tolerances edited by hand are kept."""
+def write_baseline(path: str | Path, name: str, summary: pl.DataFrame, previous: dict | None = None,
+                   plugged: dict | None = None) -> Path:
+    """Write (atomically) the baseline of ``summary``; tolerances edited by hand are kept.
+
+    Parameters
+    ----------
+    plugged : dict, optional
+        Plugged trackers in ``summary`` → their spec. The records of plugged trackers of
+        ``previous`` that ``summary`` does not hold are kept, with their spec.
+    """
     old_tol = {}
     for rec in (previous or {}).get("metrics", []):
         old_tol[tuple(rec[k] for k in KEY)] = (rec.get("rtol", DEFAULT_RTOL), rec.get("atol", DEFAULT_ATOL))
@@ -58,12 +70,24 @@ def write_baseline(path: str | Path, name: str, summary: pl.DataFrame, previous:
     for row in summary.select(*KEY, "value").iter_rows(named=True):
         rtol, atol = old_tol.get(tuple(row[k] for k in KEY), (DEFAULT_RTOL, DEFAULT_ATOL))
         records.append({**{k: row[k] for k in KEY}, "value": row["value"], "rtol": rtol, "atol": atol})
+    present = set(summary["tracker"].unique()) if summary.height else set()
+    kept = {n: spec for n, spec in plugged_trackers(previous or {}).items() if n not in present}
+    records += [rec for rec in (previous or {}).get("metrics", []) if rec["tracker"] in kept]
     doc = {"dataset": name, "written_by": f"trackreplay {__version__}", "metrics": records}
+    table = {**kept, **(plugged or {})}
+    if table:
+        doc["plugged"] = dict(sorted(table.items()))
     path = Path(path)
     with atomic_output(path, "w") as f:
         json.dump(doc, f, indent=1, sort_keys=True)
         f.write("\n")
     return path
+
+
+def plugged_trackers(baseline: dict) -> dict:
+    """Plugged trackers with records in ``baseline`` → the spec they were loaded from."""
+    table = baseline.get("plugged") or {}
+    return dict(table) if isinstance(table, dict) else {}
 
 
 def read_baseline(path: str | Path) -> dict:
@@ -76,14 +100,24 @@ def read_baseline(path: str | Path) -> dict:
     return doc
 
 
-def compare(summary: pl.DataFrame, baseline: dict) -> list[Drift]:
-    """Every baseline record that moved beyond its tolerance or disappeared, plus new records."""
+def compare(summary: pl.DataFrame, baseline: dict, unbaselined=()) -> list[Drift]:
+    """Every baseline record that moved beyond its tolerance or disappeared, plus new records.
+
+    Records of the baseline's plugged trackers that ``summary`` does not hold at all (the
+    tracker was not given) are skipped, and so are the new records of the trackers in
+    ``unbaselined`` (plugged trackers that have no baseline records yet).
+    """
     now = {tuple(r[k] for k in KEY): r["value"] for r in summary.iter_rows(named=True)}
+    present = {key[0] for key in now}
+    absent_plugged = {n for n in plugged_trackers(baseline) if n not in present}
+    unbaselined = set(unbaselined)
     drifts = []
     seen = set()
     for rec in baseline["metrics"]:
         key = tuple(rec[k] for k in KEY)
         seen.add(key)
+        if key[0] in absent_plugged:
+            continue
         old = rec["value"]
         tol = rec.get("atol", DEFAULT_ATOL) + rec.get("rtol", DEFAULT_RTOL) * abs(old if old is not None else 0.0)
         new = now.get(key)
@@ -94,7 +128,7 @@ def compare(summary: pl.DataFrame, baseline: dict) -> list[Drift]:
         elif _is_nan(old) or _is_nan(new) or abs(new - old) > tol:
             drifts.append(Drift(*key, old, new, tol))
     for key, new in now.items():
-        if key not in seen:
+        if key not in seen and key[0] not in unbaselined:
             drifts.append(Drift(*key, None, new, 0.0))
     return drifts
 

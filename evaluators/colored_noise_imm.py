@@ -10,6 +10,10 @@ Scopes in the summary:
                        ``value``: the estimator is warm and the true α has not changed for
                        ``3/(1 − β)`` scans (95 % of the fading memory's weight).
 
+Without truth (a file replayed with ``track_start=measurements``) only the ``overall`` scope is
+reported: mean model probabilities and ``flagged_scans`` (scans whose flags are non-zero), and
+the AR estimates per scan without a reference.
+
 Figures (thesis Figs. 8–9, 13–15, 19–24) come from :func:`write_figures` through
 :func:`evaluators.report_plots.plot_metrics_vs`.
 """
@@ -59,9 +63,9 @@ def evaluate(times, tracks: dict, truth_state, truth_alpha, measurement_variance
     tracks : dict
         ``tracker -> {"state" (runs, scans, 3·axes), "model_probabilities" (runs, scans, M), ...}``
         and ``"ar_estimator" -> {"alpha", "alpha_biased", "noise_variance", "warm", "flags"}``.
-    truth_state : ndarray (runs, scans, 3·axes)
-        ``[p, v, a]`` per axis.
-    truth_alpha : ndarray (runs, scans, axes)
+    truth_state : ndarray (runs, scans, 3·axes) or None
+        ``[p, v, a]`` per axis (None: no RMSE, scope ``overall`` only).
+    truth_alpha : ndarray (runs, scans, axes) or None
     measurement_variance : float
         R (the true ``σ_η² = (1 − α²) R``).
     beta : float
@@ -76,18 +80,21 @@ def evaluate(times, tracks: dict, truth_state, truth_alpha, measurement_variance
     """
     scans = np.arange(len(times))
     after_start = scans >= 1
-    accel = np.abs(_component(truth_state, 2)).sum(axis=-1)            # (runs, scans)
-    manoeuvre = np.all(accel > 0, axis=0) & after_start
-    constant = np.all(accel == 0, axis=0) & after_start
-    scopes = [("overall", after_start), ("manoeuvre", manoeuvre), ("constant_velocity", constant)]
+    scopes = [("overall", after_start)]
+    if truth_state is not None:
+        accel = np.abs(_component(truth_state, 2)).sum(axis=-1)            # (runs, scans)
+        manoeuvre = np.all(accel > 0, axis=0) & after_start
+        constant = np.all(accel == 0, axis=0) & after_start
+        scopes += [("manoeuvre", manoeuvre), ("constant_velocity", constant)]
     per_scan_parts, rows = [], []
     for name, out in tracks.items():
         if name == AR_TRACKER:
             continue
         est = out["state"]
         cols = {"tracker": [name] * len(times), "scan": scans, "time_s": times}
-        for _, metric, c in KINEMATICS:
-            cols[metric] = rmse_per_scan(_component(est, c), _component(truth_state, c))
+        if truth_state is not None:
+            for _, metric, c in KINEMATICS:
+                cols[metric] = rmse_per_scan(_component(est, c), _component(truth_state, c))
         mu = out.get("model_probabilities")
         is_imm = mu is not None and mu.shape[-1] == len(model_names) and len(model_names) > 1
         if is_imm:
@@ -97,8 +104,9 @@ def evaluate(times, tracks: dict, truth_state, truth_alpha, measurement_variance
             if not sel.any():
                 continue
             row = {"tracker": name, "scope": scope, "scans": float(sel.sum())}
-            for _, metric, c in KINEMATICS:
-                row[metric] = rmse_overall(_component(est[:, sel], c), _component(truth_state[:, sel], c))
+            if truth_state is not None:
+                for _, metric, c in KINEMATICS:
+                    row[metric] = rmse_overall(_component(est[:, sel], c), _component(truth_state[:, sel], c))
             if is_imm:
                 for j, m in enumerate(model_names):
                     row[f"prob_{m}"] = float(nanmean(mu[:, sel, j]))
@@ -118,9 +126,16 @@ def evaluate(times, tracks: dict, truth_state, truth_alpha, measurement_variance
 
 def _ar_tables(times, ar: dict, truth_alpha, R: float, beta: float):
     alpha, alpha_b, var = ar["alpha"], ar["alpha_biased"], ar["noise_variance"]
+    scans = np.arange(len(times))
+    flagged = (np.mean(ar["flags"] > 0, axis=(0, 2)) if ar["flags"].ndim == 3
+               else np.mean(ar["flags"] > 0, axis=0))
+    if truth_alpha is None:  # the estimates alone, no reference and no settled scans
+        return [pl.DataFrame({
+            "tracker": [AR_TRACKER] * len(times), "scan": scans, "time_s": times,
+            "alpha_hat": nanmean(alpha.mean(-1), axis=0), "alpha_biased": nanmean(alpha_b.mean(-1), axis=0),
+            "noise_variance_hat": nanmean(var.mean(-1), axis=0), "ar_flagged_fraction": flagged})], []
     warm = np.asarray(ar["warm"]).reshape(-1, alpha.shape[1])[0] > 0
     true_var = (1.0 - truth_alpha**2) * R
-    scans = np.arange(len(times))
     # runs with the same true-α history form one curve (one for colored-imm, five for colored-ar)
     _, group_of_run = np.unique(truth_alpha[:, :, 0], axis=0, return_inverse=True)
     groups = [np.flatnonzero(group_of_run.ravel() == g) for g in range(group_of_run.max() + 1)]
@@ -239,6 +254,7 @@ def write_figures(per_scan: pl.DataFrame, out_dir: str | Path, title: str = "") 
                                   ("ar_noise_variance.png", "white-noise variance σ_η² (m²)",
                                    (("σ̂_η²", "noise_variance_hat"), ("truth (1 − α²) R", "noise_variance_true")))):
             panels, frames = [], []
+            cols = [(series, col) for series, col in cols if col in ar.columns]  # no truth: estimates only
             for (label,), part in ar.group_by(["tracker"], maintain_order=True):
                 panel = label.replace(AR_TRACKER, "").strip(" ()") or "estimate"
                 panels.append(panel)

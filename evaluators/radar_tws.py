@@ -34,7 +34,9 @@ def evaluate(times, tracks: dict, measured_xy, truth_state=None, cross_range_std
     ----------
     times : ndarray (scans,)
     tracks : dict
-        ``tracker -> {"state", "alpha", "beta", "lambda_cross", "innovation", "flags"}`` grids.
+        ``tracker -> outputs`` in the output vocabulary (``state``, ``flags``; the paper's ``alpha``,
+        ``beta``, ``lambda_cross`` and the converted-plot ``innovation`` with ``measurement`` where a
+        tracker has them; ``docs/contract.md``).
     measured_xy : ndarray (runs, scans, 2)
         Converted plot per scan (NaN when missed), for NPE; a tracker's own ``measurement``
         (the plot it used, which differs when a scan holds several) takes precedence.
@@ -59,21 +61,23 @@ def evaluate(times, tracks: dict, measured_xy, truth_state=None, cross_range_std
     for name, out in tracks.items():
         ok = filtered_mask(out["flags"])
         est = np.where(ok[..., None], out["state"], np.nan)
-        innov = np.where(ok[..., None], out["innovation"], np.nan)
-        cols = {
-            "tracker": [name] * len(times), "scan": scans, "time_s": times,
-            "alpha_along": _nanmean0(out["alpha"][..., 0]),
-            "alpha_cross": _nanmean0(out["alpha"][..., 1]),
-            "beta_along": _nanmean0(out["beta"][..., 0]),
-            "beta_cross": _nanmean0(out["beta"][..., 1]),
-            "lambda_cross": _nanmean0(out["lambda_cross"]),
-            "rms_innovation_m": _rms0(innov),
-            "clamped_fraction": np.mean((out["flags"] & FLAG_CLAMPED) > 0, axis=0),
-        }
+        cols = {"tracker": [name] * len(times), "scan": scans, "time_s": times}
+        # the paper's gain diagnostics, where a tracker has them (the α-β strategies and the Kalman reference)
+        for key, column in (("alpha", "alpha"), ("beta", "beta")):
+            if key in out:
+                cols[f"{column}_along"] = _nanmean0(out[key][..., 0])
+                cols[f"{column}_cross"] = _nanmean0(out[key][..., 1])
+        if "lambda_cross" in out:
+            cols["lambda_cross"] = _nanmean0(out["lambda_cross"])
+        cols["clamped_fraction"] = np.mean((out["flags"] & FLAG_CLAMPED) > 0, axis=0)
         row = {"tracker": name, "scope": "overall",
-               "rms_innovation_m": rmse_overall(innov, 0.0) if ok.any() else np.nan,
                "clamped_scans": float(np.sum((out["flags"] & FLAG_CLAMPED) > 0)),
                "coasted_scans": float(np.sum((out["flags"] & FLAG_COASTED) > 0))}
+        if "innovation" in out and "measurement" in out:
+            # innovation of the converted plot (x, y) in metres: trackers that report the plot they used
+            innov = np.where(ok[..., None], out["innovation"], np.nan)
+            cols["rms_innovation_m"] = _rms0(innov)
+            row["rms_innovation_m"] = rmse_overall(innov, 0.0) if ok.any() else np.nan
         rows = [row]
         if truth_state is not None:
             npe = normalised_position_error(est[..., :2], truth_state[..., :2], out.get("measurement", measured_xy))

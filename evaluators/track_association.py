@@ -30,6 +30,7 @@ import numpy as np
 import polars as pl
 
 from evaluators.tracking_metrics import long_form, nanmean, rms
+from pipeline.vocabulary import INITIALISING
 
 SUCCESS, SWAP, LOSS = 0, 1, 2
 
@@ -109,24 +110,40 @@ def paired_difference(success_a: np.ndarray, success_b: np.ndarray) -> tuple[flo
     return float(d.mean()), float(d.std(ddof=1) / np.sqrt(n)) if n > 1 else float("nan")
 
 
+def first_update_scan(flags: np.ndarray) -> int:
+    """The first scan at which no track of any run is still ``INITIALISING``.
+
+    ``flags`` (R, K, T) of :data:`pipeline.vocabulary.FLAGS`: a tracker flags the scans up to
+    and including its track start (state NaN before it, start values at it), so this is 1 when
+    tracks start at scan 0 and 2 after a two-point start on scans 0 and 1.
+    """
+    flags = np.asarray(flags)
+    initialising = np.any((flags & INITIALISING) > 0, axis=tuple(i for i in range(flags.ndim) if i != 1))
+    filtered = np.flatnonzero(~initialising)
+    return int(filtered[0]) if filtered.size else int(initialising.size)
+
+
 def evaluate(times, tracks: dict, truth_bearing: np.ndarray | None, gate_rad: float, roles=None,
-             first_filtered_scan: int = 2):
+             first_filtered_scan: int | None = None):
     """Per-scan and summary tables of the bearing trackers.
 
     Parameters
     ----------
     times : ndarray (K,)
     tracks : dict
-        ``tracker -> {"state" (R, K, T, 2), "beta0" (R, K, T), ...}``.
+        ``tracker -> {"state" (R, K, T, 2), "flags" (R, K, T), ...}`` in the output vocabulary;
+        the JPDA diagnostics ``beta0`` and ``n_gated`` (R, K, T) are reported where a tracker
+        has them.
     truth_bearing : ndarray (R, K, T) or None
         Without truth only association statistics (β₀, gated counts) are reported.
     gate_rad : float
     roles : sequence of str, optional
         Names of the targets for the per-track scopes (e.g. strong, weak).
-    first_filtered_scan : int
-        First scan with a filter update: 1 when tracks start at scan 0 (true start), 2 after a
-        two-point start on scans 0 and 1. Scan-averaged gated counts and the RMSE of held tracks
-        are taken from it on (earlier scans hold start values, not estimates).
+    first_filtered_scan : int, optional
+        First scan with a filter update; scan-averaged gated counts and the RMSE of held tracks
+        are taken from it on (earlier scans hold start values, not estimates). Default: from
+        each tracker's ``INITIALISING`` flags (:func:`first_update_scan`): 1 when tracks
+        start at scan 0 (true start), 2 after a two-point start on scans 0 and 1.
 
     Returns
     -------
@@ -134,18 +151,20 @@ def evaluate(times, tracks: dict, truth_bearing: np.ndarray | None, gate_rad: fl
         Summary in long form ``tracker, metric, scope, value``.
     """
     scans = np.arange(len(times))
-    f = int(first_filtered_scan)
     per_scan_parts, summary_parts = [], []
     for name, out in tracks.items():
         est = out["state"][..., 0]
         R, K, T = est.shape
+        f = int(first_filtered_scan) if first_filtered_scan is not None else first_update_scan(out["flags"])
         roles_ = list(roles) if roles is not None and len(roles) == T else [f"target{t}" for t in range(T)]
-        cols = {"tracker": [name] * K, "scan": scans, "time_s": np.asarray(times, float),
-                "mean_beta0": nanmean(out["beta0"], axis=(0, 2)),
-                "mean_gated_peaks": out["n_gated"].astype(float).mean(axis=(0, 2))}
-        row = {"tracker": name, "scope": "overall", "runs": float(R),
-               "mean_beta0": float(nanmean(out["beta0"])),
-               "mean_gated_peaks": float(out["n_gated"][:, f:].mean()) if K > f else np.nan}
+        cols = {"tracker": [name] * K, "scan": scans, "time_s": np.asarray(times, float)}
+        row = {"tracker": name, "scope": "overall", "runs": float(R)}
+        if "beta0" in out:
+            cols["mean_beta0"] = nanmean(out["beta0"], axis=(0, 2))
+            row["mean_beta0"] = float(nanmean(out["beta0"]))
+        if "n_gated" in out:
+            cols["mean_gated_peaks"] = out["n_gated"].astype(float).mean(axis=(0, 2))
+            row["mean_gated_peaks"] = float(out["n_gated"][:, f:].mean()) if K > f else np.nan
         rows = [row]
         if truth_bearing is not None:
             held, swapped, lost = track_outcomes(est, truth_bearing, gate_rad)
@@ -163,12 +182,14 @@ def evaluate(times, tracks: dict, truth_bearing: np.ndarray | None, gate_rad: fl
                        success_rate_stderr=float(np.sqrt(p * (1 - p) / R)),
                        rmse_bearing_deg_held=float(rms(held_err[:, f:])) if held.any() else np.nan)
             for t in range(T):
-                rows.append({"tracker": name, "scope": f"track={t}:{roles_[t]}",
+                per_track = {"tracker": name, "scope": f"track={t}:{roles_[t]}",
                              "held_rate": float(held[:, t].mean()), "swapped_rate": float(swapped[:, t].mean()),
                              "lost_rate": float(lost[:, t].mean()),
                              "rmse_bearing_deg_held": float(rms(held_err[:, f:, t]))
-                             if held[:, t].any() else np.nan,
-                             "mean_beta0": float(nanmean(out["beta0"][..., t]))})
+                             if held[:, t].any() else np.nan}
+                if "beta0" in out:
+                    per_track["mean_beta0"] = float(nanmean(out["beta0"][..., t]))
+                rows.append(per_track)
         per_scan_parts.append(pl.DataFrame(cols))
         summary_parts.append(long_form(pl.DataFrame(rows, infer_schema_length=None), ["tracker", "scope"]).drop_nulls("value"))
     per_scan = pl.concat(per_scan_parts, how="diagonal")

@@ -57,7 +57,8 @@ class TrackerEntry:
 
 def _check_class(obj, spec: str) -> type:
     if not (isinstance(obj, type) and issubclass(obj, Tracker)):
-        raise InputError(f"{spec}: {obj!r} is not a Tracker subclass (see docs/trackers.md)")
+        what = f"class {obj.__qualname__}" if isinstance(obj, type) else f"{type(obj).__name__} {obj!r}"
+        raise InputError(f"{spec}: {what} is not a Tracker subclass (see docs/trackers.md)")
     if obj.family not in vocab.FAMILIES:
         raise InputError(f"{spec}: tracker {tracker_name(obj)!r} has family {obj.family!r}; known families: "
                          f"{', '.join(vocab.FAMILIES)}")

@@ -63,9 +63,9 @@ def select_trackers(stages, names=None, specs=()) -> dict:
         if _legacy(stage):
             pool = [e for e in stage.trackers if not names or e in names]
         else:
-            # by default the built-ins and the --tracker ones; installed (entry-point) trackers by name
+            # the --tracker ones always; by default the built-ins too; installed (entry-point) ones by name
             pool = [e for e in table.values() if e.family == stage.family and
-                    (e.name in names if names else (e.builtin or e.name in plugged))]
+                    (e.name in plugged or (e.name in names if names else e.builtin))]
         chosen[stage.name] = pool
     if names:
         have = {(e if isinstance(e, str) else e.name) for pool in chosen.values() for e in pool}
@@ -180,10 +180,14 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
     return res
 
 
-def evaluate_files(data_path, out_path=None, recover=False) -> ReplayResult:
-    """Metrics of a data set: from a replay output file if given, else by replaying in memory."""
+def evaluate_files(data_path, out_path=None, recover=False, tracker_specs=()) -> ReplayResult:
+    """Metrics of a data set: from a replay output file if given, else by replaying in memory
+    (with the plugged trackers ``tracker_specs`` beside the built-ins; their failures are in
+    the result's ``failures``)."""
     if out_path is None:
-        return replay(data_path, recover=recover)
+        return replay(data_path, recover=recover, tracker_specs=tracker_specs)
+    if tracker_specs:
+        raise InputError("--tracker applies when eval replays in memory; an output file's trackers already ran")
     ds = read_dataset(data_path, recover=recover)
     out = read_dataset(out_path, recover=recover)
     stage = stage_for_outputs(out.channels)

@@ -8,13 +8,20 @@ process pool or a Dask cluster.
 * :func:`run_point` is the whole job of one point: a pure function of its :class:`PointTask`
   that never raises (an error comes back as text), so one failed point never loses the others.
 * The client (this process) writes each point's metrics to ``points/<label>/metrics.parquet``
-  as it completes; ``resume`` skips points whose file exists.
+  as it completes, beside ``point.json``, the record of what the point computed (scenario
+  values, runs, seed, tracker subset, plugged trackers' specs and file hashes); ``resume``
+  skips a point only when both exist and the record is the task's.
+* Plugged trackers (``--tracker``) travel to the workers as canonical specs (absolute file
+  paths, :func:`pipeline.registry.canonical_spec`) and are loaded again there, so serial, process
+  pool and Dask runs load the same file. A tracker that fails on a point is reported with its
+  message (tracker, run, scan) while the other trackers' metrics of that point are kept.
 * Dask is the engine beyond one machine (``Client(address)``); locally a ``LocalCluster``
   bound to 127.0.0.1 without dashboard. No home-made scheduler.
 """
 
 from __future__ import annotations
 
+import hashlib
 import itertools
 import json
 import os
@@ -47,6 +54,27 @@ class PointTask:
     seed: int
     trackers: tuple | None
     point_dir: str | None  # keep data/recordings here; None = metrics only
+    tracker_specs: tuple = ()  # canonical specs of plugged trackers, loaded again on the worker
+    design: tuple = ()  # ((name, value), ...): tracker design values that are not scenario parameters
+
+    def record(self) -> dict:
+        """What this point computes, as JSON (``points/<label>/point.json``): a resumed sweep
+        reuses a point's metrics only when its record is the same."""
+        doc = {"scenario": self.scenario, "overrides": [list(kv) for kv in self.overrides],
+               "design": [list(kv) for kv in self.design], "runs": self.runs, "seed": self.seed,
+               "trackers": list(self.trackers) if self.trackers else None,
+               "tracker_specs": list(self.tracker_specs), "tracker_files": _spec_hashes(self.tracker_specs)}
+        return json.loads(json.dumps(doc, default=str))
+
+
+def _spec_hashes(specs) -> dict:
+    """SHA-256 of the file of every file spec (an edited tracker file makes a new point)."""
+    out = {}
+    for spec in specs:
+        target, sep, _ = spec.rpartition(":")
+        if sep and (target.endswith(".py") or "/" in target) and Path(target).is_file():
+            out[spec] = hashlib.sha256(Path(target).read_bytes()).hexdigest()
+    return out
 
 
 @dataclass
@@ -56,6 +84,8 @@ class PointResult:
     records: list = field(default_factory=list)
     error: str | None = None
     work_s: float = 0.0
+    # (where, message) of every tracker that failed on this point; the others' records are kept
+    tracker_errors: list = field(default_factory=list)
 
 
 def point_seed(base_seed: int, overrides) -> int:
@@ -93,51 +123,88 @@ def parse_param_specs(items) -> dict[str, list[str]]:
 
 
 def build_grid(scenario_name: str, specs: dict, runs: int, seed: int, trackers=None,
-               out_dir: Path | None = None, keep_data: bool = True, fixed: dict | None = None) -> list[PointTask]:
+               out_dir: Path | None = None, keep_data: bool = True, fixed: dict | None = None,
+               tracker_specs=(), design_defaults: dict | None = None) -> list[PointTask]:
     """The grid's tasks, every point validated before anything runs.
 
     Parameters
     ----------
     fixed : dict, optional
         Parameters set the same at every point (``--set``).
+    tracker_specs : sequence of str, optional
+        Plugged trackers; made canonical (absolute paths) so any worker loads the same file.
+    design_defaults : dict, optional
+        Tracker design parameters (name → default) that are not scenario parameters, e.g. a
+        plugged tracker's own ``params``: a swept or fixed name found here goes to the replay's
+        design overrides instead of the scenario, and does not change the point's seed (every
+        design value of a scenario point sees the same data).
     """
+    from pipeline.registry import canonical_spec
     from recorders import recorder_module
-    from recorders.scenarios import load_scenario
+    from recorders.scenarios import coerce, load_scenario
 
-    base = load_scenario(scenario_name).with_overrides(fixed or {})
+    scenario = load_scenario(scenario_name)
+    design_defaults = {k: v for k, v in (design_defaults or {}).items() if k not in scenario.defaults}
+    fixed = dict(fixed or {})
+    fixed_design = {k: coerce(k, fixed.pop(k), design_defaults[k]) for k in list(fixed) if k in design_defaults}
+    base = scenario.with_overrides(fixed)
     validate = recorder_module(base.recorder).validate
     if runs < 1:
         raise InputError("--runs must be ≥ 1")
+    specs_canon = tuple(dict.fromkeys(canonical_spec(s) for s in tracker_specs))
     names = list(specs)
     tasks = []
     for index, combo in enumerate(itertools.product(*(specs[n] for n in names))):
-        sc = base.with_overrides(dict(zip(names, combo)))
-        overrides = tuple((n, sc.params[n]) for n in names)
+        point = dict(zip(names, combo))
+        design = {k: coerce(k, v, design_defaults[k]) for k, v in point.items() if k in design_defaults}
+        sc = base.with_overrides({k: v for k, v in point.items() if k not in design})
+        values = tuple((n, design[n] if n in design else sc.params[n]) for n in names)
+        scenario_values = tuple((n, v) for n, v in values if n not in design)
         try:
             validate(sc.params)
         except InputError as exc:
-            raise InputError(f"grid point {point_label(overrides)}: {exc}") from None
-        label = point_label(overrides)
+            raise InputError(f"grid point {point_label(values)}: {exc}") from None
+        label = point_label(values)
         point_dir = str(Path(out_dir) / "points" / label) if (out_dir is not None and keep_data) else None
         # Fixed settings first, swept values after: applying them in order gives the point.
-        tasks.append(PointTask(index, label, scenario_name, tuple((fixed or {}).items()) + overrides,
-                               runs, point_seed(seed, overrides), tuple(trackers) if trackers else None, point_dir))
+        tasks.append(PointTask(index, label, scenario_name, tuple(fixed.items()) + scenario_values,
+                               runs, point_seed(seed, scenario_values), tuple(trackers) if trackers else None,
+                               point_dir, specs_canon, tuple({**fixed_design, **design}.items())))
     return tasks
+
+
+def scenario_families(scenario_name: str, fixed: dict | None = None) -> set[str]:
+    """Measurement families (:data:`pipeline.vocabulary.FAMILIES`) a scenario's data set holds,
+    from the channels of a one-run simulation (to refuse a plugged tracker of another family
+    before a sweep starts)."""
+    from pipeline import vocabulary as vocab
+    from recorders import simulator_for
+    from recorders.scenarios import load_scenario
+
+    sc = load_scenario(scenario_name).with_overrides(fixed or {})
+    data = simulator_for(sc.recorder)(sc.params, 1, 0)
+    topics = set(data.fixed) | set(data.ragged)
+    return {f.name for f in vocab.FAMILIES.values() if all(t in topics for t in f.inputs)}
 
 
 def run_point(task: PointTask) -> PointResult:
     """Simulate, replay and evaluate one grid point; errors come back in the result."""
+    from pipeline.trackers.interface import TrackerError
+
     t0 = time.perf_counter()
     try:
-        records = _run_point(task)
-        return PointResult(task.index, task.label, records, None, time.perf_counter() - t0)
+        records, failures = _run_point(task)
+        return PointResult(task.index, task.label, records, None, time.perf_counter() - t0,
+                           [(f.path or "", str(f)) for f in failures])
+    except TrackerError as exc:  # no tracker of the point ran (e.g. the plugged one alone failed)
+        return PointResult(task.index, task.label, [], None, time.perf_counter() - t0, [(exc.path or "", str(exc))])
     except Exception as exc:  # isolate the point: the sweep reports it and goes on
         msg = str(exc) if isinstance(exc, InputError) else "".join(
             traceback.format_exception_only(type(exc), exc)).strip()
         return PointResult(task.index, task.label, [], msg, time.perf_counter() - t0)
 
 
-def _run_point(task: PointTask) -> list[dict]:
+def _run_point(task: PointTask) -> tuple[list[dict], list]:
     from pipeline.replay import replay
     from recorders.scenarios import load_scenario
     from recorders.simulated import record
@@ -151,12 +218,15 @@ def _run_point(task: PointTask) -> list[dict]:
         record(data, sc, task.runs, task.seed)
         res = replay(data, list(task.trackers) if task.trackers else None,
                      out_path=work / "tracks.mcap" if keep else None,
-                     rrd_path=work / "tracks.rrd" if keep else None)
+                     rrd_path=work / "tracks.rrd" if keep else None,
+                     design_overrides=dict(task.design) or None, tracker_specs=task.tracker_specs)
     finally:
         if not keep:
             shutil.rmtree(work, ignore_errors=True)
     overall = res.summary.filter(pl.col("scope") == "overall")
-    return [{"tracker": r["tracker"], "metric": r["metric"], "value": r["value"]} for r in overall.iter_rows(named=True)]
+    records = [{"tracker": r["tracker"], "metric": r["metric"], "value": r["value"]}
+               for r in overall.iter_rows(named=True)]
+    return records, res.failures
 
 
 # --------------------------------------------------------------------------- executors
@@ -193,9 +263,17 @@ def _iter_process(tasks, workers):
             yield f.result()
 
 
-def _preload_worker() -> None:
+def _preload_worker(specs=()) -> None:
     import pipeline.replay  # noqa: F401
     import recorders.simulated  # noqa: F401
+
+    if specs:  # load the plugged trackers once per worker (a bad spec fails in the point, by name)
+        from pipeline.registry import available_trackers
+
+        try:
+            available_trackers(specs)
+        except InputError:
+            pass
 
 
 def _iter_dask(tasks, workers, scheduler):
@@ -217,7 +295,7 @@ def _iter_dask(tasks, workers, scheduler):
     try:
         # import the numerics on every worker at once, before the first point, as the
         # forkserver preload does for the process pool
-        client.run(_preload_worker)
+        client.run(_preload_worker, sorted({s for t in tasks for s in t.tracker_specs}))
         futures = client.map(run_point, tasks, pure=False)
         for f in as_completed(futures):
             yield f.result()
@@ -243,6 +321,21 @@ class SweepReport:
     wall_s: float
     point_work_s: list[float]
     out_dir: Path | None
+    # point label → [(where, message), ...] of trackers that failed there (others' metrics kept)
+    tracker_failures: dict[str, list] = field(default_factory=dict)
+
+    def tracker_failure_lines(self) -> list[str]:
+        """One line per failing tracker: its first failure, the point, and on how many points."""
+        by_where: dict[str, list] = {}
+        for label, errors in self.tracker_failures.items():
+            for where, message in errors:
+                by_where.setdefault(where, []).append((label, message))
+        lines = []
+        for items in by_where.values():
+            label, message = items[0]
+            more = f"; failed at {len(items)} points" if len(items) > 1 else ""
+            lines.append(f"{message} (point {label}{more})")
+        return lines
 
     @property
     def median_point_s(self) -> float:
@@ -253,8 +346,25 @@ def _metrics_file(out_dir: Path, label: str) -> Path:
     return out_dir / "points" / label / "metrics.parquet"
 
 
+def _record_file(out_dir: Path, label: str) -> Path:
+    return out_dir / "points" / label / "point.json"
+
+
+def _resumable(task: PointTask, out_dir: Path) -> bool:
+    """The point's metrics exist and were computed for this very task."""
+    if not _metrics_file(out_dir, task.label).exists():
+        return False
+    rec = _record_file(out_dir, task.label)
+    if not rec.exists():  # written before point records existed: no plugged trackers then
+        return not task.tracker_specs and not task.design
+    try:
+        return json.loads(rec.read_text()) == task.record()
+    except (OSError, json.JSONDecodeError):
+        return False
+
+
 def _point_frame(task: PointTask, records: list[dict], swept: list[str]) -> pl.DataFrame:
-    values = dict(task.overrides)  # the swept values come last, so they win
+    values = {**dict(task.overrides), **dict(task.design)}  # the swept values come last, so they win
     df = pl.DataFrame(records, schema={"tracker": pl.Utf8, "metric": pl.Utf8, "value": pl.Float64})
     return df.with_columns(
         pl.lit(task.label).alias("point"), pl.lit(task.index).alias("point_index"),
@@ -279,16 +389,15 @@ def run_sweep(tasks: list[PointTask], swept: list[str], out_dir: Path | None, ex
     todo = []
     skipped = 0
     for t in tasks:
-        f = _metrics_file(out_dir, t.label) if out_dir is not None else None
-        if resume and f is not None and f.exists():
-            frames[t.index] = pl.read_parquet(f)
+        if resume and out_dir is not None and _resumable(t, out_dir):
+            frames[t.index] = pl.read_parquet(_metrics_file(out_dir, t.label))
             skipped += 1
             if progress:
                 progress(1)
         else:
             todo.append(t)
     by_index = {t.index: t for t in tasks}
-    failed, work = {}, []
+    failed, work, tracker_failures = {}, [], {}
     if todo:
         if executor == "serial" or (executor == "process" and workers == 1):
             it = _iter_serial(todo)
@@ -298,12 +407,18 @@ def run_sweep(tasks: list[PointTask], swept: list[str], out_dir: Path | None, ex
             it = _iter_dask(todo, workers, scheduler)
         for res in it:
             work.append(res.work_s)
+            if res.tracker_errors:
+                tracker_failures[res.label] = res.tracker_errors
             if res.error is not None:
                 failed[res.label] = res.error
-            else:
-                frame = _point_frame(by_index[res.index], res.records, swept)
+            elif res.records or not res.tracker_errors:
+                task = by_index[res.index]
+                frame = _point_frame(task, res.records, swept)
                 frames[res.index] = frame
-                if out_dir is not None:
+                # a point where a tracker failed is not recorded as done: resume computes it again
+                if out_dir is not None and not res.tracker_errors:
+                    with atomic_output(_record_file(out_dir, res.label), "w") as fh:
+                        json.dump(task.record(), fh, indent=1)
                     with atomic_output(_metrics_file(out_dir, res.label)) as fh:
                         frame.write_parquet(fh)
             if progress:
@@ -311,7 +426,8 @@ def run_sweep(tasks: list[PointTask], swept: list[str], out_dir: Path | None, ex
     table = (pl.concat([frames[i] for i in sorted(frames)], how="vertical_relaxed") if frames
              else pl.DataFrame(schema={"point_index": pl.Int64, "point": pl.Utf8, "tracker": pl.Utf8,
                                        "metric": pl.Utf8, "value": pl.Float64}))
-    return SweepReport(table, len(todo) - len(failed), skipped, failed, time.perf_counter() - t0, work, out_dir)
+    return SweepReport(table, len(todo) - len(failed), skipped, failed, time.perf_counter() - t0, work, out_dir,
+                       tracker_failures)
 
 
 def write_sweep_outputs(report: SweepReport, swept: list[str], spec: dict) -> list[Path]:
@@ -345,8 +461,9 @@ def write_sweep_outputs(report: SweepReport, swept: list[str], spec: dict) -> li
     return paths
 
 
-def run_sweep_spec(spec_path: str | Path, executor: str = "serial") -> pl.DataFrame:
-    """A bundled regression sweep (``data/sweeps/*.toml``): metrics only, no files kept."""
+def sweep_spec_report(spec_path: str | Path, executor: str = "serial", tracker_specs=()) -> SweepReport:
+    """Run a bundled regression sweep (``data/sweeps/*.toml``), metrics only, no files kept;
+    ``tracker_specs`` adds plugged trackers beside the spec's trackers."""
     import tomllib
 
     spec_path = Path(spec_path)
@@ -356,8 +473,34 @@ def run_sweep_spec(spec_path: str | Path, executor: str = "serial") -> pl.DataFr
         scenario, runs, seed = doc["scenario"], int(doc["runs"]), int(doc["seed"])
     except (tomllib.TOMLDecodeError, KeyError, TypeError, ValueError) as exc:
         raise InputError(f"not a valid sweep spec ({type(exc).__name__}: {exc})", spec_path) from None
-    tasks = build_grid(scenario, specs, runs, seed, doc.get("trackers"), None, keep_data=False)
+    tasks = build_grid(scenario, specs, runs, seed, doc.get("trackers"), None, keep_data=False,
+                       tracker_specs=tracker_specs)
     report = run_sweep(tasks, list(specs), None, executor=executor)
     if report.failed:
         raise InputError(f"sweep points failed: {report.failed}", spec_path)
+    return report
+
+
+def sweep_spec_scenario(spec_path: str | Path) -> str:
+    """The scenario a sweep spec sweeps (for choosing the plugged trackers that apply)."""
+    import tomllib
+
+    try:
+        return tomllib.loads(Path(spec_path).read_text())["scenario"]
+    except (OSError, tomllib.TOMLDecodeError, KeyError) as exc:
+        raise InputError(f"not a valid sweep spec ({type(exc).__name__}: {exc})", spec_path) from None
+
+
+def run_sweep_spec(spec_path: str | Path, executor: str = "serial", tracker_specs=()) -> pl.DataFrame:
+    """A bundled regression sweep (``data/sweeps/*.toml``): metrics only, no files kept.
+
+    Raises
+    ------
+    InputError
+        A point failed, or a tracker failed on a point.
+    """
+    report = sweep_spec_report(spec_path, executor, tracker_specs)
+    lines = report.tracker_failure_lines()
+    if lines:
+        raise InputError(lines[0])
     return report.table

@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.cores.filters.ar1_estimation import (FLAG_ALPHA_LIMITED, FLAG_DISCRIMINANT_CLAMPED, bias_corrected_alpha,
-                                     estimate_ar1, transient_samples, white_noise_variance)
+from pipeline import vocabulary as vocab
+from pipeline.cores.filters.ar1_estimation import (bias_corrected_alpha, estimate_ar1, scan_flags, transient_samples,
+                                                   white_noise_variance)
 from pipeline.cores.filters.decorrelation import decorrelated_measurement_matrix, inverse_transition_rows, pseudo_measurements
 from pipeline.errors import InputError
 from recorders.colored_noise import simulate
@@ -20,8 +21,8 @@ def ar_study():
     """The thesis's estimator experiment: non-manoeuvring target, 50 runs per α, ρ = 0.9, β = 0.99."""
     sc = load_scenario("colored-ar")
     data = simulate(sc.params, 50 * len(ALPHAS), seed=11)
-    z = data.fixed["/colored/measurements"]["position_m"]
-    alpha_true = data.fixed["/colored/truth"]["alpha"][:, 0, 0]
+    z = data.fixed[vocab.CHANNELS["colored_measurements"]]["position_m"]
+    alpha_true = data.fixed[vocab.CHANNELS["colored_truth"]]["alpha"][:, 0, 0]
     est = estimate_ar1(z, beta=0.99, rho=0.9)
     return est, alpha_true, sc.params["measurement_variance_m2"]
 
@@ -84,12 +85,27 @@ def test_negative_discriminant_is_clamped_and_flagged():
     rng = np.random.default_rng(0)
     z = np.cumsum(np.cumsum(rng.standard_normal((3, 800, 1)), axis=1), axis=1)
     est = estimate_ar1(z, 0.99, 0.9)
-    flagged = (est.flags & FLAG_DISCRIMINANT_CLAMPED) > 0
+    assert est.flags.dtype == np.uint16
+    assert not np.any(est.flags & ~np.uint16(vocab.CLAMPED | vocab.LIMITED | vocab.FLOORED))
+    flagged = (est.flags & vocab.CLAMPED) > 0
     assert flagged.any()
     assert np.all(est.discriminant[flagged] < 0)
     assert np.all(np.isfinite(est.alpha[flagged]))
     assert np.all(np.abs(est.alpha[np.isfinite(est.alpha)]) <= 0.99)
-    assert np.all((est.flags[np.abs(est.alpha) >= 0.99] & FLAG_ALPHA_LIMITED) > 0)
+    assert np.all((est.flags[np.abs(est.alpha) >= 0.99] & vocab.LIMITED) > 0)
+
+
+def test_scan_flags_fold_the_axes_and_mark_the_cold_scans():
+    """A filter's flags: any axis's estimator bits, and NOT_WARM exactly before ``warm``."""
+    rng = np.random.default_rng(5)
+    z = np.cumsum(np.cumsum(rng.standard_normal((2, 400, 2)), axis=1), axis=1)
+    z[..., 1] = 10 * rng.standard_normal((2, 400))       # axis 1: white noise, rarely flagged
+    est = estimate_ar1(z, 0.99, 0.9)
+    f = scan_flags(est)
+    assert f.dtype == np.uint16 and f.shape == (2, 400)
+    np.testing.assert_array_equal((f & vocab.NOT_WARM) > 0, np.broadcast_to(~est.warm, f.shape))
+    for bit in (vocab.CLAMPED, vocab.LIMITED, vocab.FLOORED):
+        np.testing.assert_array_equal((f & bit) > 0, np.any((est.flags & bit) > 0, axis=-1))
 
 
 def test_start_up_burn_in_removes_the_zero_cancelling_transient():

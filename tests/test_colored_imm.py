@@ -6,6 +6,7 @@ import numpy as np
 import polars as pl
 import pytest
 
+from pipeline import vocabulary as vocab
 from pipeline.errors import InputError
 from pipeline.cores.filters.imm import MeasurementStream, ModelFilter, MotionModel, imm_filter, kinematic_model, single_model_filter
 from pipeline.cores.filters.srif import srif_filter
@@ -20,7 +21,8 @@ def small_record(runs=3, scans=300, seed=0):
     p = dict(load_scenario("colored-imm").params)
     p.update(n_samples=scans, manoeuvre_first_sample=100, manoeuvre_last_sample=200)
     d = simulate(p, runs, seed)
-    return d.fixed["/colored/measurements"]["position_m"], d.fixed["/colored/truth"]["state"], p
+    return (d.fixed[vocab.CHANNELS["colored_measurements"]]["position_m"],
+            d.fixed[vocab.CHANNELS["colored_truth"]]["state"], p)
 
 
 def textbook_kf(x0, P0, F, Q, z, R, alpha=None, var=None):
@@ -199,7 +201,8 @@ def test_before_the_estimator_is_warm_the_decorrelating_imm_is_the_plain_one(the
     first_warm = int(np.argmax(warm))
     a, b = tracks["mimm_k"]["state"][:, :first_warm], tracks["imm"]["state"][:, :first_warm]
     assert np.max(np.abs(a - b)) == 0.0
-    assert np.all((tracks["mimm_k"]["flags"][:, :first_warm] & 8) > 0)
+    assert np.all((tracks["mimm_k"]["flags"][:, :first_warm] & vocab.NOT_WARM) > 0)
+    assert not np.any(tracks["mimm_k"]["flags"][:, first_warm:] & vocab.NOT_WARM)
 
 
 # --------------------------------------------------------------------------- bad input

@@ -11,7 +11,7 @@ from click.testing import CliRunner
 from evaluators.baselines import compare, read_baseline
 from pipeline.face.cli import main
 from pipeline.contract import read_dataset, scenario_metadata
-from pipeline.cores.association.jpda import FLAG_NO_GATED_PEAK
+from pipeline.cores.association.jpda import FLAG_COASTED
 from pipeline.replay import replay
 from recorders import xcorr_peaks
 from recorders.scenarios import load_scenario
@@ -139,7 +139,7 @@ def test_empty_scans_coast_and_stay_finite(base_data, tmp_path):
     path = _write(tmp_path / "gap.mcap", data, p)
     res = replay(path)
     out = res.results["xcorr-peaks"]["tracks"]["jpda_a"]
-    assert np.all(out["flags"][:, 10:20] & FLAG_NO_GATED_PEAK)
+    assert np.all(out["flags"][:, 10:20] & FLAG_COASTED)
     assert np.all(out["beta0"][:, 10:20] == 1.0)
     var = out["covariance"][:, 9:20, :, 0, 0]
     assert np.all(np.diff(var, axis=1) > 0)  # coasting: uncertainty grows every empty scan

@@ -41,6 +41,56 @@ def bundled_data_dir() -> Path:
         return Path(__file__).resolve().parents[2] / "data"
 
 
+TRACKER_HELP = ("A plugged tracker to run beside the built-ins: FILE.py:CLASS, MODULE:CLASS or the name of an "
+                "installed (entry-point) tracker; repeat for several (see `replay trackers`).")
+
+
+def tracker_option(f):
+    """The ``--tracker SPEC`` option (repeatable) shared by run, eval, check, sweep and trackers."""
+    return click.option("--tracker", "tracker_specs", multiple=True, metavar="SPEC", help=TRACKER_HELP)(f)
+
+
+def resolve_tracker_specs(specs) -> list[str]:
+    """``--tracker`` values as loadable specs, each loaded once here so that a bad one fails
+    before any work with one line.
+
+    ``FILE.py:CLASS`` and ``MODULE:CLASS`` stay as given; the name of an installed
+    (entry-point) tracker becomes its ``module:Class`` spec; a built-in's name is dropped (the
+    built-ins run anyway).
+
+    Raises
+    ------
+    InputError
+        A file, module or class that does not load, a class that is not a Tracker, an unknown
+        name, or two trackers with one name.
+    """
+    from pipeline.registry import available_trackers
+
+    out = []
+    installed = None
+    for spec in dict.fromkeys(s.strip() for s in specs):
+        if ":" in spec:
+            out.append(spec)
+            continue
+        installed = installed if installed is not None else available_trackers()
+        entry = installed.get(spec)
+        if entry is None:
+            raise InputError(f"--tracker {spec!r}: no installed tracker has that name (known: "
+                             f"{', '.join(sorted(installed))}); give FILE.py:CLASS or MODULE:CLASS")
+        if not entry.builtin:
+            out.append(entry.spec)
+    available_trackers(out)
+    return out
+
+
+def fail_on_tracker_errors(lines) -> None:
+    """Print one ``replay: error:`` line per failed tracker and exit 2 (after the outputs are written)."""
+    if lines:
+        for line in lines:
+            click.echo(f"replay: error: {line}", err=True)
+        raise click.exceptions.Exit(2)
+
+
 class ReplayGroup(click.Group):
     """``replay FILE`` means ``replay run FILE``; user errors become one line."""
 
@@ -146,12 +196,18 @@ def _report_plot(res, out_dir: Path) -> list[Path]:
 @click.option("--recover", is_flag=True, help="Accept a truncated MCAP: keep its complete chunks.")
 @click.option("--set", "sets", multiple=True, metavar="NAME=VALUE", help="Override a tracker design value (e.g. nominal_cross_range_m=120).")
 @click.option("--rerun-run", type=click.IntRange(min=0), default=0, show_default=True, help="Monte Carlo run shown in the per-run Rerun views.")
-def run_cmd(data, trackers, out_path, rrd_path, no_rrd, spawn, recover, sets, rerun_run):
+@tracker_option
+def run_cmd(data, trackers, out_path, rrd_path, no_rrd, spawn, recover, sets, rerun_run, tracker_specs):
     """Replay a data set through every tracker that applies.
+
+    A tracker given with --tracker runs beside the built-ins (its design values take --set too).
+    If a tracker fails, the others' outputs are still written; then one line per failure and
+    exit status 2.
 
     \b
     Example:
       replay data/radar_tws_demo.mcap --trackers fixed,approximate --spawn
+      replay radar.mcap --tracker my_trackers.py:ConstantVelocity --set plot_sigma_m=120
     """
     from pipeline.contract import read_dataset
     from pipeline.replay import replay
@@ -164,12 +220,13 @@ def run_cmd(data, trackers, out_path, rrd_path, no_rrd, spawn, recover, sets, re
     out_path = out_path or out_dir / "tracks.mcap"
     rrd_path = None if no_rrd else (rrd_path or out_path.with_suffix(".rrd"))
     wanted = [t.strip() for t in trackers.split(",")] if trackers else None
+    specs = resolve_tracker_specs(tracker_specs)  # a tracker that does not load fails here
     t_read = time.perf_counter()
     dataset = read_dataset(data, recover=recover)  # bad files fail here, before any progress output
     t_read = time.perf_counter() - t_read
     with click.progressbar(length=4, label=f"replaying {data.name}", file=sys.stderr) as bar:
         res = replay(data, wanted, out_path, rrd_path, design_overrides=parse_assignments(sets),
-                     rerun_run=rerun_run, dataset=dataset, progress=bar.update)
+                     rerun_run=rerun_run, dataset=dataset, progress=bar.update, tracker_specs=specs)
     res.timings["read_s"] = t_read
     res.timings["total_s"] += t_read
     if res.dataset.recovered_messages is not None:
@@ -188,6 +245,7 @@ def run_cmd(data, trackers, out_path, rrd_path, no_rrd, spawn, recover, sets, re
     t = res.timings
     click.echo(f"time:      {t['total_s']:.2f} s (read {t['read_s']:.2f}, filter {t['filter_s']:.2f}, "
                f"evaluate {t['evaluate_s']:.2f}, write {t.get('write_s', 0):.2f}, rerun {t.get('rerun_s', 0):.2f})")
+    fail_on_tracker_errors([str(exc) for exc in res.failures])
     if spawn and res.rrd_path:
         from pipeline.face.viewer import open_viewer
 
@@ -299,16 +357,24 @@ def convert_plots_cmd(csv_path, output, sets):
 @click.option("--per-scan", is_flag=True, help="Include per-scan records (scope 'scan:K') in --json.")
 @click.option("--export", "export_dir", type=click.Path(file_okay=False, path_type=Path), help="Also write CSV/Parquet tables and a PNG plot here.")
 @click.option("--recover", is_flag=True, help="Accept truncated MCAP files.")
-def eval_cmd(data, outputs, as_json, per_scan, export_dir, recover):
+@tracker_option
+def eval_cmd(data, outputs, as_json, per_scan, export_dir, recover, tracker_specs):
     """Metrics of a data set, from a replay output file or by replaying in memory.
+
+    Replaying in memory (no OUTPUTS), --tracker adds a plugged tracker; an output file's
+    metrics cover the trackers it holds, plugged ones included.
 
     \b
     Example:
       replay eval radar.mcap replay-out/radar/tracks.mcap --json
+      replay eval radar.mcap --tracker my_trackers.py:ConstantVelocity
     """
     from pipeline.replay import evaluate_files
 
-    res = evaluate_files(data, outputs, recover=recover)
+    if tracker_specs and outputs is not None:
+        raise InputError("--tracker applies when eval replays in memory (no OUTPUTS); the trackers of "
+                         f"{outputs} already ran")
+    res = evaluate_files(data, outputs, recover=recover, tracker_specs=resolve_tracker_specs(tracker_specs))
     if as_json:
         records = res.summary.to_dicts()
         if per_scan:
@@ -323,6 +389,7 @@ def eval_cmd(data, outputs, as_json, per_scan, export_dir, recover):
     if export_dir:
         _export_tables(res, export_dir)
         _report_plot(res, export_dir)
+    fail_on_tracker_errors([str(exc) for exc in res.failures])
 
 
 def _json_value(v):
@@ -334,20 +401,25 @@ def _json_value(v):
 @main.command("check")
 @click.argument("data_dir", required=False, type=click.Path(file_okay=False, path_type=Path))
 @click.option("--update", is_flag=True, help="Rewrite the baselines from the current code (deliberately).")
-def check_cmd(data_dir, update):
+@tracker_option
+def check_cmd(data_dir, update, tracker_specs):
     """Re-run every bundled data set and compare its metrics with the stored baselines.
 
-    Exits 1 and names every metric that moved beyond its tolerance.
+    Exits 1 and names every metric that moved beyond its tolerance. A tracker given with
+    --tracker runs beside the built-ins on every data set and sweep of its family; its metrics
+    are compared with the baseline entries that exist for it, and --update adds them.
 
     \b
     Example:
       replay check data/
       replay check --update        # after a deliberate change
+      replay check --tracker my_trackers.py:ConstantVelocity --update
     """
     from evaluators.check import run_check
 
     data_dir = data_dir or bundled_data_dir()
-    report = run_check(data_dir, update=update, echo=click.echo)
+    report = run_check(data_dir, update=update, echo=click.echo, tracker_specs=resolve_tracker_specs(tracker_specs))
+    fail_on_tracker_errors(report.errors)
     if report.failed:
         raise click.exceptions.Exit(1)
 
@@ -368,18 +440,24 @@ def check_cmd(data_dir, update):
 @click.option("--workers", type=click.IntRange(min=1), help="Processes (default: the machine's cores).")
 @click.option("--scheduler", metavar="ADDRESS", help="Send the work to an existing Dask cluster (implies --executor dask).")
 @click.option("--keep-data/--no-keep-data", default=True, show_default=True, help="Keep each point's data set and recording.")
-@click.option("--resume", is_flag=True, help="Skip points whose metrics are already in the output folder.")
-def sweep_cmd(scenario, params, sets, runs, seed, trackers, out_dir, executor, workers, scheduler, keep_data, resume):
+@click.option("--resume", is_flag=True, help="Skip points whose metrics are already in the output folder (computed with the same trackers).")
+@tracker_option
+def sweep_cmd(scenario, params, sets, runs, seed, trackers, out_dir, executor, workers, scheduler, keep_data, resume,
+              tracker_specs):
     """Simulate, replay and evaluate every point of a parameter grid.
 
     Writes sweep.parquet / sweep.csv (one row per point × tracker × metric), a PNG per metric
-    and, with --keep-data, each point's data set and recording under points/.
+    and, with --keep-data, each point's data set and recording under points/. A tracker given
+    with --tracker runs beside the built-ins on every point and every executor; its design
+    parameters take --set and --param like the scenario's (they do not change a point's seed).
 
     \b
     Example:
       replay sweep radar-tws --param sigma_bearing_deg=0.5,1,2 --param nominal_cross_range_m=100,150 \\
              --runs 100 --seed 7 -o study/
+      replay sweep radar-tws --param plot_sigma_m=100,200 --tracker my_trackers.py:ConstantVelocity -o cv/
     """
+    from pipeline.registry import canonical_spec
     from pipeline.sweep import build_grid, parse_param_specs, run_sweep, write_sweep_outputs
     from recorders.scenarios import parse_assignments
 
@@ -388,16 +466,24 @@ def sweep_cmd(scenario, params, sets, runs, seed, trackers, out_dir, executor, w
     specs = parse_param_specs(params)
     fixed = parse_assignments(sets)
     wanted = [t.strip() for t in trackers.split(",")] if trackers else None
-    tasks = build_grid(scenario, specs, runs, seed, wanted, out_dir, keep_data, fixed)
+    plugged = [canonical_spec(s) for s in resolve_tracker_specs(tracker_specs)]
+    from recorders.scenarios import load_scenario
+
+    scenario_keys = load_scenario(scenario).defaults
+    # names that are not scenario parameters may be trackers' design parameters
+    foreign = [n for n in (*fixed, *specs) if n not in scenario_keys]
+    design_defaults = _sweep_design_defaults(scenario, fixed, wanted, plugged) if (plugged or foreign) else {}
+    tasks = build_grid(scenario, specs, runs, seed, wanted, out_dir, keep_data, fixed, plugged, design_defaults)
     if wanted:
+        from pipeline.registry import available_trackers
         from pipeline.stages import STAGES
 
-        known = {t for s in STAGES for t in s.trackers}
+        known = {t for s in STAGES for t in s.trackers} | set(available_trackers(plugged))
         bad = [t for t in wanted if t not in known]
         if bad:
             raise InputError(f"unknown tracker(s) {', '.join(bad)} (have: {', '.join(sorted(known))})")
     spec = {"scenario": scenario, "params": specs, "fixed": fixed, "runs": runs, "seed": seed,
-            "trackers": wanted, "executor": executor, "points": len(tasks)}
+            "trackers": wanted, "tracker_specs": plugged, "executor": executor, "points": len(tasks)}
     with click.progressbar(length=len(tasks), label=f"sweep {scenario} ({len(tasks)} points, {executor})",
                            file=sys.stderr, show_pos=True) as bar:
         report = run_sweep(tasks, list(specs), out_dir, executor, workers, scheduler, resume, bar.update)
@@ -407,8 +493,142 @@ def sweep_cmd(scenario, params, sets, runs, seed, trackers, out_dir, executor, w
     for label, err in report.failed.items():
         click.echo(f"FAILED {label}: {err}", err=True)
     click.echo(f"table: {out_dir / 'sweep.parquet'} (+ .csv); plots: {out_dir / 'plots'}/")
+    fail_on_tracker_errors(report.tracker_failure_lines())
     if report.failed:
         raise click.exceptions.Exit(1)
+
+
+def _sweep_design_defaults(scenario: str, fixed: dict, wanted, plugged) -> dict:
+    """Design parameters (name → default) of the trackers a sweep runs, after checking that
+    every plugged tracker consumes what the scenario records."""
+    from pipeline.registry import available_trackers
+    from pipeline.stages import STAGES
+    from pipeline.sweep import scenario_families
+    from recorders.scenarios import load_scenario
+
+    scenario_keys = load_scenario(scenario).defaults
+    families = scenario_families(scenario, {k: v for k, v in fixed.items() if k in scenario_keys})
+    table = available_trackers(plugged)
+    chosen = [e for e in table.values() if e.spec in plugged or (e.name in wanted if wanted else e.builtin)]
+    for e in chosen:
+        if e.spec in plugged and e.family not in families:
+            raise InputError(f"tracker {e.name!r} consumes {e.family} measurements; scenario {scenario!r} "
+                             f"records {', '.join(sorted(families)) or 'none of the families'}")
+    out = {}
+    for stage in STAGES:
+        if stage.family in families:
+            entries = [e for e in chosen if e.family == stage.family]
+            out.update(stage.parameter_defaults(entries))
+    return out
+
+
+# --------------------------------------------------------------------------- trackers
+
+
+def tracker_listing(specs=()) -> list[dict]:
+    """Every tracker found (built-in, entry points, ``specs``) with its design parameters.
+
+    A parameter whose default is None takes its value from the bundled scenario of the stage
+    that consumes the tracker's family (:meth:`pipeline.stages.base.Stage.parameter_defaults`);
+    ``from`` says which (``"tracker"`` or ``"scenario <name>"``), and ``default`` stays None when
+    neither has one (the value must then come from the data set or ``--set``).
+    """
+    from pipeline import vocabulary as vocab
+    from pipeline.registry import available_trackers
+    from pipeline.replay import _legacy
+    from pipeline.stages import STAGES
+
+    def family_of(stage) -> str:  # a stage not yet on the tracker interface names no family
+        return stage.family or next((f.name for f in vocab.FAMILIES.values()
+                                     if tuple(f.inputs) == tuple(stage.input_topics)), f"(stage {stage.name})")
+
+    stages = {}
+    for s in STAGES:
+        stages.setdefault(family_of(s), s)
+    rows = []
+    for e in available_trackers(specs).values():
+        stage = stages.get(e.family)
+        try:
+            resolved = stage.parameter_defaults([e]) if stage is not None else {}
+        except InputError:  # a parameter neither the tracker nor the scenario sets: resolve one by one
+            from recorders.scenarios import load_scenario
+
+            scenario = load_scenario(stage.scenario).params
+            resolved = {p.name: scenario.get(p.name) for p in e.cls.params if p.default is None}
+        params = []
+        for p in e.cls.params:
+            if p.default is not None:
+                default, origin = p.default, "tracker"
+            else:
+                default = resolved.get(p.name)
+                origin = f"scenario {stage.scenario}" if stage is not None and default is not None else "data set / --set"
+            params.append({"name": p.name, "default": default, "unit": p.unit, "from": origin, "doc": p.doc})
+        rows.append({"name": e.name, "family": e.family, "form": e.cls.form, "source": e.source,
+                     "spec": e.spec, "stage": stage.name if stage is not None else None, "params": params})
+    listed = {r["name"] for r in rows}
+    for s in STAGES:  # stages not yet on the tracker interface: their trackers by name
+        if _legacy(s):
+            for name in s.trackers:
+                if name not in listed:
+                    rows.append({"name": name, "family": family_of(s), "form": "-", "source": f"built-in (stage {s.name})",
+                                 "spec": "", "stage": s.name, "params": []})
+    return rows
+
+
+def _format_default(v) -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, bool):
+        return str(v).lower()
+    if isinstance(v, float):
+        return f"{v:g}"
+    if isinstance(v, (list, tuple)):
+        return ",".join(_format_default(x) for x in v)
+    return str(v)
+
+
+def _table(header, rows, indent="") -> list[str]:
+    widths = [max(len(str(c)) for c in col) for col in zip(header, *rows)]
+    out = []
+    for row in (header, *rows):
+        out.append(indent + "  ".join(str(c).ljust(w) for c, w in zip(row, widths)).rstrip())
+    return out
+
+
+@main.command("trackers")
+@tracker_option
+@click.option("--json", "as_json", is_flag=True, help="Print the listing as JSON.")
+def trackers_cmd(tracker_specs, as_json):
+    """List the trackers: built-in, installed (entry points) and plugged with --tracker.
+
+    For each: its measurement family, form (batch: all runs at once; run: one run at a time),
+    where it comes from, and its design parameters with default and unit (a default taken from
+    the stage's bundled scenario says so). Any of them can be changed with --set NAME=VALUE.
+
+    \b
+    Example:
+      replay trackers
+      replay trackers --tracker my_trackers.py:ConstantVelocity --json
+    """
+    rows = tracker_listing(resolve_tracker_specs(tracker_specs))
+    if as_json:
+        click.echo(json.dumps(rows, indent=1, default=str))
+        return
+    for line in _table(("TRACKER", "FAMILY", "FORM", "SOURCE"),
+                       [(r["name"], r["family"], r["form"], r["source"]) for r in rows]):
+        click.echo(line)
+    # trackers with the same parameter table share one listing
+    groups: dict[str, list] = {}
+    for r in rows:
+        if r["params"]:
+            groups.setdefault(json.dumps(r["params"], default=str), []).append(r)
+    for members in groups.values():
+        click.echo(f"\ndesign parameters of {', '.join(r['name'] for r in members)}:")
+        params = members[0]["params"]
+        for line in _table(("NAME", "DEFAULT", "UNIT", "FROM", "MEANING"),
+                           [(p["name"], _format_default(p["default"]), p["unit"] or "-", p["from"], p["doc"])
+                            for p in params], indent="  "):
+            click.echo(line)
 
 
 # --------------------------------------------------------------------------- view

@@ -30,6 +30,7 @@ def colored_report_cmd(data, outputs, out_dir):
       replay simulate colored-ar --runs 250 -o ar.mcap && replay colored-report ar.mcap -o ar-figs/
     """
     from evaluators.colored_noise_imm import write_figures
+    from pipeline import vocabulary as vocab
     from pipeline.contract import atomic_output
     from pipeline.replay import evaluate_files
     from pipeline.stages.colored_noise_imm import ColoredNoiseImmStage
@@ -38,7 +39,7 @@ def colored_report_cmd(data, outputs, out_dir):
     res = evaluate_files(data, outputs)
     per_scan = res.per_scan.filter(pl.col("stage") == stage.name) if "stage" in res.per_scan.columns else res.per_scan
     if per_scan.height == 0:
-        raise InputError("holds no coloured-noise measurements (/colored/measurements)", data)
+        raise InputError(f"holds no coloured-noise measurements ({vocab.CHANNELS['colored_measurements']})", data)
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = write_figures(per_scan, out_dir, title=data.name)
     text = stage.report(res.summary, per_scan)

@@ -30,8 +30,9 @@ def reference_bearings(dataset, reference: str):
         return bearings, reference
     stage = BearingPeaksStage()
     overrides = {} if truth is not None else {"track_start": "two-point"}
-    design = stage.design(dataset, overrides)
-    out = stage.run(dataset, [reference], design)["tracks"][reference]
+    entries = [e for e in stage.entries() if e.name == reference]
+    design = stage.design(dataset, overrides, entries)
+    out = stage.run(dataset, entries, design)["tracks"][reference]
     return out["state"][..., 0], reference
 
 

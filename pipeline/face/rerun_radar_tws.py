@@ -68,11 +68,13 @@ def log_rerun(stage, rec, dataset, result: dict, per_scan, run: int = 0) -> None
         log_path(rec, f"{XY}/tracks/{name}/path", xy, color(name))
         log_points(rec, f"{XY}/tracks/{name}/estimate", scans, times,
                    [xy[k : k + 1] if ok[k] else np.zeros((0, 2)) for k in scans], color(name), radius=-5.0)
-        log_series(rec, f"/gains/alpha_cross/{name}", scans, times, out["alpha"][run, :, 1], name)
-        log_series(rec, f"/gains/beta_cross/{name}", scans, times, out["beta"][run, :, 1], name)
-        log_series(rec, f"/gains/alpha_along/{name}", scans, times, out["alpha"][run, :, 0], name)
+        if "alpha" in out and "beta" in out:  # the paper's gain diagnostics, where a tracker has them
+            log_series(rec, f"/gains/alpha_cross/{name}", scans, times, out["alpha"][run, :, 1], name)
+            log_series(rec, f"/gains/beta_cross/{name}", scans, times, out["beta"][run, :, 1], name)
+            log_series(rec, f"/gains/alpha_along/{name}", scans, times, out["alpha"][run, :, 0], name)
         log_metric_series(rec, per_scan, name, ("rmse_position_m", "rmse_velocity_mps", "npe"),
                           lambda m: f"/errors/{m}")
-    any_track = next(iter(result["tracks"].values()))
-    log_series(rec, "/gains/lambda_cross/measured", scans, times, any_track["lambda_cross"][run],
-               "λ_k", (200, 200, 200))
+    with_lambda = [out for out in result["tracks"].values() if "lambda_cross" in out]
+    if with_lambda:
+        log_series(rec, "/gains/lambda_cross/measured", scans, times, with_lambda[0]["lambda_cross"][run],
+                   "λ_k", (200, 200, 200))

@@ -10,6 +10,8 @@ import importlib
 
 VIEW_MODULES = {
     "radar-tws": "pipeline.face.rerun_radar_tws",
+    "xcorr-peaks": "pipeline.face.rerun_bearing_peaks",
+    "colored-noise-imm": "pipeline.face.rerun_colored_noise",
 }
 
 

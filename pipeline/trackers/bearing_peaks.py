@@ -1,3 +1,199 @@
-"""Trackers of this paper (being moved onto the tracker interface)."""
+"""Park, Ryu & Lee (1994): JPDA and amplitude-aided JPDA_A for bearing tracks of
+cross-correlation peaks (see ``docs/papers/bearing-peaks.md``).
 
-TRACKERS = ()
+Each scan a correlator lists peaks ``(z_p, z_a)``: bearing and amplitude. Every track is a
+``[θ, θ̇]`` filter (rad, rad/s) with the continuous white-noise acceleration model of eq. 8b;
+the peaks in each track's gate are weighted by the exact JPDA marginals β (appendix eqs.
+A.1–A.6) and combined by the PDA update (eq. A.7). JPDA_A multiplies each peak's likelihood
+ratio by the ratio of its amplitude's density as a true peak to that as clutter (eq. A.5); with
+``amplitude_tracking`` the expected amplitude ẑ_a follows eq. 9. The numerics are the one
+core :mod:`pipeline.cores.association.jpda`; this module picks its design values, starts the
+tracks and exposes the two variants as trackers:
+
+``jpda``    position likelihoods only (Fortmann, Bar-Shalom & Scheffe 1983);
+``jpda_a``  position and amplitude likelihoods (the paper's proposal).
+
+Track start (design ``track_start``):
+
+``truth``      the true bearing and bearing rate at scan 0 (``measurements.truth_bearing_rad``,
+               ``measurements.truth_rate_radps``) with the covariance P(0|0) of eq. 8c; the
+               default, because the paper's Fig. 8 measures association, not track initiation.
+               Needs ground truth, so it is for simulated and labelled data only.
+``two-point``  two-point differencing of the labelled true peaks (``origin``) of scans 0 and 1,
+               whose covariance *is* eq. 8c; filtering starts at scan 2.
+
+Outputs (:data:`pipeline.vocabulary.OUTPUTS`): ``state`` (R, K, T, 2), ``covariance``,
+``flags`` (``NO_TRACK | INITIALISING`` before the start scan, whose state is NaN;
+``INITIALISING`` at the start scan, which holds the start values; then ``COASTED`` where no
+peak fell in the gate and ``CLUSTER_SPLIT`` where a cluster was cut), ``innovation`` (the
+combined innovation ν̄), ``innovation_covariance``, ``gain``, and the paper's diagnostics
+``beta0``, ``beta_top``, ``beta_index``, ``strength``, ``n_gated``, ``gate_center``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline import vocabulary as vocab
+from pipeline.cores.association.jpda import (STRATEGIES, BearingTrackerDesign, scans_from_padded,
+                                             track_bearing_peaks, two_point_start)
+from pipeline.errors import InputError, check_all
+from pipeline.trackers.interface import BearingPeaks, Param, Tracker
+from pipeline.trackers.peak_roles import roles_for, track_roles
+
+PEAKS = vocab.CHANNELS["xcorr_peaks"]
+TRUTH = vocab.CHANNELS["xcorr_truth"]
+TRACK_STARTS = ("truth", "two-point")
+
+PARAMS = (
+    Param("scan_period_s", None, "s", "scan period T of the motion model (eq. 8b)"),
+    Param("gate_deg", None, "deg", "gate width V: a window |ν| ≤ V/2 around each predicted bearing"),
+    Param("q_deg2", None, "deg²/s³", "spectral density q of the bearing acceleration (eq. 8b)"),
+    Param("amplitude_threshold", None, "", "peaks below this amplitude are discarded before association"),
+    Param("design_detection_probability", None, "", "P_D the filters assume"),
+    Param("design_clutter_per_gate", None, "", "clutter count λV per gate the filters assume (before the threshold)"),
+    Param("clutter_alpha", None, "1/amplitude", "α of the clutter amplitude density α e^{−α z_a}"),
+    Param("pair", None, "", "roles of the targets in order: strong-weak | strong-strong | weak-weak"),
+    Param("strong_sigma_p_deg", None, "deg", "bearing noise σ_p of a strong track's true peak"),
+    Param("strong_amplitude_mean", None, "", "expected amplitude ẑ_a of a strong track's true peak"),
+    Param("strong_amplitude_std", None, "", "amplitude spread σ_a of a strong track's true peak"),
+    Param("weak_sigma_p_deg", None, "deg", "bearing noise σ_p of a weak track's true peak"),
+    Param("weak_amplitude_mean", None, "", "expected amplitude ẑ_a of a weak track's true peak"),
+    Param("weak_amplitude_std", None, "", "amplitude spread σ_a of a weak track's true peak"),
+    Param("amplitude_tracking", None, "", "track ẑ_a by eq. 9 instead of using the roles' values"),
+    Param("initial_strength", None, "", "ẑ_a at the track start when amplitude_tracking is on"),
+    Param("tracked_amplitude_std", None, "", "σ_a when amplitude_tracking is on"),
+    Param("max_cluster_tracks", None, "", "largest cluster whose joint events are computed exactly"),
+    Param("track_start", None, "", "truth (true state at scan 0, simulated data) | two-point (labelled peaks of scans 0, 1)"),
+)
+
+
+def core_design(design: dict, n_tracks: int) -> BearingTrackerDesign:
+    """The core's design (SI units, radians, one σ_p, ẑ_a, σ_a per track from its role).
+
+    Parameters
+    ----------
+    design : dict
+        Values of :data:`PARAMS` by name (degrees in the ``_deg`` ones).
+    n_tracks : int
+        Targets in the data; ``pair`` must describe as many.
+
+    Raises
+    ------
+    InputError
+        A role count other than ``n_tracks`` or a design value out of range.
+    """
+    roles = roles_for(design, n_tracks)
+    per = lambda key: np.array([float(design[f"{r}_{key}"]) for r in roles])
+    check_design(design)
+    return BearingTrackerDesign(
+        scan_period_s=float(design["scan_period_s"]), gate_rad=float(np.deg2rad(design["gate_deg"])),
+        q_rad2=float(design["q_deg2"]) * np.deg2rad(1.0) ** 2,
+        amplitude_threshold=float(design["amplitude_threshold"]),
+        detection_probability=float(design["design_detection_probability"]),
+        clutter_per_gate=float(design["design_clutter_per_gate"]), clutter_alpha=float(design["clutter_alpha"]),
+        sigma_p_rad=np.deg2rad(per("sigma_p_deg")), strength=per("amplitude_mean"), sigma_a=per("amplitude_std"),
+        amplitude_tracking=bool(design["amplitude_tracking"]), initial_strength=float(design["initial_strength"]),
+        tracked_sigma_a=float(design["tracked_amplitude_std"]), max_cluster_tracks=int(design["max_cluster_tracks"]))
+
+
+def check_design(design: dict) -> None:
+    """Range checks of the design values that do not depend on the data (first failure raised)."""
+    roles = sorted(set(track_roles(design)))
+    role_values = [float(design[f"{r}_{k}"]) for r in roles for k in ("sigma_p_deg", "amplitude_std")]
+    check_all([(design["gate_deg"] > 0, "gate_deg must be > 0"), (design["q_deg2"] >= 0, "q_deg2 must be ≥ 0"),
+               (0 < design["design_detection_probability"] <= 1, "design_detection_probability must be in (0, 1]"),
+               (design["design_clutter_per_gate"] > 0, "design_clutter_per_gate must be > 0"),
+               (design["clutter_alpha"] > 0, "clutter_alpha must be > 0"),
+               (design["max_cluster_tracks"] >= 1, "max_cluster_tracks must be ≥ 1"),
+               (all(v > 0 for v in role_values), "σ_p and σ_a of every role must be > 0"),
+               (design["track_start"] in TRACK_STARTS,
+                f"track_start must be 'truth' or 'two-point' (got {design['track_start']!r})")])
+
+
+def labelled_start_peaks(bearing: np.ndarray, origin: np.ndarray, counts: np.ndarray,
+                         n_tracks: int) -> tuple[np.ndarray, np.ndarray]:
+    """Bearings ``(R, T)`` of the labelled true peaks of scans 0 and 1 (the two-point start).
+
+    Parameters
+    ----------
+    bearing, origin : ndarray (R, K, W)
+        Padded peaks and their labels (target index, −1 for clutter or unknown).
+    counts : ndarray (R, K)
+        Real peaks per scan.
+
+    Raises
+    ------
+    InputError
+        A run whose scan 0 or 1 has no peak labelled with some target.
+    """
+    R = bearing.shape[0]
+    z = np.full((2, R, n_tracks), np.nan)
+    for k in range(min(2, bearing.shape[1])):
+        valid = np.arange(bearing.shape[2])[None, :] < counts[:, k, None]
+        o = origin[:, k]
+        r, j = np.nonzero(valid & (o >= 0) & (o < n_tracks))
+        z[k, r, o[r, j]] = bearing[r, k, j]
+    missing = ~np.isfinite(z)
+    if missing.any():
+        k, r, t = (int(v[0]) for v in np.nonzero(missing))
+        raise InputError(f"{PEAKS}: no labelled true peak (origin = {t}) at scan {k} of run {r}; tracks start "
+                         "from the labelled true peaks of scans 0 and 1")
+    return z[0], z[1]
+
+
+def start_tracks(m: BearingPeaks, track_start: str, d: BearingTrackerDesign):
+    """Initial states ``(R, T, 2)``, covariances ``(R, T, 2, 2)`` and the scan they belong to.
+
+    ``two-point``: eq. 8c from the labelled peaks of scans 0 and 1 (start scan 1). ``truth``:
+    the true state of scan 0 with the covariance of eq. 8c around it (start scan 0).
+    """
+    if track_start == "two-point":
+        z0, z1 = labelled_start_peaks(m.bearing_rad, m.origin, m.counts, m.n_targets)
+        x0, P0 = two_point_start(z0, z1, d.scan_period_s, d.sigma_p_rad)
+        return x0, P0, 1
+    b, rate = m.truth_bearing_rad, m.truth_rate_radps
+    if b is None or rate is None:
+        raise InputError(f"track_start='truth' needs {TRUTH} (bearing_rad, bearing_rate_radps); "
+                         "use --set track_start=two-point for data without truth")
+    if b.shape != rate.shape or b.shape[2] != m.n_targets:
+        raise InputError(f"truth bearings {b.shape} and rates {rate.shape} must both be (runs, scans, "
+                         f"{m.n_targets} targets)")
+    x0 = np.stack([b[:, 0], rate[:, 0]], axis=-1)
+    _, P0 = two_point_start(b[:, 0], b[:, 0], d.scan_period_s, d.sigma_p_rad)
+    return x0, P0, 0
+
+
+class _JpdaTracker(Tracker):
+    """One variant of :data:`pipeline.cores.association.jpda.STRATEGIES` (see the module docstring)."""
+
+    family = "bearing-peaks"
+    form = "batch"
+    params = PARAMS
+
+    def __init__(self, **design):
+        super().__init__(**design)
+        check_design(self.design)
+
+    def track(self, peaks: BearingPeaks) -> dict:
+        d = core_design(self.design, peaks.n_targets)
+        x0, P0, start = start_tracks(peaks, self.track_start, d)
+        scans = scans_from_padded(peaks.bearing_rad, peaks.amplitude, peaks.counts)
+        return track_bearing_peaks(scans, x0, P0, d, STRATEGIES[self.name], start)
+
+
+class JPDA(_JpdaTracker):
+    """JPDA on peak positions alone (Fortmann, Bar-Shalom & Scheffe 1983; Park et al. 1994's reference)."""
+
+    name = "jpda"
+    label = "JPDA"
+
+
+class JPDA_A(_JpdaTracker):
+    """Amplitude-aided JPDA: position and amplitude likelihoods (Park, Ryu & Lee 1994, eq. A.5)."""
+
+    name = "jpda_a"
+    label = "JPDA_A"
+
+
+TRACKERS = (JPDA, JPDA_A)

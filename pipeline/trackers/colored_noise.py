@@ -1,3 +1,262 @@
-"""Trackers of this paper (being moved onto the tracker interface)."""
+"""Kwon (1997): tracking with AR(1) coloured measurement noise — AR(1) estimation,
+decorrelation, the square-root information filter and IMMs built on them.
 
-TRACKERS = ()
+The thesis (ch. III–V; see ``docs/papers/colored-noise-imm.md``) models the position
+measurement noise as ``ν_k = α ν_{k−1} + η_k``, estimates α and ``σ_η²`` online (Wu & Chang
+1996, eqs. 3.2.3–3.2.51: :mod:`pipeline.cores.filters.ar1_estimation`), whitens the measurements
+by differencing, ``y_k = z_k − ᾱ z_{k−1}`` with ``Ĥ = H − ᾱ H Φ⁻¹`` (eqs. 3.1.1–3.1.6:
+:mod:`pipeline.cores.filters.decorrelation`), and compares five filters on the whitened or plain
+measurements. All run on the one IMM core (:mod:`pipeline.cores.filters.imm`, eqs. 4.3.1–4.3.17,
+a single model being the IMM with one model) with Kalman (:mod:`pipeline.cores.filters.kalman`)
+or square-root information (:mod:`pipeline.cores.filters.srif`, eqs. 4.2.18–4.2.22) model filters:
+
+``kf``      one CA model (Ψ = [T²/2, T, 1], eq. 2.5), plain measurements (ignores the colour);
+``kf_dp``   the same model with the decorrelation process and the AR estimator;
+``imm``     CV + CA (transition) + CA (steady) (ch. V.3), Kalman filters, plain measurements;
+``mimm_k``  the same models, Kalman filters, decorrelation + AR estimator;
+``pimm``    the same models, square-root information filters, decorrelation + AR estimator.
+
+State ``[p, v, a]`` per axis, axes concatenated (family ``colored-position``). The filters
+update from scan 1 (a decorrelated measurement needs ``z_{k−1}``); scan 0 holds the start.
+
+Start (``track_start``): ``"truth"`` (default) starts every filter at the true state of scan 0
+with ``P₀ = initial_variance · I``, as the thesis does (ch. V); ``"measurements"`` needs no
+truth: position from the first measurement with variance ``measurement_variance_m2``, zero
+velocity and acceleration with the large variances :data:`START_VELOCITY_VARIANCE` and
+:data:`START_ACCELERATION_VARIANCE` (``initial_variance`` is then unused).
+
+Flags (``pipeline.vocabulary.FLAGS``, decorrelating trackers only): the AR estimator's
+``CLAMPED`` (discriminant clamped), ``LIMITED`` (|α̂| limited), ``FLOORED`` (``σ_η²`` floored),
+bit-or over the axes, and ``NOT_WARM`` while the estimator has not settled (the filter then
+uses the plain measurement). Each decorrelating tracker runs the estimator itself (three
+``lfilter`` calls, well under the filters' cost); :func:`ar1_outputs` gives its arrays for the
+stage's ``ar_estimator`` output.
+
+Outputs: ``state``, ``covariance``, ``flags``; ``model_probabilities`` (IMMs, models in the
+order of :data:`MODEL_NAMES`); ``innovation`` and ``innovation_covariance`` (single Kalman
+models: of ``z_k``, or of ``y_k`` for ``kf_dp``); extras ``log_likelihood`` and ``nis`` per
+model (for the SRIF models ``nis`` is ``‖e_k‖²``, the squared SRIF residual).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline import vocabulary as vocab
+from pipeline.cores.filters.ar1_estimation import check_design, estimate_ar1, scan_flags
+from pipeline.cores.filters.imm import (MeasurementStream, ModelFilter, check_transition, imm_filter,
+                                        kinematic_model, single_model_filter)
+from pipeline.errors import InputError
+from pipeline.trackers.interface import ColoredPositions, Param, Tracker
+
+MODEL_NAMES = ("cv", "ca_transition", "ca_steady")
+TRACK_STARTS = ("truth", "measurements")
+# track_start="measurements": zero velocity and acceleration with these variances (1 km/s and
+# 100 m/s² standard deviations: far wider than any target of the scenarios, so the first
+# updates, not the start, fix them)
+START_VELOCITY_VARIANCE = 1.0e6      # m²/s²
+START_ACCELERATION_VARIANCE = 1.0e4  # m²/s⁴
+
+
+def parse_matrix(text: str, name: str) -> np.ndarray:
+    """``"0.99 0.01; 0.3 0.7"`` → 2-D array (rows separated by ``;``)."""
+    try:
+        rows = [[float(v) for v in row.replace(",", " ").split()] for row in str(text).split(";") if row.strip()]
+        return np.array(rows, dtype=float)
+    except ValueError:
+        raise InputError(f"parameter {name!r}: cannot read {text!r} as rows of numbers separated by ';'") from None
+
+
+def sample_period(times_s) -> float:
+    """The scan interval T of evenly spaced scan times (an :class:`InputError` otherwise)."""
+    t = np.asarray(times_s, dtype=float)
+    if t.ndim != 1 or t.size < 2:
+        raise InputError(f"need at least 2 scan times, got shape {t.shape}")
+    dt = np.diff(t)
+    if not (np.all(np.isfinite(dt)) and dt[0] > 0 and np.all(np.abs(dt - dt[0]) <= 1e-9 * max(abs(dt[0]), 1.0))):
+        raise InputError("scans are not evenly spaced in time (the models use one T)")
+    return float(dt[0])
+
+
+def _positive(design: dict, key: str, why: str = "") -> float:
+    try:
+        value = float(design[key])
+    except (TypeError, ValueError):
+        raise InputError(f"{key} must be a number, got {design[key]!r}") from None
+    if not (np.isfinite(value) and value > 0):
+        raise InputError(f"{key} must be > 0{why}, got {design[key]!r}")
+    return value
+
+
+def ar1_outputs(measurements: ColoredPositions, beta: float, rho: float) -> dict:
+    """The AR(1) estimator's arrays (``alpha``, ``alpha_biased``, ``noise_variance``, ``flags``
+    per axis, ``warm`` per scan) for the stage's ``ar_estimator`` output.
+
+    Parameters
+    ----------
+    measurements : ColoredPositions
+    beta, rho : float
+        Forgetting factor β and zero-cancelling pole ρ (eqs. 3.2.7, 3.2.17–3.2.18).
+
+    Returns
+    -------
+    dict of ndarray
+        ``(runs, scans, axes)`` arrays and ``warm`` (runs, scans) uint8.
+    """
+    z = np.asarray(measurements.position_m, dtype=float)
+    ar = estimate_ar1(z, float(beta), float(rho))
+    runs, scans = z.shape[:2]
+    return {"alpha": ar.alpha, "alpha_biased": ar.alpha_biased, "noise_variance": ar.noise_variance,
+            "warm": np.broadcast_to(ar.warm.astype(np.uint8), (runs, scans)).copy(), "flags": ar.flags}
+
+
+# --------------------------------------------------------------------------- the trackers
+
+P_MEASUREMENT = Param("measurement_variance_m2", None, "m²", "measurement noise variance R per axis")
+P_INITIAL = Param("initial_variance", None, "", "P₀ = initial_variance · I at the true start state")
+P_START = Param("track_start", "truth", "",
+                "'truth': start at the true state of scan 0 (thesis); 'measurements': position from z₀, "
+                "zero velocity/acceleration with a large variance")
+P_AR = (Param("ar_forgetting_factor", None, "", "AR estimator forgetting factor β, 0 < β < 1"),
+        Param("ar_zero_pole", None, "", "AR estimator zero-cancelling pole ρ, 0 ≤ ρ < 1"))
+P_KF = (Param("kf_process_noise", None, "m²/s⁴", "CA model's acceleration-increment variance per sample"),)
+P_IMM = (Param("cv_process_noise", None, "m²/s⁴", "CV model's white-acceleration variance"),
+         Param("ca_transition_process_noise", None, "m²/s⁶", "transition CA model's white-jerk variance"),
+         Param("ca_steady_process_noise", None, "m²/s⁶", "steady CA model's white-jerk variance"),
+         Param("imm_transition", None, "", "Markov transition matrix p_ij, rows 'a b c; ...' (CV, CA tr., CA st.)"))
+
+
+class _ColoredNoiseTracker(Tracker):
+    """One of the thesis's five filters on the IMM core (see the module docstring)."""
+
+    family = "colored-position"
+    form = "batch"
+    decorrelate = False
+    filter_kind = "kf"
+
+    def __init__(self, **design):
+        super().__init__(**design)
+        self.R = _positive(self.design, "measurement_variance_m2", " (R positive definite)")
+        self.P0_scale = _positive(self.design, "initial_variance")
+        if self.track_start not in TRACK_STARTS:
+            raise InputError(f"track_start must be one of {', '.join(TRACK_STARTS)}, got {self.track_start!r}")
+        if self.decorrelate:
+            check_design(float(self.ar_forgetting_factor), float(self.ar_zero_pole))
+
+    # --- pieces shared by the five
+
+    def start(self, m: ColoredPositions, axes: int):
+        """``x₀`` (runs, 3·axes) and ``P₀`` (3·axes, 3·axes) of scan 0 (see ``track_start``)."""
+        N = 3 * axes
+        if self.track_start == "truth":
+            if m.truth_state is None:
+                raise InputError("track_start='truth' needs the true state (use track_start=measurements)")
+            x0 = np.asarray(m.truth_state, dtype=float)[:, 0]
+            if x0.shape[-1] != N:
+                raise InputError(f"true state has {x0.shape[-1]} components, expected {N} ([p, v, a] per axis)")
+            return x0, np.eye(N) * self.P0_scale
+        z0 = np.asarray(m.position_m, dtype=float)[:, 0]
+        x0 = np.zeros((z0.shape[0], N))
+        x0[:, 0::3] = z0
+        P0 = np.diag(np.tile([self.R, START_VELOCITY_VARIANCE, START_ACCELERATION_VARIANCE], axes))
+        return x0, P0
+
+    def measurement_stream(self, z):
+        """Plain ``(z, H, R)`` or decorrelated ``(y, Ĥ, diag σ̂_η²)`` stream, and the flags."""
+        runs, scans, axes = z.shape
+        R = np.eye(axes) * self.R
+        if not self.decorrelate:
+            return MeasurementStream(z, R), np.zeros((runs, scans), np.dtype(vocab.FLAG_DTYPE))
+        ar = estimate_ar1(z, float(self.ar_forgetting_factor), float(self.ar_zero_pole))
+        warm = ar.warm[None, :, None]
+        stream = MeasurementStream(z, R, True, np.where(warm, ar.alpha, np.nan),
+                                   np.where(warm, ar.noise_variance, np.nan))
+        return stream, scan_flags(ar)
+
+    def run_filter(self, stream, x0, P0, T: float, axes: int) -> dict:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def track(self, m: ColoredPositions) -> dict:
+        z = np.asarray(m.position_m, dtype=float)
+        if z.ndim != 3:
+            raise InputError(f"position_m must be (runs, scans, axes), got shape {z.shape}")
+        axes = z.shape[-1]
+        T = sample_period(m.times_s)
+        x0, P0 = self.start(m, axes)
+        stream, flags = self.measurement_stream(z)
+        out = self.run_filter(stream, x0, P0, T, axes)
+        out["flags"] = flags
+        return out
+
+
+class _SingleModel(_ColoredNoiseTracker):
+    params = (P_MEASUREMENT, P_INITIAL, *P_KF, P_START)
+
+    def __init__(self, **design):
+        super().__init__(**design)
+        self.q = _positive(self.design, "kf_process_noise", " (the square-root information filter needs Q⁻¹)")
+
+    def run_filter(self, stream, x0, P0, T, axes):
+        model = kinematic_model("ca", 3, T, self.q, axes, noise="increment")
+        out = single_model_filter(ModelFilter(model, self.filter_kind), x0, P0, stream)
+        out.pop("model_probabilities")  # identically 1: not an IMM
+        return out
+
+
+class _ThreeModelImm(_ColoredNoiseTracker):
+    params = (P_MEASUREMENT, P_INITIAL, *P_IMM, P_START)
+
+    def __init__(self, **design):
+        super().__init__(**design)
+        why = " (the square-root information filter needs Q⁻¹)"
+        self.q = [_positive(self.design, key, why)
+                  for key in ("cv_process_noise", "ca_transition_process_noise", "ca_steady_process_noise")]
+        self.transition = check_transition(parse_matrix(self.imm_transition, "imm_transition"), len(MODEL_NAMES))
+
+    def run_filter(self, stream, x0, P0, T, axes):
+        models = [kinematic_model(name, order, T, q, axes)
+                  for name, order, q in zip(MODEL_NAMES, (2, 3, 3), self.q)]
+        return imm_filter([ModelFilter(mod, self.filter_kind) for mod in models], self.transition, x0, P0, stream)
+
+
+class KalmanFilter(_SingleModel):
+    """One CA Kalman filter on the plain measurements (Kwon 1997, ch. V.2: "KF")."""
+
+    name = "kf"
+
+
+class KalmanFilterDecorrelated(_SingleModel):
+    """The CA Kalman filter with the decorrelation process and the AR estimator (Kwon 1997,
+    ch. V.2: "KF_DP")."""
+
+    name = "kf_dp"
+    decorrelate = True
+    params = (P_MEASUREMENT, P_INITIAL, *P_KF, *P_AR, P_START)
+
+
+class StandardImm(_ThreeModelImm):
+    """CV + two CA models, Kalman filters, plain measurements (Kwon 1997, ch. V.3: "IMM")."""
+
+    name = "imm"
+
+
+class DecorrelatedImm(_ThreeModelImm):
+    """The same IMM on decorrelated measurements with the AR estimator (Kwon 1997, ch. V.3:
+    "MIMM_K")."""
+
+    name = "mimm_k"
+    decorrelate = True
+    params = (P_MEASUREMENT, P_INITIAL, *P_IMM, *P_AR, P_START)
+
+
+class SquareRootImm(_ThreeModelImm):
+    """The decorrelated IMM with square-root information model filters (Kwon 1997, ch. IV.3,
+    V.3: "PIMM")."""
+
+    name = "pimm"
+    decorrelate = True
+    filter_kind = "srif"
+    params = (P_MEASUREMENT, P_INITIAL, *P_IMM, *P_AR, P_START)
+
+
+TRACKERS = (KalmanFilter, KalmanFilterDecorrelated, StandardImm, DecorrelatedImm, SquareRootImm)

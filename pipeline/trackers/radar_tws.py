@@ -396,3 +396,59 @@ class KalmanReference(_RadarStrategyTracker):
 
 
 TRACKERS = (FixedGains, ApproximateGains, ExactGains, KalmanReference)
+
+
+# --------------------------------------------------------------------------- the bound
+
+
+def radar_pcrb(truth_state, times, truth_sigma_v: float, sigma_range_m: float, sigma_bearing_rad: float,
+               detected=None) -> np.ndarray:
+    """Posterior Cramér–Rao bound per scan for the radar scenario (``docs/evaluation.md``).
+
+    The recursion of :func:`pipeline.cores.filters.pcrb.pcrb_recursion` with the truth's own
+    motion model (white acceleration ``truth_sigma_v``, the real scan intervals) and the
+    range–bearing information averaged over the runs that have a plot at each scan. It starts at
+    scan 1 from the covariance of the two-point start evaluated at the true positions (averaged
+    over runs), the information two plots carry; scan 0 has no bound (NaN).
+
+    Parameters
+    ----------
+    truth_state : ndarray (runs, scans, 4)
+    times : ndarray (scans,)
+    truth_sigma_v : float
+        The truth's acceleration noise σ_v (m/s²); 0 for constant-velocity truth.
+    sigma_range_m, sigma_bearing_rad : float
+        The plots' noise.
+    detected : ndarray of bool (runs, scans), optional
+        Scans with a plot (default: all).
+
+    Returns
+    -------
+    ndarray (scans, 4, 4)
+    """
+    from pipeline.cores.filters.converted_measurements import converted_covariance
+    from pipeline.cores.filters.kalman import white_acceleration_model
+    from pipeline.cores.filters.pcrb import pcrb_recursion, polar_information
+
+    truth = np.asarray(truth_state, float)
+    R, K = truth.shape[:2]
+    out = np.full((K, 4, 4), np.nan)
+    if K < 2:
+        return out
+    detected = np.ones((R, K), bool) if detected is None else np.asarray(detected, bool)
+    info = np.where(detected[..., None, None], polar_information(truth[..., :2], sigma_range_m, sigma_bearing_rad), 0.0)
+    info = info.mean(axis=0)
+    F = np.empty((K, 4, 4))
+    Q = np.empty((K, 4, 4))
+    F[0], Q[0] = np.eye(4), 0.0
+    for k in range(1, K):
+        F[k], Q[k] = white_acceleration_model(float(times[k] - times[k - 1]), truth_sigma_v)
+    # two-point start at the truth: P = [[R₁, R₁/Δt], [R₁/Δt, (R₀ + R₁)/Δt²]] (as the trackers' start)
+    rng0, brg0 = np.hypot(truth[:, 0, 0], truth[:, 0, 1]), np.arctan2(truth[:, 0, 1], truth[:, 0, 0])
+    rng1, brg1 = np.hypot(truth[:, 1, 0], truth[:, 1, 1]), np.arctan2(truth[:, 1, 1], truth[:, 1, 0])
+    R0 = converted_covariance(rng0, brg0, sigma_range_m, sigma_bearing_rad).mean(axis=0)
+    R1 = converted_covariance(rng1, brg1, sigma_range_m, sigma_bearing_rad).mean(axis=0)
+    gap = float(times[1] - times[0])
+    P1 = np.block([[R1, R1 / gap], [R1 / gap, (R0 + R1) / gap**2]])
+    out[1:] = pcrb_recursion(P1, F[1:], Q[1:], info[1:])
+    return out

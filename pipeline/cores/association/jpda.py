@@ -1,7 +1,8 @@
 """JPDA and amplitude-aided JPDA_A for bearing tracks of cross-correlation peaks.
 
-Spec: ``shared/spec/xcorr-peaks-jpda.md`` (Park, Ryu & Lee 1994, appendix eqs. A.1–A.7; JPDA of
-Fortmann, Bar-Shalom & Scheffe 1983). One core, batched over a leading Monte Carlo run axis:
+Park, Ryu & Lee (1994), appendix eqs. A.1–A.7, with the JPDA of Fortmann, Bar-Shalom & Scheffe
+(1983); see ``docs/papers/bearing-peaks.md``. The trackers that call this core are in
+:mod:`pipeline.trackers.bearing_peaks`. One core, batched over a leading Monte Carlo run axis:
 
 * motion: state ``[θ, θ̇]`` (rad, rad/s), continuous white-noise acceleration
   ``Q' = q [[T³/3, T²/2], [T²/2, T]]`` (eq. 8b), two-point start ``P(0|0) = [[σ², σ²/T],
@@ -26,7 +27,7 @@ Fortmann, Bar-Shalom & Scheffe 1983). One core, batched over a leading Monte Car
 * clusters of more than ``max_cluster_tracks`` tracks (default 12, i.e. 4096 states per peak)
   are cut, in bearing order, into groups of at most that many tracks, each solved exactly but
   blind to the others (a peak may then be shared across a cut): approximate, and flagged with
-  :data:`FLAG_CLUSTER_SPLIT`. Peaks cost linear time and the recursion is run in batches of
+  ``CLUSTER_SPLIT`` (:data:`pipeline.vocabulary.FLAGS`). Peaks cost linear time and the recursion is run in batches of
   bounded memory, so hundreds of peaks per scan stay cheap;
 * PDA update per track (eq. A.7): combined innovation, covariance with the spread term;
 * optional amplitude tracking (eq. 9): ``ẑ_a(k) = 0.7 ẑ_a(k−1) + 0.3 max_j z_a`` over the
@@ -41,12 +42,15 @@ from functools import lru_cache
 import numpy as np
 from scipy.special import erf, ndtr
 
+from pipeline import vocabulary as vocab
 from pipeline.cores.filters.kalman import apply_gain, continuous_white_noise_model, kalman_gain, kf_predict
 from pipeline.cores.filters.kalman import two_point_start  # noqa: F401  (eq. 8c; importable from here as before)
 
-FLAG_INITIALISING = 1   # before the track start
-FLAG_NO_GATED_PEAK = 2  # coasted: no peak in the gate
-FLAG_CLUSTER_SPLIT = 4  # the track's cluster exceeded max_cluster_tracks (approximate β)
+# Flag bits of the one table (pipeline.vocabulary.FLAGS), as this core uses them:
+FLAG_NO_TRACK = vocab.NO_TRACK            # before the track start scan: no state yet
+FLAG_INITIALISING = vocab.INITIALISING    # up to and including the start scan: start values, not filtered
+FLAG_COASTED = vocab.COASTED              # no peak in the gate: the state is the prediction
+FLAG_CLUSTER_SPLIT = vocab.CLUSTER_SPLIT  # the track's cluster exceeded max_cluster_tracks (approximate β)
 MEMORY_BUDGET_FLOATS = 1 << 22  # forward table of one recursion batch (32 MB)
 TOP_WEIGHTS = 3
 MATRIX_FORM_TRACKS = 6  # clusters up to this size use the transfer-matrix form (≤ 64×64)
@@ -374,6 +378,13 @@ def pda_update(x, P, innovation, beta, beta0, K, S):
     ----------
     x : (…, 2), P : (…, 2, 2), innovation : (…, m), beta : (…, m), beta0 : (…,),
     K : (…, 2, 1) gain, S : (…, 1, 1) innovation variance.
+
+    Returns
+    -------
+    x_post : (…, 2)
+    P_post : (…, 2, 2)
+    nu_bar : (…,)
+        The combined innovation ν̄ (0 when no peak has weight).
     """
     nu = np.where(beta > 0, innovation, 0.0)
     nu_bar = np.sum(beta * nu, axis=-1)
@@ -382,7 +393,7 @@ def pda_update(x, P, innovation, beta, beta0, K, S):
     KKt = K @ np.swapaxes(K, -1, -2)
     w = (spread - (1.0 - beta0) * S[..., 0, 0])[..., None, None]
     P_post = P + w * KKt
-    return x_post, 0.5 * (P_post + np.swapaxes(P_post, -1, -2))
+    return x_post, 0.5 * (P_post + np.swapaxes(P_post, -1, -2)), nu_bar
 
 
 def update_strength(strength: np.ndarray, amplitude: np.ndarray, gated: np.ndarray) -> np.ndarray:
@@ -429,11 +440,18 @@ def track_bearing_peaks(scans: list[ScanPeaks], x0: np.ndarray, P0: np.ndarray, 
 
     Returns
     -------
-    dict of ndarray with a leading ``(R, K, T)``:
-        ``state`` (…, 2), ``covariance`` (…, 2, 2), ``beta0``, ``beta_top`` / ``beta_index``
-        (…, 3: the largest peak weights and their index in the scan's peak list, −1 for
-        none), ``strength`` (ẑ_a used), ``n_gated``, ``gate_center`` (predicted bearing),
-        ``flags``.
+    dict of ndarray with a leading ``(R, K, T)``, in the output vocabulary
+    (:data:`pipeline.vocabulary.OUTPUTS`):
+        ``state`` (…, 2) and ``covariance`` (…, 2, 2): NaN before ``start_scan``, the start
+        values at ``start_scan``, the PDA posterior after; ``flags`` (uint16):
+        ``NO_TRACK | INITIALISING`` before ``start_scan``, ``INITIALISING`` at it, then
+        ``COASTED`` where no peak fell in the gate and ``CLUSTER_SPLIT`` where the track's
+        cluster was cut; ``innovation`` (…, 1): the combined innovation ν̄ = Σ β_j ν_j of
+        eq. A.7 (NaN where coasted, before and at the start); ``innovation_covariance``
+        (…, 1, 1): S = H P⁻ Hᵀ + σ_p²; ``gain`` (…, 2, 1): the Kalman gain applied to ν̄.
+        Paper-specific extras: ``beta0``, ``beta_top`` / ``beta_index`` (…, 3: the largest
+        peak weights and their index in the scan's peak list, −1 for none), ``strength``
+        (ẑ_a used), ``n_gated``, ``gate_center`` (predicted bearing).
     """
     K = len(scans)
     R, T, _ = x0.shape
@@ -445,9 +463,11 @@ def track_bearing_peaks(scans: list[ScanPeaks], x0: np.ndarray, P0: np.ndarray, 
         "beta0": np.full((R, K, T), np.nan), "beta_top": np.full((R, K, T, TOP_WEIGHTS), np.nan),
         "beta_index": np.full((R, K, T, TOP_WEIGHTS), -1, np.int32), "strength": np.full((R, K, T), np.nan),
         "n_gated": np.zeros((R, K, T), np.int32), "gate_center": np.full((R, K, T), np.nan),
-        "flags": np.zeros((R, K, T), np.uint8),
+        "flags": np.zeros((R, K, T), np.uint16), "innovation": np.full((R, K, T, 1), np.nan),
+        "innovation_covariance": np.full((R, K, T, 1, 1), np.nan), "gain": np.full((R, K, T, 2, 1), np.nan),
     }
-    out["flags"][:, :start_scan] = FLAG_INITIALISING
+    out["flags"][:, :start_scan] = FLAG_NO_TRACK | FLAG_INITIALISING
+    out["flags"][:, start_scan] = FLAG_INITIALISING
     x, P = np.array(x0, float), np.array(P0, float)
     out["state"][:, start_scan], out["covariance"][:, start_scan] = x, P
     if design.amplitude_tracking:
@@ -478,7 +498,7 @@ def track_bearing_peaks(scans: list[ScanPeaks], x0: np.ndarray, P0: np.ndarray, 
         miss = 1.0 - pd * window_gate_probability(S1, design.gate_rad)
         beta, beta0, split = joint_association_probabilities(ratio, miss, gated, x[..., 0], design.max_cluster_tracks)
         out["gate_center"][:, k] = x[..., 0]
-        x, P = pda_update(x, P, nu, beta, beta0, Kg, S)
+        x, P, nu_bar = pda_update(x, P, nu, beta, beta0, Kg, S)
         if design.amplitude_tracking:
             strength = update_strength(strength, sp.amplitude, gated)
         n_gated = gated.sum(axis=2)
@@ -486,7 +506,10 @@ def track_bearing_peaks(scans: list[ScanPeaks], x0: np.ndarray, P0: np.ndarray, 
         out["beta0"][:, k] = beta0
         out["strength"][:, k] = strength
         out["n_gated"][:, k] = n_gated
-        out["flags"][:, k] = np.where(n_gated == 0, FLAG_NO_GATED_PEAK, 0) | np.where(split, FLAG_CLUSTER_SPLIT, 0)
+        out["flags"][:, k] = np.where(n_gated == 0, FLAG_COASTED, 0) | np.where(split, FLAG_CLUSTER_SPLIT, 0)
+        out["innovation"][:, k, :, 0] = np.where(n_gated > 0, nu_bar, np.nan)
+        out["innovation_covariance"][:, k] = S
+        out["gain"][:, k] = Kg
         if beta.shape[2]:
             top = np.argsort(-beta, axis=2, kind="stable")[..., :TOP_WEIGHTS]
             w = np.take_along_axis(beta, top, axis=2)

@@ -1,7 +1,7 @@
 """AR(1) parameter estimation of coloured measurement noise (Wu & Chang 1996, as in Kwon 1997).
 
-Spec ``shared/spec/colored-noise-imm-srif.md``, "AR parameter estimator", steps 1–5 (thesis
-eqs. 3.2.3, 3.2.7, 3.2.15, 3.2.17–3.2.18, 3.2.43–3.2.51). The measurement noise follows
+Kwon (1997), ch. III.2, the AR parameter estimator in five steps (thesis eqs. 3.2.3, 3.2.7,
+3.2.15, 3.2.17–3.2.18, 3.2.43–3.2.51); see ``docs/papers/colored-noise-imm.md``. The measurement noise follows
 ``ν_k = α ν_{k−1} + η_k`` with ``var(ν) = R`` and ``var(η) = σ_η² = (1 − α²) R``.
 
 1. ``ū_k = z_k − 2 z_{k−1} + z_{k−2}`` removes a constant-velocity state (eq. 3.2.3; the thesis
@@ -17,13 +17,16 @@ eqs. 3.2.3, 3.2.7, 3.2.15, 3.2.17–3.2.18, 3.2.43–3.2.51). The measurement no
 Every step is a linear recursion along the scan axis, so the whole estimator is three
 ``scipy.signal.lfilter`` calls over ``(runs, scans, axes)`` arrays: no loop over runs or scans.
 
-Guards, each flagged per run, scan and axis (bit values below):
+Guards, each flagged per run, scan and axis with bits of :data:`pipeline.vocabulary.FLAGS`:
 
-* a negative discriminant in step 4 (it happens when ``α^b`` ≳ 0.81 for ρ = 0.9, e.g. for a
-  strongly coloured noise or during a transient) is clamped to zero;
-* ``|α̂|`` is limited to :data:`ALPHA_LIMIT` (the clamped root can exceed 1, which is not a
-  stationary AR(1) process);
-* a non-positive ``σ_η²`` is replaced by ``VARIANCE_FLOOR · r̂₀``.
+* ``CLAMPED``: a negative discriminant in step 4 (it happens when ``α^b`` ≳ 0.81 for ρ = 0.9,
+  e.g. for a strongly coloured noise or during a transient) is clamped to zero;
+* ``LIMITED``: ``|α̂|`` is limited to :data:`ALPHA_LIMIT` (the clamped root can exceed 1, which
+  is not a stationary AR(1) process);
+* ``FLOORED``: a non-positive ``σ_η²`` is replaced by ``VARIANCE_FLOOR · r̂₀``.
+
+:func:`scan_flags` folds them over the axes into one mask per run and scan and adds
+``NOT_WARM`` where the estimator has not settled (what a decorrelating filter reports).
 
 Start-up (our additions; ``burn_in=0, normalised=False`` is the thesis's plain recursion):
 
@@ -49,11 +52,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pipeline import vocabulary as vocab
 from pipeline.errors import InputError, require_finite
 
-FLAG_DISCRIMINANT_CLAMPED = 1
-FLAG_ALPHA_LIMITED = 2
-FLAG_VARIANCE_FLOORED = 4
+FLAG_DISCRIMINANT_CLAMPED = vocab.CLAMPED
+FLAG_ALPHA_LIMITED = vocab.LIMITED
+FLAG_VARIANCE_FLOORED = vocab.FLOORED
+FLAG_NOT_WARM = vocab.NOT_WARM
+FLAG_DTYPE = np.dtype(vocab.FLAG_DTYPE)
 
 ALPHA_LIMIT = 0.99
 VARIANCE_FLOOR = 1e-6
@@ -73,8 +79,9 @@ class Ar1Estimates:
         ``σ_η²`` (eq. 3.2.43), floored at ``VARIANCE_FLOOR · r̂₀``.
     discriminant : ndarray
         The discriminant of eq. 3.2.51 before clamping.
-    flags : ndarray of uint8
-        Bit-or of the ``FLAG_*`` values.
+    flags : ndarray of uint16
+        Bit-or of ``FLAG_DISCRIMINANT_CLAMPED`` (``CLAMPED``), ``FLAG_ALPHA_LIMITED``
+        (``LIMITED``) and ``FLAG_VARIANCE_FLOORED`` (``FLOORED``).
     warm : ndarray of bool (scans,)
         Scans whose sums hold at least ``1/(1 − β)`` products.
     """
@@ -193,14 +200,33 @@ def estimate_ar1(z, beta: float = 0.99, rho: float = 0.9, normalised: bool = Tru
     with np.errstate(divide="ignore", invalid="ignore"):
         alpha_b = r1 / r0
     alpha_raw, disc = bias_corrected_alpha(alpha_b, rho)
-    flags = np.zeros(u.shape, dtype=np.uint8)
-    flags |= np.where(disc < 0, FLAG_DISCRIMINANT_CLAMPED, 0).astype(np.uint8)
+    flags = np.zeros(u.shape, dtype=FLAG_DTYPE)
+    flags |= np.where(disc < 0, FLAG_DISCRIMINANT_CLAMPED, 0).astype(FLAG_DTYPE)
     limited = np.abs(alpha_raw) > ALPHA_LIMIT
-    flags |= np.where(limited, FLAG_ALPHA_LIMITED, 0).astype(np.uint8)
+    flags |= np.where(limited, FLAG_ALPHA_LIMITED, 0).astype(FLAG_DTYPE)
     alpha = np.clip(alpha_raw, -ALPHA_LIMIT, ALPHA_LIMIT)
     var = white_noise_variance(alpha, r0, r1, rho)
     floored = var <= 0
-    flags |= np.where(floored, FLAG_VARIANCE_FLOORED, 0).astype(np.uint8)
+    flags |= np.where(floored, FLAG_VARIANCE_FLOORED, 0).astype(FLAG_DTYPE)
     var = np.where(floored, VARIANCE_FLOOR * r0, var)
     warm = k >= first + np.ceil(1.0 / (1.0 - beta))
     return Ar1Estimates(alpha_b, alpha, var, disc, flags, warm)
+
+
+def scan_flags(est: Ar1Estimates) -> np.ndarray:
+    """One flag mask per run and scan for a filter that uses the estimates.
+
+    The estimator's bits of every axis (bit-or over the axes) and ``NOT_WARM`` on the scans
+    before :attr:`Ar1Estimates.warm`, where the decorrelating filters fall back to the plain
+    measurement.
+
+    Parameters
+    ----------
+    est : Ar1Estimates
+
+    Returns
+    -------
+    ndarray of uint16, shape (runs, scans)
+    """
+    per_scan = np.bitwise_or.reduce(est.flags, axis=-1).astype(FLAG_DTYPE)
+    return per_scan | np.where(est.warm, 0, FLAG_NOT_WARM).astype(FLAG_DTYPE)[None, :]

@@ -1,9 +1,10 @@
 """One interacting-multiple-model (IMM) core for any model set, including models of different
 state sizes (Blom & Bar-Shalom 1988; Kwon 1997 ch. IV.3).
 
-Spec ``shared/spec/colored-noise-imm-srif.md``, "IMM" (thesis eqs. 4.3.1–4.3.4 mixing,
-4.3.5–4.3.10 model-matched filtering, 4.3.11–4.3.15 model probabilities, 4.3.16–4.3.17
-combination). Every Monte Carlo run advances in one call per scan (leading run axis).
+Kwon (1997), ch. IV.3 (thesis eqs. 4.3.1–4.3.4 mixing, 4.3.5–4.3.10 model-matched filtering,
+4.3.11–4.3.15 model probabilities, 4.3.16–4.3.17 combination); see
+``docs/papers/colored-noise-imm.md``. Every Monte Carlo run advances in one call per scan
+(leading run axis).
 
 Models are strategies over the same core:
 
@@ -140,7 +141,7 @@ def kinematic_model(name: str, order: int, T: float, q: float, axes: int = 1, no
         How ``w`` enters. ``"white"``: the highest derivative's white noise,
         ``Ψ = [T²/2, T]`` (CV, w = acceleration) or ``Ψ = [T³/6, T²/2, T]`` (CA, w = jerk), the
         thesis's IMM models (ch. V.3). ``"increment"`` (CA only): ``Ψ = [T²/2, T, 1]``, the
-        spec's target model (eq. 2.5), w = acceleration increment per sample.
+        thesis's target model (eq. 2.5), w = acceleration increment per sample.
     fill_variance : float, optional
         For CV: variance of the zero acceleration it is given in the common state (default q).
 
@@ -292,11 +293,12 @@ def _group_models(filters: list[ModelFilter]) -> list[_Group]:
 
 
 def kf_step(g: _Group, x, P, y, H, R_meas, Rv):
-    """Model-matched Kalman step (thesis eqs. 4.1.1–4.1.5) plus ``log Λ`` and the NIS."""
+    """Model-matched Kalman step (thesis eqs. 4.1.1–4.1.5) plus ``log Λ``, the NIS, the
+    innovation ``ν`` and its covariance ``S``."""
     x, P = kf_predict(x, P, g.F, g.Q)
     x, P, nu, S, _ = kf_update(x, P, y, H, R_meas)
     ll, nis, _ = gaussian_log_likelihood(nu, S, return_parts=True)
-    return x, P, ll, nis
+    return x, P, ll, nis, nu, S
 
 
 def srif_step(g: _Group, x, P, y, H, R_meas, Rv):
@@ -305,7 +307,7 @@ def srif_step(g: _Group, x, P, y, H, R_meas, Rv):
     R, z = srif_from_moments(x, P)
     R, z, e, ll = srif_predict_update(R, z, g.F, g.G, g.Rw, H, y, Rv)
     x, P = srif_moments(R, z)
-    return x, P, ll, e * e
+    return x, P, ll, e * e, None, None  # the QR gives ‖e‖, not the innovation itself
 
 
 STEPS = {"kf": kf_step, "srif": srif_step}
@@ -371,6 +373,9 @@ def imm_filter(filters: list[ModelFilter], transition, x0, P0, stream: Measureme
     dict of ndarray
         ``state`` (runs, scans, N), ``covariance`` (runs, scans, N, N), ``model_probabilities``,
         ``log_likelihood``, ``nis`` (runs, scans, M). Scans before ``start − 1`` are NaN.
+        A single Kalman model (``M = 1``, kind ``"kf"``) also returns ``innovation``
+        (runs, scans, m) and ``innovation_covariance`` (runs, scans, m, m), NaN up to scan
+        ``start − 1``: of ``y_k`` (and ``Ĥ``) for a decorrelated stream.
     """
     M = len(filters)
     if M == 0:
@@ -397,6 +402,10 @@ def imm_filter(filters: list[ModelFilter], transition, x0, P0, stream: Measureme
     first = max(start - 1, 0)
     out["state"][:, first], out["covariance"][:, first], out["model_probabilities"][:, first] = x, P, mu
     single = M == 1
+    m_meas = stream.z.shape[-1]
+    if single and filters[0].kind == "kf":
+        out["innovation"] = np.full((runs, scans, m_meas), np.nan)
+        out["innovation_covariance"] = np.full((runs, scans, m_meas, m_meas), np.nan)
     tiny = np.finfo(float).tiny
     # index grids that read and write a group's own components of the common state in one step
     for g in groups:
@@ -422,7 +431,9 @@ def imm_filter(filters: list[ModelFilter], transition, x0, P0, stream: Measureme
             else:
                 xj, Pj = X0[g.read_x], P0m[g.read_P]
             H = g.measurement_matrix(alpha)
-            xj, Pj, ll[:, J], nis[:, J] = STEPS[g.kind](g, xj, Pj, y, H, R_meas, Rv)
+            xj, Pj, ll[:, J], nis[:, J], nu, S = STEPS[g.kind](g, xj, Pj, y, H, R_meas, Rv)
+            if single and nu is not None:
+                out["innovation"][:, k], out["innovation_covariance"][:, k] = nu[:, 0], S[:, 0]
             if g.identity:
                 X[:, J], PP[:, J] = xj, Pj
             else:

@@ -1,0 +1,133 @@
+"""OSPA and GOSPA between the set of track estimates and the set of true targets, per scan.
+
+* OSPA (Schuhmacher, Vo & Vo 2008): for |X| = m ≤ n = |Y|,
+  ``d = ((1/n)(min_π Σ_i min(d(x_i, y_π(i)), c)^p + c^p (n − m)))^(1/p)``.
+* GOSPA with α = 2 (Rahmathullah, García-Fernández & Svensson 2017, eq. 2 and Prop. 1):
+  ``d = (min_γ Σ_{(i,j)∈γ} d(x_i, y_j)^p + (c^p/2)(|X| + |Y| − 2|γ|))^(1/p)`` over partial
+  assignments γ; it splits into localisation, missed-target and false-track parts.
+
+Both reduce to one assignment on the cost ``min(d, c)^p``: a pair at or beyond the cut-off ``c``
+costs as much as leaving both unassigned. Sets are padded arrays with NaN rows for absent
+elements, so whole data sets are scored at once: small sets (≤ ``BRUTE_FORCE_MAX`` elements on
+the larger side) by evaluating every permutation in one numpy expression, larger ones with
+``scipy.optimize.linear_sum_assignment`` per scan. See ``docs/evaluation.md``.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from itertools import permutations
+
+import numpy as np
+
+BRUTE_FORCE_MAX = 6  # 6! = 720 permutations per scan, evaluated together
+
+
+@lru_cache(maxsize=None)
+def _perms(n: int) -> np.ndarray:
+    return np.array(list(permutations(range(n))), dtype=np.intp).reshape(-1, n)
+
+
+def pairwise_distance(tracks, truths, angular: bool = False) -> np.ndarray:
+    """Euclidean distances ``(..., m, n)`` between padded sets ``(..., m, d)`` and ``(..., n, d)``.
+
+    With ``angular`` the components are angles and differences wrap to (−π, π].
+    """
+    diff = np.asarray(tracks, float)[..., :, None, :] - np.asarray(truths, float)[..., None, :, :]
+    if angular:
+        diff = (diff + np.pi) % (2 * np.pi) - np.pi
+    return np.sqrt(np.sum(diff * diff, axis=-1))
+
+
+def optimal_assignment(cost: np.ndarray, valid_rows: np.ndarray, valid_cols: np.ndarray, unmatched: float = 0.0):
+    """Minimum-cost assignment for every leading index of ``cost`` (..., m, n).
+
+    Absent rows/columns (padding) pair with each other for nothing; a present element left
+    with padding costs ``unmatched``.
+
+    Returns
+    -------
+    total : ndarray (...)
+        The minimum total cost.
+    match : ndarray of int (..., m)
+        Column assigned to each row, -1 for none or an invalid partner.
+    """
+    cost = np.asarray(cost, float)
+    lead, (m, n) = cost.shape[:-2], cost.shape[-2:]
+    size = max(m, n)
+    rows_present = np.zeros(lead + (size,), bool)
+    rows_present[..., :m] = valid_rows
+    cols_present = np.zeros(lead + (size,), bool)
+    cols_present[..., :n] = valid_cols
+    full = np.where(rows_present[..., :, None] != cols_present[..., None, :], float(unmatched), 0.0)
+    both = rows_present[..., :, None] & cols_present[..., None, :]
+    full[..., :m, :n] = np.where(both[..., :m, :n], cost, full[..., :m, :n])
+    match = np.full(lead + (m,), -1, dtype=np.intp)
+    if size == 0:
+        return np.zeros(lead), match
+    if size <= BRUTE_FORCE_MAX:
+        perms = _perms(size)                                   # (P, size)
+        rows = np.arange(size)
+        totals = full[..., rows[None, :], perms].sum(axis=-1)  # (..., P)
+        best = np.argmin(totals, axis=-1)
+        total = np.take_along_axis(totals, best[..., None], axis=-1)[..., 0]
+        cols = perms[best][..., :m]
+    else:
+        from scipy.optimize import linear_sum_assignment
+
+        flat = full.reshape(-1, size, size)
+        cols = np.empty((flat.shape[0], size), dtype=np.intp)
+        total = np.empty(flat.shape[0])
+        for i, c in enumerate(flat):
+            r, col = linear_sum_assignment(c)
+            cols[i, r] = col
+            total[i] = c[r, col].sum()
+        cols, total = cols.reshape(lead + (size,))[..., :m], total.reshape(lead)
+    # a row's partner is real when its column is a present element (not padding, not a dummy column)
+    keep = valid_rows & np.take_along_axis(cols_present, cols, axis=-1)
+    match = np.where(keep, cols, -1)
+    return total, match
+
+
+def gospa(tracks, truths, cutoff: float, order: float = 2.0, angular: bool = False) -> dict:
+    """GOSPA (α = 2) and its parts for padded sets, vectorised over the leading axes.
+
+    Parameters
+    ----------
+    tracks : ndarray (..., m, d)
+        Track estimates; rows with NaN are absent.
+    truths : ndarray (..., n, d)
+        True target states in the same space; rows with NaN are absent.
+    cutoff : float
+        ``c`` (> 0), in the units of the space.
+    order : float
+        ``p`` ≥ 1.
+    angular : bool
+        The components are angles (radians): differences wrap.
+
+    Returns
+    -------
+    dict of ndarray (...)
+        ``gospa``, ``localisation`` (Σ d^p over assigned pairs closer than c, to the power 1/p),
+        ``missed`` and ``false`` (counts), ``ospa``, and ``assigned`` (pairs closer than c).
+    """
+    X, Y = np.asarray(tracks, float), np.asarray(truths, float)
+    vx, vy = np.isfinite(X).all(axis=-1), np.isfinite(Y).all(axis=-1)
+    d = pairwise_distance(np.where(vx[..., None], X, 0.0), np.where(vy[..., None], Y, 0.0), angular)
+    cost = np.minimum(d, cutoff) ** order
+    cp = cutoff ** order
+    total, match = optimal_assignment(cost, vx, vy, unmatched=cp)
+    m_count, n_count = vx.sum(axis=-1), vy.sum(axis=-1)
+    matched_d = np.where(match >= 0, np.take_along_axis(d, np.maximum(match, 0)[..., None], axis=-1)[..., 0], np.inf)
+    close = (match >= 0) & (matched_d < cutoff)
+    assigned = close.sum(axis=-1)
+    loc = np.where(close, matched_d ** order, 0.0).sum(axis=-1)
+    # total = Σ min(d, c)^p over the optimal pairs + c^p per element of the larger set left over.
+    # A pair at or beyond c costs c^p, as much as leaving both unassigned (c^p/2 each) in GOSPA,
+    # so GOSPA^p = total − (c^p/2)·||X| − |Y|| and OSPA^p = total / max(|X|, |Y|).
+    excess = np.abs(m_count - n_count)
+    g = np.maximum(total - cp / 2 * excess, 0.0) ** (1 / order)
+    big = np.maximum(m_count, n_count)
+    ospa = np.where(big > 0, (total / np.maximum(big, 1)) ** (1 / order), 0.0)
+    return {"gospa": g, "localisation": loc ** (1 / order), "missed": n_count - assigned,
+            "false": m_count - assigned, "ospa": ospa, "assigned": assigned}

@@ -1,0 +1,172 @@
+"""The standard evaluation measures, for every tracker of every family, from the output vocabulary.
+
+Reads only ``state``, ``covariance``, ``track_id``, ``innovation`` and
+``innovation_covariance`` (``docs/contract.md``) and the truth in the tracker's state space, so it
+applies to any tracker, built in or plugged:
+
+* filter consistency (:mod:`evaluators.consistency`): ANEES and ANIS per scan with their χ²
+  bounds for the runs present, the fraction of scans inside, time averages with bounds, and the
+  whiteness of the innovations;
+* OSPA and GOSPA per scan with GOSPA's parts (:mod:`evaluators.set_distances`);
+* assignment metrics over whole runs (:mod:`evaluators.assignment_metrics`);
+* a 95 % interval over Monte Carlo runs on every number (:mod:`evaluators.confidence`).
+
+With several targets, the NEES pairs each target with the track matched to it at that scan (the
+same gated assignment the assignment metrics use); targets without a match add nothing.
+See ``docs/evaluation.md``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import polars as pl
+
+from evaluators.assignment_metrics import assignment_metrics, scan_matches
+from evaluators.confidence import jackknife, mean_interval, rms_interval
+from evaluators.consistency import consistency_summary, innovation_whiteness, normalised_squared
+from evaluators.set_distances import gospa
+from evaluators.tracking_metrics import nanmean
+
+
+@dataclass(frozen=True)
+class EvaluationSpace:
+    """How a family's states compare with its truth.
+
+    Attributes
+    ----------
+    truth_components : tuple of int
+        State components the truth gives (e.g. all four for radar, the bearing alone for array).
+    position_components : tuple of int
+        Components of the space OSPA/GOSPA and the assignment work in.
+    angular : bool
+        Position components are angles (differences wrap).
+    cutoff : float
+        OSPA/GOSPA cut-off c in the space's units.
+    gate : float
+        Largest distance of a track-to-truth match.
+    order : float
+        OSPA/GOSPA order p.
+    """
+
+    truth_components: tuple
+    position_components: tuple
+    angular: bool
+    cutoff: float
+    gate: float
+    order: float = 2.0
+
+
+def _as_slots(a, extra_dims: int):
+    """(R, K, n...) → (R, K, 1, n...) for single-track families; slot families pass through."""
+    a = np.asarray(a, float)
+    return a if a.ndim == 3 + extra_dims else a[:, :, None]
+
+
+def _with_ci(name: str, metric: str, value, se, lo, hi, scope: str = "overall") -> dict:
+    return {"tracker": name, "metric": metric, "scope": scope, "value": float(value), "se": float(se),
+            "ci_low": float(lo), "ci_high": float(hi)}
+
+
+def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: float = 0.95):
+    """Standard measures of every tracker.
+
+    Parameters
+    ----------
+    times : ndarray (K,)
+    tracks : dict
+        ``name -> outputs`` in the vocabulary.
+    truth : ndarray (R, K, [T,] n_t) or None
+        True values of ``space.truth_components`` per target; NaN where a target is absent.
+        Without truth only the innovation-based measures are computed.
+    space : EvaluationSpace
+
+    Returns
+    -------
+    per_scan : polars.DataFrame
+        ``tracker, scan, time_s`` and ANEES/ANIS with bounds, OSPA, GOSPA and its parts.
+    summary : polars.DataFrame
+        Long form ``tracker, metric, scope, value, se, ci_low, ci_high``.
+    """
+    per_scan, rows = [], []
+    comps = list(space.truth_components)
+    pos = [comps.index(c) for c in space.position_components]
+    for name, out in tracks.items():
+        if "state" not in out:
+            continue  # an estimator's side outputs, not a tracker
+        state = _as_slots(out["state"], 1)
+        R, K, S, n = state.shape
+        cols = {"tracker": [name] * K, "scan": np.arange(K), "time_s": np.asarray(times, float)}
+        # ---- innovation consistency (needs no truth)
+        if "innovation" in out and "innovation_covariance" in out:
+            nu = _as_slots(out["innovation"], 1)
+            Sv = _as_slots(out["innovation_covariance"], 2)
+            m = nu.shape[-1]
+            nis = normalised_squared(nu, Sv)                       # (R, K, S)
+            nis_run = nanmean(nis, axis=2)                         # average over slots
+            c = consistency_summary(nis_run, m, prob)
+            cols.update(anis=c["per_scan"], anis_low=c["low"], anis_high=c["high"])
+            rows.append(_with_ci(name, "anis_inside_fraction", c["inside_fraction"], np.nan, np.nan, np.nan))
+            v = jackknife(lambda idx: nanmean(nis_run[idx]), R)
+            rows.append(_with_ci(name, "nis_time_average", *v))
+            rows.append(_with_ci(name, "nis_time_average_low", c["time_low"], np.nan, np.nan, np.nan))
+            rows.append(_with_ci(name, "nis_time_average_high", c["time_high"], np.nan, np.nan, np.nan))
+            # slots are independent sequences: pool them as if they were more runs
+            w = innovation_whiteness(np.swapaxes(nu, 1, 2).reshape(R * S, K, m),
+                                     np.swapaxes(Sv, 1, 2).reshape(R * S, K, m, m))
+            rows.append(_with_ci(name, "whiteness_lags_outside", w["outside"], np.nan, np.nan, np.nan))
+            rows.append(_with_ci(name, "whiteness_max_abs_rho", np.nanmax(np.abs(w["rho"])) if np.isfinite(w["rho"]).any()
+                                 else np.nan, np.nan, np.nan, np.nan))
+        else:
+            rows.append({"tracker": name, "metric": "nis", "scope": "no innovation covariance", "value": None,
+                         "se": None, "ci_low": None, "ci_high": None})
+        if truth is None:
+            per_scan.append(pl.DataFrame(cols))
+            continue
+        tr = _as_slots(truth, 1)                                   # (R, K, T, n_t)
+        est = state[..., comps]
+        positions, true_positions = est[..., pos], tr[..., pos]
+        # ---- OSPA / GOSPA per run and scan
+        g = gospa(positions, true_positions, space.cutoff, space.order, space.angular)
+        for key in ("ospa", "gospa", "localisation", "missed", "false"):
+            cols[key if key in ("ospa", "gospa") else f"gospa_{key}"] = nanmean(g[key].astype(float), axis=0)
+        for key in ("ospa", "gospa"):
+            rows.append(_with_ci(name, f"{key}_mean", *mean_interval(nanmean(g[key], axis=1))))
+        # ---- assignment over whole runs
+        ids = out.get("track_id")
+        a = assignment_metrics(positions, true_positions, space.gate,
+                               None if ids is None else _as_slots(ids[..., None], 1)[..., 0], space.angular)
+        for key in ("mota", "motp", "idf1"):
+            rows.append(_with_ci(name, key, *mean_interval(a[key])))
+        for key in ("mostly_tracked", "partially_tracked", "mostly_lost", "track_breaks", "id_switches",
+                    "false_tracks", "misses", "false_positives"):
+            rows.append(_with_ci(name, f"{key}_per_run", *mean_interval(a[key].astype(float))))
+        # ---- NEES on matched pairs
+        match, _ = scan_matches(positions, true_positions, space.gate, space.angular)   # (R, K, T)
+        if "covariance" in out:
+            P = _as_slots(out["covariance"], 2)[..., comps, :][..., :, comps]         # (R, K, S, c, c)
+            sel = np.maximum(match, 0)
+            est_m = np.take_along_axis(est, sel[..., None], axis=2)
+            P_m = np.take_along_axis(P, sel[..., None, None], axis=2)
+            err = est_m - tr
+            if space.angular:
+                err[..., pos] = (err[..., pos] + np.pi) % (2 * np.pi) - np.pi
+            err = np.where((match >= 0)[..., None], err, np.nan)
+            nees = nanmean(normalised_squared(err, P_m), axis=2)   # (R, K)
+            c = consistency_summary(nees, len(comps), prob)
+            cols.update(anees=c["per_scan"], anees_low=c["low"], anees_high=c["high"])
+            rows.append(_with_ci(name, "anees_inside_fraction", c["inside_fraction"], np.nan, np.nan, np.nan))
+            rows.append(_with_ci(name, "nees_time_average", *jackknife(lambda idx: nanmean(nees[idx]), R)))
+            rows.append(_with_ci(name, "nees_time_average_low", c["time_low"], np.nan, np.nan, np.nan))
+            rows.append(_with_ci(name, "nees_time_average_high", c["time_high"], np.nan, np.nan, np.nan))
+            sq = np.where((match >= 0), np.sum(err[..., pos] ** 2, axis=-1), np.nan)
+            rows.append(_with_ci(name, "rmse_matched_position", *rms_interval(nanmean(sq, axis=(1, 2)))))
+        else:
+            rows.append({"tracker": name, "metric": "nees", "scope": "no covariance", "value": None,
+                         "se": None, "ci_low": None, "ci_high": None})
+        per_scan.append(pl.DataFrame(cols))
+    schema = {"tracker": pl.String, "metric": pl.String, "scope": pl.String, "value": pl.Float64,
+              "se": pl.Float64, "ci_low": pl.Float64, "ci_high": pl.Float64}
+    summary = pl.DataFrame(rows, schema=schema) if rows else pl.DataFrame(schema=schema)
+    return (pl.concat(per_scan, how="diagonal") if per_scan else pl.DataFrame()), summary
