@@ -39,14 +39,20 @@ class Drift:
     baseline: float | None
     value: float | None
     tolerance: float
+    se: float | None = None  # the metric's Monte Carlo standard error recorded with the baseline
 
     def describe(self) -> str:
         if self.value is None:
             return f"{self.tracker} {self.metric} [{self.scope}]: missing (baseline {self.baseline:.6g})"
         if self.baseline is None:
             return f"{self.tracker} {self.metric} [{self.scope}]: not in baseline (value {self.value:.6g})"
-        return (f"{self.tracker} {self.metric} [{self.scope}]: {self.baseline:.6g} -> {self.value:.6g} "
-                f"(moved {self.value - self.baseline:+.3g}, tolerance ±{self.tolerance:.3g})")
+        moved = self.value - self.baseline
+        text = (f"{self.tracker} {self.metric} [{self.scope}]: {self.baseline:.6g} -> {self.value:.6g} "
+                f"(moved {moved:+.3g}, tolerance ±{self.tolerance:.3g}")
+        if self.se is not None and self.se > 0:
+            # what Monte Carlo chance alone moves a metric by is a few of these
+            text += f"; {moved / self.se:+.2f} standard errors"
+        return text + ")"
 
 
 def baseline_path(data_dir: str | Path, name: str) -> Path:
@@ -67,9 +73,13 @@ def write_baseline(path: str | Path, name: str, summary: pl.DataFrame, previous:
     for rec in (previous or {}).get("metrics", []):
         old_tol[tuple(rec[k] for k in KEY)] = (rec.get("rtol", DEFAULT_RTOL), rec.get("atol", DEFAULT_ATOL))
     records = []
-    for row in summary.select(*KEY, "value").iter_rows(named=True):
+    with_se = summary if "se" in summary.columns else summary.with_columns(pl.lit(None, pl.Float64).alias("se"))
+    for row in with_se.select(*KEY, "value", "se").iter_rows(named=True):
         rtol, atol = old_tol.get(tuple(row[k] for k in KEY), (DEFAULT_RTOL, DEFAULT_ATOL))
-        records.append({**{k: row[k] for k in KEY}, "value": row["value"], "rtol": rtol, "atol": atol})
+        record = {**{k: row[k] for k in KEY}, "value": row["value"], "rtol": rtol, "atol": atol}
+        if row["se"] is not None and row["se"] == row["se"]:
+            record["se"] = row["se"]
+        records.append(record)
     present = set(summary["tracker"].unique()) if summary.height else set()
     kept = {n: spec for n, spec in plugged_trackers(previous or {}).items() if n not in present}
     records += [rec for rec in (previous or {}).get("metrics", []) if rec["tracker"] in kept]
@@ -126,7 +136,7 @@ def compare(summary: pl.DataFrame, baseline: dict, unbaselined=()) -> list[Drift
         elif _is_nan(old) and _is_nan(new):
             continue
         elif _is_nan(old) or _is_nan(new) or abs(new - old) > tol:
-            drifts.append(Drift(*key, old, new, tol))
+            drifts.append(Drift(*key, old, new, tol, rec.get("se")))
     for key, new in now.items():
         if key not in seen and key[0] not in unbaselined:
             drifts.append(Drift(*key, None, new, 0.0))

@@ -111,3 +111,68 @@ def jackknife(statistic, n_runs: int, groups: int = JACKKNIFE_GROUPS, prob: floa
     se = np.where(np.isfinite(value), se, np.nan)
     half = t_quantile(G - 1, prob) * se
     return value, se, value - half, value + half
+
+
+def subset_runs(arrays: dict, runs: np.ndarray, n_runs: int) -> dict:
+    """``arrays`` with every array that has a leading run axis of ``n_runs`` cut to ``runs``.
+
+    Nested dicts are followed; anything else (scalars, None, per-scan arrays under a key that
+    is not a dict of run arrays) passes through unchanged.
+    """
+    out = {}
+    for key, value in arrays.items():
+        if isinstance(value, dict):
+            out[key] = subset_runs(value, runs, n_runs)
+        elif isinstance(value, np.ndarray) and value.ndim >= 1 and value.shape[0] == n_runs:
+            out[key] = value[runs]
+        else:
+            out[key] = value
+    return out
+
+
+def summary_intervals(score, runs_data: dict, n_runs: int, groups: int = JACKKNIFE_GROUPS, prob: float = 0.95):
+    """A long-form metric table with the grouped-jackknife standard error and interval of every row.
+
+    Parameters
+    ----------
+    score : callable
+        ``score(runs_data) -> (per_scan, summary)``; ``summary`` in long form with the key
+        columns ``tracker, metric, scope`` and ``value``.
+    runs_data : dict
+        Everything ``score`` reads that varies by Monte Carlo run (arrays with a leading run
+        axis of ``n_runs``; see :func:`subset_runs`), e.g. the trackers' outputs and the truth.
+    n_runs : int
+    groups : int
+        Jackknife groups G (runs are dealt round-robin; G re-scorings of G − 1 groups' runs).
+
+    Returns
+    -------
+    per_scan, summary : polars.DataFrame
+        ``score`` on all runs; ``summary`` gains ``se``, ``ci_low`` and ``ci_high`` (null for a
+        metric that is not finite or with fewer than two runs).
+    """
+    import polars as pl
+
+    per_scan, summary = score(runs_data)
+    key = ["tracker", "metric", "scope"]
+    parts = run_groups(n_runs, groups)
+    if not parts or summary.height == 0:
+        return per_scan, summary.with_columns(*(pl.lit(None, pl.Float64).alias(c) for c in ("se", "ci_low", "ci_high")))
+    everything = np.arange(n_runs)
+    index = {k: i for i, k in enumerate(summary.select(key).iter_rows())}
+    left_out = np.full((len(parts), summary.height), np.nan)
+    for g, part in enumerate(parts):
+        _, s = score(subset_runs(runs_data, np.setdiff1d(everything, part), n_runs))
+        for *k, v in s.select(*key, "value").iter_rows():
+            i = index.get(tuple(k))
+            if i is not None and v is not None:
+                left_out[g, i] = v
+    G = len(parts)
+    value = summary["value"].to_numpy().astype(float)
+    with np.errstate(invalid="ignore"):
+        centre = nanmean(left_out, axis=0)
+        se = np.sqrt((G - 1) / G * np.nansum((left_out - centre) ** 2, axis=0))
+    ok = np.isfinite(value) & np.all(np.isfinite(left_out), axis=0)
+    half = t_quantile(G - 1, prob) * se
+    column = lambda a: pl.Series(np.where(ok, a, np.nan)).fill_nan(None)
+    return per_scan, summary.with_columns(se=column(se), ci_low=column(value - half), ci_high=column(value + half))

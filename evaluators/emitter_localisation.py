@@ -19,6 +19,16 @@ Every (run, epoch) estimate is put in exactly one class before anything is avera
 RMSE, efficiency (RMSE / √trace(CRLB block)) and the fraction inside the 50 % error ellipse are
 computed over the ``truth`` class only; the counts of every class are reported next to them.
 d² is ‖A e‖² with A the whitened Jacobian at the truth, so no information matrix is inverted.
+
+Kim et al. (2013) report RMSE against the CRLB (eqs. 18–22, Figs. 5–7) over all runs; see
+``docs/papers/tdoa-fdoa.md``, "Every run is classified before anything is averaged". The bound
+at the truth is not computed here: the stage writes it beside the estimators' outputs as the
+entry :data:`CRLB_ENTRY` (``/emitter/estimates/crlb``), per estimator kind k
+(``joint``, ``tdoa``, ``fdoa``): ``whitened_jacobian_<k>`` (R, E, m, q) = Ψ^{-1/2} H at the truth
+over the kind's m measurement rows and q unknowns (the first q state components),
+``crlb_covariance_<k>`` (R, E, q, q) and ``crlb_singular_<k>`` (R, E). A tracker whose name is
+not a kind (a plugged one) is scored against the ``joint`` bound. This module reads outputs
+and truth only (no numerical cores).
 """
 
 from __future__ import annotations
@@ -27,33 +37,38 @@ import numpy as np
 import polars as pl
 
 from evaluators.tracking_metrics import long_form, rmse_overall
-from pipeline.cores.localisation.batched_least_squares import information_covariance
-from pipeline.cores.localisation.crlb import ellipse_scale
-from pipeline.cores.localisation.gauss_newton import (CONVERGED, DIVERGED, INVALID_START, RANK_DEFICIENT,
-                                   UNDERDETERMINED)
-from pipeline.cores.localisation.tdoa_fdoa_model import SPEED_OF_LIGHT_MPS, measurement_model, measurement_rows, unknowns
+from pipeline.errors import InputError
+from pipeline.vocabulary import CONVERGED, DIVERGED, INVALID_START, RANK_DEFICIENT, UNDERDETERMINED
 
 CLASSES = ("truth", "elsewhere", "diverged", "not_converged", "underdetermined", "unclassified")
 TRUTH, ELSEWHERE, DIVERGED_CLASS, NOT_CONVERGED_CLASS, UNDERDETERMINED_CLASS, UNCLASSIFIED = range(6)
 TRUTH_GATE_TAIL = 1e-6
 RESIDUAL_GATE_TAIL = 1e-3
 REPORTED_ITERATIONS = (1, 2, 3, 5, 10)  # the paper compares 5 and 10
+CRLB_ENTRY = "crlb"  # the stage's extra output: the CRLB at the truth per estimator kind
+DEFAULT_KIND = "joint"  # the bound a tracker that is not one of the kinds is scored against
 
 
-def truth_geometry(truth_state, sensor_pos, sensor_vel, pairs, carrier_hz, sigma, kind, stationary):
-    """Whitened Jacobian at the truth and the CRLB over the estimator's unknowns.
+def ellipse_scale(probability: float) -> float:
+    """√k with k = −2 ln(1 − P) (eq. 22): the Mahalanobis radius holding probability P in 2-D."""
+    if not 0 < probability < 1:
+        raise ValueError("probability must be in (0, 1)")
+    return float(np.sqrt(-2.0 * np.log1p(-probability)))
 
-    Parameters are per cell (any leading shape, e.g. runs × epochs). Returns ``A`` (..., m, q),
-    ``cov`` (..., q, q) (NaN where singular) and ``singular`` (...).
+
+def bound_of(crlb: dict, name: str):
+    """The bound at the truth that tracker ``name`` is scored against (its kind's, else joint's).
+
+    Returns ``A`` (..., m, q), ``cov`` (..., q, q) and ``singular`` (...) bool.
     """
-    rows = measurement_rows(kind, len(pairs))
-    free = unknowns(kind, stationary)
-    with np.errstate(all="ignore"):
-        _, H = measurement_model(truth_state, sensor_pos, sensor_vel, pairs, carrier_hz)
-        A = H[..., rows, :][..., free] / sigma[..., rows, None]
-    finite = np.all(np.isfinite(A), axis=(-2, -1))
-    cov, singular = information_covariance(np.where(finite[..., None, None], A, 0.0))
-    return A, cov, singular | ~finite
+    kind = name if f"whitened_jacobian_{name}" in crlb else DEFAULT_KIND
+    key = f"whitened_jacobian_{kind}"
+    if key not in crlb:
+        raise InputError(f"the {CRLB_ENTRY!r} output lacks {key!r} (have: {', '.join(sorted(crlb))})")
+    singular = np.asarray(crlb[f"crlb_singular_{kind}"])
+    if singular.dtype.kind == "f":  # read back from a file: NaN where a frame was missing
+        singular = np.nan_to_num(singular, nan=1.0)
+    return crlb[key], crlb[f"crlb_covariance_{kind}"], singular.astype(bool)
 
 
 def classify(flags, error, A_truth, singular, cost, dof, has_truth=True):
@@ -61,7 +76,8 @@ def classify(flags, error, A_truth, singular, cost, dof, has_truth=True):
 
     Parameters
     ----------
-    flags : ndarray of uint8 (...)
+    flags : ndarray of uint16 (...)
+        Bits of :data:`pipeline.vocabulary.FLAGS`.
     error : ndarray (..., q)
         Estimate − truth over the free components.
     A_truth : ndarray (..., m, q)
@@ -130,40 +146,41 @@ def scope_metrics(classes, err_free, cov, cost, iterations, dof, free, sel):
     return row
 
 
-def evaluate(times, tracks: dict, obs: dict, truth_state, stationary: bool):
+def evaluate(times, tracks: dict, truth_state, sigma_range_m, sigma_rate_mps):
     """Per-epoch and summary tables.
 
     Parameters
     ----------
     times : ndarray (E,)
     tracks : dict
-        ``tracker -> {"state", "iterates", "cost", "iterations", "flags", ...}`` (runs, epochs, ...).
-    obs : dict
-        ``sigma`` (R, E, 2N), ``pairs`` (N, 2), ``carrier_hz`` (R, E), ``sensor_pos``,
-        ``sensor_vel`` (R, E, M, 2).
+        ``tracker -> {"state", "flags", "iterates", "cost", "iterations", ...}`` (runs, epochs, ...),
+        and the stage's :data:`CRLB_ENTRY` (see the module docstring).
     truth_state : ndarray (R, E, 4) or None
-    stationary : bool
-        Velocity known (position-only estimators).
+    sigma_range_m, sigma_rate_mps : ndarray (E,)
+        The measurement noise per epoch in range units, c σ_TDOA and c σ_FDOA / f₀ averaged over
+        runs and pairs (the axis of the paper's Fig. 7).
     """
-    pairs = obs["pairs"]
-    n = len(pairs)
-    R, E = obs["sigma"].shape[:2]
-    sigma_r = SPEED_OF_LIGHT_MPS * np.mean(obs["sigma"][..., :n], axis=(0, 2))
-    sigma_v = SPEED_OF_LIGHT_MPS * np.mean(obs["sigma"][..., n:] / obs["carrier_hz"][..., None], axis=(0, 2))
+    if CRLB_ENTRY not in tracks:
+        raise InputError(f"the outputs lack the {CRLB_ENTRY!r} entry (the CRLB at the truth, written by the replay "
+                         "beside the estimators); replay the data set again")
+    crlb = tracks[CRLB_ENTRY]
+    sigma_r = np.asarray(sigma_range_m, float)
+    sigma_v = np.asarray(sigma_rate_mps, float)
+    R, E = np.asarray(crlb[f"crlb_singular_{DEFAULT_KIND}"]).shape[:2]
     noise_varies = E > 1 and not np.allclose(sigma_r, sigma_r[0], rtol=1e-12)
     per_scan_parts, summary_rows = [], []
     for name, out in tracks.items():
-        free = unknowns(name, stationary)
-        rows = measurement_rows(name, n)
-        dof = len(rows) - len(free)
+        if name == CRLB_ENTRY:
+            continue
+        A, cov_free, singular = bound_of(crlb, name)
+        n_rows, q = A.shape[-2:]
+        free = np.arange(q)  # every estimator's unknowns are the first q components
+        dof = n_rows - q
         flags = out["flags"]
         if truth_state is not None:
-            A, cov_free, singular = truth_geometry(truth_state, obs["sensor_pos"], obs["sensor_vel"], pairs,
-                                                   obs["carrier_hz"], obs["sigma"], name, stationary)
             err = out["state"][..., free] - truth_state[..., free]
         else:
-            q = len(free)
-            A = np.zeros((R, E, len(rows), q))
+            A = np.zeros((R, E, n_rows, q))
             cov_free = np.full((R, E, q, q), np.nan)
             singular = np.ones((R, E), bool)
             err = np.full((R, E, q), np.nan)
@@ -203,14 +220,13 @@ def evaluate(times, tracks: dict, obs: dict, truth_state, stationary: bool):
     return per_scan, summary
 
 
-def classes_of(tracks_out: dict, name: str, obs: dict, truth_state, stationary: bool) -> np.ndarray:
-    """Classes (runs, epochs) of one tracker's estimates (for the Rerun views)."""
-    free = unknowns(name, stationary)
-    rows = measurement_rows(name, len(obs["pairs"]))
-    A, _, singular = truth_geometry(truth_state, obs["sensor_pos"], obs["sensor_vel"], obs["pairs"],
-                                    obs["carrier_hz"], obs["sigma"], name, stationary)
-    err = tracks_out["state"][..., free] - truth_state[..., free]
-    return classify(tracks_out["flags"], err, A, singular, tracks_out["cost"], len(rows) - len(free))
+def classes_of(tracks_out: dict, crlb: dict, name: str, truth_state) -> np.ndarray:
+    """Classes (runs, epochs) of one tracker's estimates (for the Rerun views); ``crlb`` is the
+    stage's :data:`CRLB_ENTRY` output over the same cells."""
+    A, _, singular = bound_of(crlb, name)
+    n_rows, q = A.shape[-2:]
+    err = tracks_out["state"][..., :q] - truth_state[..., :q]
+    return classify(tracks_out["flags"], err, A, singular, tracks_out["cost"], n_rows - q)
 
 
 def report(summary: pl.DataFrame, per_scan: pl.DataFrame) -> str:

@@ -27,7 +27,7 @@ def filtered_mask(flags: np.ndarray) -> np.ndarray:
 
 
 def evaluate(times, tracks: dict, measured_xy, truth_state=None, cross_range_std=None,
-             nominal_cross_range_m: float | None = None):
+             nominal_cross_range_m: float | None = None, pcrb_position_var=None):
     """Per-scan and summary tables.
 
     Parameters
@@ -44,6 +44,10 @@ def evaluate(times, tracks: dict, measured_xy, truth_state=None, cross_range_std
         Without truth only innovation statistics are reported.
     cross_range_std : ndarray (runs, scans), optional
         True r·σ_θ per scan, for the above/below-nominal scopes.
+    pcrb_position_var : ndarray (scans,), optional
+        Trace of the position block of the posterior Cramér–Rao bound per scan (Tichavský,
+        Muravchik & Nehorai 1998): reported as ``pcrb_position_m`` and, over the filtered
+        scans, as ``position_efficiency`` = bound RMS / RMSE (≤ 1 for an unbiased tracker).
 
     Returns
     -------
@@ -88,6 +92,11 @@ def evaluate(times, tracks: dict, measured_xy, truth_state=None, cross_range_std
                        rmse_velocity_mps=rmse_overall(est[..., 2:], truth_state[..., 2:]),
                        npe_max=float(np.nanmax(npe)), npe_mean=float(nanmean(npe)),
                        scans_npe_ge_1=float(np.sum(npe >= 1.0)))
+            if pcrb_position_var is not None:
+                cols["pcrb_position_m"] = np.sqrt(pcrb_position_var)
+                filtered = ok.any(axis=0) & np.isfinite(pcrb_position_var)
+                bound = float(np.sqrt(np.mean(pcrb_position_var[filtered]))) if filtered.any() else np.nan
+                row.update(pcrb_position_m=bound, position_efficiency=bound / row["rmse_position_m"])
             for scope, sel in (("cross_range_above_nominal", above_scan), ("cross_range_below_nominal", ~above_scan)):
                 if not (sel & ok.any(axis=0)).any():
                     continue

@@ -28,6 +28,9 @@ from evaluators.confidence import jackknife, mean_interval, rms_interval
 from evaluators.consistency import consistency_summary, innovation_whiteness, normalised_squared
 from evaluators.set_distances import gospa
 from evaluators.tracking_metrics import nanmean
+from pipeline.vocabulary import DELETED, NO_TRACK, NOT_ESTIMATED
+
+NOT_A_TRACK = NO_TRACK | DELETED | NOT_ESTIMATED
 
 
 @dataclass(frozen=True)
@@ -48,6 +51,10 @@ class EvaluationSpace:
         Largest distance of a track-to-truth match.
     order : float
         OSPA/GOSPA order p.
+    unit : str
+        Unit of the distances as reported (suffix of the metric names, e.g. ``m``, ``deg``).
+    scale : float
+        Factor from the space's SI units to ``unit`` (180/π for angles reported in degrees).
     """
 
     truth_components: tuple
@@ -56,17 +63,24 @@ class EvaluationSpace:
     cutoff: float
     gate: float
     order: float = 2.0
+    unit: str = "m"
+    scale: float = 1.0
 
 
 def _as_slots(a, extra_dims: int):
-    """(R, K, n...) → (R, K, 1, n...) for single-track families; slot families pass through."""
-    a = np.asarray(a, float)
+    """(R, K, n...) → (R, K, 1, n...) for single-track families; slot families pass through.
+    ``extra_dims`` counts the per-track dimensions (1 for a state vector, 0 for flags)."""
+    a = np.asarray(a)
+    a = a if a.dtype.kind in "iu" else np.asarray(a, float)
     return a if a.ndim == 3 + extra_dims else a[:, :, None]
 
 
 def _with_ci(name: str, metric: str, value, se, lo, hi, scope: str = "overall") -> dict:
-    return {"tracker": name, "metric": metric, "scope": scope, "value": float(value), "se": float(se),
-            "ci_low": float(lo), "ci_high": float(hi)}
+    """A summary record; an interval that does not exist (a bound, a count with no spread over
+    runs) is null rather than NaN, so that it reads as absent."""
+    finite = lambda v: float(v) if np.isfinite(v) else None
+    return {"tracker": name, "metric": metric, "scope": scope, "value": finite(value), "se": finite(se),
+            "ci_low": finite(lo), "ci_high": finite(hi)}
 
 
 def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: float = 0.95):
@@ -97,6 +111,9 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
             continue  # an estimator's side outputs, not a tracker
         state = _as_slots(out["state"], 1)
         R, K, S, n = state.shape
+        # a slot holds a track only where its flags say it exists and was estimated
+        absent = (_as_slots(out["flags"], 0).astype(np.int64) & NOT_A_TRACK) > 0 if "flags" in out else np.zeros((R, K, S), bool)
+        state = np.where(absent[..., None], np.nan, state)
         cols = {"tracker": [name] * K, "scan": np.arange(K), "time_s": np.asarray(times, float)}
         # ---- innovation consistency (needs no truth)
         if "innovation" in out and "innovation_covariance" in out:
@@ -129,16 +146,21 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
         positions, true_positions = est[..., pos], tr[..., pos]
         # ---- OSPA / GOSPA per run and scan
         g = gospa(positions, true_positions, space.cutoff, space.order, space.angular)
-        for key in ("ospa", "gospa", "localisation", "missed", "false"):
-            cols[key if key in ("ospa", "gospa") else f"gospa_{key}"] = nanmean(g[key].astype(float), axis=0)
+        u, scale = space.unit, space.scale
+        for key in ("ospa", "gospa", "localisation"):
+            column = key if key in ("ospa", "gospa") else f"gospa_{key}"
+            cols[f"{column}_{u}"] = scale * nanmean(g[key].astype(float), axis=0)
+        for key in ("missed", "false"):
+            cols[f"gospa_{key}"] = nanmean(g[key].astype(float), axis=0)
         for key in ("ospa", "gospa"):
-            rows.append(_with_ci(name, f"{key}_mean", *mean_interval(nanmean(g[key], axis=1))))
+            rows.append(_with_ci(name, f"{key}_mean_{u}", *(scale * v for v in mean_interval(nanmean(g[key], axis=1)))))
         # ---- assignment over whole runs
         ids = out.get("track_id")
         a = assignment_metrics(positions, true_positions, space.gate,
                                None if ids is None else _as_slots(ids[..., None], 1)[..., 0], space.angular)
-        for key in ("mota", "motp", "idf1"):
+        for key in ("mota", "idf1"):
             rows.append(_with_ci(name, key, *mean_interval(a[key])))
+        rows.append(_with_ci(name, f"motp_{u}", *(scale * v for v in mean_interval(a["motp"]))))
         for key in ("mostly_tracked", "partially_tracked", "mostly_lost", "track_breaks", "id_switches",
                     "false_tracks", "misses", "false_positives"):
             rows.append(_with_ci(name, f"{key}_per_run", *mean_interval(a[key].astype(float))))
@@ -161,7 +183,7 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
             rows.append(_with_ci(name, "nees_time_average_low", c["time_low"], np.nan, np.nan, np.nan))
             rows.append(_with_ci(name, "nees_time_average_high", c["time_high"], np.nan, np.nan, np.nan))
             sq = np.where((match >= 0), np.sum(err[..., pos] ** 2, axis=-1), np.nan)
-            rows.append(_with_ci(name, "rmse_matched_position", *rms_interval(nanmean(sq, axis=(1, 2)))))
+            rows.append(_with_ci(name, f"rmse_matched_position_{u}", *(scale * v for v in rms_interval(nanmean(sq, axis=(1, 2))))))
         else:
             rows.append({"tracker": name, "metric": "nees", "scope": "no covariance", "value": None,
                          "se": None, "ci_low": None, "ci_high": None})

@@ -140,7 +140,7 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
     step(1)
     t2 = time.perf_counter()
     for stage in stages:
-        p, s = stage.evaluate(ds, results[stage.name], designs[stage.name])
+        p, s = stage.measure(ds, results[stage.name], designs[stage.name])
         per_scan.append(p.with_columns(pl.lit(stage.name).alias("stage")))
         summary.append(s.with_columns(pl.lit(stage.name).alias("stage")))
     timings["evaluate_s"] = time.perf_counter() - t2
@@ -149,7 +149,8 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
                        timings=timings)
     if out_path is not None:
         t3 = time.perf_counter()
-        meta = {METADATA_PROVENANCE: {"input": Path(ds.path).name, "package_version": __version__,
+        meta = {METADATA_PROVENANCE: {"input": Path(ds.path).name, "input_sha256": dataset_identity(ds),
+                                      "runs": str(_n_runs(results)), "package_version": __version__,
                                       "stages": ",".join(s.name for s in stages),
                                       "tracker_specs": json.dumps(list(_canonical(tracker_specs))),
                                       "design": json.dumps(designs, sort_keys=True, default=str)}}
@@ -180,6 +181,55 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
     return res
 
 
+def dataset_identity(ds) -> str:
+    """SHA-256 of the data set's file (its identity in the outputs' provenance); empty for an
+    in-memory data set."""
+    import hashlib
+
+    path = Path(ds.path) if ds.path else None
+    if path is None or not path.is_file():
+        return ""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def _n_runs(results) -> int:
+    for result in results.values():
+        for out in result["tracks"].values():
+            if "state" in out:
+                return int(out["state"].shape[0])
+    return 0
+
+
+def _outputs_of(ds, out_path, recover=False):
+    """The stage and trackers' outputs of a replay output file made from ``ds``.
+
+    Raises
+    ------
+    InputError
+        The file holds no tracker outputs, or its provenance says it was made from another data
+        set (a different content hash, or another run count).
+    """
+    out = read_dataset(out_path, recover=recover)
+    stage = stage_for_outputs(out.channels)
+    if stage is None:
+        raise InputError("holds no tracker output channels (expected /tracks/...)", out_path)
+    provenance = out.metadata.get(METADATA_PROVENANCE, {})
+    made_from = provenance.get("input_sha256", "")
+    identity = dataset_identity(ds)
+    if made_from and identity and made_from != identity:
+        raise InputError(f"these outputs were made from another data set ({provenance.get('input', '?')}, "
+                         f"sha256 {made_from[:12]}…), not {Path(ds.path).name} (sha256 {identity[:12]}…)", out_path)
+    result = stage.outputs_from_dataset(out)
+    if not stage.applies(ds.channels):
+        raise InputError(f"these are {stage.name} outputs but {Path(ds.path).name} holds no {stage.name} input "
+                         "channels", out_path)
+    return stage, result, provenance
+
+
 def evaluate_files(data_path, out_path=None, recover=False, tracker_specs=()) -> ReplayResult:
     """Metrics of a data set: from a replay output file if given, else by replaying in memory
     (with the plugged trackers ``tracker_specs`` beside the built-ins; their failures are in
@@ -189,15 +239,90 @@ def evaluate_files(data_path, out_path=None, recover=False, tracker_specs=()) ->
     if tracker_specs:
         raise InputError("--tracker applies when eval replays in memory; an output file's trackers already ran")
     ds = read_dataset(data_path, recover=recover)
-    out = read_dataset(out_path, recover=recover)
-    stage = stage_for_outputs(out.channels)
-    if stage is None:
-        raise InputError("holds no tracker output channels (expected /tracks/...)", out_path)
-    result = stage.outputs_from_dataset(out)
-    # score with the design the replay used (including its --set overrides), not the file's
-    used = json.loads(out.metadata.get(METADATA_PROVENANCE, {}).get("design", "{}")).get(stage.name)
-    design = stage.design(ds, {k: v for k, v in (used or {}).items() if k in stage.design_keys})
-    ds.cache[("design", stage.name)] = design
-    p, s = stage.evaluate(ds, result, design)
+    stage, result, provenance = _outputs_of(ds, out_path, recover)
+    design = _used_design(stage, ds, provenance)
+    p, s = stage.measure(ds, result, design)
     return ReplayResult(ds, p.with_columns(pl.lit(stage.name).alias("stage")),
                         s.with_columns(pl.lit(stage.name).alias("stage")), {stage.name: result})
+
+
+def _used_design(stage, ds, provenance) -> dict:
+    """The design a replay used (its --set overrides included), from its outputs' provenance."""
+    used = json.loads(provenance.get("design", "{}")).get(stage.name)
+    design = stage.design(ds, {k: v for k, v in (used or {}).items()
+                               if k in stage.design_keys or k in stage.evaluation_defaults})
+    ds.cache[("design", stage.name)] = design
+    return design
+
+
+@dataclass
+class Comparison:
+    """What ``replay compare`` found: the paired table and what the views need."""
+
+    table: pl.DataFrame
+    stage: object
+    dataset: Dataset
+    result_a: dict
+    result_b: dict
+    pairs: list
+
+
+def compare_files(a_path, b_path, data_path=None, pairs=None, recover=False) -> Comparison:
+    """Paired comparison of two replay outputs of the same data set (see :mod:`evaluators.compare`).
+
+    Parameters
+    ----------
+    a_path, b_path : path
+        Replay outputs (``tracks.mcap``).
+    data_path : path, optional
+        The data set; by default the file named in A's provenance, looked up beside A, in the
+        current folder and among the bundled data sets.
+    pairs : list of (str, str), optional
+        Trackers of A and B to compare (default: the names they share, or their only trackers).
+    """
+    from evaluators.compare import pair_trackers, paired_differences
+
+    if data_path is None:
+        data_path = _find_input(a_path, recover)
+    ds = read_dataset(data_path, recover=recover)
+    stage_a, result_a, prov_a = _outputs_of(ds, a_path, recover)
+    stage_b, result_b, _ = _outputs_of(ds, b_path, recover)
+    if stage_a.name != stage_b.name:
+        raise InputError(f"A holds {stage_a.name} outputs, B {stage_b.name} outputs: nothing to compare", b_path)
+    design = _used_design(stage_a, ds, prov_a)
+    tracked = lambda r: [n for n, o in r["tracks"].items() if "state" in o]
+    try:
+        pairs = pair_trackers(tracked(result_a), tracked(result_b), pairs)
+    except ValueError as exc:
+        raise InputError(str(exc), b_path) from None
+    runs_a = next(o["state"].shape[0] for o in result_a["tracks"].values() if "state" in o)
+    runs_b = next(o["state"].shape[0] for o in result_b["tracks"].values() if "state" in o)
+    if runs_a != runs_b:
+        raise InputError(f"A holds {runs_a} runs, B {runs_b}: not replays of the same data set", b_path)
+    reference = stage_a.reference(ds, design)
+    fixed = reference.get("fixed", {})
+
+    def score(tracks, reference_runs):
+        result = {"times": result_a["times"], "tracks": tracks}
+        return stage_a.score({"runs": reference_runs, "fixed": fixed}, result, design)
+
+    table = paired_differences(score, result_a["tracks"], result_b["tracks"], reference["runs"], runs_a, pairs)
+    return Comparison(table, stage_a, ds, result_a, result_b, pairs)
+
+
+def _installed_data() -> Path:
+    from importlib.resources import files
+
+    return Path(str(files("replay_data")))
+
+
+def _find_input(out_path, recover=False) -> Path:
+    out = read_dataset(out_path, recover=recover)
+    name = out.metadata.get(METADATA_PROVENANCE, {}).get("input")
+    if not name:
+        raise InputError("records no input data set; give it with --data", out_path)
+    for folder in (Path(out_path).resolve().parent, Path.cwd(), Path.cwd() / "data", _installed_data()):
+        if (folder / name).is_file():
+            return folder / name
+    raise InputError(f"was made from {name}, which is not beside it, in the current folder or among the bundled "
+                     "data sets; give it with --data", out_path)

@@ -131,16 +131,42 @@ def _default_out_dir(data: Path) -> Path:
     return Path.cwd() / "replay-out" / data.stem
 
 
+def _cell(value, low, high) -> str:
+    """A metric as read in a report: integers as integers, otherwise 4 significant digits, and
+    ± half the 95 % interval over Monte Carlo runs where there is one."""
+    if value is None or value != value:
+        return "—"
+    text = f"{int(value)}" if float(value).is_integer() and abs(value) < 1e9 else f"{value:.4g}"
+    if low is not None and high is not None and high > low:
+        text += f" ± {(high - low) / 2:.2g}"
+    return text
+
+
 def _print_summary(summary: pl.DataFrame, title: str) -> None:
-    wide = summary.pivot(on="metric", index=["tracker", "scope"], values="value", aggregate_function="first")
-    order = {"overall": 0}
-    wide = wide.with_columns(pl.col("scope").replace_strict(order, default=1).alias("_o")).sort(["_o", "scope", "tracker"]).drop("_o")
-    click.echo(title)
-    with pl.Config(tbl_rows=200, tbl_cols=30, tbl_width_chars=200, float_precision=4,
-                   tbl_hide_dataframe_shape=True, tbl_hide_column_data_types=True):
-        for (scope,), part in wide.group_by(["scope"], maintain_order=True):
-            click.echo(f"\n[{scope}]")
-            click.echo(part.drop("scope").select([c for c in part.columns if c != "scope" and part[c].null_count() < part.height]))
+    """One table per scope (and one for the standard measures): metrics down, trackers across."""
+    summary = summary.filter(pl.col("value").is_not_null())
+    for c in ("ci_low", "ci_high"):
+        if c not in summary.columns:
+            summary = summary.with_columns(pl.lit(None, pl.Float64).alias(c))
+    if "kind" not in summary.columns:
+        summary = summary.with_columns(pl.lit("family").alias("kind"))
+    summary = summary.with_columns(
+        section=pl.when(pl.col("kind") == "standard").then(pl.lit("standard measures")).otherwise(pl.col("scope")))
+    click.echo(title + "   (± half the 95 % interval over Monte Carlo runs)")
+    sections = summary["section"].unique(maintain_order=True).to_list()
+    sections.sort(key=lambda s: (s != "overall", s == "standard measures"))
+    trackers = summary["tracker"].unique(maintain_order=True).to_list()
+    with pl.Config(tbl_rows=400, tbl_cols=30, tbl_width_chars=160, tbl_hide_dataframe_shape=True,
+                   tbl_hide_column_data_types=True, fmt_str_lengths=40, tbl_cell_alignment="RIGHT"):
+        for section in sections:
+            part = summary.filter(pl.col("section") == section)
+            metrics = part["metric"].unique(maintain_order=True).to_list()
+            cells = {(r["metric"], r["tracker"]): _cell(r["value"], r["ci_low"], r["ci_high"])
+                     for r in part.iter_rows(named=True)}
+            shown = [t for t in trackers if any((m, t) in cells for m in metrics)]
+            table = pl.DataFrame({"metric": metrics, **{t: [cells.get((m, t), "") for m in metrics] for t in shown}})
+            click.echo(f"\n[{section}]")
+            click.echo(table)
 
 
 def _print_stage_reports(res) -> None:
@@ -170,7 +196,7 @@ def _export_tables(res, out_dir: Path) -> list[Path]:
 
 def _report_plot(res, out_dir: Path) -> list[Path]:
     """The generic per-scan figure plus every applicable stage's own figures."""
-    from evaluators.report_plots import plot_metrics_vs
+    from evaluators.report_plots import plot_consistency, plot_metrics_vs
     from pipeline.stages import STAGES
 
     paths = []
@@ -179,6 +205,9 @@ def _report_plot(res, out_dir: Path) -> list[Path]:
     if metrics:
         part = res.per_scan.filter(pl.col(metrics[0]).is_not_null()) if "stage" in res.per_scan.columns else res.per_scan
         paths.append(plot_metrics_vs(part, "scan", metrics, out_dir / "report.png", title=title, hlines={"npe": [1.0]}))
+    consistency = plot_consistency(res.per_scan, out_dir / "consistency.png", title=title)
+    if consistency is not None:
+        paths.append(consistency)
     for stage in STAGES:
         if stage.name in res.results:
             own = res.per_scan.filter(pl.col("stage") == stage.name) if "stage" in res.per_scan.columns else res.per_scan
@@ -396,6 +425,70 @@ def _json_value(v):
     if isinstance(v, float) and v != v:
         return None
     return v
+
+
+@main.command("compare")
+@click.argument("a_path", metavar="A", type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("b_path", metavar="B", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--data", "data_path", type=click.Path(dir_okay=False, path_type=Path),
+              help="The data set both were replayed from (default: the one A's provenance names).")
+@click.option("--pair", "pairs", multiple=True, metavar="A_NAME:B_NAME",
+              help="Compare tracker A_NAME of A with B_NAME of B (default: the trackers both hold).")
+@click.option("--json", "as_json", is_flag=True, help="Print the comparison as JSON records.")
+@click.option("-o", "--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
+              help="Write compare.csv/.parquet, compare.png and compare.rrd here (default: replay-out/compare).")
+@click.option("--recover", is_flag=True, help="Accept truncated MCAP files.")
+def compare_cmd(a_path, b_path, data_path, pairs, as_json, out_dir, recover):
+    """Paired comparison of two replays of the same data set (A − B, run against run).
+
+    Every metric of both, the difference with its 95 % interval from the paired runs, and a
+    verdict: better / worse for A, or no significant difference. Outputs of different data sets
+    are refused.
+
+    \b
+    Example:
+      replay data/radar_tws_demo.mcap --out before/tracks.mcap
+      replay data/radar_tws_demo.mcap --out after/tracks.mcap --set nominal_cross_range_m=120
+      replay compare after/tracks.mcap before/tracks.mcap
+    """
+    from evaluators.compare import write_comparison_figure
+    from pipeline.contract import atomic_output
+    from pipeline.replay import compare_files
+
+    parsed = []
+    for p in pairs:
+        if p.count(":") != 1 or not all(p.split(":")):
+            raise InputError(f"--pair {p!r}: expected A_NAME:B_NAME")
+        parsed.append(tuple(p.split(":")))
+    cmp = compare_files(a_path, b_path, data_path, parsed or None, recover)
+    table = cmp.table
+    if as_json:
+        click.echo(json.dumps([{k: _json_value(v) for k, v in r.items()} for r in table.to_dicts()]))
+    else:
+        click.echo(f"A = {a_path}\nB = {b_path}\ndata set: {Path(cmp.dataset.path).name}; "
+                   "difference A − B with ± half its 95 % paired interval")
+        with pl.Config(tbl_rows=400, tbl_width_chars=160, tbl_hide_dataframe_shape=True,
+                       tbl_hide_column_data_types=True, fmt_str_lengths=40):
+            shown = table.with_columns(
+                pl.struct("difference", "ci_low", "ci_high").map_elements(
+                    lambda r: _cell(r["difference"], r["ci_low"], r["ci_high"]), return_dtype=pl.String).alias("A − B"),
+                *(pl.col(c).map_elements(lambda v: _cell(v, None, None), return_dtype=pl.String) for c in ("value_a", "value_b")))
+            click.echo(shown.select("tracker_a", "tracker_b", "metric", "scope", "value_a", "value_b", "A − B", "verdict"))
+        counts = table["verdict"].value_counts(sort=True)
+        click.echo("verdicts: " + ", ".join(f"{r['verdict']} {r['count']}" for r in counts.iter_rows(named=True)))
+    out_dir = out_dir or Path.cwd() / "replay-out" / "compare"
+    out_dir.mkdir(parents=True, exist_ok=True)
+    with atomic_output(out_dir / "compare.csv", "w") as f:
+        table.write_csv(f)
+    with atomic_output(out_dir / "compare.parquet", "wb") as f:
+        table.write_parquet(f)
+    write_comparison_figure(table, out_dir / "compare.png", f"A = {a_path.name}  vs  B = {b_path.name}")
+    from pipeline.face.rerun_views import log_comparison
+
+    log_comparison(cmp, out_dir / "compare.rrd")
+    if not as_json:
+        click.echo(f"tables: {out_dir / 'compare.csv'} (+ .parquet); plot: {out_dir / 'compare.png'}; "
+                   f"recording: {out_dir / 'compare.rrd'}")
 
 
 @main.command("check")

@@ -12,6 +12,8 @@ VIEW_MODULES = {
     "radar-tws": "pipeline.face.rerun_radar_tws",
     "xcorr-peaks": "pipeline.face.rerun_bearing_peaks",
     "colored-noise-imm": "pipeline.face.rerun_colored_noise",
+    "array-bearing": "pipeline.face.rerun_array_bearing",
+    "tdoa-fdoa": "pipeline.face.rerun_emitter",
 }
 
 
@@ -31,3 +33,21 @@ def views_for(stage):
     """The module (or fallback) that draws ``stage``'s results in Rerun."""
     name = VIEW_MODULES.get(stage.name)
     return importlib.import_module(name) if name else _StageMethods
+
+
+def log_comparison(comparison, rrd_path) -> None:
+    """One recording with both replays on the same timeline: every tracker of A as ``A:name``
+    and of B as ``B:name``, drawn by the stage's own views, which lay them side by side."""
+    from pipeline.face.timeline import recording
+
+    stage, ds = comparison.stage, comparison.dataset
+    tracks = {}
+    for na, nb in comparison.pairs:
+        tracks[f"A:{na}"] = comparison.result_a["tracks"][na]
+        tracks[f"B:{nb}"] = comparison.result_b["tracks"][nb]
+    result = {"times": comparison.result_a["times"], "tracks": tracks}
+    design = stage.design(ds)
+    per_scan, _ = stage.measure(ds, result, design)
+    views = views_for(stage)
+    with recording(rrd_path, "trackreplay-compare", "compare", views.blueprint(stage, list(tracks), ds, 0)) as rec:
+        views.log_rerun(stage, rec, ds, result, per_scan, 0)

@@ -57,6 +57,9 @@ class Stage:
 
     name = ""
     family = ""
+    # design values of the standard measures (docs/evaluation.md): OSPA/GOSPA cut-off c and order
+    # p, and the largest track-to-truth distance of a match, in the family's own space
+    evaluation_defaults: dict = {}
     scenario = ""
     design_keys: tuple = ()
 
@@ -95,6 +98,7 @@ class Stage:
 
         scenario = load_scenario(self.scenario).params
         out = {k: scenario[k] for k in self.design_keys}
+        out.update({k: scenario.get(k, v) for k, v in self.evaluation_defaults.items()})
         for e in (self.entries() if entries is None else entries):
             for p in e.cls.params:
                 if p.name not in out:
@@ -196,10 +200,69 @@ class Stage:
         """The family's measurement object (:mod:`pipeline.trackers.interface`), checked."""
         raise NotImplementedError
 
-    def evaluate(self, dataset, result: dict, design: dict):  # pragma: no cover - interface
-        """Return ``(per_scan, summary)`` polars tables; summary in long form
-        ``tracker, metric, scope, value``."""
+    def evaluate(self, dataset, result: dict, design: dict):
+        """``(per_scan, summary)`` polars tables; summary in long form ``tracker, metric, scope,
+        value``. A stage implements :meth:`reference` and :meth:`score` (or overrides this)."""
+        return self.score(self.reference(dataset, design), result, design)
+
+    def reference(self, dataset, design: dict) -> dict:
+        """What the scores need from the data set: ``{"runs": {name: array with a leading run
+        axis}, "fixed": {...}}`` (truth, measured values; per-scan bounds under ``fixed``).
+        Keeping per-run values apart lets :meth:`measure` re-score subsets of the runs."""
         raise NotImplementedError
+
+    def score(self, reference: dict, result: dict, design: dict):
+        """``(per_scan, summary)`` from :meth:`reference` and the trackers' outputs."""
+        raise NotImplementedError
+
+    def standard_space(self, design: dict, reference: dict | None = None):
+        """The :class:`evaluators.standard.EvaluationSpace` of the family (its shape may depend
+        on the data set's :meth:`reference`), or None: no standard measures."""
+        return None
+
+    def standard_truth(self, reference: dict):
+        """Truth ``(R, K, [T,] n)`` in :meth:`standard_space`'s components, or None."""
+        return None
+
+    def measure(self, dataset, result: dict, design: dict):
+        """Every metric with its Monte Carlo interval: the family's own scores (grouped
+        jackknife over runs, :func:`evaluators.confidence.summary_intervals`) and the standard
+        measures (:func:`evaluators.standard.evaluate_standard`) where the family has a truth
+        space. Returns ``(per_scan, summary)``; summary columns ``tracker, metric, scope, value,
+        se, ci_low, ci_high``."""
+        import polars as pl
+
+        from evaluators.confidence import summary_intervals
+        from evaluators.standard import evaluate_standard
+
+        try:
+            reference = self.reference(dataset, design)
+        except NotImplementedError:
+            per_scan, summary = self.evaluate(dataset, result, design)
+            summary = summary.with_columns(*(pl.lit(None, pl.Float64).alias(c) for c in ("se", "ci_low", "ci_high")))
+            reference = None
+        else:
+            tracks = result["tracks"]
+            n_runs = next(iter(o["state"] for o in tracks.values() if "state" in o)).shape[0]
+            fixed = reference.get("fixed", {})
+
+            def score(runs_data):
+                sub = {**result, "tracks": runs_data["tracks"]}
+                return self.score({"runs": runs_data["reference"], "fixed": fixed}, sub, design)
+
+            per_scan, summary = summary_intervals(score, {"tracks": tracks, "reference": reference["runs"]}, n_runs,
+                                                  groups=10)
+        space = self.standard_space(design, reference)
+        if space is None:
+            return per_scan, summary
+        truth = self.standard_truth(reference) if reference is not None else None
+        tracks = {n: o for n, o in result["tracks"].items() if "state" in o and "flags" in o}
+        std_scan, std_summary = evaluate_standard(result["times"], tracks, truth, space)
+        if std_scan.height and per_scan.height and "scan" in per_scan.columns:
+            extra = [c for c in std_scan.columns if c not in per_scan.columns or c in ("tracker", "scan")]
+            per_scan = per_scan.join(std_scan.select(extra), on=["tracker", "scan"], how="left")
+        return per_scan, pl.concat([summary.with_columns(kind=pl.lit("family")),
+                                    std_summary.with_columns(kind=pl.lit("standard"))], how="diagonal_relaxed")
 
     def log_rerun(self, rec, dataset, result: dict, per_scan, run: int = 0) -> None:  # pragma: no cover
         raise NotImplementedError

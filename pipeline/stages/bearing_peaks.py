@@ -17,6 +17,7 @@ from evaluators import track_association as assoc_eval
 from pipeline import vocabulary as vocab
 from pipeline.errors import InputError, require_finite
 from pipeline.stages.base import Stage
+from evaluators.standard import EvaluationSpace
 from pipeline.trackers.interface import BearingPeaks, call_tracker
 from pipeline.trackers.peak_roles import roles_for
 
@@ -177,11 +178,27 @@ class BearingPeaksStage(Stage):
                 n_targets=n_targets(peaks, truth, dataset.path), truth_bearing_rad=truth, truth_rate_radps=rate)
         return dataset.cache["bearing_peaks"]
 
-    def evaluate(self, dataset, result: dict, design: dict):
-        R, K, T = next(iter(result["tracks"].values()))["state"].shape[:3]
-        truth = read_truth(dataset, R, K)
-        return assoc_eval.evaluate(result["times"], result["tracks"], truth, float(np.deg2rad(design["gate_deg"])),
-                                   roles_for(design, T))
+    evaluation_defaults = {"ospa_cutoff_deg": 10.0, "ospa_order": 2.0, "assignment_gate_deg": 5.0}
+
+    def reference(self, dataset, design: dict) -> dict:
+        m = self.decode(dataset)
+        return {"runs": {"truth": m.truth_bearing_rad}, "fixed": {}}
+
+    def score(self, reference: dict, result: dict, design: dict):
+        tracks = {n: o for n, o in result["tracks"].items() if "state" in o}
+        T = next(iter(tracks.values()))["state"].shape[2]
+        return assoc_eval.evaluate(result["times"], tracks, reference["runs"]["truth"],
+                                   float(np.deg2rad(design["gate_deg"])), roles_for(design, T))
+
+    def standard_space(self, design: dict, reference: dict | None = None):
+        return EvaluationSpace(truth_components=(0,), position_components=(0,), angular=True,
+                               cutoff=float(np.deg2rad(design["ospa_cutoff_deg"])),
+                               gate=float(np.deg2rad(design["assignment_gate_deg"])), order=float(design["ospa_order"]),
+                               unit="deg", scale=float(np.rad2deg(1.0)))
+
+    def standard_truth(self, reference: dict):
+        truth = reference["runs"]["truth"]
+        return None if truth is None else truth[..., None]
 
     def report(self, summary, per_scan) -> str:
         if "stage" in summary.columns:

@@ -23,6 +23,7 @@ from evaluators import colored_noise_imm as colored_eval
 from pipeline import vocabulary as vocab
 from pipeline.errors import InputError, require_finite
 from pipeline.stages.base import Stage
+from evaluators.standard import EvaluationSpace
 from pipeline.trackers.colored_noise import MODEL_NAMES, ar1_outputs, parse_matrix  # noqa: F401 (parse_matrix: benchmarks)
 from pipeline.trackers.interface import ColoredPositions
 
@@ -95,11 +96,28 @@ class ColoredNoiseImmStage(Stage):
 
     # ------------------------------------------------------------------ evaluation
 
-    def evaluate(self, dataset, result: dict, design: dict):
+    evaluation_defaults = {"ospa_cutoff_m": 100.0, "ospa_order": 2.0, "assignment_gate_m": 50.0}
+
+    def reference(self, dataset, design: dict) -> dict:
         _, _, state, alpha = self.decode_inputs(dataset)
-        return colored_eval.evaluate(result["times"], result["tracks"], state, alpha,
+        return {"runs": {"truth_state": state, "truth_alpha": alpha}, "fixed": {}}
+
+    def score(self, reference: dict, result: dict, design: dict):
+        runs = reference["runs"]
+        return colored_eval.evaluate(result["times"], result["tracks"], runs["truth_state"], runs["truth_alpha"],
                                      float(design["measurement_variance_m2"]), float(design["ar_forgetting_factor"]),
                                      list(MODEL_NAMES))
+
+    def standard_space(self, design: dict, reference: dict | None = None):
+        state = None if reference is None else reference["runs"]["truth_state"]
+        n = 3 if state is None else state.shape[-1]
+        # state [p, v, a] per axis: the positions are every third component
+        return EvaluationSpace(truth_components=tuple(range(n)), position_components=tuple(range(0, n, 3)),
+                               angular=False, cutoff=float(design["ospa_cutoff_m"]),
+                               gate=float(design["assignment_gate_m"]), order=float(design["ospa_order"]))
+
+    def standard_truth(self, reference: dict):
+        return reference["runs"]["truth_state"]
 
     def figures(self, per_scan, out_dir, title: str = "") -> list:
         return colored_eval.write_figures(per_scan, out_dir, title=title)

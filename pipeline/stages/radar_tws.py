@@ -18,6 +18,8 @@ from pipeline import vocabulary as vocab
 from pipeline.trackers.interface import RadarPlots
 from pipeline.errors import InputError, require_finite
 from pipeline.stages.base import Stage
+from pipeline.trackers.radar_tws import radar_pcrb
+from evaluators.standard import EvaluationSpace
 
 PLOTS = vocab.CHANNELS["radar_plots"]
 TRUTH = vocab.CHANNELS["radar_truth"]
@@ -57,17 +59,42 @@ class RadarTwsStage(Stage):
         return RadarPlots(range_m=rng, bearing_rad=brg, counts=counts, times_s=times,
                           truth_state=truth.grid("state") if truth is not None else None)
 
-    def evaluate(self, dataset, result: dict, design: dict):
+    evaluation_defaults = {"ospa_cutoff_m": 1000.0, "ospa_order": 2.0, "assignment_gate_m": 500.0}
+
+    def reference(self, dataset, design: dict) -> dict:
         rng, brg, counts, times = self.decode_plots(dataset)
         first = np.where(counts > 0, 0, -1)
         measured = polar_to_cartesian(rng[..., 0], brg[..., 0]) if rng.shape[2] else np.full(counts.shape + (2,), np.nan)
         measured[first < 0] = np.nan
         truth = dataset.channels.get(TRUTH)
-        truth_state = cross_std = None
+        runs, fixed = {"measured": measured}, {}
         if truth is not None:
             truth_state = truth.grid("state")
             if truth_state.shape[:2] != counts.shape:
                 raise InputError(f"{TRUTH} covers {truth_state.shape[:2]} run×scan, plots {counts.shape}", dataset.path)
-            cross_std = np.hypot(truth_state[..., 0], truth_state[..., 1]) * np.deg2rad(design["sigma_bearing_deg"])
-        return radar_eval.evaluate(result["times"], result["tracks"], measured, truth_state, cross_std,
-                                   design["nominal_cross_range_m"])
+            require_finite(f"{TRUTH} state", truth_state, dataset.path)
+            runs["truth_state"] = truth_state
+            runs["cross_std"] = np.hypot(truth_state[..., 0], truth_state[..., 1]) * np.deg2rad(design["sigma_bearing_deg"])
+            recorded = dataset.scenario.get("params", {})
+            if all(k in recorded for k in ("truth_process_noise_mps2", "sigma_range_m")):
+                # the bound needs the truth's own noise, which only a simulated file records
+                fixed["pcrb"] = radar_pcrb(truth_state, times, float(recorded["truth_process_noise_mps2"]),
+                                           float(recorded["sigma_range_m"]),
+                                           float(np.deg2rad(float(recorded.get("sigma_bearing_deg", design["sigma_bearing_deg"])))),
+                                           counts > 0)
+        return {"runs": runs, "fixed": fixed}
+
+    def score(self, reference: dict, result: dict, design: dict):
+        runs, fixed = reference["runs"], reference.get("fixed", {})
+        pcrb = fixed.get("pcrb")
+        return radar_eval.evaluate(result["times"], result["tracks"], runs["measured"], runs.get("truth_state"),
+                                   runs.get("cross_std"), design["nominal_cross_range_m"],
+                                   None if pcrb is None else pcrb[:, 0, 0] + pcrb[:, 1, 1])
+
+    def standard_space(self, design: dict, reference: dict | None = None):
+        return EvaluationSpace(truth_components=(0, 1, 2, 3), position_components=(0, 1), angular=False,
+                               cutoff=float(design["ospa_cutoff_m"]), gate=float(design["assignment_gate_m"]),
+                               order=float(design["ospa_order"]))
+
+    def standard_truth(self, reference: dict):
+        return reference["runs"].get("truth_state")
