@@ -16,6 +16,8 @@ See ``docs/evaluation.md``.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import numpy as np
 
 from evaluators.tracking_metrics import nanmean
@@ -113,21 +115,37 @@ def jackknife(statistic, n_runs: int, groups: int = JACKKNIFE_GROUPS, prob: floa
     return value, se, value - half, value + half
 
 
-def subset_runs(arrays: dict, runs: np.ndarray, n_runs: int) -> dict:
+class _RunSubset(Mapping):
+    """A read-only view of a dict of per-run arrays cut to some runs; an array is cut (copied)
+    only when read, so a scorer pays for the outputs it uses, not for every covariance."""
+
+    def __init__(self, arrays: dict, runs: np.ndarray, n_runs: int):
+        self._arrays, self._runs, self._n_runs, self._cache = arrays, runs, n_runs, {}
+
+    def __getitem__(self, key):
+        if key not in self._cache:
+            value = self._arrays[key]
+            if isinstance(value, Mapping):
+                value = _RunSubset(value, self._runs, self._n_runs)
+            elif isinstance(value, np.ndarray) and value.ndim >= 1 and value.shape[0] == self._n_runs:
+                value = value[self._runs]
+            self._cache[key] = value
+        return self._cache[key]
+
+    def __iter__(self):
+        return iter(self._arrays)
+
+    def __len__(self):
+        return len(self._arrays)
+
+
+def subset_runs(arrays: dict, runs: np.ndarray, n_runs: int) -> Mapping:
     """``arrays`` with every array that has a leading run axis of ``n_runs`` cut to ``runs``.
 
-    Nested dicts are followed; anything else (scalars, None, per-scan arrays under a key that
-    is not a dict of run arrays) passes through unchanged.
+    Nested mappings are followed; anything else (scalars, None) passes through unchanged. The
+    result is a read-only mapping that cuts each array when it is first read.
     """
-    out = {}
-    for key, value in arrays.items():
-        if isinstance(value, dict):
-            out[key] = subset_runs(value, runs, n_runs)
-        elif isinstance(value, np.ndarray) and value.ndim >= 1 and value.shape[0] == n_runs:
-            out[key] = value[runs]
-        else:
-            out[key] = value
-    return out
+    return _RunSubset(arrays, np.asarray(runs), n_runs)
 
 
 def summary_intervals(score, runs_data: dict, n_runs: int, groups: int = JACKKNIFE_GROUPS, prob: float = 0.95):

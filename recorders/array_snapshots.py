@@ -1,6 +1,7 @@
 """Uniform-linear-array snapshot simulator: N far-field moving targets, complex M × Ns per scan.
 
-Spec: ``shared/spec/array-angle-tracking.md`` ("Signal model", "Paper's simulation").
+Ryu, Lee & Lee (2001), signal model (eqs. (1)–(5)) and simulation set-up (section V); see
+``docs/papers/array-bearing.md``.
 
     r(t) = Σₙ sₙ(t) a(θₙ) + n(t),   a(θ) = [1, γ, …, γ^(M−1)]ᵀ,  γ = exp(j 2π (d/λ) sin θ)
 
@@ -25,12 +26,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline import vocabulary as vocab
 from pipeline.errors import InputError, check_all, require_finite_params
 from pipeline.cores.array.linear_array import steering_vectors
 from recorders.simulated import SimulatedData
 
-SNAPSHOTS_TOPIC = "/array/snapshots"
-TRUTH_TOPIC = "/array/truth"
+SNAPSHOTS_TOPIC = vocab.CHANNELS["array_snapshots"]
+TRUTH_TOPIC = vocab.CHANNELS["array_truth"]
 SNAPSHOT_DTYPES = {"complex64": np.complex64, "complex128": np.complex128}
 
 

@@ -2,9 +2,9 @@
 
 One narrowband frequency bin of a short-time Fourier transform gives one complex snapshot per
 channel and frame; consecutive frames are grouped into scans of ``snapshots_per_scan`` frames
-(the interval [(k−1)T, kT] of the spec, T = Ns · hop / fs). The result is written to
+(the interval [(k−1)T, kT] of Ryu, Lee & Lee 2001, T = Ns · hop / fs). The result is written to
 ``/array/snapshots`` exactly as the simulator writes it (one run, no truth), so a recording goes
-through the same trackers (``replay out.mcap``).
+through the same trackers (``replay out.mcap``; see ``docs/papers/array-bearing.md``).
 
 Conventions:
 
@@ -24,10 +24,12 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline import vocabulary as vocab
 from pipeline.contract import scenario_metadata
 from pipeline.errors import InputError, check_all, require_finite
-from recorders.array_snapshots import SNAPSHOTS_TOPIC
 from recorders.simulated import SimulatedData, write_simulated
+
+SNAPSHOTS_TOPIC = vocab.CHANNELS["array_snapshots"]
 
 
 def read_wav(path: str | Path) -> tuple[int, np.ndarray]:

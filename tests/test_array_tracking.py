@@ -107,12 +107,12 @@ def test_mse_falls_as_snr_rises(crossing):
 def test_both_algorithms_give_the_same_tracks_and_mse(crossing):
     _, res = crossing
     tracks = res.results["array-bearing"]["tracks"]
-    a, b = tracks["proposed"]["angle_rad"], tracks["ryu"]["angle_rad"]
+    a, b = tracks["proposed"]["state"][..., 0], tracks["ryu"]["state"][..., 0]
     assert np.nanmax(np.abs(a - b)) < 1e-9  # identical innovations → identical filters
     for v in (0, 5, 10):
         sel = res.dataset.channel("/array/truth").grid("snr_db")[:, 0] == v
         truth = res.dataset.channel("/array/truth").grid("angle_rad")[sel][:, 2:]
-        per_run = {t: np.mean(np.rad2deg(tracks[t]["angle_rad"][sel][:, 2:] - truth) ** 2, axis=(1, 2)) for t in tracks}
+        per_run = {t: np.mean(np.rad2deg(tracks[t]["state"][sel][:, 2:, :, 0] - truth) ** 2, axis=(1, 2)) for t in tracks}
         diff = per_run["proposed"] - per_run["ryu"]
         mc_error = 2 * np.std(per_run["proposed"]) / np.sqrt(sel.sum())
         assert abs(metric(res.summary, "proposed", "angle_mse_deg2", f"snr_db={v}")
@@ -196,7 +196,7 @@ def test_wav_recording_goes_through_the_same_trackers(tmp_path):
     assert ds.channel("/array/snapshots").arrays["snapshots"][0].shape == (8, 30)
     assert ds.scenario["params"]["spacing_wavelengths"] == pytest.approx(0.04 * 2000 / 343.0)
     res = replay(mcap)
-    est = np.rad2deg(res.results["array-bearing"]["tracks"]["proposed"]["angle_rad"][0, 2:])
+    est = np.rad2deg(res.results["array-bearing"]["tracks"]["proposed"]["state"][0, 2:, :, 0])
     assert est.shape[-1] == 2
     assert np.all(np.abs(est - [-20.0, 25.0]) < 1.0)
 

@@ -1,4 +1,5 @@
-"""``replay convert array-wav``: a multichannel WAV array recording → snapshot channels.
+"""``replay convert array-wav``: a multichannel WAV array recording → snapshot channels, the input
+of the array-snapshot bearing trackers (Ryu, Lee & Lee 2001; ``docs/papers/array-bearing.md``).
 
 Registered under the existing ``replay convert`` group (this module is listed in
 ``pipeline.face.cli.EXTENSION_MODULES``; it adds no top-level command).

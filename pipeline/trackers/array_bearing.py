@@ -1,48 +1,73 @@
-"""Multi-target angle tracking from array snapshots: MUSIC start-up → PAST → per-target Kalman
-filters fed by the angular innovation (Ryu, Lee & Lee 2001; Ryu et al. 1999).
+"""Ryu, Lee & Lee (2001): multi-target bearing tracking from array snapshots with the angular
+innovation; Ryu et al. (1999) for the least-squares innovation it replaces.
 
-Spec: ``shared/spec/array-angle-tracking.md`` (paper section III.2, steps 1–5, eqs. (14)–(22)).
+The paper's section III.2, steps 1–5, eqs. (14)–(22); see ``docs/papers/array-bearing.md``.
+Two trackers of the family ``array-snapshots`` share one pipeline and differ only in how the
+angular innovation is computed (:mod:`pipeline.cores.array.angular_innovation`):
+
+``proposed``  the paper's closed form (eqs. (7), (11)–(13));
+``ryu``       Ryu et al. (1999)'s (2N+1)-unknown least squares (eq. (6) of the 1999 paper).
 
 Scan 0 is the paper's k = −1, scan 1 is k = 0, tracking starts at scan 2 (k = 1):
 
-1. **Start-up** (step 1): MUSIC on scans 0 and 1 (:mod:`pipeline.cores.array.music`). The number of targets
-   N is the source count (MDL or AIC) of scan 1, or the design's fixed ``n_sources``; N peaks
-   are picked in both scans and associated by nearest angle (for two sorted sets of N angles,
-   pairing by rank is the nearest-angle assignment). Per target
+1. **Start-up** (step 1): MUSIC on scans 0 and 1 (:mod:`pipeline.cores.array.music`). The number
+   of targets N is the source count (MDL or AIC) of scan 1, or the design's fixed ``n_sources``;
+   N peaks are picked in both scans and associated by nearest angle (for two sorted sets of N
+   angles, pairing by rank is the nearest-angle assignment). Per target
    ``x(0|0) = [θ̂(0), (θ̂(0) − θ̂(−1))/T]``,
-   ``P(0|0) = [[σ_z², σ_z²/T], [σ_z²/T, 2σ_z²/T²]]`` (the spec's correction of the printed
+   ``P(0|0) = [[σ_z², σ_z²/T], [σ_z²/T, 2σ_z²/T²]]`` (the two-point difference; the paper prints
    σ_z²/T²).
-2. **Subspace**: PAST (:mod:`pipeline.cores.array.past_subspace`) initialised from the EVD of scan 0 and run
-   over every snapshot of scans 1, 2, …; W(k) is its state at the end of scan k. The per-scan
-   batch EVD is computed alongside as the reference (``subspace_error_rad`` = largest principal
-   angle between the two) and can replace PAST (``subspace="batch"``).
+2. **Subspace**: PAST (Yang 1995, :mod:`pipeline.cores.array.past_subspace`) initialised from the
+   EVD of scan 0 and run over every snapshot of scans 1, 2, …; W(k) is its state at the end of
+   scan k. The per-scan batch EVD is computed alongside as the reference (``subspace_error_rad``
+   = largest principal angle between the two) and can replace PAST (``subspace_tracker=batch``).
 3. **Kalman filter** per target, constant angular velocity, ``F = [[1, T], [0, 1]]``,
-   ``Q = q [[T³/3, T²/2], [T²/2, T]]``, ``H = [1, 0]``, variance σ_z²
-   (:mod:`pipeline.cores.filters.kalman`); the update uses the angular innovation δθ(k) from W(k) and the
-   prediction θ̂(k|k−1) (:mod:`pipeline.cores.array.angular_innovation`, strategy ``proposed`` or ``ryu``)
-   in place of z − Hx. A non-finite innovation (prediction at end-fire) leaves the track
-   coasting and sets :data:`FLAG_COASTED`.
+   ``Q = q [[T³/3, T²/2], [T²/2, T]]``, ``H = [1, 0]``, variance σ_z² (eqs. (14)–(22),
+   :mod:`pipeline.cores.filters.kalman`); the update uses the angular innovation δθ(k) from W(k)
+   and the prediction θ̂(k|k−1) in place of z − Hx. A non-finite innovation (prediction at
+   end-fire) leaves the track coasting (flag ``COASTED``).
 
 The N of each run comes from its own start-up, so runs are processed in groups of equal N, each
-group in one vectorised pass (no loop per run). Outputs are padded to the largest N with NaN.
+group in one vectorised pass (no loop per run). Track slots are padded to the largest N (flag
+``NO_TRACK``, state NaN).
+
+Outputs (vocabulary of :data:`pipeline.vocabulary.OUTPUTS`, T track slots):
+``state`` (R, K, T, 2) ``[θ, θ̇]`` in rad and rad/s (scan 0 has no rate: ``NOT_ESTIMATED``),
+``covariance`` (R, K, T, 2, 2) from scan 1 on, ``innovation`` (R, K, T, 1) the angular innovation
+δθ, ``innovation_covariance`` (R, K, T, 1, 1), ``gain`` (R, K, T, 2, 1), ``flags`` (R, K, T)
+(``INITIALISING`` on scans 0 and 1, ``COASTED``, ``NO_TRACK``). The paper's extras:
+``predicted_rad`` (R, K, T) θ̂(k|k−1); ``n_tracks``, ``source_count`` (R, K) the run's N and
+its MDL/AIC count at scan 1; ``subspace_error_rad`` (R, K); and the cost of each scan's
+innovation step (section IV): ``innovation_flops_model`` (the paper's analytic model),
+``innovation_flops_counted`` (what our kernel executes, steering vectors excluded) and
+``steering_flops_counted`` (R, K), NaN where no innovation is computed.
+
+The start-up and the subspace sequence do not depend on the innovation strategy: both trackers
+of one replay compute them once (:func:`shared_front_end`, a memo keyed on the read-only
+snapshot array the stage decodes); the numbers are the same either way.
 """
 
 from __future__ import annotations
 
-import time
+import dataclasses
+import threading
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
 
+from pipeline import vocabulary as vocab
 from pipeline.cores.array.angular_innovation import INNOVATIONS
-from pipeline.cores.filters.kalman import apply_gain, continuous_white_noise_model, kalman_gain, kf_predict, two_point_start
+from pipeline.cores.array.flop_counts import ANALYTIC, counted_flops
 from pipeline.cores.array.music import angle_grid, eigen_decomposition, music_spectrum, pick_peaks, sample_covariance, source_count
 from pipeline.cores.array.past_subspace import batch_signal_subspace, initial_state, largest_principal_angle, past_update
+from pipeline.cores.filters.kalman import apply_gain, continuous_white_noise_model, kalman_gain, kf_predict, two_point_start
+from pipeline.errors import InputError
+from pipeline.trackers.interface import ArraySnapshots, Param, Tracker
 
-FLAG_STARTUP = 1
-FLAG_COASTED = 2
 STARTUP_SCANS = 2
 SUBSPACES = ("past", "batch")
+CRITERIA = ("mdl", "aic")
 
 
 @dataclass(frozen=True)
@@ -88,6 +113,14 @@ class SubspaceTrackerDesign:
         R = np.array([[self.innovation_variance]])
         return F, Q, H, R
 
+    def front_end_key(self) -> tuple:
+        """The values the start-up and the subspace sequence depend on."""
+        return (self.spacing_wavelengths, self.forgetting, self.source_count, self.n_sources, self.grid_step_rad,
+                self.subspace)
+
+
+# --------------------------------------------------------------------------- step 1: start-up
+
 
 @dataclass
 class StartUp:
@@ -130,6 +163,9 @@ def start_up(snapshots: np.ndarray, design: SubspaceTrackerDesign) -> StartUp:
     return StartUp(n, thm1, th0, counts)
 
 
+# --------------------------------------------------------------------------- step 2: subspace
+
+
 def subspace_sequence(snapshots: np.ndarray, n: int, design: SubspaceTrackerDesign):
     """PAST and batch-EVD subspaces of every scan for runs sharing the signal dimension ``n``.
 
@@ -151,109 +187,244 @@ def subspace_sequence(snapshots: np.ndarray, n: int, design: SubspaceTrackerDesi
     return past, batch
 
 
-def _track_group(subspaces, theta_minus1, theta_0, design: SubspaceTrackerDesign, strategy: str):
-    """Steps 2–5 for a group of runs with the same number of tracks."""
+@dataclass
+class FrontEnd:
+    """What both innovation strategies share: the start-up and, per group of runs with the same
+    N, the subspace sequence the filters use."""
+
+    start: StartUp
+    groups: list  # [(run indices, N, subspaces (B_n, K, M, N))]
+    subspace_error: np.ndarray  # (B, K) largest principal angle, PAST vs batch EVD
+    n_sensors: int
+
+
+def front_end(snapshots: np.ndarray, design: SubspaceTrackerDesign) -> FrontEnd:
+    """Steps 1–2 for every run: start-up, then PAST (or batch EVD) per group of equal N."""
+    if design.subspace not in SUBSPACES:
+        raise ValueError(f"unknown subspace tracker {design.subspace!r} (have: {', '.join(SUBSPACES)})")
+    X = np.asarray(snapshots).astype(complex, copy=False)
+    B, K, M = X.shape[:3]
+    init = start_up(X, design)
+    sub_err = np.full((B, K), np.nan)
+    groups = []
+    for n in np.unique(init.n_tracks):
+        if n == 0:
+            continue
+        sel = np.flatnonzero(init.n_tracks == n)
+        past, batch = subspace_sequence(X[sel], int(n), design)
+        sub_err[sel] = largest_principal_angle(past, batch)
+        groups.append((sel, int(n), past if design.subspace == "past" else batch))
+    return FrontEnd(init, groups, sub_err, M)
+
+
+_MEMO = {"ref": None, "key": None, "value": None}
+_MEMO_LOCK = threading.Lock()
+
+
+def _forget(ref) -> None:
+    with _MEMO_LOCK:
+        if _MEMO["ref"] is ref:
+            _MEMO.update(ref=None, key=None, value=None)
+
+
+def shared_front_end(snapshots: np.ndarray, design: SubspaceTrackerDesign) -> FrontEnd:
+    """:func:`front_end`, computed once for consecutive trackers on the same snapshots.
+
+    Only a read-only array is remembered (the stage decodes one; its values cannot change
+    between two trackers), by a weak reference: the memo dies with the array.
+    """
+    key = design.front_end_key()
+    if not isinstance(snapshots, np.ndarray) or snapshots.flags.writeable:
+        return front_end(snapshots, design)
+    with _MEMO_LOCK:
+        ref = _MEMO["ref"]
+        if ref is not None and ref() is snapshots and _MEMO["key"] == key:
+            return _MEMO["value"]
+    value = front_end(snapshots, design)
+    with _MEMO_LOCK:
+        _MEMO.update(ref=weakref.ref(snapshots, _forget), key=key, value=value)
+    return value
+
+
+# --------------------------------------------------------------------------- steps 3–5: filters
+
+
+def _track_group(subspaces, theta_minus1, theta_0, design: SubspaceTrackerDesign, strategy: str) -> dict:
+    """Steps 3–5 for a group of runs with the same number of tracks ``n`` (outputs (B, K, n, ...))."""
     B, K, M, n = subspaces.shape
     F, Q, H, R = design.model()
     innovation_fn = INNOVATIONS[strategy]
     x, P = two_point_start(theta_minus1, theta_0, design.scan_period_s, np.sqrt(design.innovation_variance))  # (B, n, 2)
+    nan = np.nan
     out = {
-        "angle_rad": np.full((B, K, n), np.nan), "rate_radps": np.full((B, K, n), np.nan),
-        "angle_std_rad": np.full((B, K, n), np.nan), "predicted_rad": np.full((B, K, n), np.nan),
-        "innovation_rad": np.full((B, K, n), np.nan), "gain": np.full((B, K, n, 2), np.nan),
-        "flags": np.zeros((B, K, n), np.uint8), "innovation_time_s": np.zeros((B, K)),
+        "state": np.full((B, K, n, 2), nan), "covariance": np.full((B, K, n, 2, 2), nan),
+        "innovation": np.full((B, K, n, 1), nan), "innovation_covariance": np.full((B, K, n, 1, 1), nan),
+        "gain": np.full((B, K, n, 2, 1), nan), "predicted_rad": np.full((B, K, n), nan),
+        "flags": np.zeros((B, K, n), np.uint16),
     }
-    out["angle_rad"][:, 0], out["angle_rad"][:, 1] = theta_minus1, theta_0
-    out["rate_radps"][:, 1] = x[..., 1]
-    out["angle_std_rad"][:, 1] = np.sqrt(P[..., 0, 0])
-    out["flags"][:, :STARTUP_SCANS] = FLAG_STARTUP
+    out["state"][:, 0, :, 0] = theta_minus1  # k = −1: an angle, no rate yet
+    out["state"][:, 1] = x
+    out["covariance"][:, 1] = P
+    out["flags"][:, :STARTUP_SCANS] = vocab.INITIALISING
+    out["flags"][:, 0] |= vocab.NOT_ESTIMATED
     for k in range(STARTUP_SCANS, K):
         x, P = kf_predict(x, P, F, Q)
         out["predicted_rad"][:, k] = x[..., 0]
-        t0 = time.perf_counter()
         dtheta = innovation_fn(subspaces[:, k], x[..., 0], design.spacing_wavelengths)
-        out["innovation_time_s"][:, k] = (time.perf_counter() - t0) / max(B, 1)
-        gain, _ = kalman_gain(P, H, R)
+        gain, S = kalman_gain(P, H, R)
         ok = np.isfinite(dtheta)
         x_new, P_new = apply_gain(x, P, gain, np.where(ok, dtheta, 0.0)[..., None], H, R)
         x = np.where(ok[..., None], x_new, x)
         P = np.where(ok[..., None, None], P_new, P)
-        out["angle_rad"][:, k] = x[..., 0]
-        out["rate_radps"][:, k] = x[..., 1]
-        out["angle_std_rad"][:, k] = np.sqrt(P[..., 0, 0])
-        out["innovation_rad"][:, k] = dtheta
-        out["gain"][:, k] = gain[..., 0]
-        out["flags"][:, k] = np.where(ok, 0, FLAG_COASTED)
+        out["state"][:, k] = x
+        out["covariance"][:, k] = P
+        out["innovation"][:, k, :, 0] = dtheta
+        out["innovation_covariance"][:, k] = S
+        out["gain"][:, k] = gain
+        out["flags"][:, k] = np.where(ok, 0, vocab.COASTED)
     return out
 
 
-def track_bearings(snapshots: np.ndarray, design: SubspaceTrackerDesign, strategies=("proposed", "ryu")):
-    """Run the whole tracker over all Monte Carlo runs.
+def innovation_flops(strategy: str, n_sensors: int, n_targets: int) -> dict:
+    """Cost of one scan's innovation for N targets and M sensors (the paper's section IV).
+
+    Returns ``model`` (the paper's analytic count), ``counted`` (what our kernel executes,
+    steering vectors excluded: both strategies build the same â, b̂ and the paper does not count
+    them), ``steering`` (those steering vectors) and ``steps`` (counted FLOPs per step).
+    """
+    steps = counted_flops(strategy, n_sensors, n_targets)
+    return {"model": int(ANALYTIC[strategy](n_sensors, n_targets)),
+            "counted": int(sum(v for k, v in steps.items() if k != "steering")),
+            "steering": int(steps["steering"]), "steps": steps}
+
+
+def track_bearings(snapshots: np.ndarray, design: SubspaceTrackerDesign, strategy: str = "proposed") -> dict:
+    """Run the whole tracker with one innovation strategy over all Monte Carlo runs.
 
     Parameters
     ----------
     snapshots : ndarray, complex, shape (B, K, M, Ns)
-        Snapshot blocks per run and scan (validated by the caller: complex, finite,
-        N ≤ M − 1, Ns ≥ N).
+        Snapshot blocks per run and scan (complex, finite, N ≤ M − 1, Ns ≥ N).
     design : SubspaceTrackerDesign
-    strategies : sequence of str
-        Innovation strategies (keys of :data:`pipeline.cores.array.angular_innovation.INNOVATIONS`).
+    strategy : str
+        Innovation strategy, a key of :data:`pipeline.cores.array.angular_innovation.INNOVATIONS`.
 
     Returns
     -------
-    dict
-        ``strategy -> {array name -> ndarray (B, K, ...)}``: ``angle_rad``, ``rate_radps``,
-        ``angle_std_rad``, ``predicted_rad``, ``innovation_rad``, ``gain`` (…, 2),
-        ``flags``, ``innovation_time_s`` (per run and scan), ``n_tracks``,
-        ``subspace_error_rad`` (PAST vs batch EVD, largest principal angle).
+    dict of ndarray
+        The outputs listed in the module docstring, each ``(B, K, ...)``.
     """
-    if design.subspace not in SUBSPACES:
-        raise ValueError(f"unknown subspace tracker {design.subspace!r} (have: {', '.join(SUBSPACES)})")
-    X = np.asarray(snapshots).astype(complex, copy=False)
-    B, K = X.shape[:2]
-    init = start_up(X, design)
-    width = init.theta_0.shape[1]
-    outputs = {s: None for s in strategies}
-    sub_err = np.full((B, K), np.nan)
-    for n in np.unique(init.n_tracks):
-        sel = np.flatnonzero(init.n_tracks == n)
-        if n == 0:
-            continue
-        past, batch = subspace_sequence(X[sel], int(n), design)
-        sub_err[sel] = largest_principal_angle(past, batch)
-        chosen = past if design.subspace == "past" else batch
-        for s in strategies:
-            part = _track_group(chosen, init.theta_minus1[sel, :n], init.theta_0[sel, :n], design, s)
-            if outputs[s] is None:
-                outputs[s] = {k: _empty_like_padded(v, B, width) for k, v in part.items()}
-            for k, v in part.items():
-                if v.ndim >= 3:
-                    outputs[s][k][sel, :, :n] = v
-                else:
-                    outputs[s][k][sel] = v
-    for s in strategies:
-        if outputs[s] is None:  # no run found a source
-            outputs[s] = {k: _empty_like_padded(v, B, width) for k, v in
-                          _track_group(np.zeros((0, K, X.shape[2], 1), complex), np.zeros((0, 1)),
-                                       np.zeros((0, 1)), design, s).items()}
-        outputs[s]["n_tracks"] = np.broadcast_to(init.n_tracks[:, None], (B, K)).astype(np.int32)
-        outputs[s]["subspace_error_rad"] = sub_err
-        outputs[s]["source_count"] = np.broadcast_to(init.source_counts[:, 1][:, None], (B, K)).astype(np.int32)
-    return outputs
+    if strategy not in INNOVATIONS:
+        raise ValueError(f"unknown innovation strategy {strategy!r} (have: {', '.join(INNOVATIONS)})")
+    shape = np.shape(snapshots)
+    if len(shape) != 4:
+        raise ValueError(f"snapshots must be (runs, scans, sensors, snapshots), got shape {shape}")
+    B, K, M, Ns = shape
+    if design.n_sources > min(M - 1, Ns):
+        raise ValueError(f"n_sources = {design.n_sources} exceeds M − 1 = {M - 1} or Ns = {Ns}")
+    fe = shared_front_end(snapshots, design)
+    width = fe.start.theta_0.shape[1]
+    nan = np.nan
+    out = {
+        "state": np.full((B, K, width, 2), nan), "covariance": np.full((B, K, width, 2, 2), nan),
+        "innovation": np.full((B, K, width, 1), nan), "innovation_covariance": np.full((B, K, width, 1, 1), nan),
+        "gain": np.full((B, K, width, 2, 1), nan), "predicted_rad": np.full((B, K, width), nan),
+        "flags": np.full((B, K, width), vocab.NO_TRACK, np.uint16),
+    }
+    flops = {key: np.full((B, K), nan) for key in ("innovation_flops_model", "innovation_flops_counted",
+                                                   "steering_flops_counted")}
+    for sel, n, subspaces in fe.groups:
+        part = _track_group(subspaces, fe.start.theta_minus1[sel, :n], fe.start.theta_0[sel, :n], design, strategy)
+        for key, value in part.items():
+            out[key][sel, :, :n] = value
+        cost = innovation_flops(strategy, M, n)
+        for key, name in (("innovation_flops_model", "model"), ("innovation_flops_counted", "counted"),
+                          ("steering_flops_counted", "steering")):
+            flops[key][sel, STARTUP_SCANS:] = cost[name]
+    out.update(flops)
+    out["n_tracks"] = np.broadcast_to(fe.start.n_tracks[:, None], (B, K)).astype(np.int32)
+    out["source_count"] = np.broadcast_to(fe.start.source_counts[:, 1][:, None], (B, K)).astype(np.int32)
+    out["subspace_error_rad"] = fe.subspace_error.copy()
+    return out
 
 
-def _empty_like_padded(v, B, width):
-    shape = (B, v.shape[1]) + ((width,) + v.shape[3:] if v.ndim >= 3 else ())
-    if v.dtype == np.uint8:
-        return np.zeros(shape, np.uint8)
-    return np.full(shape, np.nan) if v.ndim >= 3 else np.zeros(shape)
-
-
-def music_waterfall(snapshots: np.ndarray, n_sources: np.ndarray, design: SubspaceTrackerDesign):
+def music_waterfall(snapshots: np.ndarray, n_sources, spacing_wavelengths: float, grid_step_rad: float):
     """MUSIC spectrum of every scan of one run ``(K, M, Ns)`` → ``(grid (G,), spectrum (K, G))``."""
-    grid = angle_grid(design.grid_step_rad)
+    grid = angle_grid(grid_step_rad)
     _, vectors = eigen_decomposition(sample_covariance(np.asarray(snapshots).astype(complex, copy=False)))
-    return grid, music_spectrum(vectors, np.maximum(n_sources, 1), grid, design.spacing_wavelengths)
+    return grid, music_spectrum(vectors, np.maximum(n_sources, 1), grid, spacing_wavelengths)
 
 
-TRACKERS = ()  # (being moved onto the tracker interface)
+# --------------------------------------------------------------------------- the trackers
+
+PARAMS = (
+    Param("scan_period_s", None, "s", "scan period T of the constant-angular-velocity model"),
+    Param("process_noise_q_deg2", None, "deg²/s³", "q of Q = q [[T³/3, T²/2], [T²/2, T]] (paper: \"q = 1°\")"),
+    Param("innovation_variance_deg2", None, "deg²", "σ_z², variance of the angular innovation (paper: \"4°\")"),
+    Param("past_forgetting", None, "", "PAST forgetting factor β per snapshot, 0 < β ≤ 1"),
+    Param("source_count_criterion", None, "", "source count at start-up: mdl | aic"),
+    Param("n_sources", None, "", "number of targets; 0 estimates it at start-up (≤ M − 1)"),
+    Param("music_grid_step_deg", None, "deg", "MUSIC angle grid step at start-up"),
+    Param("subspace_tracker", None, "", "past (the paper) | batch (per-scan EVD, reference)"),
+)
+
+
+def check_design(design: dict) -> None:
+    """Refuse design values the tracker cannot run with (:class:`InputError`, one line)."""
+    crit = str(design["source_count_criterion"]).lower()
+    if crit not in CRITERIA:
+        raise InputError(f"source_count_criterion must be mdl or aic, got {crit!r}")
+    if design["subspace_tracker"] not in SUBSPACES:
+        raise InputError(f"subspace_tracker must be one of {', '.join(SUBSPACES)}, got {design['subspace_tracker']!r}")
+    if not 0 < design["past_forgetting"] <= 1:
+        raise InputError("past_forgetting must be in (0, 1]")
+    for key in ("process_noise_q_deg2", "innovation_variance_deg2", "scan_period_s", "music_grid_step_deg"):
+        if not design[key] > 0:
+            raise InputError(f"{key} must be > 0")
+    if int(design["n_sources"]) < 0:
+        raise InputError("n_sources must be ≥ 0 (0 estimates it)")
+
+
+class _AngularInnovationTracker(Tracker):
+    """MUSIC start-up → PAST → per-target Kalman filters with one angular-innovation strategy
+    (the class's ``name``, a key of :data:`pipeline.cores.array.angular_innovation.INNOVATIONS`)."""
+
+    family = "array-snapshots"
+    form = "batch"
+    params = PARAMS
+
+    def __init__(self, **design):
+        super().__init__(**design)
+        check_design(self.design)
+        deg2 = np.deg2rad(1.0) ** 2
+        self.tracker_design = SubspaceTrackerDesign(
+            scan_period_s=float(self.scan_period_s), process_noise_q=float(self.process_noise_q_deg2) * deg2,
+            innovation_variance=float(self.innovation_variance_deg2) * deg2, forgetting=float(self.past_forgetting),
+            source_count=str(self.source_count_criterion).lower(), n_sources=int(self.n_sources),
+            grid_step_rad=np.deg2rad(float(self.music_grid_step_deg)), subspace=str(self.subspace_tracker))
+
+    def track(self, snapshots: ArraySnapshots) -> dict:
+        design = dataclasses.replace(self.tracker_design, spacing_wavelengths=float(snapshots.spacing_wavelengths))
+        return track_bearings(snapshots.snapshots, design, self.name)
+
+    @classmethod
+    def innovation_flops(cls, n_sensors: int, n_targets: int) -> dict:
+        """FLOPs of this tracker's innovation for one scan (see :func:`innovation_flops`)."""
+        return innovation_flops(cls.name, n_sensors, n_targets)
+
+
+class Proposed(_AngularInnovationTracker):
+    """The closed-form angular innovation (Ryu, Lee & Lee 2001, eqs. (7), (11)–(13))."""
+
+    name = "proposed"
+    label = "proposed"
+
+
+class Ryu(_AngularInnovationTracker):
+    """Ryu et al. (1999)'s (2N+1)-dimensional least-squares innovation (the paper's reference)."""
+
+    name = "ryu"
+    label = "Ryu 1999"
+
+
+TRACKERS = (Proposed, Ryu)

@@ -162,11 +162,14 @@ class BearingPeaks(Measurements):
 
 @dataclass
 class ArraySnapshots(Measurements):
-    """Narrowband array snapshots: ``snapshots`` (R, K, M sensors, N snapshots) complex;
-    ``times_s`` : (K,); ``truth_angle_rad`` : (R, K, T) or None."""
+    """Narrowband snapshots of a uniform linear array: ``snapshots`` (R, K, M sensors,
+    Ns snapshots) complex; ``times_s`` : (K,); ``spacing_wavelengths`` : the sensor spacing d/λ
+    (angles θ from broadside, sensor 0 the phase reference: a_m(θ) = exp(j 2π m d/λ sin θ));
+    ``truth_angle_rad`` : (R, K, T) or None."""
 
     snapshots: np.ndarray = _per_run()
     times_s: np.ndarray = None
+    spacing_wavelengths: float = 0.5
     truth_angle_rad: np.ndarray | None = _per_run(None)
 
 

@@ -1,6 +1,7 @@
 """Angular innovation from a signal subspace: the proposed closed form and Ryu's least squares.
 
-Spec: ``shared/spec/array-angle-tracking.md`` ("Angular innovation"); paper eqs. (6)–(13).
+Ryu, Lee & Lee (2001), eqs. (6)–(13); Ryu et al. (1999) for the least squares; see
+``docs/papers/array-bearing.md``.
 With the prediction θ̂ₙ(k|k−1) and the first-order steering model
 ``aₙ ≈ âₙ + b̂ₙ δθₙ`` (eq. (10), :mod:`pipeline.cores.array.linear_array`), the innovation δθₙ solves a
 linear least-squares problem. Two strategies over one interface

@@ -1,7 +1,7 @@
 """FLOP accounting of the angular innovation: the paper's analytic model and a counter of what
 our kernels actually execute.
 
-Spec: ``shared/spec/array-angle-tracking.md`` ("FLOP model"; paper section IV). Convention of
+Ryu, Lee & Lee (2001), section IV; see ``docs/papers/array-bearing.md``. Convention of
 the paper (Matlab's ``flops``): a real addition, subtraction, multiplication or division is one
 FLOP, a complex multiplication 6, a complex addition 2; only multiplications/divisions and
 additions/subtractions are counted (no exponentials, square roots or data movement).
@@ -174,30 +174,3 @@ def counted_flops(strategy: str, n_sensors: int, n_targets: int, spacing_wavelen
     tally = FlopTally()
     INNOVATIONS[strategy](W, theta, spacing_wavelengths, tally=tally)
     return dict(tally.by_step)
-
-
-def time_innovation(strategy: str, n_sensors: int, n_targets: int, batch: int = 1, repeats: int = 200,
-                    spacing_wavelengths: float = 0.5) -> float:
-    """Best-of-``repeats`` wall time (s) of one innovation call, divided by ``batch``.
-
-    ``batch = 1`` times one scan of one run (the paper's setting); a larger batch times one
-    vectorised call over that many runs and reports the time per run-scan. The minimum, not the
-    median: on a shared machine other processes only ever add time, so the fastest repeat is the
-    best estimate of the kernel's own cost.
-    """
-    import time
-
-    from pipeline.cores.array.angular_innovation import INNOVATIONS
-
-    rng = np.random.default_rng(1)
-    shape = (batch,) if batch > 1 else ()
-    W = rng.standard_normal(shape + (n_sensors, n_targets)) + 1j * rng.standard_normal(shape + (n_sensors, n_targets))
-    theta = rng.uniform(-0.5, 0.5, shape + (n_targets,))
-    fn = INNOVATIONS[strategy]
-    fn(W, theta, spacing_wavelengths)  # warm-up
-    samples = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn(W, theta, spacing_wavelengths)
-        samples.append(time.perf_counter() - t0)
-    return float(np.min(samples)) / max(batch, 1)

@@ -1,8 +1,8 @@
 """MUSIC start-up: sample covariance, source count (MDL / AIC), spectrum and peak picking.
 
-Spec: ``shared/spec/array-angle-tracking.md`` ("Initialisation": the number of targets and their
-angles from MUSIC at k = −1 and k = 0), after Schmidt 1986 (the paper's ref. [2]) and the
-information-theoretic source count of Wax & Kailath 1985.
+Start-up of Ryu, Lee & Lee (2001), section III.2 step 1 (the number of targets and their angles
+from MUSIC at k = −1 and k = 0; ``docs/papers/array-bearing.md``), after Schmidt 1986 (the
+paper's ref. [2]) and the information-theoretic source count of Wax & Kailath 1985.
 
 Everything is batched over leading axes (scans × runs in one call):
 

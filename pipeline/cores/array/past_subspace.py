@@ -1,6 +1,7 @@
 """Signal-subspace tracking by PAST (Yang 1995), with the batch EVD as its reference.
 
-Spec: ``shared/spec/array-angle-tracking.md`` ("Signal subspace: PAST"); the paper's ref. [9].
+Yang (1995), "Projection approximation subspace tracking", the ref. [9] of Ryu, Lee & Lee (2001);
+see ``docs/papers/array-bearing.md``.
 Per snapshot x, with forgetting factor 0 < β ≤ 1::
 
     y = Wᴴ x;   h = P y;   g = h / (β + yᴴ h)
@@ -12,7 +13,7 @@ exponentially weighted correlation of y. The recursion runs over the snapshots i
 is vectorised over a leading batch axis (Monte Carlo runs): one pass over the snapshots for all
 runs. :func:`initial_state` aligns the tracker with a batch EVD (W = leading eigenvectors,
 P = (1 − β) Λ_s⁻¹, the steady-state value of the weighted correlation's inverse), so tracking
-starts aligned as the spec asks.
+starts aligned with the subspace of the first scan.
 
 :func:`batch_signal_subspace` (per-scan EVD of the sample covariance) is the reference PAST is
 compared against, through :func:`principal_angles`.
