@@ -17,6 +17,7 @@ from evaluators import array_bearing as array_eval
 from pipeline import vocabulary as vocab
 from pipeline.errors import InputError, require_finite
 from pipeline.stages.base import Stage
+from evaluators.standard import EvaluationSpace
 from pipeline.trackers.interface import ArraySnapshots
 
 SNAPSHOTS = vocab.CHANNELS["array_snapshots"]
@@ -122,13 +123,28 @@ class ArrayBearingStage(Stage):
                 table[name] = {n: cost(n_sensors, n) for n in array_eval.FLOP_TABLE_N if n < n_sensors}
         return table
 
-    def evaluate(self, dataset, result: dict, design: dict):
+    evaluation_defaults = {"ospa_cutoff_deg": 10.0, "ospa_order": 2.0, "assignment_gate_deg": 3.0}
+
+    def reference(self, dataset, design: dict) -> dict:
         X = self.snapshots(dataset)
-        M = X.shape[2]
         truth, snr = self.truth(dataset, X.shape[:2])
-        return array_eval.evaluate(result["times"], result["tracks"], truth, snr,
+        return {"runs": {"truth": truth, "snr_db": snr}, "fixed": {"n_sensors": X.shape[2]}}
+
+    def score(self, reference: dict, result: dict, design: dict):
+        runs, M = reference["runs"], reference["fixed"]["n_sensors"]
+        return array_eval.evaluate(result["times"], result["tracks"], runs["truth"], runs["snr_db"],
                                    np.deg2rad(float(design["track_gate_deg"])), M,
                                    flop_table=self.flop_table(result["tracks"], M))
+
+    def standard_space(self, design: dict, reference: dict | None = None):
+        return EvaluationSpace(truth_components=(0,), position_components=(0,), angular=True,
+                               cutoff=float(np.deg2rad(design["ospa_cutoff_deg"])),
+                               gate=float(np.deg2rad(design["assignment_gate_deg"])), order=float(design["ospa_order"]),
+                               unit="deg", scale=float(np.rad2deg(1.0)))
+
+    def standard_truth(self, reference: dict):
+        truth = reference["runs"]["truth"]
+        return None if truth is None else truth[..., None]
 
     def report(self, summary, per_scan) -> str:
         """The paper's Table 1 layout (MSE per SNR, innovation FLOPs for N = 5, 6)."""
