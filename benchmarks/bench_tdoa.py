@@ -1,5 +1,8 @@
 """TDOA/FDOA benchmark: CEP planes and batched Gauss-Newton against per-point / per-run peers.
 
+Kim et al. (2013): the CEP planes of Figs. 5–6 (eqs. 18–22) and the Gauss-Newton estimator of
+eqs. 15–17; see ``docs/papers/tdoa-fdoa.md`` ("Speed").
+
 What it measures
 ----------------
 1. **CEP planes.** ``pipeline.cores.localisation.cep_plane.cep_plane`` on the paper's 201 × 201 grid (±50 km,

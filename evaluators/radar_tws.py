@@ -15,7 +15,8 @@ from __future__ import annotations
 import numpy as np
 import polars as pl
 
-from evaluators.tracking_metrics import long_form, nanmean, normalised_position_error, rmse_overall, rmse_per_scan
+from evaluators.tracking_metrics import (long_form, nanmean, npe_from_squared, rmse_overall, rmse_per_scan,
+                                        squared_error)
 from pipeline.vocabulary import CLAMPED as FLAG_CLAMPED, COASTED as FLAG_COASTED, INITIALISING as FLAG_INITIALISING, NO_TRACK as FLAG_NO_TRACK
 
 SCOPES = ("overall", "cross_range_above_nominal", "cross_range_below_nominal")
@@ -84,12 +85,15 @@ def evaluate(times, tracks: dict, measured_xy, truth_state=None, cross_range_std
             row["rms_innovation_m"] = rmse_overall(innov, 0.0) if ok.any() else np.nan
         rows = [row]
         if truth_state is not None:
-            npe = normalised_position_error(est[..., :2], truth_state[..., :2], out.get("measurement", measured_xy))
-            cols["rmse_position_m"] = rmse_per_scan(est[..., :2], truth_state[..., :2])
-            cols["rmse_velocity_mps"] = rmse_per_scan(est[..., 2:], truth_state[..., 2:])
+            # squared errors once per tracker; every RMSE below is a masked mean of these
+            se_pos = squared_error(est[..., :2], truth_state[..., :2])
+            se_vel = squared_error(est[..., 2:], truth_state[..., 2:])
+            measured = out.get("measurement", measured_xy)
+            npe = npe_from_squared(se_pos, squared_error(measured, truth_state[..., :2]))
+            cols["rmse_position_m"] = _root(nanmean(se_pos, axis=0))
+            cols["rmse_velocity_mps"] = _root(nanmean(se_vel, axis=0))
             cols["npe"] = npe
-            row.update(rmse_position_m=rmse_overall(est[..., :2], truth_state[..., :2]),
-                       rmse_velocity_mps=rmse_overall(est[..., 2:], truth_state[..., 2:]),
+            row.update(rmse_position_m=float(_root(nanmean(se_pos))), rmse_velocity_mps=float(_root(nanmean(se_vel))),
                        npe_max=float(np.nanmax(npe)), npe_mean=float(nanmean(npe)),
                        scans_npe_ge_1=float(np.sum(npe >= 1.0)))
             if pcrb_position_var is not None:
@@ -100,16 +104,20 @@ def evaluate(times, tracks: dict, measured_xy, truth_state=None, cross_range_std
             for scope, sel in (("cross_range_above_nominal", above_scan), ("cross_range_below_nominal", ~above_scan)):
                 if not (sel & ok.any(axis=0)).any():
                     continue
-                e = est[:, sel]
                 rows.append({"tracker": name, "scope": scope,
-                             "rmse_position_m": rmse_overall(e[..., :2], truth_state[:, sel, :2]),
-                             "rmse_velocity_mps": rmse_overall(e[..., 2:], truth_state[:, sel, 2:]),
+                             "rmse_position_m": float(_root(nanmean(se_pos[:, sel]))),
+                             "rmse_velocity_mps": float(_root(nanmean(se_vel[:, sel]))),
                              "npe_mean": float(nanmean(npe[sel])), "scans": float(sel.sum())})
         per_scan_parts.append(pl.DataFrame(cols))
         summary_parts.append(long_form(pl.DataFrame(rows, infer_schema_length=None), ["tracker", "scope"]).drop_nulls("value"))
     per_scan = pl.concat(per_scan_parts, how="diagonal")
     summary = pl.concat(summary_parts).select("tracker", "metric", "scope", "value")
     return per_scan, summary
+
+
+def _root(mean_square):
+    with np.errstate(invalid="ignore"):
+        return np.sqrt(mean_square)
 
 
 def _nanmean0(a):

@@ -47,14 +47,18 @@ def rmse_overall(estimate, truth):
 
 
 def normalised_position_error(estimate_xy, truth_xy, measured_xy):
-    """NPE per scan (Efe, Atherton & Bather 1998; spec radar-alpha-beta.md).
+    """NPE per scan (Efe, Atherton & Bather 1998; ``docs/papers/radar-tws.md``).
 
     ``NPE_k = √(Σ_runs ‖p̂_k − p_k‖²) / √(Σ_runs ‖z_k − p_k‖²)``; NPE ≥ 1 means the tracker is no
     better than the raw (converted) plots. Runs where either side is missing are left out of
     both sums, so the ratio compares like with like.
     """
-    se = squared_error(estimate_xy, truth_xy)
-    sm = squared_error(measured_xy, truth_xy)
+    return npe_from_squared(squared_error(estimate_xy, truth_xy), squared_error(measured_xy, truth_xy))
+
+
+def npe_from_squared(se, sm):
+    """NPE per scan from the squared errors of the estimates ``se`` and of the plots ``sm``
+    (both ``(runs, scans)``), as :func:`normalised_position_error`."""
     both = np.isfinite(se) & np.isfinite(sm)
     num = np.sqrt(np.where(both, se, 0.0).sum(axis=0))
     den = np.sqrt(np.where(both, sm, 0.0).sum(axis=0))

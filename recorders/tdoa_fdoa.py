@@ -1,6 +1,9 @@
 """TDOA/FDOA simulator: moving sensors, one (moving) emitter, measurements per epoch, truth.
 
-Spec ``shared/spec/tdoa-fdoa-gauss-newton.md`` ("Paper's experiments"). Presets:
+Kim et al. (2013): the measurement model of eqs. 1–5
+(:func:`pipeline.cores.localisation.tdoa_fdoa_model.measurement_model`) plus Gaussian noise of
+σ_TDOA and σ_FDOA, in the paper's simulated experiments (Tables 1–3, Fig. 7); see
+``docs/papers/tdoa-fdoa.md``. Presets:
 
 * geometries (paper's Tables 2–3): ``line`` (−3000, 0), (0, 0), (3000, 0) m and ``triangle``
   (−3000, 0), (0, 5120), (3000, 0) m, every sensor moving at (300, 0) m/s;

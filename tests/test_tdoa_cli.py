@@ -9,6 +9,7 @@ from click.testing import CliRunner
 from pipeline.face.cli import main
 from pipeline.contract import read_dataset, write_dataset
 from pipeline.replay import replay
+from pipeline.vocabulary import CONVERGED, NOT_ESTIMATED
 
 
 
@@ -99,9 +100,46 @@ def test_joint_position_equals_tdoa_only_with_three_sensors_and_unknown_velocity
     position is the TDOA-only position (a property of the 3-sensor case, not of the code)."""
     res = replay(triangle3)
     joint, tdoa = (res.results["tdoa-fdoa"]["tracks"][k] for k in ("joint", "tdoa"))
-    both = ((joint["flags"] & 1) > 0) & ((tdoa["flags"] & 1) > 0)
+    both = ((joint["flags"] & CONVERGED) > 0) & ((tdoa["flags"] & CONVERGED) > 0)
     gap = np.linalg.norm(joint["state"][..., :2] - tdoa["state"][..., :2], axis=-1)[both]
     assert both.sum() > 250 and gap.max() < 1e-3
+
+
+def test_estimators_are_trackers_and_the_bound_travels_in_the_outputs(triangle3, tmp_path):
+    """The estimators run through the tracker interface; the CRLB at the truth that the
+    evaluator needs is the stage's ``crlb`` extra output, written and read back exactly; a
+    plugged tracker of the family is scored against the joint bound."""
+    plugged = tmp_path / "plugged.py"
+    plugged.write_text("from pipeline.trackers.emitter import JointTdoaFdoa\n\n\n"
+                       "class MyJoint(JointTdoaFdoa):\n    name = 'my_joint'\n")
+    out = tmp_path / "t.mcap"
+    res = replay(triangle3, out_path=out, tracker_specs=[f"{plugged}:MyJoint"])
+    assert not res.failures
+    tracks = res.results["tdoa-fdoa"]["tracks"]
+    assert set(tracks) == {"joint", "tdoa", "fdoa", "my_joint", "crlb"}
+    bound = tracks["crlb"]
+    assert bound["whitened_jacobian_joint"].shape == (300, 1, 6, 4)
+    assert bound["crlb_covariance_tdoa"].shape == (300, 1, 2, 2)
+    back = read_dataset(out).channel("/emitter/estimates/crlb")
+    for key, a in bound.items():
+        np.testing.assert_array_equal(back.grid(key), a, err_msg=key)
+    tdoa = tracks["tdoa"]
+    assert np.all(np.isnan(tdoa["state"][..., 2:])) and np.all(tdoa["flags"] & NOT_ESTIMATED)
+    s = res.summary.filter(res.summary["scope"] == "overall")
+    get = {(r["tracker"], r["metric"]): r["value"] for r in s.to_dicts()}
+    for metric in ("runs_truth", "runs_elsewhere", "rmse_position_m", "efficiency_position"):
+        assert get[("my_joint", metric)] == get[("joint", metric)], metric
+
+
+def test_stationary_emitter_reports_a_known_velocity_with_zero_variance(runner, tmp_path):
+    assert invoke(runner, "simulate", "tdoa-fdoa-noise", "--runs", "20", "-o", "s.mcap").exit_code == 0
+    res = replay(tmp_path / "s.mcap", trackers=["joint"])
+    out = res.results["tdoa-fdoa"]["tracks"]["joint"]
+    live = np.isfinite(out["state"]).all(axis=-1)
+    assert live.any() and np.all(out["state"][live][:, 2:] == 0.0)
+    P = out["covariance"][live]
+    assert np.all(P[:, 2:, :] == 0.0) and np.all(P[:, :, 2:] == 0.0)
+    np.linalg.cholesky(P[:, :2, :2])
 
 
 def test_grid_start_needs_no_prior(runner, tmp_path):

@@ -1,15 +1,18 @@
-"""Gauss-Newton for TDOA/FDOA: linear algebra, convergence, second solutions, efficiency."""
+"""Gauss-Newton for TDOA/FDOA (Kim et al. 2013, eqs. 6, 8, 15–18; ``docs/papers/tdoa-fdoa.md``): linear
+algebra, convergence, second solutions, efficiency."""
 
 import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 from scipy.optimize import least_squares
 
-from evaluators.emitter_localisation import ELSEWHERE, TRUTH, classify, truth_geometry
+from evaluators.emitter_localisation import ELSEWHERE, TRUTH, classify
 from pipeline.cores.localisation.batched_least_squares import covariance_from_factor, scaled_least_squares
 from pipeline.cores.localisation.crlb import crlb
-from pipeline.cores.localisation.gauss_newton import CONVERGED, DIVERGED, NOT_CONVERGED, gauss_newton
+from pipeline.cores.localisation.gauss_newton import gauss_newton
+from pipeline.cores.localisation.tdoa_fdoa_crlb import truth_geometry
 from pipeline.cores.localisation.tdoa_fdoa_model import measurement_model
+from pipeline.vocabulary import CONVERGED, DIVERGED, INVALID_START, NOT_CONVERGED
 from recorders.scenarios import load_scenario
 from recorders.tdoa_fdoa import resolve, simulate
 
@@ -124,7 +127,7 @@ def test_divergence_and_bad_starts_are_flagged_and_keep_a_finite_state():
     res = gauss_newton(model_for(es), theta0, u, es.sigma[0], iterations=5)
     assert res.flags[0] & CONVERGED
     assert res.flags[1] & DIVERGED and np.all(np.isfinite(res.theta[1]))
-    assert res.flags[2] & 32  # invalid start
+    assert res.flags[2] & INVALID_START
     # an iterate outside the region of interest is a divergence, not a convergence
     far = np.array([[2e7, 3e7, 200.0, 0.0]])
     res = gauss_newton(model_for(es), far, u[:1], es.sigma[0], iterations=5,

@@ -1,5 +1,7 @@
 """Pictures of CEP planes: a PNG with the paper's contour levels and Rerun images.
 
+Kim et al. (2013), Figs. 5–6 (CEP from the CRLB, eqs. 18–22); see ``docs/papers/tdoa-fdoa.md``.
+
 Rendering only; the numbers come from :func:`pipeline.cores.localisation.cep_plane.cep_plane`. Grid points where
 the bound does not exist are left blank (PNG) or 0 (Rerun depth image, shown as no data).
 """

@@ -2,17 +2,20 @@
 
 Both read the ``tdoa-fdoa`` scenario (presets ``--geometry line|triangle``, ``--emitter 1|2|3``,
 any parameter with ``--set name=value``), so a bound and a simulated data set always describe
-the same configuration.
+the same configuration. Kim et al. (2013), eqs. 18–22 and Figs. 5–6; see
+``docs/papers/tdoa-fdoa.md``. The face holds no numerics: the numbers come from
+:mod:`pipeline.cores.localisation.tdoa_fdoa_crlb` and :mod:`pipeline.cores.localisation.cep_plane`,
+the pictures from :mod:`pipeline.face.cep_plane_views`.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import time
 from pathlib import Path
 
 import click
-import numpy as np
 
 from pipeline.errors import InputError
 
@@ -32,50 +35,15 @@ def _scenario(name, geometry, emitter, sets):
     return sc, resolve(sc.params)
 
 
-def _singular_message(A) -> str:
-    """Rank of a whitened Jacobian for the error message."""
-    s = np.linalg.svd(A / np.where(np.linalg.norm(A, axis=0) > 0, np.linalg.norm(A, axis=0), 1.0), compute_uv=False)
-    rank = int(np.sum(s > 1e-10 * s.max())) if s.size and s.max() > 0 else 0
-    return (f"the Fisher information is singular here (rank {rank} of {A.shape[1]}): the emitter is collinear "
-            "with the sensors or the pairs do not separate the unknowns, so no CRLB exists")
-
-
 def crlb_summary(es, epoch: int = 0, kind: str = "joint", stationary: bool = False, probability: float = 0.5) -> dict:
-    """CRLB, projections, slices, ellipses and CEPs of one resolved scenario epoch (plain numbers)."""
-    from pipeline.cores.localisation.crlb import (cep_approx, cep_exact, cep_paper, crlb, error_ellipse, projection_covariance,
-                               slice_covariance, whitened_jacobian)
-    from pipeline.cores.localisation.tdoa_fdoa_model import underdetermined_reason
-    from pipeline.cores.localisation.tdoa_fdoa_model import STATE_NAMES, independent_equations, measurement_model, measurement_rows, unknowns
+    """CRLB, projections, slices, ellipses and CEPs of one resolved scenario epoch (plain numbers):
+    :func:`pipeline.cores.localisation.tdoa_fdoa_crlb.crlb_summary` at that epoch's geometry."""
+    from pipeline.cores.localisation.tdoa_fdoa_crlb import crlb_summary as summary
 
     if not 0 <= epoch < len(es.times):
         raise InputError(f"epoch {epoch} outside 0..{len(es.times) - 1}")
-    reason = underdetermined_reason(kind, es.pairs, es.sensor_pos.shape[1], stationary)
-    if reason:
-        raise InputError(reason)
-    rows, free = measurement_rows(kind, es.n_pairs), unknowns(kind, stationary)
-    theta = es.emitter[epoch]
-    _, H = measurement_model(theta, es.sensor_pos[epoch], es.sensor_vel[epoch], es.pairs, es.carrier_hz)
-    Hs, sigma = H[rows][:, free], es.sigma[epoch, rows]
-    cov, singular = crlb(Hs[None], sigma[None])
-    A = whitened_jacobian(Hs, sigma)
-    if singular[0]:
-        raise InputError(_singular_message(A))
-    cov = cov[0]
-    out = {"estimator": kind, "state_names": [STATE_NAMES[i] for i in free], "emitter": theta.tolist(),
-           "independent_equations": independent_equations(kind, es.pairs, es.sensor_pos.shape[1]),
-           "unknowns": len(free), "crlb": cov.tolist(), "std": np.sqrt(np.diag(cov)).tolist(),
-           "probability": probability, "blocks": {}}
-    blocks = [("position", [0, 1], "m")] + ([("velocity", [2, 3], "m/s")] if len(free) == 4 else [])
-    for label, comps, unit in blocks:
-        entry = {"unit": unit}
-        for how, c2 in (("projection", projection_covariance(cov, comps)), ("slice", slice_covariance(A, comps))):
-            major, minor, angle = error_ellipse(c2, probability)
-            entry[how] = {"covariance": c2.tolist(), "semi_major": float(major), "semi_minor": float(minor),
-                          "angle_deg": float(np.degrees(angle)), "cep_exact": float(cep_exact(c2, probability)),
-                          "cep_paper": float(cep_paper(c2, probability)),
-                          "cep_075": float(cep_approx(c2)) if probability == 0.5 else None}
-        out["blocks"][label] = entry
-    return out
+    return summary(es.emitter[epoch], es.sensor_pos[epoch], es.sensor_vel[epoch], es.pairs, es.carrier_hz,
+                   es.sigma[epoch], kind, stationary, probability)
 
 
 def _fmt(v, width=12):
@@ -104,8 +72,8 @@ def _print_crlb(sc, es, s: dict, epoch: int) -> None:
         u = e["unit"]
         click.echo(f"\n{label + ' (' + u + ')':<26}{'projection (marginal, eq. 19)':>32}{'slice (others known, eq. 20)':>32}")
         for how in ("projection", "slice"):
-            c = np.array(e[how]["covariance"])
-            e[how]["_cov"] = f"[{c[0, 0]:.5g}, {c[0, 1]:.5g}; {c[1, 1]:.5g}]"
+            c = e[how]["covariance"]
+            e[how]["_cov"] = f"[{c[0][0]:.5g}, {c[0][1]:.5g}; {c[1][1]:.5g}]"
         rows = [("covariance [a, b; d]", "_cov"), (f"{P:g} ellipse semi-major", "semi_major"),
                 (f"{P:g} ellipse semi-minor", "semi_minor"), ("major axis angle (deg)", "angle_deg"),
                 ("CEP exact", "cep_exact"), ("CEP 0.75·√(λ1+λ2)", "cep_075"), ("CEP paper eq. 21", "cep_paper")]
@@ -179,10 +147,10 @@ def cep_plane_cmd(sets, scenario, estimator, emitter, geometry, extent_km, step_
       replay cep-plane --geometry triangle --extent-km 50 --step-m 500
       replay cep-plane --geometry line --cep paper -o line.png --no-rrd
     """
-    from pipeline.cores.localisation.cep_plane import POSITION_CONTOURS_M, VELOCITY_CONTOURS_MPS, cep_plane, grid_axis
+    from pipeline.cores.localisation.cep_plane import cep_plane, cep_plane_areas, grid_axis
     from pipeline.face.cep_plane_views import log_cep_plane, write_cep_png
 
-    if not (extent_km > 0 and step_m > 0 and np.isfinite(extent_km) and np.isfinite(step_m)):
+    if not (extent_km > 0 and step_m > 0 and math.isfinite(extent_km) and math.isfinite(step_m)):
         raise InputError("--extent-km and --step-m must be positive")
     if method == "approx" and probability != 0.5:
         raise InputError("--cep approx is the 50 % approximation; use --probability 0.5 or --cep exact")
@@ -208,13 +176,10 @@ def cep_plane_cmd(sets, scenario, estimator, emitter, geometry, extent_km, step_
     png = write_cep_png(plane, output, es.sensor_pos[0], es.emitter[0, :2], title)
     click.echo(f"CEP planes, {axis.size} × {axis.size} points (±{extent_km:g} km, {step_m:g} m), {method} CEP at "
                f"P = {probability:g}: computed in {elapsed:.3f} s")
-    area = (axis.size * step_m / 1e3) ** 2
-    for key, unit, levels in (("position_m", "m", POSITION_CONTOURS_M), ("velocity_mps", "m/s", VELOCITY_CONTOURS_MPS)):
-        z = getattr(plane, key)
-        if not np.isfinite(z).any():
-            continue
-        parts = ", ".join(f"< {lv:g} {unit}: {np.mean(z < lv) * area:.0f} km²" for lv in levels)
-        click.echo(f"  {key.split('_')[0]:<9} min {np.nanmin(z):.4g} {unit}; area {parts}")
+    for key, stats in cep_plane_areas(plane, step_m).items():
+        unit = "m" if key == "position_m" else "m/s"
+        parts = ", ".join(f"< {lv:g} {unit}: {a:.0f} km²" for lv, a in stats["area_km2"].items())
+        click.echo(f"  {key.split('_')[0]:<9} min {stats['min']:.4g} {unit}; area {parts}")
     click.echo(f"  no CRLB at {int(plane.singular.sum())} grid point(s) (on a sensor or collinear with sensors)")
     click.echo(f"png:       {png}")
     if not no_rrd:

@@ -1,46 +1,51 @@
-"""Stage: TDOA/FDOA measurements → Gauss-Newton emitter position and velocity.
+"""Stage: TDOA/FDOA measurements → Gauss-Newton emitter position and velocity (Kim et al. 2013).
 
 Input channels: ``/emitter/measurements`` (``tdoa_s``, ``fdoa_hz``, ``sigma_tdoa_s``,
 ``sigma_fdoa_hz`` per pair, ``pairs`` (N, 2), ``carrier_hz``) and ``/emitter/sensors``
 (``position_m``, ``velocity_mps`` (M, 2)) per run and epoch; optionally ``/emitter/prior``
-(``state``: the initial guess) and ``/emitter/truth`` (``state``).
+(``state``: the initial guess) and ``/emitter/truth`` (``state``). They are decoded once into a
+:class:`~pipeline.trackers.interface.TdoaFdoa` (with the truth beside it, for the bound).
 
-Estimators (trackers), all runs and epochs in one vectorised Gauss-Newton pass each:
-``joint`` (TDOA + FDOA, the paper's method), ``tdoa`` (TDOA only: position) and ``fdoa`` (FDOA
-only). An estimator with fewer independent equations than unknowns for the file's pair list
-(e.g. FDOA only, three sensors, moving emitter: 2 equations, 4 unknowns) is not run: its
-outputs are NaN and every run carries the ``underdetermined`` flag.
+Outputs on ``/emitter/estimates/<estimator>``: see :mod:`pipeline.trackers.emitter` (the
+``joint``, ``tdoa`` and ``fdoa`` estimators, or any plugged tracker of the ``tdoa-fdoa``
+family). Beside them (:meth:`EmitterLocalisationStage.extras`), ``/emitter/estimates/crlb``
+holds the CRLB at the true state for every estimator kind (eq. 18; ``crlb_covariance_<kind>``,
+``whitened_jacobian_<kind>``, ``crlb_singular_<kind>``, from
+:func:`pipeline.cores.localisation.tdoa_fdoa_crlb.truth_bounds`), which the evaluator's run
+classification and efficiency need.
 
-Output ``/emitter/estimates/<estimator>``: ``state`` (4), ``covariance`` (4×4 at the estimate),
-``iterates`` (iterations + 1, 4), ``cost``, ``iterations``, ``step_sigma``, ``flags`` (see
-:mod:`pipeline.cores.localisation.gauss_newton`). Only I/O and bookkeeping live here.
+A file on which no estimator can run (fewer independent equations than unknowns for every
+kind) is refused with the reason. Only decoding and bookkeeping live here: the estimators are
+in :mod:`pipeline.trackers.emitter`, the metrics in :mod:`evaluators.emitter_localisation`, the
+Rerun views in :mod:`pipeline.face.rerun_emitter`. See ``docs/papers/tdoa-fdoa.md``.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import numpy as np
 
 from evaluators import emitter_localisation as emitter_eval
-from pipeline.cores.localisation.coarse_grid_search import coarse_grid_start
-from pipeline.cores.localisation.crlb import ellipse_points
-from evaluators.tracking_metrics import rmse_per_scan
+from pipeline import vocabulary as vocab
+from pipeline.cores.localisation.tdoa_fdoa_crlb import truth_bounds
+from pipeline.cores.localisation.tdoa_fdoa_model import MEASUREMENT_KINDS, equivalent_sigmas, underdetermined_reason
 from pipeline.errors import InputError, require_finite
-from pipeline.cores.localisation.gauss_newton import UNDERDETERMINED, gauss_newton
 from pipeline.stages.base import Stage
-from pipeline.cores.localisation.tdoa_fdoa_model import (MEASUREMENT_KINDS, measurement_model,
-                                      measurement_rows, underdetermined_reason, unknowns)
-from pipeline.face.timeline import color, north_up, north_up_bounds, rr, rrb
+from pipeline.trackers.interface import TdoaFdoa
 
-MEASUREMENTS = "/emitter/measurements"
-SENSORS = "/emitter/sensors"
-PRIOR = "/emitter/prior"
-TRUTH = "/emitter/truth"
-CEP_EXTENT_M = 50_000.0
-CEP_STEP_M = 500.0
-# Rerun's 2-D views draw +y downwards; world content lives under these entities, whose
-# transform flips y so that north is up (hover still shows the true coordinates).
-XY = "/xy/world"
-VELOCITY_PLANE = "/velocity/world"
+MEASUREMENTS = vocab.CHANNELS["emitter_measurements"]
+SENSORS = vocab.CHANNELS["emitter_sensors"]
+PRIOR = vocab.CHANNELS["emitter_prior"]
+TRUTH = vocab.CHANNELS["emitter_truth"]
+
+
+@dataclass
+class TdoaFdoaWithTruth(TdoaFdoa):
+    """:class:`~pipeline.trackers.interface.TdoaFdoa` with the true state ``truth_state``
+    (R, E, 4) or None beside it, for the stage's CRLB extra (the estimators do not read it)."""
+
+    truth_state: np.ndarray | None = field(default=None, metadata={"per_run": True})
 
 
 def read_observations(dataset) -> dict:
@@ -100,105 +105,65 @@ def read_observations(dataset) -> dict:
             "sensor_vel": arrays["velocity_mps"], "times": ch.times()}
 
 
+def _state_channel(dataset, topic: str, shape) -> np.ndarray:
+    """``state`` of a truth or prior channel as (runs, epochs, 4), checked against ``shape``."""
+    state = dataset.channels[topic].grid("state")
+    if state.shape[:2] != shape:
+        raise InputError(f"{topic} covers {state.shape[:2]} run×epoch, measurements {shape}", dataset.path)
+    if state.shape[2:] != (4,):
+        raise InputError(f"{topic} state must be [x, y, vx, vy] (4 values) per frame, got frames of shape "
+                         f"{state.shape[2:]}", dataset.path)
+    require_finite(f"{topic} state", state, dataset.path)
+    return state
+
+
 class EmitterLocalisationStage(Stage):
     name = "tdoa-fdoa"
-    input_topics = (MEASUREMENTS, SENSORS)
-    trackers = MEASUREMENT_KINDS
-    output_prefix = "/emitter/estimates/"
+    family = "tdoa-fdoa"
     scenario = "tdoa-fdoa"
-    design_keys = ("initial_guess", "iterations", "step_tolerance_sigma", "stationary_emitter",
-                   "grid_extent_m", "grid_step_m", "divergence_range_m")
+    # what the stage itself uses: the start the decoder checks for, and the unknowns of the bound
+    design_keys = ("initial_guess", "stationary_emitter")
 
-    def _truth(self, dataset, shape):
-        truth = dataset.channels.get(TRUTH)
-        if truth is None:
-            return None
-        state = truth.grid("state")
-        if state.shape[:2] != shape:
-            raise InputError(f"{TRUTH} covers {state.shape[:2]} run×epoch, measurements {shape}", dataset.path)
-        if state.shape[2:] != (4,):
-            raise InputError(f"{TRUTH} state must be [x, y, vx, vy] (4 values) per frame, got frames of shape "
-                             f"{state.shape[2:]}", dataset.path)
-        require_finite(f"{TRUTH} state", state, dataset.path)
-        return state
+    # ------------------------------------------------------------------ inputs
 
-    def _start(self, dataset, obs, kind, design, rows, free):
-        R, E = obs["measured"].shape[:2]
-        if design["initial_guess"] == "prior":
-            prior = dataset.channels.get(PRIOR)
-            if prior is None:
-                raise InputError(f"no {PRIOR} channel for initial_guess=prior; use --set initial_guess=grid", dataset.path)
-            start = prior.grid("state")
-            if start.shape[:2] != (R, E):
-                raise InputError(f"{PRIOR} covers {start.shape[:2]} run×epoch, measurements {(R, E)}", dataset.path)
-            if start.shape[2:] != (4,):
-                raise InputError(f"{PRIOR} state must be [x, y, vx, vy] (4 values) per frame, got frames of shape "
-                                 f"{start.shape[2:]}", dataset.path)
-            require_finite(f"{PRIOR} state", start, dataset.path)
-            return start.reshape(R * E, 4).copy()
-        if design["initial_guess"] == "grid":
-            flat = {k: obs[k].reshape(R * E, *obs[k].shape[2:]) for k in ("measured", "sigma", "sensor_pos", "sensor_vel")}
-            return coarse_grid_start(flat["measured"], flat["sigma"], flat["sensor_pos"], flat["sensor_vel"],
-                                     obs["pairs"], obs["carrier_hz"].reshape(-1), rows, len(free) == 4,
-                                     float(design["grid_extent_m"]), float(design["grid_step_m"]))
-        raise InputError(f"initial_guess must be 'prior' or 'grid', not {design['initial_guess']!r}")
+    def observations(self, dataset) -> dict:
+        """:func:`read_observations`, decoded and checked once per data set."""
+        if "emitter_observations" not in dataset.cache:
+            dataset.cache["emitter_observations"] = read_observations(dataset)
+        return dataset.cache["emitter_observations"]
 
-    def run(self, dataset, trackers, design: dict) -> dict:
-        obs = read_observations(dataset)
-        R, E = obs["measured"].shape[:2]
+    def truth(self, dataset):
+        """``/emitter/truth`` state (runs, epochs, 4), checked, or None without the channel."""
+        if "emitter_truth" not in dataset.cache:
+            shape = self.observations(dataset)["measured"].shape[:2]
+            dataset.cache["emitter_truth"] = (_state_channel(dataset, TRUTH, shape) if TRUTH in dataset.channels
+                                              else None)
+        return dataset.cache["emitter_truth"]
+
+    def decode(self, dataset, design: dict) -> TdoaFdoaWithTruth:
+        obs = self.observations(dataset)
+        shape = obs["measured"].shape[:2]
         stationary = bool(design["stationary_emitter"])
-        iterations = int(design["iterations"])
-        if iterations < 1:
-            raise InputError("iterations must be ≥ 1")
-        M = obs["sensor_pos"].shape[2]
-        reasons = {k: underdetermined_reason(k, obs["pairs"], M, stationary) for k in trackers}
-        if all(reasons.values()):
-            raise InputError("; ".join(reasons.values()), dataset.path)
-        pairs = obs["pairs"]
-        limit = float(design["divergence_range_m"])
-        outputs = {}
-        for kind in trackers:
-            if reasons[kind]:
-                outputs[kind] = self._underdetermined_output(R, E, iterations)
-                continue
-            rows = measurement_rows(kind, len(pairs))
-            free = unknowns(kind, stationary)
-            theta0 = self._start(dataset, obs, kind, design, rows, free)
-            if stationary:
-                theta0[:, 2:] = 0.0
+        reasons = [underdetermined_reason(k, obs["pairs"], obs["sensor_pos"].shape[2], stationary)
+                   for k in MEASUREMENT_KINDS]
+        if all(reasons):
+            raise InputError("; ".join(reasons), dataset.path)
+        prior = None
+        if design["initial_guess"] == "prior":
+            if PRIOR not in dataset.channels:
+                raise InputError(f"no {PRIOR} channel for initial_guess=prior; use --set initial_guess=grid",
+                                 dataset.path)
+            prior = _state_channel(dataset, PRIOR, shape)
+        return TdoaFdoaWithTruth(measured=obs["measured"], sigma=obs["sigma"], carrier_hz=obs["carrier_hz"],
+                                 sensor_position_m=obs["sensor_pos"], sensor_velocity_mps=obs["sensor_vel"],
+                                 times_s=obs["times"], pairs=obs["pairs"], prior_state=prior,
+                                 truth_state=self.truth(dataset))
 
-            def model(theta, sensor_pos, sensor_vel, carrier_hz, rows=rows):
-                g, H = measurement_model(theta, sensor_pos, sensor_vel, pairs, carrier_hz)
-                return g[:, rows], H[:, rows]
-
-            def diverged(theta, sensor_pos, sensor_vel, carrier_hz):
-                centre = sensor_pos.mean(axis=1)
-                return np.linalg.norm(theta[:, :2] - centre, axis=1) > limit
-
-            batch = {"sensor_pos": obs["sensor_pos"].reshape(R * E, M, 2),
-                     "sensor_vel": obs["sensor_vel"].reshape(R * E, M, 2),
-                     "carrier_hz": obs["carrier_hz"].reshape(R * E)}
-            res = gauss_newton(model, theta0, obs["measured"].reshape(R * E, -1)[:, rows],
-                               obs["sigma"].reshape(R * E, -1)[:, rows], free=free, iterations=iterations,
-                               step_tolerance=float(design["step_tolerance_sigma"]), batch=batch, diverged=diverged)
-            state, iterates = res.theta, res.iterates
-            if kind == "tdoa" and not stationary:  # velocity is not estimated, not "known"
-                state[:, 2:] = np.nan
-                iterates[:, :, 2:] = np.nan
-            outputs[kind] = {
-                "state": state.reshape(R, E, 4), "covariance": res.covariance.reshape(R, E, 4, 4),
-                "iterates": iterates.reshape(R, E, iterations + 1, 4), "cost": res.cost.reshape(R, E),
-                "iterations": res.iterations.reshape(R, E).astype(np.int32),
-                "step_sigma": res.step_sigma.reshape(R, E), "flags": res.flags.reshape(R, E),
-            }
-        return {"times": obs["times"], "tracks": outputs}
-
-    @staticmethod
-    def _underdetermined_output(R, E, iterations):
-        return {"state": np.full((R, E, 4), np.nan), "covariance": np.full((R, E, 4, 4), np.nan),
-                "iterates": np.full((R, E, iterations + 1, 4), np.nan), "cost": np.full((R, E), np.nan),
-                "iterations": np.zeros((R, E), np.int32), "step_sigma": np.full((R, E), np.nan),
-                "flags": np.full((R, E), UNDERDETERMINED, np.uint8)}
+    def extras(self, measurements, design: dict) -> dict:
+        m = measurements
+        return {emitter_eval.CRLB_ENTRY: truth_bounds(getattr(m, "truth_state", None), m.sensor_position_m,
+                                                      m.sensor_velocity_mps, m.pairs, m.carrier_hz, m.sigma,
+                                                      bool(design["stationary_emitter"]))}
 
     def outputs_from_dataset(self, out_dataset) -> dict:
         result = super().outputs_from_dataset(out_dataset)
@@ -207,115 +172,19 @@ class EmitterLocalisationStage(Stage):
                 out["iterations"] = np.nan_to_num(out["iterations"]).astype(np.int32)
         return result
 
-    def evaluate(self, dataset, result: dict, design: dict):
-        obs = read_observations(dataset)
-        truth = self._truth(dataset, obs["measured"].shape[:2])
-        return emitter_eval.evaluate(result["times"], result["tracks"], obs, truth, bool(design["stationary_emitter"]))
+    # ------------------------------------------------------------------ evaluation
+
+    def reference(self, dataset, design: dict) -> dict:
+        obs = self.observations(dataset)
+        sigma_range, sigma_rate = equivalent_sigmas(obs["sigma"], obs["carrier_hz"], len(obs["pairs"]))
+        truth = self.truth(dataset)
+        return {"runs": {} if truth is None else {"truth_state": truth},
+                "fixed": {"sigma_range_m": sigma_range, "sigma_rate_mps": sigma_rate}}
+
+    def score(self, reference: dict, result: dict, design: dict):
+        fixed = reference["fixed"]
+        return emitter_eval.evaluate(result["times"], result["tracks"], reference["runs"].get("truth_state"),
+                                     fixed["sigma_range_m"], fixed["sigma_rate_mps"])
 
     def report(self, summary, per_scan) -> str:
         return emitter_eval.report(summary, per_scan)
-
-    # ------------------------------------------------------------------ Rerun
-
-    def blueprint(self, trackers, dataset=None, run: int = 0):
-        """x/y with the iterates per iteration | velocity plane | convergence | CEP planes."""
-        bounds = None
-        if dataset is not None:
-            obs = read_observations(dataset)
-            pts = [obs["sensor_pos"][0, 0]]
-            truth = self._truth(dataset, obs["measured"].shape[:2])
-            if truth is not None:
-                pts.append(truth[0, :1, :2])
-            xy = np.concatenate(pts)
-            lo, hi = xy.min(axis=0), xy.max(axis=0)
-            pad = 0.15 * float(max(hi - lo)) + 500.0
-            bounds = north_up_bounds(lo, hi, pad)
-        return rrb.Blueprint(
-            rrb.Horizontal(
-                rrb.Spatial2DView(origin="/xy", name="position x / y (m): iterates per iteration", visual_bounds=bounds),
-                rrb.Vertical(
-                    rrb.Spatial2DView(origin="/velocity", name="velocity (m/s): estimates and 50 % CRLB ellipse"),
-                    rrb.TimeSeriesView(origin="/convergence", name="position RMSE (m) vs iteration",
-                                       plot_legend=rrb.PlotLegend(corner=rrb.Corner2D.RightTop, visible=True)),
-                ),
-                rrb.Vertical(
-                    rrb.Spatial2DView(origin="/cep/position", name="position CEP (m), contours 50/100/200 m"),
-                    rrb.Spatial2DView(origin="/cep/velocity", name="velocity CEP (m/s), contours 5/10/15 m/s"),
-                ),
-                column_shares=[2, 1.3, 1.3],
-            ),
-            rrb.TimePanel(state="collapsed"),
-            collapse_panels=True,
-        )
-
-    def log_rerun(self, rec, dataset, result: dict, per_scan, run: int = 0) -> None:
-        from pipeline.cores.localisation.cep_plane import cep_plane, grid_axis
-        from pipeline.face.cep_plane_views import log_cep_plane
-
-        obs = read_observations(dataset)
-        R, E = obs["measured"].shape[:2]
-        run = min(run, R - 1)
-        truth = self._truth(dataset, (R, E))
-        design = self.design(dataset)
-        stationary = bool(design["stationary_emitter"])
-        sensors = obs["sensor_pos"][run, 0]
-        for entity in (XY, VELOCITY_PLANE):
-            north_up(rec, entity)
-        rec.log(f"{XY}/sensors", rr.Points2D(sensors, colors=[(250, 250, 250)], radii=[-6.0],
-                                           labels=[f"s{i}" for i in range(len(sensors))]), static=True)
-        rec.log(f"{XY}/sensors/velocity", rr.Arrows2D(origins=sensors, vectors=obs["sensor_vel"][run, 0] * 5.0,
-                                                    colors=[(180, 180, 180)]), static=True)
-        if truth is not None:
-            rec.log(f"{XY}/truth", rr.Points2D(truth[run, :1, :2], colors=[color("truth")], radii=[-7.0],
-                                             labels=["emitter"]), static=True)
-            rec.log(f"{VELOCITY_PLANE}/truth", rr.Points2D(truth[run, :1, 2:], colors=[color("truth")], radii=[-7.0]), static=True)
-        for name, out in result["tracks"].items():
-            if np.all((out["flags"] & UNDERDETERMINED) > 0):
-                continue
-            rgb = color(name)
-            it = out["iterates"][:, 0]  # (runs, iterations + 1, 4), epoch 0
-            n_it = it.shape[1]
-            # the estimate cloud of every run, one frame per iteration
-            clouds = [it[:, k, :2][np.all(np.isfinite(it[:, k, :2]), axis=1)] for k in range(n_it)]
-            lengths = np.array([len(c) for c in clouds])
-            if lengths.sum():
-                flat = np.concatenate(clouds)
-                rr.send_columns(f"{XY}/estimates/{name}", indexes=[rr.TimeColumn("iteration", sequence=np.arange(n_it))],
-                                columns=rr.Points2D.columns(positions=flat, colors=np.tile(np.array(rgb, np.uint8), (len(flat), 1)),
-                                                            radii=np.full(len(flat), -1.5, np.float32)).partition(lengths),
-                                recording=rec)
-            path = it[run, :, :2]
-            path = path[np.all(np.isfinite(path), axis=1)]
-            if len(path) > 1:
-                rec.log(f"{XY}/run_{run}/{name}", rr.LineStrips2D([path], colors=[rgb], radii=[-1.0]), static=True)
-            final_v = out["state"][:, 0, 2:]
-            final_v = final_v[np.all(np.isfinite(final_v), axis=1)]
-            if len(final_v) and not stationary:
-                rec.log(f"{VELOCITY_PLANE}/estimates/{name}", rr.Points2D(final_v, colors=[rgb], radii=[-1.5]), static=True)
-            if truth is None:
-                continue
-            _, cov, singular = emitter_eval.truth_geometry(truth[run, :1], obs["sensor_pos"][run, :1], obs["sensor_vel"][run, :1],
-                                                           obs["pairs"], obs["carrier_hz"][run, :1], obs["sigma"][run, :1],
-                                                           name, stationary)
-            if not singular[0]:
-                rec.log(f"{XY}/crlb_50pct/{name}", rr.LineStrips2D([ellipse_points(truth[run, 0, :2], cov[0, :2, :2])],
-                                                                 colors=[rgb], radii=[-1.5]), static=True)
-                if cov.shape[-1] == 4:
-                    rec.log(f"{VELOCITY_PLANE}/crlb_50pct/{name}", rr.LineStrips2D(
-                        [ellipse_points(truth[run, 0, 2:], cov[0, 2:, 2:])], colors=[rgb], radii=[-1.5]), static=True)
-            first_epoch = {k: obs[k][:, :1] for k in ("sigma", "carrier_hz", "sensor_pos", "sensor_vel")}
-            first_epoch["pairs"] = obs["pairs"]
-            classes = emitter_eval.classes_of({k: v[:, :1] for k, v in out.items()}, name, first_epoch,
-                                              truth[:, :1], stationary)[:, 0]
-            ok = classes == emitter_eval.TRUTH
-            if ok.any():
-                rmse = rmse_per_scan(it[ok][:, :, :2], truth[ok, 0, None, :2])  # per iteration
-                rec.log(f"/convergence/{name}", rr.SeriesLines(names=[name], colors=[rgb]), static=True)
-                rr.send_columns(f"/convergence/{name}", indexes=[rr.TimeColumn("iteration", sequence=np.arange(n_it))],
-                                columns=rr.Scalars.columns(scalars=rmse), recording=rec)
-        # CEP planes of this geometry (epoch 0, joint TDOA/FDOA, the emitter's true velocity)
-        if truth is not None and "joint" in result["tracks"]:
-            ax = grid_axis(CEP_EXTENT_M, CEP_STEP_M)
-            plane = cep_plane(obs["sensor_pos"][run, 0], obs["sensor_vel"][run, 0], obs["pairs"], truth[run, 0, 2:],
-                              float(obs["carrier_hz"][run, 0]), obs["sigma"][run, 0], ax, ax, "joint", stationary)
-            log_cep_plane(rec, plane, obs["sensor_pos"][run, 0], truth[run, 0, :2])

@@ -1,7 +1,7 @@
 """Whitened, column-scaled linear least squares for a stack of small problems at once.
 
-The TDOA/FDOA Gauss-Newton step and Cramér-Rao bound (spec ``tdoa-fdoa-gauss-newton.md``,
-"Gauss-Newton" and "CRLB": δ = (HᵀΨ⁻¹H)⁻¹HᵀΨ⁻¹(u − g), I = HᵀΨ⁻¹H) both need the same
+The TDOA/FDOA Gauss-Newton step and Cramér-Rao bound (Kim et al. 2013, eqs. 16 and 18; see
+``docs/papers/tdoa-fdoa.md``: δ = (HᵀΨ⁻¹H)⁻¹HᵀΨ⁻¹(u − g), I = HᵀΨ⁻¹H) both need the same
 linear algebra on thousands of tall, thin (m × q, q ≤ 4) matrices whose columns mix metres and
 metres per second. Forming HᵀΨ⁻¹H and inverting it squares a condition number that the mixed
 units already make large, so instead:

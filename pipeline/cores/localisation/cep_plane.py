@@ -1,9 +1,9 @@
 """CEP planes: position and velocity CEP at every emitter position of a grid.
 
-Spec ``tdoa-fdoa-gauss-newton.md``, "CRLB and its subspaces" (paper Section IV, eqs. 18–22,
-Figs. 5–6): for each grid position the 4-state CRLB is computed at θ = [x, y, ẋ, ẏ] with the
-emitter's (fixed) velocity, projected onto the position and the velocity subspace (eq. 19), and
-reduced to a CEP. The paper's grid is ±50 km at 500 m (201 × 201 points) with contours at
+Kim et al. (2013), Section IV, eqs. 18–22 and Figs. 5–6 (see ``docs/papers/tdoa-fdoa.md``):
+for each grid position the 4-state CRLB is computed at θ = [x, y, ẋ, ẏ] with the emitter's
+(fixed) velocity, projected onto the position and the velocity subspace (eq. 19), and reduced
+to a CEP. The paper's grid is ±50 km at 500 m (201 × 201 points) with contours at
 50/100/200 m (position) and 5/10/15 m/s (velocity).
 
 All grid points are evaluated in one vectorised pass (Jacobians, QR-based CRLBs and CEPs).
@@ -112,3 +112,31 @@ def cep_plane(sensor_pos, sensor_vel, pairs, emitter_velocity, carrier_hz, sigma
     pos = np.where(singular, np.nan, pos)
     vel = np.where(singular, np.nan, vel)
     return CepPlane(x_m, y_m, pos, vel, singular, method, probability)
+
+
+def cep_plane_areas(plane: CepPlane, step_m: float) -> dict:
+    """The smallest CEP and the area below each of the paper's contour levels (Figs. 5–6).
+
+    Parameters
+    ----------
+    plane : CepPlane
+        A square grid (as :func:`grid_axis` gives).
+    step_m : float
+        Grid spacing (m).
+
+    Returns
+    -------
+    dict
+        ``{"position_m" | "velocity_mps": {"min": float, "area_km2": {level: km²}}}`` for the
+        planes that hold a finite CEP; the area counts grid cells (fraction of the grid below the
+        level times the grid's area).
+    """
+    area = (plane.x_m.size * step_m / 1e3) ** 2
+    out = {}
+    for key, levels in (("position_m", POSITION_CONTOURS_M), ("velocity_mps", VELOCITY_CONTOURS_MPS)):
+        z = getattr(plane, key)
+        if not np.isfinite(z).any():
+            continue
+        with np.errstate(invalid="ignore"):
+            out[key] = {"min": float(np.nanmin(z)), "area_km2": {lv: float(np.mean(z < lv) * area) for lv in levels}}
+    return out

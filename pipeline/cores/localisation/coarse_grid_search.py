@@ -2,7 +2,7 @@
 
 The paper starts Gauss-Newton from "prior information or an AOA fix" (Section I); a user
 without either needs a start from the measurements alone. FDOA is linear in the emitter
-velocity for a fixed position (spec eq. 4: f_k = (f₀/c)[u_iᵀ(v − ṡ_i) − u_jᵀ(v − ṡ_j)]), so
+velocity for a fixed position (Kim et al. 2013, eq. 4: f_k = (f₀/c)[u_iᵀ(v − ṡ_i) − u_jᵀ(v − ṡ_j)]), so
 for every position of a coarse grid the best velocity is a 2-unknown weighted least-squares
 problem, and the grid point with the smallest remaining cost J (eq. 6) is the start.
 Every run and grid point is handled in vectorised chunks (no loop per run).

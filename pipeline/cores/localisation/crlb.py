@@ -1,6 +1,6 @@
 """Cramér-Rao bound, its position/velocity subspaces, error ellipses and CEP.
 
-Spec ``tdoa-fdoa-gauss-newton.md``, "CRLB and its subspaces" (paper eqs. 18–22)::
+Kim et al. (2013), eqs. 18–22 (see ``docs/papers/tdoa-fdoa.md``)::
 
     I(θ) = Hᵀ Ψ⁻¹ H,  CRLB = I⁻¹                        (18)
     projection:  I_p = (D I⁻¹ Dᵀ)⁻¹   (marginal)          (19)

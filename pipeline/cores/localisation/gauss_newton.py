@@ -1,6 +1,6 @@
 """Gauss-Newton for weighted nonlinear least squares, every Monte Carlo run in one pass.
 
-Spec ``tdoa-fdoa-gauss-newton.md``, "Gauss-Newton" (paper eqs. 6, 8 and 15–17)::
+Kim et al. (2013), eqs. 6, 8 and 15–17 (see ``docs/papers/tdoa-fdoa.md``)::
 
     J(θ) = (u − g(θ))ᵀ Ψ⁻¹ (u − g(θ))                         (6)
     δ = (Hᵀ Ψ⁻¹ H)⁻¹ Hᵀ Ψ⁻¹ (u − g(θ̂_n)),  θ̂_{n+1} = θ̂_n + δ     (16, 17)
@@ -11,10 +11,11 @@ never by inverting HᵀΨ⁻¹H. The stopping rule is unit-free: a run has conve
 step was shorter than ``step_tolerance`` standard deviations, i.e. √(δᵀ I(θ̂) δ) < tol with
 I = HᵀΨ⁻¹H (the same quantity as ‖Q₁ᵀ r‖ from the QR).
 
-Runs are never averaged blindly: each ends with flags (:data:`CONVERGED`,
-:data:`NOT_CONVERGED`, :data:`DIVERGED`, :data:`RANK_DEFICIENT`) and keeps its last finite
-iterate. The loop runs over iterations only; each iteration handles every still-active run
-in one vectorised call of the model.
+Runs are never averaged blindly: each ends with flags (the bits ``CONVERGED``,
+``NOT_CONVERGED``, ``DIVERGED``, ``RANK_DEFICIENT`` and ``INVALID_START`` of the one flag table,
+:data:`pipeline.vocabulary.FLAGS`, as uint16) and keeps its last finite iterate. The loop runs
+over iterations only; each iteration handles every still-active run in one vectorised call of
+the model.
 """
 
 from __future__ import annotations
@@ -25,17 +26,11 @@ from typing import Callable
 import numpy as np
 
 from pipeline.cores.localisation.batched_least_squares import covariance_from_factor, scaled_least_squares
+# the status bits are those of the one flag table (uint16), re-exported for the callers of this core
+from pipeline.vocabulary import CONVERGED, DIVERGED, FLAG_DTYPE, INVALID_START, NOT_CONVERGED, RANK_DEFICIENT
 
-CONVERGED = 1        # last step shorter than the tolerance
-NOT_CONVERGED = 2    # iteration budget spent with steps still above the tolerance
-DIVERGED = 4         # non-finite model/step, or the caller's divergence test fired
-RANK_DEFICIENT = 8   # whitened, scaled Jacobian numerically singular at an iterate or the end
-UNDERDETERMINED = 16  # fewer independent equations than unknowns: not estimated at all
-INVALID_START = 32   # the initial guess is not finite
-
-FLAG_NAMES = {CONVERGED: "converged", NOT_CONVERGED: "not_converged", DIVERGED: "diverged",
-              RANK_DEFICIENT: "rank_deficient", UNDERDETERMINED: "underdetermined",
-              INVALID_START: "invalid_start"}
+__all__ = ["CONVERGED", "NOT_CONVERGED", "DIVERGED", "RANK_DEFICIENT", "INVALID_START", "GaussNewtonResult",
+           "gauss_newton", "final_statistics"]
 
 
 @dataclass
@@ -57,7 +52,8 @@ class GaussNewtonResult:
     covariance : ndarray (B, p, p)
         (HᵀΨ⁻¹H)⁻¹ at the final estimate over the free components (NaN elsewhere, and where
         singular).
-    flags : ndarray of uint8 (B,)
+    flags : ndarray of uint16 (B,)
+        Bits of :data:`pipeline.vocabulary.FLAGS`.
     """
 
     theta: np.ndarray
@@ -112,7 +108,7 @@ def gauss_newton(model: Callable, theta0: np.ndarray, measured: np.ndarray, sigm
     sigma = np.broadcast_to(np.asarray(sigma, float), measured.shape)
     free = np.arange(p) if free is None else np.asarray(free, dtype=np.int64)
     batch = batch or {}
-    flags = np.zeros(B, np.uint8)
+    flags = np.zeros(B, FLAG_DTYPE)
     start_ok = np.all(np.isfinite(theta[:, free]), axis=1)
     flags[~start_ok] |= INVALID_START
     active = start_ok.copy()

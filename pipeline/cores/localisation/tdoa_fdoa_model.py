@@ -1,6 +1,6 @@
 """TDOA/FDOA measurement model g(θ) and its analytic Jacobian, for any list of sensor pairs.
 
-Spec ``tdoa-fdoa-gauss-newton.md``, "Measurement model (2-D)" (paper eqs. 1–5 and 9–14).
+Kim et al. (2013), eqs. 1–5 and 9–14 (see ``docs/papers/tdoa-fdoa.md``).
 Emitter θ = [x, y, ẋ, ẏ] (position p, velocity v); sensors s_i, ṡ_i::
 
     r_i = ‖p − s_i‖                                  (1)
@@ -168,3 +168,26 @@ def underdetermined_reason(kind: str, pairs, n_sensors: int, stationary: bool) -
         pair_text = ",".join(f"{i}-{j}" for i, j in pairs)
         return (f"{kind}: pairs {pair_text} give {n_eq} independent equation(s) for {q} unknowns")
     return None
+
+
+def equivalent_sigmas(sigma, carrier_hz, n_pairs: int) -> tuple[np.ndarray, np.ndarray]:
+    """Measurement noise in range units per epoch: σ_r = c σ_TDOA (m) and σ_v = c σ_FDOA / f₀ (m/s).
+
+    The paper's Fig. 7 axis (0.1 σ_r = σ_v), averaged over runs and pairs.
+
+    Parameters
+    ----------
+    sigma : ndarray (R, E, 2N)
+        σ of each measurement in g's layout (σ_TDOA for the N TDOAs, then σ_FDOA).
+    carrier_hz : ndarray (R, E)
+    n_pairs : int
+
+    Returns
+    -------
+    sigma_range_m, sigma_rate_mps : ndarray (E,)
+    """
+    sigma = np.asarray(sigma, float)
+    n = int(n_pairs)
+    sigma_r = SPEED_OF_LIGHT_MPS * np.mean(sigma[..., :n], axis=(0, 2))
+    sigma_v = SPEED_OF_LIGHT_MPS * np.mean(sigma[..., n:] / np.asarray(carrier_hz, float)[..., None], axis=(0, 2))
+    return sigma_r, sigma_v
