@@ -1,6 +1,6 @@
 """Cross-correlation peaks from the paper's stochastic model: per-scan peak lists plus truth.
 
-Spec: ``shared/spec/xcorr-peaks-jpda.md`` ("The stochastic model", "Paper's experiments").
+Park, Ryu & Lee (1994), the stochastic model and the experiments (see ``docs/papers/bearing-peaks.md``).
 Each scan of each run yields a set of peaks ``(z_p, z_a)`` (bearing in radians, amplitude):
 
 * one true peak per target, detected with probability ``P_D`` and not during a data-loss
@@ -27,7 +27,7 @@ Geometry (bearing–time plane with 1° ≙ 1 s, centred on ``center_bearing_deg
 Data-loss stretches: per target a two-state Markov chain enters a loss with probability
 ``data_loss_probability`` per scan and leaves it with probability ``1 / data_loss_mean_scans``.
 The first two scans always carry every true peak: they are the two-point track start
-(spec: P(0|0) = [[σ_p², σ_p²], [σ_p², 2σ_p²]] is the covariance of that start with T = 1 s).
+(paper: P(0|0) = [[σ_p², σ_p²], [σ_p², 2σ_p²]] is the covariance of that start with T = 1 s).
 
 Random numbers are drawn in a fixed order (true-peak noise, amplitudes, detections, losses,
 clutter counts, clutter positions, acceptance, clutter amplitudes), so a seed fixes every byte.

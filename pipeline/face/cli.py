@@ -508,7 +508,7 @@ def check_cmd(data_dir, update, tracker_specs):
       replay check --update        # after a deliberate change
       replay check --tracker my_trackers.py:ConstantVelocity --update
     """
-    from evaluators.check import run_check
+    from pipeline.check import run_check
 
     data_dir = data_dir or bundled_data_dir()
     report = run_check(data_dir, update=update, echo=click.echo, tracker_specs=resolve_tracker_specs(tracker_specs))
