@@ -28,9 +28,9 @@ from evaluators.confidence import jackknife, mean_interval, rms_interval
 from evaluators.consistency import consistency_summary, innovation_whiteness, normalised_squared
 from evaluators.set_distances import gospa
 from evaluators.tracking_metrics import nanmean
-from pipeline.vocabulary import DELETED, NO_TRACK, NOT_ESTIMATED
+from pipeline.vocabulary import DELETED, NO_TRACK
 
-NOT_A_TRACK = NO_TRACK | DELETED | NOT_ESTIMATED
+NOT_A_TRACK = NO_TRACK | DELETED  # NOT_ESTIMATED marks NaN components, which count as absent by themselves
 
 
 @dataclass(frozen=True)
