@@ -15,6 +15,9 @@ import pytest
 from click.testing import CliRunner
 
 import pipeline.face.cli
+from pipeline.face.cli import main
+
+REPO = Path(__file__).resolve().parents[1]
 from pipeline.contract import ChannelData, METADATA_SCENARIO, scenario_metadata, write_dataset
 from pipeline.errors import InputError, check_all, require_finite_params
 from recorders.scenarios import load_scenario
@@ -396,3 +399,47 @@ def test_plots_csv_keeps_file_order_within_each_run_and_scan(tmp_path):
         np.testing.assert_array_equal(arrays["range_m"][run, scan, :c], [p[0] for p in plots])
         np.testing.assert_array_equal(arrays["bearing_rad"][run, scan, :c], np.deg2rad([p[1] for p in plots]))
         assert np.all(np.isnan(arrays["range_m"][run, scan, c:]))
+
+
+# ---- outputs never replace inputs; usage errors are one line
+
+
+@pytest.mark.parametrize("args", [
+    ["{data}", "--out", "{data}", "--no-rrd"],
+    ["{data}", "--out", "{out}", "--rrd", "{data}"],
+    ["convert", "plots-csv", "{csv}", "-o", "{csv}"],
+    ["simulate", "{toml}", "-o", "{toml}"],
+    ["view", "{data}", "--screenshot", "{data}"],
+])
+def test_an_output_that_is_an_input_is_refused_and_the_input_kept(runner, tmp_path, sha, args):
+    import shutil
+
+    data = tmp_path / "in.mcap"
+    shutil.copy(REPO / "data" / "radar_tws_demo.mcap", data)
+    csv = tmp_path / "plots.csv"
+    csv.write_text("time_s,range_m,bearing_deg\n0,1000,10\n5,1001,10\n10,1002,10\n")
+    toml = tmp_path / "sc.toml"
+    toml.write_text((REPO / "data" / "scenarios" / "radar-tws.toml").read_text())
+    paths = {"data": data, "csv": csv, "toml": toml, "out": tmp_path / "o" / "tracks.mcap"}
+    before = {p: sha(p) for p in (data, csv, toml)}
+    res = runner.invoke(main, [a.format(**paths) for a in args])
+    assert res.exit_code == 2, res.output
+    lines = [l for l in res.output.splitlines() if l.strip()]
+    assert len(lines) == 1 and lines[0].startswith("replay: error:") and "input" in lines[0], res.output
+    assert {p: sha(p) for p in (data, csv, toml)} == before
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("args, words", [
+    (["simlate", "radar-tws", "-o", "x.mcap"], ["did you mean 'simulate'"]),
+    (["simulate", "radar-tws", "--runs", "0", "-o", "x.mcap"], ["--runs"]),
+    (["simulate", "radar-tws", "--seed", "-1", "-o", "x.mcap"], ["--seed"]),
+    (["run", "--no-such-option"], ["--no-such-option"]),
+    (["help", "swep"], ["did you mean 'sweep'"]),
+])
+def test_usage_errors_are_one_line(runner, args, words):
+    res = runner.invoke(main, args)
+    assert res.exit_code == 2
+    lines = [l for l in res.output.splitlines() if l.strip()]
+    assert len(lines) == 1 and lines[0].startswith("replay: error:"), res.output
+    assert all(w in lines[0] for w in words)

@@ -17,6 +17,7 @@ import polars as pl
 
 from pipeline import __version__
 from pipeline.errors import InputError
+from pipeline.paths import refuse_input_overwrite
 
 DEMO_NAME = "radar_tws_demo.mcap"
 
@@ -92,12 +93,19 @@ def fail_on_tracker_errors(lines) -> None:
 
 
 class ReplayGroup(click.Group):
-    """``replay FILE`` means ``replay run FILE``; user errors become one line."""
+    """``replay FILE`` means ``replay run FILE``; a mistyped command gets a suggestion; every user
+    error, click's own usage errors included, becomes one line and exit status 2."""
 
     def parse_args(self, ctx, args):
         if not args:
             args = ["run"]
-        elif args[0] not in self.commands and args[0] not in ("--help", "-h", "--version"):
+        elif args[0] not in self.commands and not args[0].startswith("-"):
+            if not _looks_like_data(args[0]):
+                import difflib
+
+                close = difflib.get_close_matches(args[0], list(self.commands), n=1)
+                hint = f" (did you mean '{close[0]}'?)" if close else ""
+                raise click.UsageError(f"no such command or file {args[0]!r}{hint}; see `replay --help`")
             args = ["run", *args]
         return super().parse_args(ctx, args)
 
@@ -106,6 +114,34 @@ class ReplayGroup(click.Group):
             return super().invoke(ctx)
         except InputError as exc:
             raise UserError(str(exc)) from None
+
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
+        try:
+            rv = super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
+        except click.UsageError as exc:
+            where = f" ({exc.ctx.command_path})" if exc.ctx is not None and exc.ctx.command_path != "replay" else ""
+            click.echo(f"replay: error: {exc.format_message()}{where}", err=True)
+            sys.exit(2)
+        except click.ClickException as exc:
+            exc.show()
+            sys.exit(exc.exit_code)
+        except click.exceptions.Abort:
+            click.echo("replay: interrupted", err=True)
+            sys.exit(130)
+        except KeyboardInterrupt:
+            click.echo("replay: interrupted", err=True)
+            sys.exit(130)
+        if isinstance(rv, int) and standalone_mode:
+            sys.exit(rv)
+        if standalone_mode:
+            sys.exit(0)
+        return rv
+
+
+def _looks_like_data(arg: str) -> bool:
+    """A first argument that is a data set rather than a (mistyped) command name."""
+    path = Path(arg)
+    return path.exists() or path.suffix != "" or "/" in arg or "\\" in arg
 
 
 @click.group(cls=ReplayGroup, context_settings={"help_option_names": ["-h", "--help"]})
@@ -125,6 +161,16 @@ def main():
 
 
 # --------------------------------------------------------------------------- run
+
+
+# what a replay writes beside tracks.mcap (checked against the inputs before anything is written)
+REPORT_FILES = ("metrics.csv", "metrics.parquet", "per_scan.csv", "per_scan.parquet", "report.png",
+                "consistency.png")
+
+
+def _spec_files(specs) -> list:
+    """The tracker files of ``FILE.py:Class`` specs (inputs too: never to be written over)."""
+    return [Path(s.rsplit(":", 1)[0]) for s in specs if ":" in s and s.rsplit(":", 1)[0].endswith(".py")]
 
 
 def _default_out_dir(data: Path) -> Path:
@@ -248,6 +294,8 @@ def run_cmd(data, trackers, out_path, rrd_path, no_rrd, spawn, recover, sets, re
     out_dir = (out_path.parent if out_path else _default_out_dir(data))
     out_path = out_path or out_dir / "tracks.mcap"
     rrd_path = None if no_rrd else (rrd_path or out_path.with_suffix(".rrd"))
+    refuse_input_overwrite([data, *(_spec_files(tracker_specs))],
+                           [out_path, rrd_path, *(out_dir / n for n in REPORT_FILES)])
     wanted = [t.strip() for t in trackers.split(",")] if trackers else None
     specs = resolve_tracker_specs(tracker_specs)  # a tracker that does not load fails here
     t_read = time.perf_counter()
@@ -305,7 +353,7 @@ def _parameter_options(args) -> dict:
 @main.command("simulate", context_settings={"ignore_unknown_options": True, "allow_extra_args": True})
 @click.argument("scenario")
 @click.option("--runs", default=100, show_default=True, type=click.IntRange(min=1), help="Monte Carlo runs.")
-@click.option("--seed", default=0, show_default=True, type=int, help="Random seed (same seed, same bytes).")
+@click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0), help="Random seed (same seed, same bytes).")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--set", "sets", multiple=True, metavar="NAME=VALUE", help="Override a scenario parameter.")
 @click.pass_context
@@ -327,6 +375,7 @@ def simulate_cmd(ctx, scenario, runs, seed, output, sets):
     sc = load_scenario(scenario).with_overrides({**_parameter_options(ctx.args), **parse_assignments(sets)})
     rec = recorder_module(sc.recorder)
     t0 = time.perf_counter()
+    refuse_input_overwrite([Path(scenario)], [output])
     data = rec.simulate(sc.params, runs, seed)
     with click.progressbar(length=len(data.times), label=f"writing {output.name}", file=sys.stderr) as bar:
         n = write_simulated(output, data, scenario_metadata(sc.name, sc.params, seed), bar.update)
@@ -371,6 +420,7 @@ def convert_plots_cmd(csv_path, output, sets):
     from recorders.plots_csv import convert_plots_csv
     from recorders.scenarios import load_scenario, parse_assignments
 
+    refuse_input_overwrite([csv_path], [output])
     sc = load_scenario("radar-tws").with_overrides(parse_assignments(sets))
     n = convert_plots_csv(csv_path, output, sc.params)
     click.echo(f"wrote {output}: {n} messages")
@@ -403,6 +453,8 @@ def eval_cmd(data, outputs, as_json, per_scan, export_dir, recover, tracker_spec
     if tracker_specs and outputs is not None:
         raise InputError("--tracker applies when eval replays in memory (no OUTPUTS); the trackers of "
                          f"{outputs} already ran")
+    if export_dir:
+        refuse_input_overwrite([data, outputs], [export_dir / n for n in REPORT_FILES])
     res = evaluate_files(data, outputs, recover=recover, tracker_specs=resolve_tracker_specs(tracker_specs))
     if as_json:
         records = res.summary.to_dicts()
@@ -460,6 +512,9 @@ def compare_cmd(a_path, b_path, data_path, pairs, as_json, out_dir, recover):
         if p.count(":") != 1 or not all(p.split(":")):
             raise InputError(f"--pair {p!r}: expected A_NAME:B_NAME")
         parsed.append(tuple(p.split(":")))
+    out_dir = out_dir or Path.cwd() / "replay-out" / "compare"
+    refuse_input_overwrite([a_path, b_path, data_path],
+                           [out_dir / n for n in ("compare.csv", "compare.parquet", "compare.png", "compare.rrd")])
     cmp = compare_files(a_path, b_path, data_path, parsed or None, recover)
     table = cmp.table
     if as_json:
@@ -476,7 +531,6 @@ def compare_cmd(a_path, b_path, data_path, pairs, as_json, out_dir, recover):
             click.echo(shown.select("tracker_a", "tracker_b", "metric", "scope", "value_a", "value_b", "A − B", "verdict"))
         counts = table["verdict"].value_counts(sort=True)
         click.echo("verdicts: " + ", ".join(f"{r['verdict']} {r['count']}" for r in counts.iter_rows(named=True)))
-    out_dir = out_dir or Path.cwd() / "replay-out" / "compare"
     out_dir.mkdir(parents=True, exist_ok=True)
     with atomic_output(out_dir / "compare.csv", "w") as f:
         table.write_csv(f)
@@ -489,6 +543,25 @@ def compare_cmd(a_path, b_path, data_path, pairs, as_json, out_dir, recover):
     if not as_json:
         click.echo(f"tables: {out_dir / 'compare.csv'} (+ .parquet); plot: {out_dir / 'compare.png'}; "
                    f"recording: {out_dir / 'compare.rrd'}")
+
+
+@main.command("help")
+@click.argument("command", required=False)
+@click.pass_context
+def help_cmd(ctx, command):
+    """The help of replay, or of one command (`replay help sweep`)."""
+    group = ctx.parent.command
+    if command is None:
+        click.echo(group.get_help(ctx.parent))
+        return
+    cmd = group.get_command(ctx.parent, command)
+    if cmd is None:
+        import difflib
+
+        close = difflib.get_close_matches(command, list(group.commands), n=1)
+        raise click.UsageError(f"no such command {command!r}" + (f" (did you mean '{close[0]}'?)" if close else ""))
+    with click.Context(cmd, info_name=command, parent=ctx.parent) as sub:
+        click.echo(cmd.get_help(sub))
 
 
 @main.command("check")
@@ -526,7 +599,7 @@ def check_cmd(data_dir, update, tracker_specs):
               help="A swept parameter and its values (repeat for a cartesian grid).")
 @click.option("--set", "sets", multiple=True, metavar="NAME=VALUE", help="A parameter fixed at every point.")
 @click.option("--runs", default=100, show_default=True, type=click.IntRange(min=1))
-@click.option("--seed", default=0, show_default=True, type=int, help="Base seed; each point's seed derives from it and the point.")
+@click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0), help="Base seed; each point's seed derives from it and the point.")
 @click.option("--trackers", help="Comma-separated subset of trackers.")
 @click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path))
 @click.option("--executor", type=click.Choice(["serial", "process", "dask"]), default="process", show_default=True)
@@ -743,6 +816,7 @@ def view_cmd(rrd, png, size):
     if not rrd.exists():
         raise InputError("no such recording", rrd)
     if png:
+        refuse_input_overwrite([rrd], [png])
         click.echo(f"wrote {screenshot(rrd, png, size=size)}")
     else:
         open_viewer(rrd)

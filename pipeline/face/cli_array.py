@@ -34,6 +34,9 @@ def array_wav_cmd(wav_path, output, spacing_m, frequency_hz, sound_speed_mps, nf
     """
     from recorders.wav_array import convert_array_wav
 
+    from pipeline.paths import refuse_input_overwrite
+
+    refuse_input_overwrite([wav_path], [output])
     info = convert_array_wav(wav_path, output, spacing_m, frequency_hz, sound_speed_mps, nfft, hop,
                              snapshots_per_scan, "complex128" if wide else "complex64")
     click.echo(f"wrote {output}: {info['scans']} scans × {info['sensors']} sensors × {snapshots_per_scan} snapshots "
