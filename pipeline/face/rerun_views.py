@@ -17,22 +17,12 @@ VIEW_MODULES = {
 }
 
 
-class _StageMethods:
-    """Fallback for a stage whose views still live on the stage itself."""
-
-    @staticmethod
-    def blueprint(stage, trackers, dataset=None, run: int = 0):
-        return stage.blueprint(trackers, dataset, run)
-
-    @staticmethod
-    def log_rerun(stage, rec, dataset, result, per_scan, run: int = 0):
-        return stage.log_rerun(rec, dataset, result, per_scan, run)
-
-
 def views_for(stage):
     """The module (or fallback) that draws ``stage``'s results in Rerun."""
     name = VIEW_MODULES.get(stage.name)
-    return importlib.import_module(name) if name else _StageMethods
+    if name is None:
+        raise KeyError(f"no Rerun views registered for stage {stage.name!r} (add it to VIEW_MODULES)")
+    return importlib.import_module(name)
 
 
 def log_comparison(comparison, rrd_path) -> None:

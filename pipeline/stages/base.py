@@ -3,8 +3,9 @@
 A stage consumes the channels it understands and returns its trackers' outputs as arrays with a
 leading run axis; this base class writes them as batched frames on ``<output_prefix><tracker>``
 and rebuilds them from a replay output file, so ``replay eval data.mcap out.mcap`` works for
-every stage without stage-specific I/O. Subclasses implement :meth:`run`, :meth:`evaluate`,
-:meth:`log_rerun` and :meth:`blueprint`, and set the class attributes.
+every stage without stage-specific I/O. Subclasses implement :meth:`decode`, :meth:`reference`
+and :meth:`score` (and optionally :meth:`extras`, :meth:`standard_space`, :meth:`report`) and set
+the class attributes; their Rerun views live in the face (:mod:`pipeline.face.rerun_views`).
 """
 
 from __future__ import annotations
@@ -263,9 +264,3 @@ class Stage:
             per_scan = per_scan.join(std_scan.select(extra), on=["tracker", "scan"], how="left")
         return per_scan, pl.concat([summary.with_columns(kind=pl.lit("family")),
                                     std_summary.with_columns(kind=pl.lit("standard"))], how="diagonal_relaxed")
-
-    def log_rerun(self, rec, dataset, result: dict, per_scan, run: int = 0) -> None:  # pragma: no cover
-        raise NotImplementedError
-
-    def blueprint(self, trackers, dataset=None, run: int = 0):  # pragma: no cover - interface
-        raise NotImplementedError

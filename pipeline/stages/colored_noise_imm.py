@@ -15,7 +15,6 @@ the Rerun views in :mod:`pipeline.face.rerun_colored_noise`. See
 
 from __future__ import annotations
 
-import importlib
 
 import numpy as np
 
@@ -29,7 +28,6 @@ from pipeline.trackers.interface import ColoredPositions
 
 MEASUREMENTS = vocab.CHANNELS["colored_measurements"]
 TRUTH = vocab.CHANNELS["colored_truth"]
-VIEWS = "pipeline.face.rerun_colored_noise"
 
 
 class ColoredNoiseImmStage(Stage):
@@ -128,13 +126,3 @@ class ColoredNoiseImmStage(Stage):
         trackers += [t for t in part["tracker"].unique(maintain_order=True).to_list()
                      if t not in trackers and not t.startswith(colored_eval.AR_TRACKER)]
         return colored_eval.report_text(part, trackers, list(MODEL_NAMES))
-
-    # ------------------------------------------------------------------ Rerun (drawn by the face)
-
-    def blueprint(self, trackers, dataset=None, run: int = 0):
-        """:func:`pipeline.face.rerun_colored_noise.blueprint` (the stage holds no Rerun code)."""
-        return importlib.import_module(VIEWS).blueprint(self, trackers, dataset, run)
-
-    def log_rerun(self, rec, dataset, result: dict, per_scan, run: int = 0) -> None:
-        """:func:`pipeline.face.rerun_colored_noise.log_rerun` (the stage holds no Rerun code)."""
-        importlib.import_module(VIEWS).log_rerun(self, rec, dataset, result, per_scan, run)
