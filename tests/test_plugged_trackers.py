@@ -302,6 +302,10 @@ def test_failing_constructor_gives_one_line(runner, radar_small, plugged):
     res = runner.invoke(main, [str(radar_small), "--tracker", "plugged.py:Strict", "--set", "offset_m=-1", "--no-rrd",
                                "--out", "o/t.mcap"])
     assert_one_error_line(res, "'strict'", "constructing it raised ValueError: offset_m must be >= 0")
+    # like a tracker that fails while tracking, the built-ins' outputs are still written
+    channels = read_dataset(Path("o/t.mcap")).channels
+    assert {PREFIX + t for t in ("fixed", "approximate", "exact", "kalman")} <= set(channels)
+    assert PREFIX + "strict" not in channels
 
 
 # --------------------------------------------------------------------------- bad specs

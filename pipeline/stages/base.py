@@ -154,8 +154,9 @@ class Stage:
         measurements = self.decode(dataset, design)
         tracks, errors = {}, []
         for entry in entries:
-            tracker = self.build(entry, design)
             try:
+                # a plugged tracker that fails to construct is reported like one that fails to run
+                tracker = self.build(entry, design)
                 tracks[entry.name] = call_tracker(tracker, measurements, None if entry.builtin else entry.source)
             except TrackerError as exc:
                 errors.append(exc)
