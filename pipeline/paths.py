@@ -40,3 +40,84 @@ def refuse_input_overwrite(inputs, outputs) -> None:
         for src in ins:
             if _same(src, out):
                 raise InputError(f"refusing to write an output over the input {src} (choose another output path)", out)
+
+
+class OutputSet:
+    """A folder's outputs written as a set: all of them appear, or none.
+
+    Everything is first written into a hidden staging folder inside ``folder``; when the block
+    ends without an error the files are moved into place (``os.replace``: each move is atomic,
+    and they follow each other within microseconds), files of the previous set that this one does
+    not produce (``replaces``) are removed, and the staging folder goes. On an error, or if the
+    process is killed, the previous set stays as it was; a staging folder left by a killed
+    process is removed by the next run.
+
+    Example
+    -------
+    >>> with OutputSet(out_dir, replaces=["tracks.rrd"]) as outputs:     # doctest: +SKIP
+    ...     write(outputs.path("tracks.mcap"))
+    """
+
+    PREFIX = ".partial-"
+
+    def __init__(self, folder, replaces=()):
+        self.folder = Path(folder)
+        self.replaces = list(replaces)
+        self.stage: Path | None = None
+
+    def __enter__(self) -> "OutputSet":
+        self.folder.mkdir(parents=True, exist_ok=True)
+        self.clean_stale()
+        self.stage = self.folder / f"{self.PREFIX}{os.getpid()}"
+        if self.stage.exists():
+            _remove_tree(self.stage)
+        self.stage.mkdir()
+        return self
+
+    def path(self, name: str) -> Path:
+        """Where to write the output ``name`` now (it is moved to ``folder / name`` at the end)."""
+        return self.stage / name
+
+    def final(self, staged: Path) -> Path:
+        """The final place of a staged path."""
+        return self.folder / Path(staged).relative_to(self.stage)
+
+    def __exit__(self, exc_type, exc, tb) -> bool:
+        if exc_type is not None:
+            _remove_tree(self.stage)
+            return False
+        produced = sorted(p for p in self.stage.rglob("*") if p.is_file())
+        for p in produced:
+            target = self.final(p)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(p, target)
+        names = {self.final(p).name for p in produced}
+        for name in self.replaces:
+            old = self.folder / name
+            if name not in names and old.is_file():
+                old.unlink()
+        _remove_tree(self.stage)
+        return False
+
+    def clean_stale(self) -> None:
+        """Remove staging folders of processes that no longer run (killed mid-write)."""
+        for p in self.folder.glob(f"{self.PREFIX}*"):
+            pid = p.name[len(self.PREFIX):]
+            if not pid.isdigit() or not _alive(int(pid)) or int(pid) == os.getpid():
+                _remove_tree(p)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _remove_tree(path: Path) -> None:
+    import shutil
+
+    shutil.rmtree(path, ignore_errors=True)

@@ -17,7 +17,7 @@ import polars as pl
 
 from pipeline import __version__
 from pipeline.errors import InputError
-from pipeline.paths import refuse_input_overwrite
+from pipeline.paths import OutputSet, refuse_input_overwrite
 
 DEMO_NAME = "radar_tws_demo.mcap"
 
@@ -301,17 +301,24 @@ def run_cmd(data, trackers, out_path, rrd_path, no_rrd, spawn, recover, sets, re
     t_read = time.perf_counter()
     dataset = read_dataset(data, recover=recover)  # bad files fail here, before any progress output
     t_read = time.perf_counter() - t_read
-    with click.progressbar(length=4, label=f"replaying {data.name}", file=sys.stderr) as bar:
-        res = replay(data, wanted, out_path, rrd_path, design_overrides=parse_assignments(sets),
-                     rerun_run=rerun_run, dataset=dataset, progress=bar.update, tracker_specs=specs)
-    res.timings["read_s"] = t_read
-    res.timings["total_s"] += t_read
-    if res.dataset.recovered_messages is not None:
-        click.echo(f"recovered {res.dataset.recovered_messages} messages from complete chunks of {data}")
-    _print_summary(res.summary, f"metrics for {data.name} ({res.dataset.channel(next(iter(res.dataset.channels))).n_runs} runs)")
-    _print_stage_reports(res)
-    tables = _export_tables(res, out_dir)
-    plots = _report_plot(res, out_dir)
+    # every output is staged and moved into place at the end: a crash or a kill leaves the
+    # previous set untouched, never a mix (a recording elsewhere than the folder is one atomic file)
+    rrd_inside = rrd_path is not None and rrd_path.parent.resolve() == out_dir.resolve()
+    with OutputSet(out_dir, replaces=[out_path.with_suffix(".rrd").name, *REPORT_FILES]) as outputs:
+        staged_rrd = outputs.path(rrd_path.name) if rrd_inside else rrd_path
+        with click.progressbar(length=4, label=f"replaying {data.name}", file=sys.stderr) as bar:
+            res = replay(data, wanted, outputs.path(out_path.name), staged_rrd, design_overrides=parse_assignments(sets),
+                         rerun_run=rerun_run, dataset=dataset, progress=bar.update, tracker_specs=specs)
+        res.timings["read_s"] = t_read
+        res.timings["total_s"] += t_read
+        if res.dataset.recovered_messages is not None:
+            click.echo(f"recovered {res.dataset.recovered_messages} messages from complete chunks of {data}")
+        _print_summary(res.summary, f"metrics for {data.name} ({res.dataset.channel(next(iter(res.dataset.channels))).n_runs} runs)")
+        _print_stage_reports(res)
+        tables = [outputs.final(p) for p in _export_tables(res, outputs.stage)]
+        plots = [outputs.final(p) for p in _report_plot(res, outputs.stage)]
+    res.out_path = out_path
+    res.rrd_path = rrd_path
     click.echo("")
     click.echo(f"outputs:   {res.out_path}")
     if res.rrd_path:
