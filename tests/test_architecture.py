@@ -82,9 +82,35 @@ def test_docstrings_cite_nothing_outside_the_repository():
     assert not bad, "cite docs/ and the paper, not shared/: " + ", ".join(bad)
 
 
+def test_every_cited_document_exists():
+    # a citation of docs/... must lead somewhere in the clone
+    import re
+
+    cited = re.compile(r"docs/[\w\-/]+\.md")
+    missing = sorted({f"{p.relative_to(ROOT)} → {ref}"
+                      for folder in ("pipeline", "recorders", "evaluators", "benchmarks", "examples", "tests", "data")
+                      for p in _files(folder) for ref in cited.findall(p.read_text())
+                      if not (ROOT / ref).is_file()})
+    assert not missing, "cited documents that do not exist: " + "; ".join(missing)
+
+
 def test_the_rules_catch_a_violation(tmp_path):
     # the checker itself can fail: a core that imports polars and times itself is caught
     core = tmp_path / "bad_core.py"
     core.write_text("import time\nimport polars as pl\nfrom pipeline import vocabulary\n")
     found = [m for _, m in _imports(core) if _forbidden(m, RULES["pipeline/cores"])]
     assert found == ["time", "polars"]
+
+
+def test_every_relative_link_in_the_documentation_exists():
+    import re
+
+    link = re.compile(r"\]\(([^)#\s]+)(?:#[^)]*)?\)")
+    missing = []
+    for md in [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]:
+        for target in link.findall(md.read_text()):
+            if "://" in target or target.startswith("mailto:"):
+                continue
+            if not (md.parent / target).exists():
+                missing.append(f"{md.relative_to(ROOT)} → {target}")
+    assert not missing, "broken links: " + "; ".join(missing)

@@ -7,7 +7,7 @@ Carlo error" means within 2 paired standard errors (≈ 95 %). Seeds are fixed.
 What the paper reports and what we assert:
 
 * strong/weak pair: JPDA_A's success is at least JPDA's at every crossing angle and every
-  minimum distance (paper: far better; here too: see the README table);
+  minimum distance (paper: far better; here too: see docs/papers/bearing-peaks.md);
 * similar strengths: the paper says JPDA_A is "slightly better or equal". We assert it is
   never worse beyond MC error for both similar pairs, that weak/weak is within MC error at
   every angle, and that the amplitude gain for similar strengths is smaller than for
@@ -15,7 +15,7 @@ What the paper reports and what we assert:
   term also rejects clutter, whose amplitudes are far below a strong track's): reported,
   not hidden.
 
-The paper's ≈ 90 % for JPDA_A at every angle is not asserted (see README: runs at small
+The paper's ≈ 90 % for JPDA_A at every angle is not asserted (see docs/papers/bearing-peaks.md: runs at small
 angles are long, and weak tracks are lost to clutter over them).
 """
 

@@ -1,6 +1,6 @@
 """The paper's TWS scenario over 500+ Monte Carlo runs: properties, not copied numbers.
 
-Findings these tests pin down (see README "Radar α-β: what reproduces"):
+Findings these tests pin down (see docs/papers/radar-tws.md):
 * NPE < 1 at every filtered scan for all four filters (α-β with the textbook start-up gains);
 * the Kalman reference beats the α-β filters when they start cold from steady-state gains on
   the paper's constant-velocity truth, and beats them all when the truth follows the filters'
