@@ -443,3 +443,44 @@ def test_the_worked_example_in_the_guide_runs(runner, radar_small, plugged):
     records = eval_records(runner.invoke(main, ["eval", str(radar_small), "o/t.mcap", "--json"]))
     # a filter: well below the error of the plots it filters
     assert overall(records, "cv_alpha_beta", "rmse_position_m") < 0.85 * overall(records, "plot_echo", "rmse_position_m")
+
+
+# --------------------------------------------------------------------------- one tracker, every way it runs
+
+
+def test_both_forms_give_identical_metrics_through_replay_eval_and_every_sweep_executor(runner, plugged):
+    """PlotEcho (batch form) and PlotEchoRun (per-run form) compute the same thing; each must
+    give the same metrics through replay, eval of its outputs, and a sweep on the serial,
+    process and Dask executors."""
+    res = runner.invoke(main, ["simulate", "radar-tws", "--runs", "6", "--seed", "4", "-o", "d.mcap"])
+    assert res.exit_code == 0, res.output
+    specs = ["--tracker", "plugged.py:PlotEcho", "--tracker", "plugged.py:PlotEchoRun"]
+    keep = pl.col("tracker").is_in(["plot_echo", "plot_echo_run"])
+
+    def values(table):
+        if "scope" not in table.columns:  # a sweep table holds the overall scope
+            table = table.with_columns(scope=pl.lit("overall"))
+        t = table.filter(keep & (pl.col("scope") == "overall")).select("tracker", "metric", "scope", "value")
+        t = t.drop_nulls("value")
+        return {(r["metric"], r["scope"], r["tracker"].replace("_run", "")): r["value"] for r in t.iter_rows(named=True)}
+
+    replayed = replay(Path("d.mcap"), out_path=Path("o/tracks.mcap"), tracker_specs=[f"{plugged}:PlotEcho",
+                                                                                    f"{plugged}:PlotEchoRun"]).summary
+    by_form = {form: {k: v for k, v in values(replayed.filter(pl.col("tracker") == name)).items()}
+               for form, name in (("batch", "plot_echo"), ("run", "plot_echo_run"))}
+    # the per-run form returns no covariance: the metrics both have must agree exactly
+    common = by_form["batch"].keys() & by_form["run"].keys()
+    assert len(common) > 20 and {k: by_form["batch"][k] for k in common} == {k: by_form["run"][k] for k in common}
+    evaluated = runner.invoke(main, ["eval", "d.mcap", "o/tracks.mcap", "--json"])
+    assert evaluated.exit_code == 0, evaluated.output
+    assert values(pl.DataFrame(json.loads(evaluated.stdout), infer_schema_length=None)) == values(replayed)
+    sweeps = {}
+    for executor in ("serial", "process", "dask"):
+        res = runner.invoke(main, ["sweep", "radar-tws", "--param", "sigma_range_m=100", "--runs", "6", "--seed", "4",
+                                   "-o", f"sw_{executor}", "--executor", executor, "--workers", "2", "--no-keep-data",
+                                   *specs])
+        assert res.exit_code == 0, res.output
+        sweeps[executor] = values(pl.read_parquet(f"sw_{executor}/sweep.parquet"))
+    assert sweeps["serial"] and sweeps["serial"] == sweeps["process"] == sweeps["dask"]
+    rmse = {k: v for k, v in sweeps["serial"].items() if k[0] == "rmse_position_m"}
+    assert rmse
