@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.contract import scenario_metadata, write_dataset
+from pipeline.contract import CONTRACT_VERSION, scenario_metadata, write_dataset
 
 
 @dataclass
@@ -37,32 +37,30 @@ class SimulatedData:
         return 0
 
 
-def write_simulated(path: str | Path, data: SimulatedData, metadata: dict, progress=None) -> int:
+def write_simulated(path: str | Path, data: SimulatedData, metadata: dict, progress=None,
+                    contract: str = CONTRACT_VERSION) -> int:
     """Write ``data`` scan-major (all channels, all runs of scan k, then k + 1), atomically.
 
-    Returns the number of messages written. ``progress(n)`` is called once per scan.
+    Each channel's scan goes to the writer in one call (``write_ragged`` / ``write_batch``): in
+    contract v2 that is one message of every run; ``contract="replay.v1"`` writes one message
+    per run and scan as version 1 did. Returns the number of MCAP messages written.
+    ``progress(n)`` is called once per scan.
     """
-    n = 0
-    with write_dataset(path, metadata) as w:
+    with write_dataset(path, metadata, contract) as w:
         for k, t in enumerate(data.times):
             for topic, (arrays, counts) in data.ragged.items():
-                for r in range(counts.shape[0]):
-                    c = counts[r, k]
-                    w.write(topic, r, k, t, {name: a[r, k, :c] for name, a in arrays.items()})
-                    n += 1
+                w.write_ragged(topic, k, t, {name: a[:, k] for name, a in arrays.items()}, counts[:, k])
             for topic, arrays in data.fixed.items():
-                for r in range(next(iter(arrays.values())).shape[0]):
-                    w.write(topic, r, k, t, {name: a[r, k] for name, a in arrays.items()})
-                    n += 1
+                w.write_batch(topic, k, t, {name: a[:, k] for name, a in arrays.items()})
             w.flush()  # one chunk per scan: a crash or a cut file loses at most one scan
             if progress:
                 progress(1)
-    return n
+    return w.messages
 
 
-def record(path, scenario, runs: int, seed: int, progress=None) -> int:
+def record(path, scenario, runs: int, seed: int, progress=None, contract: str = CONTRACT_VERSION) -> int:
     """Simulate ``scenario`` and write it with its scenario/seed/version metadata."""
     from recorders import simulator_for
 
     data = simulator_for(scenario.recorder)(scenario.params, runs, seed)
-    return write_simulated(path, data, scenario_metadata(scenario.name, scenario.params, seed), progress)
+    return write_simulated(path, data, scenario_metadata(scenario.name, scenario.params, seed), progress, contract)

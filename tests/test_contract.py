@@ -91,9 +91,10 @@ def test_schema_is_self_describing_for_other_tools(radar_small):
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
         schema, channel, message, decoded = next(reader.iter_decoded_messages(topics=["/radar/truth"]))
     assert schema.name == FRAME_SCHEMA
-    arr = decoded.arrays[0]
-    state = np.frombuffer(arr.data, dtype=arr.dtype).reshape(tuple(arr.shape))
-    assert state.shape == (4,) and decoded.run == 0 and decoded.scan == 0
+    col = next(c for c in decoded.columns if c.name == "state")  # one message: every run of scan 0
+    state = np.frombuffer(col.values, dtype=col.dtype).reshape(decoded.frame_count, *col.shape)
+    assert state.shape == (30, 4) and decoded.first_run == 0 and decoded.scan == 0
+    np.testing.assert_array_equal(state, read_dataset(radar_small).channel("/radar/truth").grid("state")[:, 0])
 
 
 def test_empty_file_is_a_clear_error(tmp_path):
@@ -168,4 +169,4 @@ def test_other_mcap_tools_read_the_file(radar_small):
     cmd = [exe] if exe else [sys.executable, "-m", "rerun"]
     out = subprocess.run([*cmd, "mcap", "info", str(radar_small)], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
-    assert "Messages" in out.stdout and "3840" in out.stdout
+    assert "Messages" in out.stdout and "128" in out.stdout  # 64 scans × 2 channels, every run in each

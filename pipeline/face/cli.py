@@ -837,6 +837,7 @@ EXTENSION_MODULES: tuple[str, ...] = (
     "pipeline.face.cli_colored_noise",
     "pipeline.face.cli_xcorr",
     "pipeline.face.cli_array",
+    "pipeline.face.cli_convert_upgrade",
     # one line per module: "pipeline.cli_<paper>",
 )
 

@@ -1,0 +1,50 @@
+"""``replay convert upgrade``: rewrite an MCAP file of an older contract in the current one.
+
+Registered under the existing ``replay convert`` group (this module is listed in
+``pipeline.face.cli.EXTENSION_MODULES``; it adds no top-level command).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+COMMANDS: list = []  # defined first: importing pipeline.face.cli below may re-enter this module
+
+
+@click.command("upgrade")
+@click.argument("src", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path),
+              help="The rewritten file (may be SRC itself: it is replaced only when the rewrite succeeded).")
+@click.option("--recover", is_flag=True, help="Keep the intact chunks of a truncated or damaged file.")
+def upgrade_cmd(src, output, recover):
+    """Rewrite a replay.v1 (or any) data set in the current contract (replay.v2).
+
+    Every frame, array and metadata record is kept exactly (the scenario record's `contract`
+    field names the new contract); v2 stores one message per channel and scan carrying every
+    run, which reads many times faster.
+
+    \b
+    Example:
+      replay convert upgrade old.mcap -o new.mcap
+      replay convert upgrade cut.mcap -o kept.mcap --recover
+    """
+    from pipeline.contract import rewrite_dataset
+
+    rep = rewrite_dataset(src, output, recover=recover)
+    was = ", ".join(rep.source_contracts) or "no frames"
+    click.echo(f"wrote {output}: {rep.frames} frames, {rep.messages_in} messages ({was}) → {rep.messages_out} "
+               f"messages ({rep.contract})")
+    if rep.problem:
+        click.echo(f"recovered the intact chunks of {src}: {rep.problem}")
+
+
+def _register() -> None:
+    from pipeline.face import cli
+
+    if "upgrade" not in cli.convert_group.commands:
+        cli.convert_group.add_command(upgrade_cmd)
+
+
+_register()
