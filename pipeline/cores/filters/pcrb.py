@@ -33,6 +33,8 @@ def pcrb_recursion(P0, F, Q, information) -> np.ndarray:
     Returns
     -------
     ndarray (K, n, n)
+        NaN from the first scan whose information cannot be represented (non-finite, or a
+        singular ``I + A M``) on.
     """
     M = np.asarray(information, float)
     K, n = M.shape[0], M.shape[-1]
@@ -43,7 +45,15 @@ def pcrb_recursion(P0, F, Q, information) -> np.ndarray:
     eye = np.eye(n)
     for k in range(1, K):
         A = F[k] @ out[k - 1] @ F[k].T + Q[k]
-        P = np.linalg.solve(eye + A @ M[k], A)
+        B = eye + A @ M[k]
+        if not (np.all(np.isfinite(A)) and np.all(np.isfinite(B))):
+            out[k:] = np.nan  # information that cannot be represented (e.g. a truth at the sensor)
+            break
+        try:
+            P = np.linalg.solve(B, A)
+        except np.linalg.LinAlgError:
+            out[k:] = np.nan  # no bound from here on rather than a wrong one
+            break
         out[k] = 0.5 * (P + P.T)  # symmetric to rounding
     return out
 
