@@ -715,6 +715,11 @@ class McapFrameWriter:
         return self._channels[topic]
 
     def _add_message(self, topic: str, time_s: float, data: bytes) -> None:
+        from pipeline.vocabulary import TIME_LIMIT_S
+
+        if not (np.isfinite(time_s) and abs(time_s) <= TIME_LIMIT_S):
+            # MCAP log times are unsigned nanoseconds: refuse what cannot be a recording's time
+            raise InputError(f"{topic}: scan time {time_s!r} s is not a finite time within ±{TIME_LIMIT_S:g} s")
         cid = self.channel(topic)
         t_ns = int(round(time_s * 1e9))
         self._w.add_message(cid, log_time=t_ns, data=data, publish_time=t_ns, sequence=self._seq[cid])
@@ -1452,8 +1457,67 @@ def read_dataset(path: str | Path, topics: Iterable[str] | None = None, recover:
         raise InputError("too large to read into memory (MemoryError)", path) from None
     contracts = set(source.contracts.values())
     contract = contracts.pop() if len(contracts) == 1 else (None if not contracts else CONTRACT_V2)
+    check_values(channels, path)
     return Dataset(str(path), channels, source.metadata, recovered_messages=source.messages if problem else None,
                    contract=contract)
+
+
+def check_values(channels: Mapping[str, "ChannelData"], path=None) -> None:
+    """Refuse input values outside the declared table :data:`pipeline.vocabulary.VALUES`
+    (wrong number kind, NaN/Inf, out of range) and scan times that are not finite or not
+    within ±:data:`pipeline.vocabulary.TIME_LIMIT_S`.
+
+    Raises
+    ------
+    InputError
+        Naming the channel, the array and the first offending run and scan.
+    """
+    from pipeline import vocabulary as vocab
+
+    topic_key = {topic: key for key, topic in vocab.CHANNELS.items()}
+    for topic, ch in channels.items():
+        t = np.asarray(ch.time_s, float)
+        bad = ~np.isfinite(t) | (np.abs(t) > vocab.TIME_LIMIT_S)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise InputError(f"{topic}: scan time {t[i]!r} s at run {ch.run[i]} scan {ch.scan[i]} is not a finite "
+                             f"time within ±{vocab.TIME_LIMIT_S:g} s", path)
+        specs = vocab.VALUES.get(topic_key.get(topic), {})
+        for name, spec in specs.items():
+            if name not in ch.arrays:
+                continue
+            column = ch._column(name)
+            # in bulk where the file stores the array as one block (v2); frame by frame otherwise,
+            # and always frame by frame to name the first offending frame
+            blocks = [column.values] if column is not None and column.kind != IRREGULAR else None
+            if blocks is not None and _values_problem(blocks[0], spec) is None:
+                continue
+            for i, a in enumerate(ch.array(name)):
+                problem = _values_problem(np.asarray(a), spec)
+                if problem is not None:
+                    raise InputError(f"{topic} {name} {problem} at run {ch.run[i]} scan {ch.scan[i]}", path)
+
+
+def _values_problem(a: np.ndarray, spec) -> str | None:
+    """What is wrong with the values ``a`` under ``spec`` (see :func:`check_values`), or None."""
+    if a.size == 0:
+        return None
+    if a.dtype.kind not in spec.kinds:
+        return f"holds {a.dtype} values (expected {'/'.join(_KIND_NAMES[k] for k in spec.kinds)})"
+    if spec.finite and not np.all(np.isfinite(a)):
+        return f"holds {int(np.sum(~np.isfinite(a)))} NaN/Inf value(s)"
+    magnitude = np.abs(a) if a.dtype.kind == "c" else a
+    with np.errstate(invalid="ignore"):
+        low = 0 if spec.low is None or a.dtype.kind == "c" else int(np.sum(magnitude < spec.low))
+        high = 0 if spec.high is None else int(np.sum(magnitude > spec.high))
+    if low:
+        return f"holds {low} negative value(s)" if spec.low == 0 else f"holds {low} value(s) below {spec.low:g}"
+    if high:
+        return f"holds {high} value(s) above {spec.high:g}"
+    return None
+
+
+_KIND_NAMES = {"f": "float", "i": "integer", "u": "unsigned integer", "c": "complex", "b": "boolean"}
 
 
 def iter_frames(path: str | Path, recover: bool = False, meta: dict | None = None):

@@ -33,6 +33,51 @@ CHANNELS = {
 }
 
 
+# --------------------------------------------------------------------------- values
+# What every input array may hold, declared once per channel and checked when a file is read
+# (pipeline.contract.check_values): the number kind (f float, c complex, i integer; a boolean
+# or complex array where floats are expected is refused, not cast), and the range of its values.
+# Bounds are physical limits or, where physics sets none, sanity limits far beyond any real
+# recording that keep squares and products finite (1e12 m is seven times the Sun's distance).
+
+@dataclass(frozen=True)
+class ValueSpec:
+    """Allowed values of one input array: ``kinds`` (numpy dtype kinds), ``low``/``high``
+    (inclusive; None: unbounded), ``finite`` (NaN/Inf refused)."""
+
+    kinds: str = "fi"
+    low: float | None = None
+    high: float | None = None
+    finite: bool = True
+
+
+_FAR_M = 1e12
+_FAST_MPS = 1e9
+_TURNS = 1e3  # radians: angles may be unwrapped, but not astronomically
+
+VALUES = {
+    "radar_plots": {"range_m": ValueSpec(low=0.0, high=_FAR_M), "bearing_rad": ValueSpec(low=-_TURNS, high=_TURNS)},
+    "radar_truth": {"state": ValueSpec(low=-_FAR_M, high=_FAR_M)},
+    "xcorr_peaks": {"bearing_rad": ValueSpec(low=-_TURNS, high=_TURNS), "amplitude": ValueSpec(low=0.0, high=1e30),
+                    "origin": ValueSpec(kinds="iu", low=-1, high=1 << 24)},
+    "xcorr_truth": {"bearing_rad": ValueSpec(low=-_TURNS, high=_TURNS),
+                    "bearing_rate_radps": ValueSpec(low=-_TURNS, high=_TURNS)},
+    "array_snapshots": {"snapshots": ValueSpec(kinds="fc", low=-1e30, high=1e30)},
+    "array_truth": {"angle_rad": ValueSpec(low=-_TURNS, high=_TURNS), "snr_db": ValueSpec(low=-400.0, high=400.0)},
+    "emitter_measurements": {"tdoa_s": ValueSpec(low=-1e3, high=1e3), "fdoa_hz": ValueSpec(low=-1e12, high=1e12),
+                             "sigma_tdoa_s": ValueSpec(low=0.0, high=1e3), "sigma_fdoa_hz": ValueSpec(low=0.0, high=1e12),
+                             "pairs": ValueSpec(kinds="iu", low=0, high=1 << 16),
+                             "carrier_hz": ValueSpec(low=0.0, high=1e15)},
+    "emitter_sensors": {"position_m": ValueSpec(low=-_FAR_M, high=_FAR_M),
+                        "velocity_mps": ValueSpec(low=-_FAST_MPS, high=_FAST_MPS)},
+    "emitter_prior": {"state": ValueSpec(low=-_FAR_M, high=_FAR_M, finite=False)},
+    "emitter_truth": {"state": ValueSpec(low=-_FAR_M, high=_FAR_M)},
+    "colored_measurements": {"position_m": ValueSpec(low=-_FAR_M, high=_FAR_M)},
+    "colored_truth": {"state": ValueSpec(low=-_FAR_M, high=_FAR_M), "alpha": ValueSpec(low=-1.0, high=1.0)},
+}
+TIME_LIMIT_S = 1e10  # scan times: finite and within ±317 years of the recording's epoch
+
+
 @dataclass(frozen=True)
 class Family:
     """A measurement family: what a tracker consumes and what its state means.

@@ -443,3 +443,37 @@ def test_usage_errors_are_one_line(runner, args, words):
     lines = [l for l in res.output.splitlines() if l.strip()]
     assert len(lines) == 1 and lines[0].startswith("replay: error:"), res.output
     assert all(w in lines[0] for w in words)
+
+
+# ---- the declared value table (pipeline.vocabulary.VALUES) at the read boundary
+
+
+def _radar_frames(range_m=1000.0, bearing=0.3, t=0.0):
+    return {"/radar/plots": [(0, k, t + 5.0 * k, {"range_m": np.array([range_m + k]), "bearing_rad": np.array([bearing])})
+                             for k in range(4)]}
+
+
+@pytest.mark.parametrize("case, frames, fragment", [
+    ("bool", {"/radar/plots": [(0, k, 5.0 * k, {"range_m": np.array([True]), "bearing_rad": np.array([0.1])})
+                               for k in range(4)]}, "range_m holds bool values (expected float/integer)"),
+    ("complex", {"/radar/plots": [(0, k, 5.0 * k, {"range_m": np.array([1000 + 1j]), "bearing_rad": np.array([0.1])})
+                                  for k in range(4)]}, "range_m holds complex128 values"),
+    ("huge", _radar_frames(range_m=1e300), "range_m holds 1 value(s) above 1e+12"),
+    ("negative", _radar_frames(range_m=-5000.0), "range_m holds 1 negative value(s)"),
+], ids=lambda v: v if isinstance(v, str) else "")
+def test_values_outside_the_declared_table_are_refused(tmp_path, case, frames, fragment, sha):
+    path = write_frames(tmp_path / f"{case}.mcap", frames)
+    before = sha(path)
+    res = invoke(path, "--out", tmp_path / "o" / "tracks.mcap", "--no-rrd")
+    assert_one_line_error(res, path, fragment)
+    assert sha(path) == before and not (tmp_path / "o").exists()
+
+
+def test_a_csv_time_beyond_any_recording_is_one_line(tmp_path, sha):
+    csv = tmp_path / "plots.csv"
+    csv.write_text("time,range_m,bearing_deg\n0,1000,10\n5,1001,10\n1e15,1002,10\n")
+    before = sha(csv)
+    res = invoke("convert", "plots-csv", csv, "-o", tmp_path / "p.mcap")
+    assert res.exit_code == 2 and "scan time" in res.stderr and "Traceback" not in res.output, res.output
+    assert len([l for l in res.stderr.splitlines() if l.strip()]) == 1
+    assert sha(csv) == before and not (tmp_path / "p.mcap").exists()

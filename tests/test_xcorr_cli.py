@@ -114,7 +114,7 @@ def _modified(base_data, fn):
 
 
 @pytest.mark.parametrize("name, fn, message", [
-    ("negative", lambda a, c: a["amplitude"].__setitem__((0, 5, 0), -10.0), "negative amplitude"),
+    ("negative", lambda a, c: a["amplitude"].__setitem__((0, 5, 0), -10.0), "amplitude holds 1 negative value"),
     ("outside", lambda a, c: a["bearing_rad"].__setitem__((1, 7, 0), np.deg2rad(130.0)),
      "outside the sensor's field [70°, 110°]"),
     ("nan", lambda a, c: a["bearing_rad"].__setitem__((2, 3, 1), np.nan), "NaN/Inf"),
