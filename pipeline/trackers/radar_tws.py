@@ -24,6 +24,27 @@ the gain rotated into that frame — so the gains can be compared on one plot.
 
 Tracks start from two plots (position of the second, velocity from their difference) and are
 filtered from the third plot on.
+
+Covariances stay symmetric positive definite at every design value the trackers accept
+(:func:`check_design` refuses the rest with a one-line :class:`~pipeline.errors.InputError`).
+The Kalata gains and their covariance are evaluated in a form free of cancellation
+(:mod:`pipeline.cores.filters.alpha_beta_gains`) and the Kalman update forms ``I − K_pos`` as
+``R S⁻¹`` (:func:`~pipeline.cores.filters.kalman.cv_position_update_components`). Repairs,
+each flagged ``FLOORED`` on its scan, cover what a Cartesian covariance cannot hold:
+
+* a plot's along-range or cross-range variance is raised to
+  :data:`~pipeline.cores.filters.converted_measurements.RELATIVE_VARIANCE_FLOOR` times the other
+  (a very precise range far out, or a plot next to the radar where r·σ_θ → 0), and to the value
+  that makes its tracking index σ_v T²/σ at most :data:`MAX_TRACKING_INDEX`;
+* an α-β velocity variance implied by gains off Kalata's curve (the approximate gains after the
+  stability clamp) is raised to keep the position-velocity correlation ρ² ≤ 1/2;
+* last, any reported covariance whose relative LDLᵀ pivot is below
+  :data:`~pipeline.cores.filters.kalman.PIVOT_FLOOR` has the eigenvalues of its correlation
+  matrix raised (:func:`~pipeline.cores.filters.kalman.cv_floor_components`); the innovation
+  covariance's correlation likewise. Only extreme cases reach them (a track started from a plot
+  micrometres from the radar, fixed gains designed for a nominal error far from the plot's).
+
+None of them acts on the paper's scenario or the bundled data sets.
 """
 
 from __future__ import annotations
@@ -35,16 +56,22 @@ import numpy as np
 from pipeline.cores.filters.alpha_beta_gains import (
     approximate_gains,
     clamp_to_stability,
-    kalata_gains,
+    floor_velocity_factor,
+    kalata_steady_state,
     steady_state_variances,
     tracking_index,
+    velocity_factor,
     with_startup,
 )
-from pipeline.cores.filters.converted_measurements import rotated_diagonal
+from pipeline.cores.filters.converted_measurements import (
+    RELATIVE_VARIANCE_FLOOR,
+    floored_polar_variances,
+    rotated_diagonal,
+)
 from pipeline.cores.filters.kalman import (
     cv_apply_gain_components,
-    cv_position_gain_components,
-    cv_posterior_components,
+    cv_floor_components,
+    cv_position_update_components,
     cv_predict_components,
     components_to_matrix,
 )
@@ -57,6 +84,20 @@ FLAG_CLAMPED = vocab.CLAMPED
 FLAG_COASTED = vocab.COASTED
 FLAG_NO_TRACK = vocab.NO_TRACK
 FLAG_INITIALISING = vocab.INITIALISING
+FLAG_FLOORED = vocab.FLOORED
+
+#: Largest tracking index λ = σ_v T²/σ of a plot's along- or cross-range error; a smaller σ is
+#: floored (flagged ``FLOORED``), and a design whose range index σ_v T²/σ_r or nominal index λ̄
+#: exceeds it is refused.
+#: The process noise of one scan is rank one per axis and λ²/4 times the measurement variance,
+#: so a covariance predicted over a scan has a relative smallest eigenvalue of about 8/λ²: at
+#: 10⁵ that is ~10⁶ above rounding. (The α-β gains are α = 1 − 4/λ², β = 2 − 4/λ there already.)
+MAX_TRACKING_INDEX = 1e5
+
+#: Range of every design value that must be > 0 (scan period in s, σ_v in m/s², σ_r and the
+#: nominal cross-range error in m, σ_θ in degrees): wider than any radar needs, narrow enough
+#: that variances, tracking indices and their products stay far from overflow and underflow.
+DESIGN_RANGE = (1e-9, 1e9)
 
 
 @dataclass(frozen=True)
@@ -106,47 +147,57 @@ class AlphaBetaGains:
         self.name = name
         self._cross_gains = cross_gains
 
-    def update(self, x_pred, c_pred, z_range, cos_b, sin_b, r_cov, n_plots, design: TrackerDesign, dt: float):
+    def update(self, x_pred, c_pred, z_range, cos_b, sin_b, r_cov, sigmas, n_plots, design: TrackerDesign, dt: float):
         """Posterior with the gain ``K = D₂ K̄₂ Dᵀ`` and the steady-state covariance those gains imply.
 
         λ_k and β/T use this scan's interval ``dt`` (recorded scan times jitter); the fixed
-        filter's nominal λ̄ stays at the design period.
+        filter's nominal λ̄ stays at the design period. ``sigmas`` are the plot's (floored)
+        along-range and cross-range error stds. The velocity variance of gains off Kalata's
+        curve is floored (``diag["floored"]``) so that the covariance is positive definite.
         """
         T = dt
-        sigma_cross = z_range * design.sigma_bearing_rad
+        sigma_along, sigma_cross = sigmas
         lam_c = tracking_index(design.sigma_v, T, sigma_cross)
-        lam_r = tracking_index(design.sigma_v, T, design.sigma_range_m)
-        alpha_r, beta_r = kalata_gains(np.full(z_range.shape, lam_r))
-        alpha_c, beta_c, clamped = self._cross_gains(lam_c, design.lam_nominal)
+        alpha_r, beta_r, nu_r = kalata_steady_state(tracking_index(design.sigma_v, T, sigma_along))
+        if np.ndim(alpha_r) == 0:  # one range error for all runs (nothing floored)
+            alpha_r, beta_r, nu_r = (np.full(z_range.shape, v) for v in (alpha_r, beta_r, nu_r))
+        alpha_c, beta_c, nu_c, clamped, floored = self._cross_gains(lam_c, design.lam_nominal)
         if design.startup:
-            alpha_r, beta_r = with_startup(alpha_r, beta_r, n_plots)
-            alpha_c, beta_c = with_startup(alpha_c, beta_c, n_plots)
+            alpha_r, beta_r, nu_r = with_startup(alpha_r, beta_r, n_plots, nu_r)
+            alpha_c, beta_c, nu_c = with_startup(alpha_c, beta_c, n_plots, nu_c)
         kp = rotated_diagonal(cos_b, sin_b, alpha_r, alpha_c)
         kv = rotated_diagonal(cos_b, sin_b, beta_r / T, beta_c / T)
         gain = np.stack([kp[0], kp[1], kp[1], kp[2], kv[0], kv[1], kv[1], kv[2]])
-        along = steady_state_variances(alpha_r, beta_r, T, design.sigma_range_m)
-        cross = steady_state_variances(alpha_c, beta_c, T, sigma_cross)
+        along = steady_state_variances(alpha_r, beta_r, T, sigma_along, nu_r)
+        cross = steady_state_variances(alpha_c, beta_c, T, sigma_cross, nu_c)
         A = rotated_diagonal(cos_b, sin_b, along[0], cross[0])
         B = rotated_diagonal(cos_b, sin_b, along[1], cross[1])
         C = rotated_diagonal(cos_b, sin_b, along[2], cross[2])
         c_post = np.stack([A[0], A[1], A[2], B[0], B[1], B[1], B[2], C[0], C[1], C[2]])
         x_post, innovation = _linear_update(x_pred, gain, z_range, cos_b, sin_b)
         return x_post, c_post, innovation, gain, {"alpha": np.stack([alpha_r, alpha_c]), "beta": np.stack([beta_r, beta_c]),
-                              "lambda_cross": lam_c, "clamped": clamped}
+                              "lambda_cross": lam_c, "clamped": clamped, "floored": floored}
+
+
+# Cross-range gain rules: (λ_k, λ̄) → α, β, their velocity factor ν (alpha_beta_gains), clamped,
+# floored. Kalata and start-up gains imply a covariance with ρ² < 1/2, so only the approximate
+# rule, whose gains leave Kalata's curve, needs the velocity floor.
 
 
 def _fixed(lam_c, lam_bar):
-    a, b = kalata_gains(np.full_like(lam_c, lam_bar))
-    return a, b, np.zeros(lam_c.shape, bool)
+    no = np.zeros(lam_c.shape, bool)
+    return tuple(np.full_like(lam_c, v) for v in kalata_steady_state(lam_bar)) + (no, no)
 
 
 def _approximate(lam_c, lam_bar):
-    return clamp_to_stability(*approximate_gains(lam_c, lam_bar))
+    a, b, clamped = clamp_to_stability(*approximate_gains(lam_c, lam_bar))
+    nu, floored = floor_velocity_factor(a, b, velocity_factor(a, b))
+    return a, b, nu, clamped, floored
 
 
 def _exact(lam_c, lam_bar):
-    a, b = kalata_gains(lam_c)
-    return a, b, np.zeros(lam_c.shape, bool)
+    no = np.zeros(lam_c.shape, bool)
+    return kalata_steady_state(lam_c) + (no, no)
 
 
 class KalmanGains:
@@ -154,10 +205,9 @@ class KalmanGains:
 
     name = "kalman"
 
-    def update(self, x_pred, c_pred, z_range, cos_b, sin_b, r_cov, n_plots, design: TrackerDesign, dt: float):
+    def update(self, x_pred, c_pred, z_range, cos_b, sin_b, r_cov, sigmas, n_plots, design: TrackerDesign, dt: float):
         T = dt
-        gain = cv_position_gain_components(c_pred, *r_cov)
-        c_post = cv_posterior_components(c_pred, gain)
+        gain, c_post = cv_position_update_components(c_pred, *r_cov)
         # the gain seen in the (along-range, cross-range) frame, for comparison with α-β
         cc, ss, cs = cos_b * cos_b, sin_b * sin_b, cos_b * sin_b
         k00, k01, k10, k11, g00, g01, g10, g11 = gain
@@ -167,10 +217,11 @@ class KalmanGains:
         alpha[1] = ss * k00 - kx + cc * k11
         beta[0] = T * (cc * g00 + gx + ss * g11)
         beta[1] = T * (ss * g00 - gx + cc * g11)
-        lam_c = tracking_index(design.sigma_v, T, z_range * design.sigma_bearing_rad)
+        lam_c = tracking_index(design.sigma_v, T, sigmas[1])
         x_post, innovation = _linear_update(x_pred, gain, z_range, cos_b, sin_b)
+        no = np.zeros(z_range.shape, bool)
         return x_post, c_post, innovation, gain, {"alpha": alpha, "beta": beta, "lambda_cross": lam_c,
-                                                  "clamped": np.zeros(z_range.shape, bool)}
+                                                  "clamped": no, "floored": no}
 
 
 def _linear_update(x_pred, gain, z_range, cos_b, sin_b):
@@ -187,6 +238,41 @@ STRATEGIES = {
     "exact": AlphaBetaGains("exact", _exact),
     "kalman": KalmanGains(),
 }
+
+
+def _plot_variances(z_range, dt: float, design: TrackerDesign):
+    """Along-range and cross-range variances of each run's plot, floored (module docstring).
+
+    Returns ``(var_along, var_cross, floored)``, arrays over runs (NaN where there is no plot),
+    or ``(σ_r², var_cross, None)`` when nothing was floored.
+    """
+    # tracking index σ_v dt²/σ ≤ MAX_TRACKING_INDEX  ⇔  σ² ≥ (σ_v dt² / MAX_TRACKING_INDEX)²
+    least = (design.sigma_v * dt * dt / MAX_TRACKING_INDEX) ** 2
+    var_r = design.sigma_range_m**2
+    var_cross = (z_range * design.sigma_bearing_rad) ** 2
+    # the common case, decided by two comparisons: nothing to floor
+    lo, hi = max(RELATIVE_VARIANCE_FLOOR * var_r, least), var_r / RELATIVE_VARIANCE_FLOOR
+    if var_r >= least and not ((var_cross < lo) | (var_cross > hi)).any():
+        return var_r, var_cross, None
+    var_along, var_cross, floored = floored_polar_variances(z_range, design.sigma_range_m, design.sigma_bearing_rad)
+    low_along, low_cross = var_along < least, var_cross < least
+    var_along = np.where(low_along, least, var_along)
+    var_cross = np.where(low_cross, least, var_cross)
+    return var_along, var_cross, floored | low_along | low_cross
+
+
+def _floor_innovation_covariance(s_cov):
+    """Innovation covariances ``(scans, 3, runs)`` (s00, s01, s11) with their correlation limited
+    to ρ² ≤ 1 − 10⁻⁹ where it is above (the α-β filters' predicted covariance next to the radar);
+    returns them and the mask of those changed (None when none were)."""
+    s00, s01, s11 = s_cov[:, 0], s_cov[:, 1], s_cov[:, 2]
+    limit = (1.0 - 1e-9) * s00 * s11
+    high = s01 * s01 > limit  # False where there was no update (NaN)
+    if not high.any():
+        return s_cov, None
+    s_cov = s_cov.copy()
+    s_cov[:, 1] = np.where(high, np.sign(s01) * np.sqrt(limit), s01)
+    return s_cov, high
 
 
 def _select_plots(plot_range, plot_bearing, counts_k, x_pred, started):
@@ -228,7 +314,9 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
         ``(runs, scans, 2)`` as (along-range, cross-range), ``lambda_cross``, ``innovation
         (runs, scans, 2)`` and its covariance ``(runs, scans, 2, 2)``, ``gain (runs, scans, 4, 2)``,
         ``measurement (runs, scans, 2)`` (the converted plot used, NaN when the scan had none) and
-        ``flags (runs, scans)`` (bits of :data:`pipeline.vocabulary.FLAGS`).
+        ``flags (runs, scans)`` (bits of :data:`pipeline.vocabulary.FLAGS`; ``FLOORED`` where the
+        plot's variances, the α-β velocity variance or the reported covariance were floored, see
+        the module docstring).
     """
     n_runs, n_scans = counts.shape
     if plot_range.ndim != 3:
@@ -254,7 +342,6 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
     prev = np.zeros((5, n_runs))  # x, y, r00, r01, r11 of the first plot of a track
     prev_t = np.zeros(n_runs)
     n_plots = np.zeros(n_runs, np.int64)  # plots a track has used, the start-up gains' n
-    var_r = design.sigma_range_m**2
     for k in range(n_scans):
         dt = float(times[k] - times[k - 1]) if k else design.scan_period_s
         xp, cp = cv_predict_components(x, c, dt, design.sigma_v)
@@ -263,7 +350,10 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
         cos_b, sin_b = np.cos(z_b), np.sin(z_b)
         zx, zy = z_r * cos_b, z_r * sin_b
         used[k, 0], used[k, 1] = zx, zy
-        r_cov = rotated_diagonal(cos_b, sin_b, var_r, (z_r * design.sigma_bearing_rad) ** 2)
+        var_along, var_cross, floored = _plot_variances(z_r, dt, design)
+        r_cov = rotated_diagonal(cos_b, sin_b, var_along, var_cross)
+        if floored is not None:
+            flags[k] |= np.where(floored & has, FLAG_FLOORED, 0).astype(np.uint16)
 
         upd = started & has
         if upd.all():
@@ -273,8 +363,13 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
         x_new, c_new = xp, cp
         if upd.any():
             n_plots[sel] += 1
+            if floored is None:
+                sigmas = (design.sigma_range_m, z_r[sel] * design.sigma_bearing_rad)
+            else:
+                sigmas = (np.sqrt(var_along[sel]), np.sqrt(var_cross[sel]))
             xu, c_post, nu, gain, diag = strategy.update(xp[:, sel], cp[:, sel], z_r[sel], cos_b[sel], sin_b[sel],
-                                                         tuple(r[sel] for r in r_cov), n_plots[sel], design, dt)
+                                                         tuple(r[sel] for r in r_cov), sigmas, n_plots[sel], design,
+                                                         dt)
             if isinstance(sel, slice):
                 x_new, c_new = xu, c_post
             else:
@@ -290,6 +385,8 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
             gains[k][:, sel] = gain
             if diag["clamped"].any():
                 flags[k][sel] |= np.where(diag["clamped"], FLAG_CLAMPED, 0).astype(np.uint16)
+            if diag["floored"].any():
+                flags[k][sel] |= np.where(diag["floored"], FLAG_FLOORED, 0).astype(np.uint16)
         if not upd.all():
             init = ~started & has & have_prev
             first = ~started & has & ~have_prev
@@ -320,6 +417,17 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
             x, c = x_new, c_new
             state[k] = x
             cov[k] = c
+    # last line of defence, over all scans at once: a reported covariance that is not safely
+    # positive definite is repaired and flagged (the forms above keep the filters far from it
+    # except at extreme designs; the filters' recursion does not see the repair)
+    live = ~np.isnan(state).any(axis=1)
+    checked, repaired = cv_floor_components(cov.transpose(1, 0, 2), live)
+    if repaired.any():
+        cov = checked.transpose(1, 0, 2)
+        flags |= np.where(repaired, FLAG_FLOORED, 0).astype(np.uint16)
+    s_cov, repaired = _floor_innovation_covariance(s_cov)
+    if repaired is not None:
+        flags |= np.where(repaired, FLAG_FLOORED, 0).astype(np.uint16)
     s = s_cov.transpose(2, 0, 1)
     g = gains.transpose(2, 0, 1)
     return {
@@ -348,6 +456,32 @@ PARAMS = (
 )
 
 
+def check_design(design: dict) -> None:
+    """Refuse design values outside the range the filters represent (:class:`InputError`, one line).
+
+    Each positive value must lie in :data:`DESIGN_RANGE`, and the tracking indices σ_v T²/σ_r and
+    λ̄ = σ_v T²/σ_nominal must not exceed :data:`MAX_TRACKING_INDEX` (every plot's range error
+    would be floored otherwise; fixed gains at a larger λ̄ are α = 1, β = 2 to 10⁻¹⁰, and the
+    covariance they imply is not representable beside the range axis).
+    """
+    lo, hi = DESIGN_RANGE
+    for key in ("scan_period_s", "design_sigma_v_mps2", "sigma_range_m", "sigma_bearing_deg",
+                "nominal_cross_range_m"):
+        try:
+            value = float(design[key])
+        except (TypeError, ValueError):
+            raise InputError(f"{key} must be a number in [{lo:g}, {hi:g}] (got {design[key]!r})") from None
+        if not lo <= value <= hi:
+            raise InputError(f"{key} must be in [{lo:g}, {hi:g}] (got {design[key]!r})")
+    sigma_v, T = float(design["design_sigma_v_mps2"]), float(design["scan_period_s"])
+    least = sigma_v * T * T / MAX_TRACKING_INDEX
+    for key, sigma in (("sigma_range_m", "σ_r"), ("nominal_cross_range_m", "σ_nominal")):
+        if float(design[key]) < least:
+            raise InputError(f"{key} must be in [{max(least, lo):.3g}, {hi:g}] m with design_sigma_v_mps2={sigma_v:g} "
+                             f"and scan_period_s={T:g} (tracking index σ_v T²/{sigma} ≤ {MAX_TRACKING_INDEX:g}; "
+                             f"got {design[key]!r})")
+
+
 class _RadarStrategyTracker(Tracker):
     """One of the four strategies of :data:`STRATEGIES` run by :func:`track_plots`."""
 
@@ -356,11 +490,7 @@ class _RadarStrategyTracker(Tracker):
 
     def __init__(self, **design):
         super().__init__(**design)
-        for key in ("scan_period_s", "design_sigma_v_mps2", "sigma_range_m", "sigma_bearing_deg",
-                    "nominal_cross_range_m"):
-            value = float(self.design[key])
-            if not (np.isfinite(value) and value > 0):
-                raise InputError(f"{key} must be a finite number > 0 (got {self.design[key]!r})")
+        check_design(self.design)
         self.tracker_design = TrackerDesign(
             scan_period_s=float(self.scan_period_s), sigma_v=float(self.design_sigma_v_mps2),
             sigma_range_m=float(self.sigma_range_m), sigma_bearing_rad=float(np.deg2rad(self.sigma_bearing_deg)),

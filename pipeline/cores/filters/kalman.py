@@ -312,7 +312,12 @@ def cv_apply_gain_components(x, gain, innovation):
 
 
 def cv_posterior_components(c, gain):
-    """Covariance after an optimal update: ``P⁺ = P − K H P`` (A − K_pos A, B − K_pos B, C − K_vel B)."""
+    """Covariance after an optimal update: ``P⁺ = P − K H P`` (A − K_pos A, B − K_pos B, C − K_vel B).
+
+    The textbook form: where ``R`` is much smaller than ``A`` in some direction, ``A − K_pos A``
+    subtracts nearly equal numbers and can lose definiteness; the filters use
+    :func:`cv_position_update_components`, which computes the same covariance without it.
+    """
     k00, k01, k10, k11, g00, g01, g10, g11 = gain
     n = np.empty_like(c)
     n[A00] = c[A00] - (k00 * c[A00] + k01 * c[A01])
@@ -326,3 +331,126 @@ def cv_posterior_components(c, gain):
     n[C01] = c[C01] - (g00 * c[B01] + g01 * c[B11])
     n[C11] = c[C11] - (g10 * c[B01] + g11 * c[B11])
     return n
+
+
+def cv_position_update_components(c, r00, r01, r11):
+    """Optimal gain and posterior covariance of a position measurement, in one pass.
+
+    The gain is :func:`cv_position_gain_components`'s. The covariance is ``P⁺ = P − K H P`` written
+    with ``M = I − K_pos = R S⁻¹`` formed from ``R`` directly::
+
+        A⁺ = M A,   B⁺ = M B,   C⁺ = C − K_vel B
+
+    ``A − K_pos A`` cancels where the measurement is much more precise than the prediction in
+    some direction (``K_pos`` → I there); with ``M = R S⁻¹`` the position block keeps its small
+    eigenvalue (≈ that of ``R``) to a relative error of about ε·cond(R), whatever the ratio of
+    ``R`` to ``A``. The velocity block keeps the textbook form: its cancellation is of relative
+    size ≈ 2/λ (λ the tracking index), harmless in the range the trackers allow.
+
+    Returns
+    -------
+    gain : ndarray (8, runs)
+        As :func:`cv_position_gain_components`.
+    c_post : ndarray (10, runs)
+        Posterior covariance components.
+    """
+    a00, a01, a11 = c[A00], c[A01], c[A11]
+    b00, b01, b10, b11 = c[B00], c[B01], c[B10], c[B11]
+    s00, s01, s11 = a00 + r00, a01 + r01, a11 + r11
+    inv_det = 1.0 / (s00 * s11 - s01 * s01)
+    g = np.empty((8,) + s00.shape)
+    g[0] = (a00 * s11 - a01 * s01) * inv_det
+    g[1] = (a01 * s00 - a00 * s01) * inv_det
+    g[2] = (a01 * s11 - a11 * s01) * inv_det
+    g[3] = (a11 * s00 - a01 * s01) * inv_det
+    g[4] = (b00 * s11 - b10 * s01) * inv_det
+    g[5] = (b10 * s00 - b00 * s01) * inv_det
+    g[6] = (b01 * s11 - b11 * s01) * inv_det
+    g[7] = (b11 * s00 - b01 * s01) * inv_det
+    m00 = (r00 * s11 - r01 * s01) * inv_det
+    m01 = (r01 * s00 - r00 * s01) * inv_det
+    m10 = (r01 * s11 - r11 * s01) * inv_det
+    m11 = (r11 * s00 - r01 * s01) * inv_det
+    n = np.empty_like(c)
+    n[A00] = m00 * a00 + m01 * a01
+    n[A01] = m00 * a01 + m01 * a11
+    n[A11] = m10 * a01 + m11 * a11
+    n[B00] = m00 * b00 + m01 * b10
+    n[B01] = m00 * b01 + m01 * b11
+    n[B10] = m10 * b00 + m11 * b10
+    n[B11] = m10 * b01 + m11 * b11
+    n[C00] = c[C00] - (g[4] * b00 + g[5] * b10)
+    n[C01] = c[C01] - (g[4] * b01 + g[5] * b11)
+    n[C11] = c[C11] - (g[6] * b01 + g[7] * b11)
+    return g, n
+
+
+#: Relative pivot ``d_i / P_ii`` below which :func:`cv_floor_components` repairs a covariance.
+#: Rounding in a 4×4 Cholesky factorisation perturbs the relative pivots by a few ε ≈ 10⁻¹⁵, so
+#: at 10⁻¹² it succeeds with a margin of ~10³. The radar filters reach it only in extreme cases
+#: (a track started from a plot micrometres from the radar, fixed gains designed for a nominal
+#: error far from the plot's, clamped approximate gains coasting).
+PIVOT_FLOOR = 1e-12
+#: Smallest eigenvalue, relative to the largest, of the correlation matrix of a repaired covariance.
+REPAIR_FLOOR = 1e-9
+
+
+def cv_relative_pivots(c):
+    """Smallest LDLᵀ pivot of each covariance ``(10, runs)``, relative to its diagonal entry.
+
+    ``min_i d_i / P_ii`` in state order [x, y, ẋ, ẏ]; it is at most the smallest eigenvalue of the
+    correlation matrix, so a value well above rounding (≳ 10⁻¹⁴) means Cholesky succeeds. NaN
+    where an entry is NaN or a pivot is not positive.
+    """
+    p00, p10, p11 = c[A00], c[A01], c[A11]
+    p20, p21, p22 = c[B00], c[B10], c[C00]
+    p30, p31, p32, p33 = c[B01], c[B11], c[C01], c[C11]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        l10 = p10 / p00
+        d1 = p11 - l10 * p10
+        l20 = p20 / p00
+        e21 = p21 - l20 * p10            # d1 · l21
+        d2 = p22 - l20 * p20 - e21 * e21 / d1
+        l30 = p30 / p00
+        e31 = p31 - l30 * p10            # d1 · l31
+        e32 = p32 - l30 * p20 - e31 * e21 / d1   # d2 · l32
+        d3 = p33 - l30 * p30 - e31 * e31 / d1 - e32 * e32 / d2
+        worst = np.minimum(np.minimum(np.sign(p00), d1 / np.abs(p11)), np.minimum(d2 / np.abs(p22), d3 / np.abs(p33)))
+    return np.where(worst > 0, worst, np.nan)
+
+
+def cv_floor_components(c, live, floor: float = PIVOT_FLOOR, repair: float = REPAIR_FLOOR):
+    """Repair covariances ``(10, ...)`` that are not safely positive definite.
+
+    Where ``live`` (shape ``...``) and :func:`cv_relative_pivots` is below ``floor`` (or not a
+    number), the correlation matrix's eigenvalues are raised to ``repair`` times its largest and
+    the covariance rebuilt with the same variances (an eigen-decomposition, of those only). A
+    covariance with a non-finite entry is left as it is.
+
+    Returns
+    -------
+    c : ndarray (10, ...)
+        ``c`` itself when nothing needed repair, else a repaired copy.
+    floored : ndarray of bool (...)
+        True where the covariance was repaired; callers flag those ``FLOORED``.
+    """
+    pivots = cv_relative_pivots(c)
+    floored = live & ~(pivots >= floor)
+    if not floored.any():
+        return c, floored
+    where = np.nonzero(floored)
+    P = components_to_matrix(c[(slice(None),) + where])
+    ok = np.isfinite(P).all(axis=(-2, -1))
+    floored[where] = ok
+    where, P = tuple(w[ok] for w in where), P[ok]
+    if not P.size:
+        return c, floored
+    d = np.sqrt(np.maximum(np.abs(np.diagonal(P, axis1=-2, axis2=-1)), np.finfo(float).tiny))
+    corr = P / (d[:, :, None] * d[:, None, :])
+    w, V = np.linalg.eigh(0.5 * (corr + np.swapaxes(corr, -1, -2)))
+    w = np.maximum(w, repair * w[:, -1:])
+    corr = (V * w[:, None, :]) @ np.swapaxes(V, -1, -2)
+    P = corr * (d[:, :, None] * d[:, None, :])
+    out = c.copy()
+    out[(slice(None),) + where] = matrix_to_components(0.5 * (P + np.swapaxes(P, -1, -2)))
+    return out, floored
