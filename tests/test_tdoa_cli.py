@@ -243,8 +243,8 @@ def test_cep_plane_command_writes_png_and_recording(runner, tmp_path):
     res = invoke(runner, "cep-plane", "--geometry", "triangle", "--extent-km", "50", "--step-m", "500")
     assert res.exit_code == 0, res.output
     assert "201 × 201" in res.output
-    assert (tmp_path / "cep-plane-triangle.png").stat().st_size > 10_000
-    assert (tmp_path / "cep-plane-triangle.rrd").stat().st_size > 10_000
+    assert (tmp_path / "replay-out" / "cep-plane-triangle.png").stat().st_size > 10_000
+    assert (tmp_path / "replay-out" / "cep-plane-triangle.rrd").stat().st_size > 10_000
     res = invoke(runner, "cep-plane", "--geometry", "line", "--cep", "paper", "--extent-km", "10", "--step-m", "1000",
                  "-o", "line.png", "--no-rrd")
     assert res.exit_code == 0 and (tmp_path / "line.png").exists() and not (tmp_path / "line.rrd").exists()

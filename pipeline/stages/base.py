@@ -1,7 +1,7 @@
 """What every stage processor shares: naming, output channels and reading them back.
 
 A stage consumes the channels it understands and returns its trackers' outputs as arrays with a
-leading run axis; this base class writes them as batched frames on ``<output_prefix><tracker>``
+leading run axis; this base class writes them, one message per scan holding every run, on ``<output_prefix><tracker>``
 and rebuilds them from a replay output file, so ``replay eval data.mcap out.mcap`` works for
 every stage without stage-specific I/O. Subclasses implement :meth:`decode`, :meth:`reference`
 and :meth:`score` (and optionally :meth:`extras`, :meth:`standard_space`, :meth:`report`) and set
