@@ -8,15 +8,24 @@ process pool or a Dask cluster.
 * :func:`run_point` is the whole job of one point: a pure function of its :class:`PointTask`
   that never raises (an error comes back as text), so one failed point never loses the others.
 * The client (this process) writes each point's metrics to ``points/<label>/metrics.parquet``
-  as it completes, beside ``point.json``, the record of what the point computed (scenario
-  values, runs, seed, tracker subset, plugged trackers' specs and file hashes); ``resume``
-  skips a point only when both exist and the record is the task's.
+  as it completes, then ``point.json``, the record of what the point computed (every scenario
+  parameter, runs, base and point seed, tracker subset, plugged trackers' specs and file
+  hashes, package version). ``resume`` reuses a point only when both read back and the record
+  is the task's; any other point is computed again and :attr:`SweepReport.notes` says what
+  changed. :func:`check_resume` refuses to resume into a folder that holds another sweep.
+* Interruption: Ctrl-C (``KeyboardInterrupt``) and SIGTERM/SIGHUP (:class:`SweepTerminated`,
+  exit status 128 + signal) stop the workers, keep every finished point and remove the
+  temporaries of the unfinished ones. Pool workers ignore SIGINT (the client stops them) and
+  exit when the client dies, even by SIGKILL (Dask's nannied workers do the same); temporaries
+  a SIGKILL leaves behind are removed by the next sweep into the folder, which holds a lock on
+  it while it runs.
 * Plugged trackers (``--tracker``) travel to the workers as canonical specs (absolute file
   paths, :func:`pipeline.registry.canonical_spec`) and are loaded again there, so serial, process
   pool and Dask runs load the same file. A tracker that fails on a point is reported with its
   message (tracker, run, scan) while the other trackers' metrics of that point are kept.
 * Dask is the engine beyond one machine (``Client(address)``); locally a ``LocalCluster``
-  bound to 127.0.0.1 without dashboard. No home-made scheduler.
+  whose scheduler, nannies and workers (and their HTTP routes, on a random port) listen on
+  127.0.0.1 only, without dashboard. No home-made scheduler.
 """
 
 from __future__ import annotations
@@ -25,21 +34,32 @@ import hashlib
 import itertools
 import json
 import os
+import re
 import shutil
+import signal
+import sys
 import tempfile
+import threading
 import time
 import traceback
 import zlib
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import polars as pl
 
+from pipeline import __version__
 from pipeline.contract import atomic_output
 from pipeline.errors import InputError
 
 EXECUTORS = ("serial", "process", "dask")
+
+
+class SweepTerminated(SystemExit):
+    """A sweep stopped by SIGTERM or SIGHUP: finished points are kept, workers are stopped.
+    Its code is the conventional exit status 128 + signal number."""
 
 
 @dataclass(frozen=True)
@@ -56,12 +76,17 @@ class PointTask:
     point_dir: str | None  # keep data/recordings here; None = metrics only
     tracker_specs: tuple = ()  # canonical specs of plugged trackers, loaded again on the worker
     design: tuple = ()  # ((name, value), ...): tracker design values that are not scenario parameters
+    base_seed: int | None = None  # the sweep's --seed (``seed`` is the point's, derived from it)
+    params: tuple = ()  # ((name, value), ...): every parameter of the point's scenario, resolved
+    recorder: str = ""
 
     def record(self) -> dict:
         """What this point computes, as JSON (``points/<label>/point.json``): a resumed sweep
         reuses a point's metrics only when its record is the same."""
-        doc = {"scenario": self.scenario, "overrides": [list(kv) for kv in self.overrides],
-               "design": [list(kv) for kv in self.design], "runs": self.runs, "seed": self.seed,
+        doc = {"version": __version__, "scenario": self.scenario, "recorder": self.recorder,
+               "params": dict(self.params), "overrides": [list(kv) for kv in self.overrides],
+               "design": [list(kv) for kv in self.design], "runs": self.runs,
+               "base_seed": self.base_seed, "seed": self.seed,
                "trackers": list(self.trackers) if self.trackers else None,
                "tracker_specs": list(self.tracker_specs), "tracker_files": _spec_hashes(self.tracker_specs)}
         return json.loads(json.dumps(doc, default=str))
@@ -169,7 +194,8 @@ def build_grid(scenario_name: str, specs: dict, runs: int, seed: int, trackers=N
         # Fixed settings first, swept values after: applying them in order gives the point.
         tasks.append(PointTask(index, label, scenario_name, tuple(fixed.items()) + scenario_values,
                                runs, point_seed(seed, scenario_values), tuple(trackers) if trackers else None,
-                               point_dir, specs_canon, tuple({**fixed_design, **design}.items())))
+                               point_dir, specs_canon, tuple({**fixed_design, **design}.items()),
+                               int(seed), tuple(sorted(sc.params.items())), sc.recorder))
     return tasks
 
 
@@ -254,13 +280,97 @@ def _forkserver_context(extra=()):
     return ctx
 
 
+class _WorkerStop(SystemExit):
+    """Raised in a pool worker by SIGTERM: unwinds the point (its temporaries are removed)."""
+
+
+def _worker_stop(signum, frame):
+    signal.signal(signum, signal.SIG_IGN)  # once: let the unwinding finish
+    raise _WorkerStop(128 + signum)
+
+
+def _watch_client(pid: int, grace_s: float = 5.0) -> None:
+    """End this worker when process ``pid`` (the sweep's client) ends, however it ends.
+
+    A forkserver's children outlive the client otherwise: they wait on their task queue
+    forever, and the forkserver waits for them. The worker first gets SIGTERM (it unwinds its
+    point and removes its temporaries), then ``_exit`` after ``grace_s``.
+    """
+    try:
+        fd = os.pidfd_open(pid)
+    except ProcessLookupError:
+        os._exit(128 + signal.SIGTERM)
+    except (AttributeError, OSError):  # no pidfd (not Linux ≥ 5.3): poll
+        fd = None
+
+    def watch():
+        if fd is not None:
+            import select
+
+            select.select([fd], [], [])
+        else:
+            while True:
+                time.sleep(0.5)
+                try:
+                    os.kill(pid, 0)
+                except ProcessLookupError:
+                    break
+                except PermissionError:
+                    pass
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(grace_s)
+        os._exit(128 + signal.SIGTERM)
+
+    threading.Thread(target=watch, name="sweep-client-watch", daemon=True).start()
+
+
+def _pool_worker_init(client_pid: int) -> None:
+    # Ctrl-C reaches the whole process group: the client stops the pool, the workers do not
+    # print tracebacks of their own.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, _worker_stop)
+    _watch_client(client_pid)
+
+
+def _pool_run_point(task: PointTask) -> PointResult:
+    try:
+        return run_point(task)
+    except _WorkerStop as stop:  # the point has unwound; leave now instead of taking the next one
+        os._exit(stop.code)
+
+
+def _stop_pool(pool, grace_s: float = 5.0) -> None:
+    """Cancel what has not started and stop the workers now (SIGTERM, then SIGKILL)."""
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for p in procs:
+        if p.is_alive():
+            p.terminate()
+    deadline = time.monotonic() + grace_s
+    for p in procs:
+        p.join(max(0.0, deadline - time.monotonic()))
+    for p in procs:
+        if p.is_alive():
+            p.kill()
+            p.join(2.0)
+
+
 def _iter_process(tasks, workers):
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    with ProcessPoolExecutor(max_workers=workers, mp_context=_forkserver_context()) as pool:
-        futures = [pool.submit(run_point, t) for t in tasks]
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=_forkserver_context(),
+                               initializer=_pool_worker_init, initargs=(os.getpid(),))
+    finished = False
+    try:
+        futures = [pool.submit(_pool_run_point, t) for t in tasks]
         for f in as_completed(futures):
             yield f.result()
+        finished = True
+    finally:
+        if finished:
+            pool.shutdown(wait=True)
+        else:  # interrupted, or the consumer stopped early
+            _stop_pool(pool)
 
 
 def _preload_worker(specs=()) -> None:
@@ -276,33 +386,78 @@ def _preload_worker(specs=()) -> None:
             pass
 
 
+def _ignore_sigint() -> None:
+    """On a local Dask worker: Ctrl-C is the client's (it closes the cluster)."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def local_cluster(workers: int):
+    """A ``LocalCluster`` that listens on 127.0.0.1 only, on random ports.
+
+    ``dashboard_address=None`` alone still serves the scheduler's HTTP routes on the fixed
+    port 8787; here they get a random loopback port and no dashboard. Nannies and workers
+    bind the cluster's host.
+    """
+    import logging
+
+    import dask
+    from dask.distributed import LocalCluster
+
+    # Local workers fork from the same preloaded server as the process pool instead of
+    # spawning fresh interpreters that each import numpy, polars and distributed again.
+    _forkserver_context(["distributed"])
+    with dask.config.set({"distributed.worker.multiprocessing-method": "forkserver"}):
+        return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                            dashboard_address=None, worker_dashboard_address=None,
+                            scheduler_kwargs={"dashboard": False, "dashboard_address": "127.0.0.1:0"},
+                            silence_logs=logging.ERROR)
+
+
 def _iter_dask(tasks, workers, scheduler):
-    from dask.distributed import Client, LocalCluster, as_completed
+    from dask.distributed import Client, as_completed
 
-    if scheduler:
-        client = Client(scheduler)
-        cluster = None
-    else:
-        import dask
-
-        # Local workers fork from the same preloaded server as the process pool instead of
-        # spawning fresh interpreters that each import numpy, polars and distributed again.
-        _forkserver_context(["distributed"])
-        with dask.config.set({"distributed.worker.multiprocessing-method": "forkserver"}):
-            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                   host="127.0.0.1", dashboard_address=None)
-        client = Client(cluster)
+    cluster = None
+    client = None
+    futures = []
+    finished = False
     try:
+        if scheduler:
+            client = Client(scheduler)
+        else:
+            cluster = local_cluster(workers)
+            client = Client(cluster)
+            client.run(_ignore_sigint)
         # import the numerics on every worker at once, before the first point, as the
         # forkserver preload does for the process pool
         client.run(_preload_worker, sorted({s for t in tasks for s in t.tracker_specs}))
         futures = client.map(run_point, tasks, pure=False)
         for f in as_completed(futures):
             yield f.result()
+        finished = True
     finally:
-        client.close()
+        _close_dask(client, cluster, futures, finished)
+
+
+def _close_dask(client, cluster, futures, finished) -> None:
+    import logging
+
+    quiet = logging.getLogger("distributed")
+    level = quiet.level
+    if not finished:  # closing on an interrupt: the workers' complaints are expected
+        quiet.setLevel(logging.CRITICAL)
+    try:
+        if client is not None:
+            if futures and not finished:
+                try:
+                    client.cancel(futures, force=True)
+                except Exception:
+                    pass
+            client.close(timeout=10)
         if cluster is not None:
-            cluster.close()
+            cluster.close(timeout=10)
+    finally:
+        quiet.setLevel(level)
 
 
 def default_workers() -> int:
@@ -323,6 +478,8 @@ class SweepReport:
     out_dir: Path | None
     # point label → [(where, message), ...] of trackers that failed there (others' metrics kept)
     tracker_failures: dict[str, list] = field(default_factory=dict)
+    # one line per reason why a resumed sweep computed points again (what changed)
+    notes: list[str] = field(default_factory=list)
 
     def tracker_failure_lines(self) -> list[str]:
         """One line per failing tracker: its first failure, the point, and on how many points."""
@@ -350,17 +507,206 @@ def _record_file(out_dir: Path, label: str) -> Path:
     return out_dir / "points" / label / "point.json"
 
 
-def _resumable(task: PointTask, out_dir: Path) -> bool:
-    """The point's metrics exist and were computed for this very task."""
-    if not _metrics_file(out_dir, task.label).exists():
-        return False
-    rec = _record_file(out_dir, task.label)
-    if not rec.exists():  # written before point records existed: no plugged trackers then
-        return not task.tracker_specs and not task.design
+_TEMPORARY = re.compile(r".+\.[A-Za-z0-9_]{8}\.tmp$")  # atomic_output's mkstemp names
+
+
+def _remove_temporaries(out_dir: Path) -> list[Path]:
+    """Remove the half-written files (``<name>.<random>.tmp``) a killed sweep left in the
+    folder: beside the table, in ``plots/`` and in every ``points/<label>/``."""
+    dirs = [out_dir, out_dir / "plots"]
+    points = out_dir / "points"
+    if points.is_dir():
+        dirs += [d for d in points.iterdir() if d.is_dir()]
+    removed = []
+    for d in dirs:
+        try:
+            entries = list(d.iterdir())
+        except OSError:
+            continue
+        for f in entries:
+            if _TEMPORARY.fullmatch(f.name) and f.is_file():
+                try:
+                    f.unlink()
+                    removed.append(f)
+                except OSError:
+                    pass
+    return removed
+
+
+@contextmanager
+def _folder_lock(out_dir: Path | None):
+    """Hold an exclusive lock on the output folder (released by the kernel however the process
+    ends), so that removing temporaries never races another sweep writing there."""
+    if out_dir is None:
+        yield
+        return
     try:
-        return json.loads(rec.read_text()) == task.record()
-    except (OSError, json.JSONDecodeError):
-        return False
+        import fcntl
+    except ImportError:  # not POSIX
+        yield
+        return
+    out_dir.mkdir(parents=True, exist_ok=True)
+    fd = os.open(out_dir, os.O_RDONLY)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise InputError("another sweep is writing to this folder; wait for it or choose another -o",
+                             out_dir) from None
+        yield
+    finally:
+        os.close(fd)
+
+
+@contextmanager
+def _stop_on_signals():
+    """While a sweep runs: SIGINT raises ``KeyboardInterrupt`` and SIGTERM/SIGHUP raise
+    :class:`SweepTerminated`, each once, so the executors' clean-up runs instead of the process
+    dying with its workers left behind. A signal the process ignores (``nohup``) stays ignored."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    fired = []
+
+    def handler(signum, frame):
+        if fired:  # already stopping: let the clean-up finish
+            return
+        fired.append(signum)
+        if signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        name = signal.Signals(signum).name
+        try:
+            sys.stderr.write(f"sweep: stopped by {name}; finished points are kept\n")
+            sys.stderr.flush()
+        except (OSError, ValueError):
+            pass
+        raise SweepTerminated(128 + signum)
+
+    sigs = [signal.SIGINT, signal.SIGTERM] + ([signal.SIGHUP] if hasattr(signal, "SIGHUP") else [])
+    old = {s: signal.getsignal(s) for s in sigs}
+    for s in sigs:
+        if old[s] is not signal.SIG_IGN:
+            signal.signal(s, handler)
+    try:
+        yield
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h if h is not None else signal.SIG_DFL)
+
+
+def _short(value, limit: int = 60) -> str:
+    """A value for a one-line message: ``-`` for none, lists comma-separated, long text cut."""
+    if value is None:
+        text = "-"
+    elif isinstance(value, list) and all(isinstance(v, (str, int, float)) for v in value):
+        text = ",".join(map(str, value)) or "-"
+    elif isinstance(value, str):
+        text = value
+    else:
+        text = json.dumps(value, default=str)
+    return text if len(text) <= limit else text[: limit - 1] + "…"
+
+
+def record_changes(old: dict, new: dict) -> list[str]:
+    """What differs between two point records, as short phrases ("runs 100 → 5")."""
+    out = []
+    for key in dict.fromkeys([*new, *old]):
+        a, b = old.get(key), new.get(key)
+        if a == b:
+            continue
+        if key == "seed" and old.get("base_seed") != new.get("base_seed"):
+            continue  # follows from the base seed
+        if key == "overrides" and old.get("params") != new.get("params"):
+            continue  # the parameters say it better
+        if key == "params" and isinstance(a, dict) and isinstance(b, dict):
+            out += [f"{k} {_short(a.get(k))} → {_short(b.get(k))}"
+                    for k in dict.fromkeys([*b, *a]) if a.get(k) != b.get(k)]
+        elif key == "tracker_files" and isinstance(a, dict) and isinstance(b, dict) and set(a) == set(b):
+            out += [f"tracker file {k.rpartition(':')[0]} edited" for k in b if a[k] != b[k]]
+        else:
+            label = {"version": "package version", "base_seed": "seed"}.get(key, key)
+            out.append(f"{label} {_short(a)} → {_short(b)}")
+    return out
+
+
+def _reuse(task: PointTask, out_dir: Path, swept: list[str]) -> tuple[pl.DataFrame | None, str | None]:
+    """The point's table from a previous sweep, or ``None`` and why it is computed again
+    (``None`` as the reason: it never finished)."""
+    metrics = _metrics_file(out_dir, task.label)
+    if not metrics.exists():
+        return None, None
+    rec = _record_file(out_dir, task.label)
+    if not rec.exists():
+        return None, "no point.json records what it computed"
+    try:
+        old = json.loads(rec.read_text())
+        if not isinstance(old, dict):
+            raise ValueError("not a JSON object")
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        return None, f"point.json unreadable ({type(exc).__name__})"
+    new = task.record()
+    if old != new:
+        return None, "; ".join(record_changes(old, new)) or "point.json differs"
+    try:
+        stored = pl.read_parquet(metrics, columns=["tracker", "metric", "value"])
+        records = stored.cast({"tracker": pl.Utf8, "metric": pl.Utf8, "value": pl.Float64}).to_dicts()
+    except Exception as exc:  # any damage: compute the point again rather than trust it
+        return None, f"metrics.parquet unreadable ({type(exc).__name__})"
+    # the stored values under this grid's index, label and columns, as a fresh run builds them
+    return _point_frame(task, records, swept), None
+
+
+def _resume_notes(reasons: dict[str, str]) -> list[str]:
+    """One line per distinct reason why points of a resumed sweep were computed again."""
+    by_reason: dict[str, list[str]] = {}
+    for label, why in reasons.items():
+        by_reason.setdefault(why, []).append(label)
+    lines = []
+    for why, labels in by_reason.items():
+        which = f"point {labels[0]}" if len(labels) == 1 else f"{len(labels)} points"
+        lines.append(f"resume: computing {which} again: {why}")
+    return lines
+
+
+def _spec_key(spec: dict) -> dict:
+    """The parts of a sweep spec (``sweep.json``) that define its table."""
+    keys = ("scenario", "params", "fixed", "runs", "seed", "trackers", "tracker_specs")
+    return json.loads(json.dumps({k: spec.get(k) for k in keys}, default=str))
+
+
+def check_resume(out_dir: Path, spec: dict) -> None:
+    """Refuse to resume into a folder whose ``sweep.json`` describes another sweep.
+
+    Raises
+    ------
+    InputError
+        One line naming what changed (grid, fixed values, runs, seed, trackers).
+    """
+    path = Path(out_dir) / "sweep.json"
+    if not path.exists():
+        return  # a first sweep that was interrupted: every point's record decides
+    try:
+        old = json.loads(path.read_text())
+        if not isinstance(old, dict):
+            raise ValueError("not a JSON object")
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise InputError(f"--resume: cannot read sweep.json ({type(exc).__name__}); "
+                         "drop --resume to compute the sweep again", out_dir) from None
+    a, b = _spec_key(old), _spec_key(spec)
+    changes = []
+    for key in b:
+        if a[key] == b[key]:
+            continue
+        if key in ("params", "fixed") and isinstance(a[key], dict) and isinstance(b[key], dict):
+            for name in dict.fromkeys([*b[key], *a[key]]):
+                va, vb = a[key].get(name), b[key].get(name)
+                if va != vb:
+                    changes.append(f"{'--param' if key == 'params' else '--set'} {name} {_short(va)} → {_short(vb)}")
+        else:
+            changes.append(f"{key} {_short(a[key])} → {_short(b[key])}")
+    if changes:
+        raise InputError(f"--resume: this folder holds another sweep ({'; '.join(changes)}); "
+                         "drop --resume to compute it again, or choose another -o", out_dir)
 
 
 def _point_frame(task: PointTask, records: list[dict], swept: list[str]) -> pl.DataFrame:
@@ -379,23 +725,48 @@ def run_sweep(tasks: list[PointTask], swept: list[str], out_dir: Path | None, ex
     """Run the grid and assemble one tidy table (point × tracker × metric).
 
     ``progress(n)`` is called as points finish. Finished points are written immediately (when
-    ``out_dir`` is given) so an interrupted sweep resumes with ``resume=True``.
+    ``out_dir`` is given) so an interrupted sweep resumes with ``resume=True``; a point is
+    reused only when its record (:meth:`PointTask.record`) is the task's.
+
+    Raises
+    ------
+    KeyboardInterrupt, SweepTerminated
+        On SIGINT, or SIGTERM/SIGHUP, after the workers are stopped; finished points are kept.
+    InputError
+        Another sweep holds the output folder.
     """
     if executor not in EXECUTORS:
         raise InputError(f"unknown executor {executor!r} (choose from {', '.join(EXECUTORS)})")
     workers = workers or default_workers()
+    out_dir = Path(out_dir) if out_dir is not None else None
+    with _stop_on_signals(), _folder_lock(out_dir):
+        if out_dir is not None:
+            _remove_temporaries(out_dir)  # left by a sweep that was killed
+        try:
+            return _run_sweep(tasks, swept, out_dir, executor, workers, scheduler, resume, progress)
+        finally:
+            if out_dir is not None:  # the unfinished points' half-written files, if any survived
+                _remove_temporaries(out_dir)
+
+
+def _run_sweep(tasks, swept, out_dir, executor, workers, scheduler, resume, progress) -> SweepReport:
     t0 = time.perf_counter()
     frames: dict[int, pl.DataFrame] = {}
     todo = []
     skipped = 0
+    again: dict[str, str] = {}
     for t in tasks:
-        if resume and out_dir is not None and _resumable(t, out_dir):
-            frames[t.index] = pl.read_parquet(_metrics_file(out_dir, t.label))
-            skipped += 1
-            if progress:
-                progress(1)
-        else:
-            todo.append(t)
+        if resume and out_dir is not None:
+            frame, why = _reuse(t, out_dir, swept)
+            if frame is not None:
+                frames[t.index] = frame
+                skipped += 1
+                if progress:
+                    progress(1)
+                continue
+            if why:
+                again[t.label] = why
+        todo.append(t)
     by_index = {t.index: t for t in tasks}
     failed, work, tracker_failures = {}, [], {}
     if todo:
@@ -405,37 +776,46 @@ def run_sweep(tasks: list[PointTask], swept: list[str], out_dir: Path | None, ex
             it = _iter_process(todo, workers)
         else:
             it = _iter_dask(todo, workers, scheduler)
-        for res in it:
-            work.append(res.work_s)
-            if res.tracker_errors:
-                tracker_failures[res.label] = res.tracker_errors
-            if res.error is not None:
-                failed[res.label] = res.error
-            elif res.records or not res.tracker_errors:
-                task = by_index[res.index]
-                frame = _point_frame(task, res.records, swept)
-                frames[res.index] = frame
-                # a point where a tracker failed is not recorded as done: resume computes it again
-                if out_dir is not None and not res.tracker_errors:
-                    with atomic_output(_record_file(out_dir, res.label), "w") as fh:
-                        json.dump(task.record(), fh, indent=1)
-                    with atomic_output(_metrics_file(out_dir, res.label)) as fh:
-                        frame.write_parquet(fh)
-            if progress:
-                progress(1)
+        try:
+            for res in it:
+                work.append(res.work_s)
+                if res.tracker_errors:
+                    tracker_failures[res.label] = res.tracker_errors
+                if res.error is not None:
+                    failed[res.label] = res.error
+                elif res.records or not res.tracker_errors:
+                    task = by_index[res.index]
+                    frame = _point_frame(task, res.records, swept)
+                    frames[res.index] = frame
+                    # a point where a tracker failed is not recorded as done: resume computes it
+                    # again. The record goes last: metrics without their record are not reused.
+                    if out_dir is not None and not res.tracker_errors:
+                        with atomic_output(_metrics_file(out_dir, res.label)) as fh:
+                            frame.write_parquet(fh)
+                        with atomic_output(_record_file(out_dir, res.label), "w") as fh:
+                            json.dump(task.record(), fh, indent=1)
+                if progress:
+                    progress(1)
+        finally:
+            it.close()  # stops the workers when interrupted here rather than in the executor
     table = (pl.concat([frames[i] for i in sorted(frames)], how="vertical_relaxed") if frames
              else pl.DataFrame(schema={"point_index": pl.Int64, "point": pl.Utf8, "tracker": pl.Utf8,
                                        "metric": pl.Utf8, "value": pl.Float64}))
     return SweepReport(table, len(todo) - len(failed), skipped, failed, time.perf_counter() - t0, work, out_dir,
-                       tracker_failures)
+                       tracker_failures, _resume_notes(again))
 
 
 def write_sweep_outputs(report: SweepReport, swept: list[str], spec: dict) -> list[Path]:
     """Table as Parquet + CSV, the spec as JSON, and one PNG per metric vs the first swept parameter."""
+    out = report.out_dir
+    with _stop_on_signals(), _folder_lock(out):
+        return _write_sweep_outputs(report, swept, {**spec, "version": __version__})
+
+
+def _write_sweep_outputs(report: SweepReport, swept: list[str], spec: dict) -> list[Path]:
     from evaluators.report_plots import plot_metrics_vs
 
     out = report.out_dir
-    out.mkdir(parents=True, exist_ok=True)
     paths = []
     with atomic_output(out / "sweep.parquet") as f:
         report.table.write_parquet(f)

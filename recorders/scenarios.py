@@ -10,10 +10,15 @@ A scenario file names its recorder and lists its parameters with defaults::
 Overrides (``--set name=value`` on the CLI, grid points in sweeps) are parsed to the type of the
 default, and an unknown name is an error that lists the known ones. Parameters stated in degrees
 carry ``_deg`` in their name and are converted to radians by the recorder, nowhere else.
+
+A parameter's meaning is the comment after it on its line (``sigma_range_m = 100.0  # plot
+noise, range``, read by :func:`parameter_docs`), its unit the suffix of its name
+(:func:`parameter_unit`); ``replay scenarios NAME`` shows both.
 """
 
 from __future__ import annotations
 
+import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -122,3 +127,65 @@ def load_scenario(name_or_path: str) -> Scenario:
             raise InputError(f"scenario file lacks {key!r}", path)
     params = dict(doc["params"])
     return Scenario(doc["name"], doc["recorder"], params, doc.get("description", ""), str(path), dict(params))
+
+
+# unit of a parameter from the last part of its name (``sigma_range_m`` → m)
+UNIT_SUFFIXES = {
+    "m": "m", "km": "km", "m2": "m²", "s": "s", "deg": "deg", "deg2": "deg²", "rad": "rad",
+    "radps": "rad/s", "mps": "m/s", "mps2": "m/s²", "hz": "Hz", "db": "dB", "wavelengths": "λ",
+    "samples": "samples",
+}
+
+
+def parameter_unit(name: str) -> str | None:
+    """The unit a parameter's name states by its suffix (``_m``, ``_s``, ``_deg``, ``_mps``,
+    ``_mps2``, ``_hz``, ``_db``, ``_rad``, ...), or None (a count, a ratio, a choice)."""
+    if "_" not in name:
+        return None
+    return UNIT_SUFFIXES.get(name.rsplit("_", 1)[1])
+
+
+_KEY = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)\s*=(.*)$")
+
+
+def _trailing_comment(value: str) -> str:
+    """The comment after a TOML value on its line ('#' outside a string), or ''."""
+    quote = None
+    i = 0
+    while i < len(value):
+        c = value[i]
+        if quote:
+            if c == "\\" and quote == '"':
+                i += 1
+            elif c == quote:
+                quote = None
+        elif c in "\"'":
+            quote = c
+        elif c == "#":
+            return value[i + 1:].strip()
+        i += 1
+    return ""
+
+
+def parameter_docs(path) -> dict[str, str]:
+    """``name → meaning`` of a scenario file's parameters: the comment after each one on its
+    line in ``[params]`` (parameters without one are left out)."""
+    docs: dict[str, str] = {}
+    section = None
+    try:
+        lines = Path(path).read_text().splitlines()
+    except OSError:
+        return docs
+    for line in lines:
+        stripped = line.strip()
+        if stripped.startswith("[") and not line[:1].isspace() and "=" not in stripped:
+            section = stripped.strip("[]").strip()
+            continue
+        if section != "params":
+            continue
+        m = _KEY.match(line)
+        if m:
+            comment = _trailing_comment(m.group(2))
+            if comment:
+                docs[m.group(1)] = comment
+    return docs

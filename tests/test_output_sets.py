@@ -20,7 +20,7 @@ SETTINGS = {"a": "nominal_cross_range_m=150", "b": "nominal_cross_range_m=120"}
 
 def _command(data: Path, out: Path, setting: str) -> list[str]:
     return [sys.executable, "-m", "pipeline.face.cli", str(data), "--out", str(out / "tracks.mcap"), "--no-rrd",
-            "--set", setting]
+            "--force", "--set", setting]
 
 
 def _digest(folder: Path) -> dict:

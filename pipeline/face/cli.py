@@ -1,8 +1,10 @@
 """The ``replay`` command line.
 
 ``replay DATA.mcap`` replays a data set (``replay`` alone replays the bundled demo); the other
-commands simulate, convert, evaluate, check against baselines, sweep parameters and view.
-User errors print one line and exit with status 2; only bugs show a traceback.
+commands simulate, convert, evaluate, check against baselines, sweep parameters, view and
+export. User errors print one line and exit with status 2; only bugs show a traceback. Progress
+bars go to stderr, only when it is a terminal (:mod:`pipeline.face.progress`); results go to
+stdout.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import polars as pl
 
 from pipeline import __version__
 from pipeline.errors import InputError
+from pipeline.face import progress
 from pipeline.paths import OutputSet, refuse_input_overwrite
 
 DEMO_NAME = "radar_tws_demo.mcap"
@@ -40,6 +43,39 @@ def bundled_data_dir() -> Path:
         return Path(str(files("replay_data")))
     except ModuleNotFoundError:
         return Path(__file__).resolve().parents[2] / "data"
+
+
+def checkout_data_dir(start: Path | None = None) -> Path | None:
+    """``data/`` of the source checkout that ``start`` (default: the current folder) is in:
+    the nearest folder upwards holding ``pyproject.toml`` and ``data/baselines/``."""
+    here = (start or Path.cwd()).resolve()
+    for folder in (here, *here.parents):
+        if (folder / "pyproject.toml").is_file() and (folder / "data" / "baselines").is_dir():
+            return folder / "data"
+    return None
+
+
+def inside_installed_package(path: Path) -> bool:
+    """True when ``path`` lies in an installed package (site-packages, dist-packages or an
+    interpreter's library folder), where nothing should be written."""
+    import site
+    import sysconfig
+
+    resolved = Path(path).resolve()
+    if any(part in ("site-packages", "dist-packages") for part in resolved.parts):
+        return True
+    roots = {sysconfig.get_paths().get(k) for k in ("purelib", "platlib")}
+    try:
+        roots |= set(site.getsitepackages())
+    except AttributeError:  # some virtualenvs lack it
+        pass
+    for root in filter(None, roots):
+        try:
+            resolved.relative_to(Path(root).resolve())
+            return True
+        except ValueError:
+            continue
+    return False
 
 
 TRACKER_HELP = ("A plugged tracker to run beside the built-ins: FILE.py:CLASS, MODULE:CLASS or the name of an "
@@ -97,16 +133,22 @@ class ReplayGroup(click.Group):
     error, click's own usage errors included, becomes one line and exit status 2."""
 
     def parse_args(self, ctx, args):
-        if not args:
-            args = ["run"]
-        elif args[0] not in self.commands and not args[0].startswith("-"):
-            if not _looks_like_data(args[0]):
+        args = list(args)
+        # the group's own flags (--quiet, --verbose) may come first: `replay -q data.mcap`
+        i = 0
+        while i < len(args) and args[i] in GROUP_FLAGS:
+            i += 1
+        if i == len(args):
+            if not any(a in ("-h", "--help", "--version") for a in args):
+                args = [*args, "run"]
+        elif args[i] not in self.commands and not args[i].startswith("-"):
+            if not _looks_like_data(args[i]):
                 import difflib
 
-                close = difflib.get_close_matches(args[0], list(self.commands), n=1)
+                close = difflib.get_close_matches(args[i], list(self.commands), n=1)
                 hint = f" (did you mean '{close[0]}'?)" if close else ""
-                raise click.UsageError(f"no such command or file {args[0]!r}{hint}; see `replay --help`")
-            args = ["run", *args]
+                raise click.UsageError(f"no such command or file {args[i]!r}{hint}; see `replay --help`")
+            args = [*args[:i], "run", *args[i:]]
         return super().parse_args(ctx, args)
 
     def invoke(self, ctx):
@@ -138,6 +180,9 @@ class ReplayGroup(click.Group):
         return rv
 
 
+GROUP_FLAGS = ("-q", "--quiet", "-v", "--verbose")
+
+
 def _looks_like_data(arg: str) -> bool:
     """A first argument that is a data set rather than a (mistyped) command name."""
     path = Path(arg)
@@ -146,17 +191,23 @@ def _looks_like_data(arg: str) -> bool:
 
 @click.group(cls=ReplayGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="replay")
+@progress.progress_options
 def main():
     """Offline replay and evaluation of target-tracking algorithms.
+
+    Progress bars appear on stderr when it is a terminal; --quiet (here or on any command)
+    turns them off, --verbose adds the time of each phase.
 
     \b
     Examples:
       replay                                   # the bundled demo data set
       replay data/radar_tws_demo.mcap
       replay simulate radar-tws --runs 500 --seed 7 -o radar.mcap
+      replay scenarios radar-tws               # its parameters, units and defaults
       replay eval radar.mcap --json
       replay check
       replay sweep radar-tws --param sigma_bearing_deg=0.5,1,2 --runs 100 -o study/
+      replay export --foxglove replay-out/radar/tracks.mcap -o view.mcap
     """
 
 
@@ -188,9 +239,68 @@ def _cell(value, low, high) -> str:
     return text
 
 
+TABLE_WIDTH = 100  # printed tables are split (or wrapped) to fit this many columns
+
+
+def _declared_scopes(summary: pl.DataFrame) -> list[str]:
+    """The scopes the stages in ``summary`` always report, so that an empty one is named rather
+    than silently missing (a stage leaves out a scope no scan falls in)."""
+    from evaluators.radar_tws import SCOPES as RADAR_SCOPES
+
+    stages = summary["stage"].unique(maintain_order=True).to_list() if "stage" in summary.columns else []
+    out = []
+    for stage in stages:
+        if stage == "radar-tws":
+            out += RADAR_SCOPES
+        elif stage == "colored-noise-imm":
+            part = summary.filter(pl.col("stage") == stage)
+            if "rmse_position_m" in part["metric"].to_list():  # the kinematic scopes need truth
+                out += ("overall", "manoeuvre", "constant_velocity")
+    return list(dict.fromkeys(out))
+
+
+def _column_groups(widths: list[int], first: int, width: int, headers=None) -> list[list[int]]:
+    """Indices of the columns (after the first, of ``widths``) cut into as few contiguous groups
+    as fit ``width`` each (with the first column, ``first`` wide), choosing among the cuts the
+    one that keeps repeated headers (e.g. "eff" of position and of velocity) in different
+    groups, starts groups at a header not seen before, and balances the widths."""
+    from itertools import combinations
+
+    n = len(widths)
+    fits = lambda a, b: first + sum(widths[a:b]) <= width or b - a == 1  # noqa: E731
+    if n == 0 or fits(0, n):
+        return [list(range(n))]
+    headers = list(headers) if headers is not None else [None] * n
+    for g in range(2, n + 1):
+        if n > 24 and g > 3:  # too many ways to cut: fill greedily
+            break
+        best = None
+        for cuts in combinations(range(1, n), g - 1):
+            bounds = [0, *cuts, n]
+            parts = list(zip(bounds, bounds[1:]))
+            if not all(fits(a, b) for a, b in parts):
+                continue
+            dups = sum(len(h) - len(set(h)) for h in ([x for x in headers[a:b] if x] for a, b in parts))
+            restarts = sum(1 for a, _ in parts[1:] if headers[a] and headers[a] in headers[:a])
+            score = (dups, restarts, max(sum(widths[a:b]) for a, b in parts))
+            if best is None or score < best[0]:
+                best = (score, parts)
+        if best is not None:
+            return [list(range(a, b)) for a, b in best[1]]
+    groups, current, used = [], [], first
+    for i, w in enumerate(widths):
+        if current and used + w > width:
+            groups.append(current)
+            current, used = [], first
+        current.append(i)
+        used += w
+    return groups + [current] if current else groups
+
+
 def _print_summary(summary: pl.DataFrame, title: str) -> None:
-    """One table per scope (and one for the standard measures): metrics down, trackers across."""
-    summary = summary.filter(pl.col("value").is_not_null())
+    """One table per scope (and one for the standard measures): metrics down, trackers across;
+    a table wider than TABLE_WIDTH is split into several with the metric column repeated, and
+    a scope without values says so."""
     for c in ("ci_low", "ci_high"):
         if c not in summary.columns:
             summary = summary.with_columns(pl.lit(None, pl.Float64).alias(c))
@@ -198,32 +308,158 @@ def _print_summary(summary: pl.DataFrame, title: str) -> None:
         summary = summary.with_columns(pl.lit("family").alias("kind"))
     summary = summary.with_columns(
         section=pl.when(pl.col("kind") == "standard").then(pl.lit("standard measures")).otherwise(pl.col("scope")))
-    click.echo(title + "   (± half the 95 % interval over Monte Carlo runs)")
     sections = summary["section"].unique(maintain_order=True).to_list()
+    sections = [s for s in dict.fromkeys([*_declared_scopes(summary), *sections]) if s is not None]
     sections.sort(key=lambda s: (s != "overall", s == "standard measures"))
+    summary = summary.filter(pl.col("value").is_not_null())
+    click.echo(title + "   (± half the 95 % interval over Monte Carlo runs)")
+    if summary.height == 0:
+        click.echo("\n(no metric has a value: nothing to show)")
+        return
     trackers = summary["tracker"].unique(maintain_order=True).to_list()
-    with pl.Config(tbl_rows=400, tbl_cols=30, tbl_width_chars=160, tbl_hide_dataframe_shape=True,
-                   tbl_hide_column_data_types=True, fmt_str_lengths=40, tbl_cell_alignment="RIGHT"):
+    with pl.Config(tbl_rows=400, tbl_cols=30, tbl_width_chars=TABLE_WIDTH, tbl_hide_dataframe_shape=True,
+                   tbl_hide_column_data_types=True, fmt_str_lengths=60, tbl_cell_alignment="RIGHT"):
         for section in sections:
             part = summary.filter(pl.col("section") == section)
+            click.echo(f"\n[{section}]")
+            if part.height == 0:
+                click.echo("(empty: no scan falls in this scope, so it has no metrics)")
+                continue
             metrics = part["metric"].unique(maintain_order=True).to_list()
             cells = {(r["metric"], r["tracker"]): _cell(r["value"], r["ci_low"], r["ci_high"])
                      for r in part.iter_rows(named=True)}
             shown = [t for t in trackers if any((m, t) in cells for m in metrics)]
-            table = pl.DataFrame({"metric": metrics, **{t: [cells.get((m, t), "") for m in metrics] for t in shown}})
-            click.echo(f"\n[{section}]")
-            click.echo(table)
+            columns = {t: [cells.get((m, t), "") for m in metrics] for t in shown}
+            # a box-table column takes its widest cell + 3 (padding and rule); the frame 1 more
+            first = max(len("metric"), *(len(m) for m in metrics)) + 4
+            widths = [max(len(t), *(len(c) for c in columns[t])) + 3 for t in shown]
+            for group in _column_groups(widths, first, TABLE_WIDTH):
+                # a split table shows only the metrics its trackers have
+                rows = [k for k, m in enumerate(metrics) if any(columns[shown[i]][k] for i in group)]
+                click.echo(pl.DataFrame({"metric": [metrics[k] for k in rows],
+                                         **{shown[i]: [columns[shown[i]][k] for k in rows] for i in group}}))
+
+
+# Blocks of a stage's paper layout that repeat the generic table above it (same numbers, other
+# layout): left out of `replay` and `replay eval` (`replay colored-report` prints them all).
+REPEATED_BLOCKS = {"colored-noise-imm": ("RMSE [",)}
+
+
+def _without_repeats(stage_name: str, text: str) -> str:
+    """``text`` without the blocks (a header line and its indented rows) that REPEATED_BLOCKS
+    names for the stage."""
+    heads = REPEATED_BLOCKS.get(stage_name, ())
+    if not heads:
+        return text
+    out, skipping = [], False
+    for line in text.split("\n"):
+        if any(line.startswith(h) for h in heads):
+            skipping = True
+            continue
+        if skipping and line.startswith(" "):
+            continue
+        skipping = False
+        out.append(line)
+    return "\n".join(out)
+
+
+def _is_rule(line: str) -> bool:
+    body = line.strip()
+    return len(body) >= 3 and set(body) <= set("-=─━")
+
+
+def _split_text_table(rows: list[str], width: int) -> list[str] | None:
+    """A space-aligned text table wider than ``width`` as several tables, each with the first
+    column repeated; None when its columns cannot be told apart."""
+    body = [r for r in rows if not _is_rule(r)]
+    if len(body) < 2:
+        return None
+    n = max(len(r) for r in body)
+    padded = [r.ljust(n) for r in body]
+    blank = [all(r[c] == " " for r in padded) for c in range(n)]
+    segments, c = [], 0
+    while c < n:
+        if blank[c]:
+            c += 1
+            continue
+        start = c
+        while c < n and not blank[c]:
+            c += 1
+        segments.append((start, c))
+    header, data = padded[0], padded[1:]
+    # a header word over no value, or values under no header word, belong to the next column
+    # (right-aligned numbers under a wider header; "[ 1.2]"-style cells)
+    columns, pending = [], None
+    for start, end in segments:
+        begin = start if pending is None else pending
+        if header[start:end].strip() and any(r[start:end].strip() for r in data):
+            columns.append((begin, end))
+            pending = None
+        else:
+            pending = begin
+    if pending is not None and columns:
+        columns[-1] = (columns[-1][0], segments[-1][1])
+    if len(columns) < 3:
+        return None
+    label_end = columns[0][1]
+    pieces = [(columns[k - 1][1], columns[k][1]) for k in range(1, len(columns))]
+    groups = _column_groups([b - a for a, b in pieces], label_end, width,
+                            [" ".join(header[a:b].split()) for a, b in pieces])
+    if len(groups) < 2:
+        return None
+    out = []
+    for g, group in enumerate(groups):
+        if g:
+            out.append("")
+        part_width = label_end + sum(pieces[i][1] - pieces[i][0] for i in group)
+        for r in rows:
+            if _is_rule(r):
+                out.append(r.strip()[0] * part_width)
+                continue
+            r = r.ljust(n)
+            out.append((r[:label_end] + "".join(r[a:b] for a, b in (pieces[i] for i in group))).rstrip())
+    return out
+
+
+def fit_width(text: str, width: int = TABLE_WIDTH) -> str:
+    """``text`` with every space-aligned table wider than ``width`` split into narrower ones
+    (first column repeated) and every longer prose line wrapped."""
+    import textwrap
+
+    lines = text.split("\n")
+    out, i = [], 0
+    while i < len(lines):
+        line = lines[i]
+        if len(line) <= width:
+            out.append(line)
+            i += 1
+            continue
+        j = i
+        while j < len(lines) and (len(lines[j]) > width or _is_rule(lines[j])) and \
+                ("  " in lines[j].strip() or _is_rule(lines[j])):
+            j += 1
+        split = _split_text_table(lines[i:j], width) if j - i >= 2 else None
+        if split is not None:
+            out += split
+            i = j
+            continue
+        indent = line[: len(line) - len(line.lstrip())]
+        out += textwrap.wrap(line, width, initial_indent="", subsequent_indent=indent + "  ",
+                             break_long_words=False, break_on_hyphens=False) or [line]
+        i += 1
+    return "\n".join(out)
 
 
 def _print_stage_reports(res) -> None:
-    """Paper-specific layouts (e.g. a paper's table) that stages add after the generic summary."""
+    """Paper-specific layouts (e.g. a paper's table) that stages add after the generic summary,
+    without the blocks that repeat it, fitted to TABLE_WIDTH."""
     from pipeline.stages import STAGES
 
     for stage in STAGES:
         if stage.name in res.results:
-            text = stage.report(res.summary, res.per_scan)
-            if text:
-                click.echo("\n" + text)
+            text = _without_repeats(stage.name, stage.report(res.summary, res.per_scan) or "")
+            if text.strip():
+                click.echo("\n" + fit_width(text.strip("\n")))
 
 
 def _export_tables(res, out_dir: Path) -> list[Path]:
@@ -261,28 +497,61 @@ def _report_plot(res, out_dir: Path) -> list[Path]:
     return paths
 
 
+def _previous_outputs(out_dir: Path, out_name: str, rrd_path: Path | None) -> list[Path]:
+    """The files of an earlier replay that a replay into ``out_dir`` would replace."""
+    names = [out_dir / out_name, out_dir / Path(out_name).with_suffix(".rrd").name, *(out_dir / n for n in REPORT_FILES)]
+    if rrd_path is not None:
+        names.append(rrd_path)
+    return [p for p in dict.fromkeys(names) if p.is_file()]
+
+
+def _numbered_out_dir(base: Path, out_name: str) -> Path:
+    """``base`` if it holds no earlier replay, else the first of ``base-2``, ``base-3``, … that
+    holds none."""
+    k = 1
+    candidate = base
+    while _previous_outputs(candidate, out_name, None):
+        k += 1
+        candidate = base.with_name(f"{base.name}-{k}")
+    return candidate
+
+
+def _refuse_replacing(previous: list[Path], where: str) -> None:
+    shown = ", ".join(p.name for p in previous[:3]) + (", …" if len(previous) > 3 else "")
+    raise InputError(f"{where} already holds the outputs of an earlier replay ({shown}); add --force to replace "
+                     "them, or choose another --out")
+
+
 @main.command("run")
 @click.argument("data", required=False, type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--trackers", help="Comma-separated subset, e.g. fixed,approximate (default: all that apply).")
-@click.option("--out", "out_path", type=click.Path(dir_okay=False, path_type=Path), help="Output MCAP (default: replay-out/<name>/tracks.mcap).")
+@click.option("--out", "out_path", type=click.Path(dir_okay=False, path_type=Path),
+              help="Output MCAP (default: replay-out/<name>/tracks.mcap; when that folder holds an earlier "
+                   "replay, replay-out/<name>-2/, -3/, …). A folder given here that holds an earlier replay "
+                   "needs --force.")
 @click.option("--rrd", "rrd_path", type=click.Path(dir_okay=False, path_type=Path), help="Rerun recording (default: next to --out).")
 @click.option("--no-rrd", is_flag=True, help="Skip the Rerun recording.")
+@click.option("--force", is_flag=True,
+              help="Replace an earlier replay's outputs: required when --out names a folder holding them; "
+                   "without --out, reuse replay-out/<name>/ instead of writing to a new numbered folder.")
 @click.option("--spawn", is_flag=True, help="Open the Rerun viewer on the recording.")
 @click.option("--recover", is_flag=True, help="Accept a truncated MCAP: keep its complete chunks.")
 @click.option("--set", "sets", multiple=True, metavar="NAME=VALUE", help="Override a tracker design value (e.g. nominal_cross_range_m=120).")
 @click.option("--rerun-run", type=click.IntRange(min=0), default=0, show_default=True, help="Monte Carlo run shown in the per-run Rerun views.")
 @tracker_option
-def run_cmd(data, trackers, out_path, rrd_path, no_rrd, spawn, recover, sets, rerun_run, tracker_specs):
+def run_cmd(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, sets, rerun_run, tracker_specs):
     """Replay a data set through every tracker that applies.
 
     A tracker given with --tracker runs beside the built-ins (its design values take --set too).
     If a tracker fails, the others' outputs are still written; then one line per failure and
-    exit status 2.
+    exit status 2. Nothing is silently replaced: a replay into the default folder that already
+    holds one goes to a new numbered folder, and an --out folder holding one needs --force.
 
     \b
     Example:
       replay data/radar_tws_demo.mcap --trackers fixed,approximate --spawn
       replay radar.mcap --tracker my_trackers.py:ConstantVelocity --set plot_sigma_m=120
+      replay radar.mcap --out study/a/tracks.mcap --force     # replace study/a's earlier replay
     """
     from pipeline.contract import read_dataset
     from pipeline.replay import replay
@@ -291,32 +560,42 @@ def run_cmd(data, trackers, out_path, rrd_path, no_rrd, spawn, recover, sets, re
     if data is None:
         data = bundled_data_dir() / DEMO_NAME
         click.echo(f"no data set given: replaying the bundled demo {data}")
-    out_dir = (out_path.parent if out_path else _default_out_dir(data))
+    explicit_out, explicit_rrd = out_path is not None, rrd_path is not None and not no_rrd
+    base = out_path.parent if explicit_out else _default_out_dir(data)
+    out_dir = base if (explicit_out or force) else _numbered_out_dir(base, "tracks.mcap")
     out_path = out_path or out_dir / "tracks.mcap"
     rrd_path = None if no_rrd else (rrd_path or out_path.with_suffix(".rrd"))
     refuse_input_overwrite([data, *(_spec_files(tracker_specs))],
                            [out_path, rrd_path, *(out_dir / n for n in REPORT_FILES)])
+    if not force:  # never replace an earlier replay unasked
+        previous = _previous_outputs(out_dir, out_path.name, rrd_path if explicit_rrd else None)
+        if previous:
+            _refuse_replacing(previous, str(out_dir if explicit_out else previous[0].parent))
+    if out_dir != base:
+        click.echo(f"{base} holds an earlier replay: writing to {out_dir} (--force would replace it)")
     wanted = [t.strip() for t in trackers.split(",")] if trackers else None
     specs = resolve_tracker_specs(tracker_specs)  # a tracker that does not load fails here
     t_read = time.perf_counter()
     dataset = read_dataset(data, recover=recover)  # bad files fail here, before any progress output
     t_read = time.perf_counter() - t_read
+    progress.timing("read", t_read)
     # every output is staged and moved into place at the end: a crash or a kill leaves the
     # previous set untouched, never a mix (a recording elsewhere than the folder is one atomic file)
     rrd_inside = rrd_path is not None and rrd_path.parent.resolve() == out_dir.resolve()
     with OutputSet(out_dir, replaces=[out_path.with_suffix(".rrd").name, *REPORT_FILES]) as outputs:
         staged_rrd = outputs.path(rrd_path.name) if rrd_inside else rrd_path
-        with click.progressbar(length=4, label=f"replaying {data.name}", file=sys.stderr) as bar:
+        with progress.Phases(f"replaying {data.name}", ("filter", "evaluate", "write", "rerun")) as phases:
             res = replay(data, wanted, outputs.path(out_path.name), staged_rrd, design_overrides=parse_assignments(sets),
-                         rerun_run=rerun_run, dataset=dataset, progress=bar.update, tracker_specs=specs)
+                         rerun_run=rerun_run, dataset=dataset, progress=phases.step, tracker_specs=specs)
         res.timings["read_s"] = t_read
         res.timings["total_s"] += t_read
         if res.dataset.recovered_messages is not None:
             click.echo(f"recovered {res.dataset.recovered_messages} messages from complete chunks of {data}")
         _print_summary(res.summary, f"metrics for {data.name} ({res.dataset.channel(next(iter(res.dataset.channels))).n_runs} runs)")
         _print_stage_reports(res)
-        tables = [outputs.final(p) for p in _export_tables(res, outputs.stage)]
-        plots = [outputs.final(p) for p in _report_plot(res, outputs.stage)]
+        with progress.timed("tables and plots"):
+            tables = [outputs.final(p) for p in _export_tables(res, outputs.stage)]
+            plots = [outputs.final(p) for p in _report_plot(res, outputs.stage)]
     res.out_path = out_path
     res.rrd_path = rrd_path
     click.echo("")
@@ -327,8 +606,9 @@ def run_cmd(data, trackers, out_path, rrd_path, no_rrd, spawn, recover, sets, re
     if plots:
         click.echo(f"plots:     {', '.join(str(p) for p in plots)}")
     t = res.timings
-    click.echo(f"time:      {t['total_s']:.2f} s (read {t['read_s']:.2f}, filter {t['filter_s']:.2f}, "
-               f"evaluate {t['evaluate_s']:.2f}, write {t.get('write_s', 0):.2f}, rerun {t.get('rerun_s', 0):.2f})")
+    click.echo(f"time:      {t['total_s']:.2f} s" + (
+        f" (read {t['read_s']:.2f}, filter {t['filter_s']:.2f}, evaluate {t['evaluate_s']:.2f}, "
+        f"write {t.get('write_s', 0):.2f}, rerun {t.get('rerun_s', 0):.2f})" if progress.verbose() else ""))
     fail_on_tracker_errors([str(exc) for exc in res.failures])
     if spawn and res.rrd_path:
         from pipeline.face.viewer import open_viewer
@@ -383,33 +663,96 @@ def simulate_cmd(ctx, scenario, runs, seed, output, sets):
     rec = recorder_module(sc.recorder)
     t0 = time.perf_counter()
     refuse_input_overwrite([Path(scenario)], [output])
-    data = rec.simulate(sc.params, runs, seed)
-    with click.progressbar(length=len(data.times), label=f"writing {output.name}", file=sys.stderr) as bar:
+    with progress.bar(1, f"simulating {sc.name} ({runs} runs)") as bar, progress.timed("simulate"):
+        data = rec.simulate(sc.params, runs, seed)
+        bar.update(1)
+    with progress.bar(len(data.times), f"writing {output.name}") as bar, progress.timed("write"):
         n = write_simulated(output, data, scenario_metadata(sc.name, sc.params, seed), bar.update)
     click.echo(f"wrote {output}: {n} messages, {data.n_runs} runs × {len(data.times)} scans, seed {seed} "
                f"({time.perf_counter() - t0:.2f} s)")
 
 
+def _format_value(v, limit: int = 24) -> str:
+    """A scenario parameter's value as typed on the command line; never blank."""
+    if isinstance(v, bool):
+        text = str(v).lower()
+    elif isinstance(v, float):
+        text = f"{v:g}"
+    elif isinstance(v, list):
+        text = "[" + ", ".join(_format_value(x, 10**6) for x in v) + "]"
+    elif isinstance(v, str):
+        text = v if v.strip() else "(none)"
+    else:
+        text = str(v)
+    return text if len(text) <= limit else text[: limit - 1] + "…"
+
+
+def _wrap_cells(header, rows, last_width_min: int = 24, width: int = TABLE_WIDTH) -> list[str]:
+    """A left-aligned text table whose last column wraps to keep every line within ``width``."""
+    import textwrap
+
+    widths = [max(len(str(c)) for c in col) for col in zip(header, *[r[:-1] for r in rows])]
+    lead = sum(w + 2 for w in widths)
+    last = max(last_width_min, width - lead)
+    out = []
+    for row in (header, *rows):
+        left = "".join(str(c).ljust(w + 2) for c, w in zip(row[:-1], widths))
+        parts = textwrap.wrap(str(row[-1]), last) or [""]
+        out.append((left + parts[0]).rstrip())
+        out += [(" " * lead + p).rstrip() for p in parts[1:]]
+    return out
+
+
 @main.command("scenarios")
-def scenarios_cmd():
-    """List the bundled scenarios and their parameters.
+@click.argument("name", required=False)
+def scenarios_cmd(name):
+    """List the bundled scenarios, or show one scenario's parameters.
+
+    With NAME (a bundled scenario or a TOML path): every parameter with its default, its unit
+    (from the suffix of its name: _m, _s, _deg, _mps, _mps2, _hz, _db, _rad, ...) and its
+    meaning (the comment after it in the scenario file). Any of them can be changed with
+    `replay simulate NAME --set name=value` (or --name value).
 
     \b
     Example:
       replay scenarios
+      replay scenarios radar-tws
+      replay simulate radar-tws --set sigma_bearing_deg=0.5 -o radar.mcap
     """
-    from recorders.scenarios import available_scenarios, load_scenario
+    from recorders.scenarios import available_scenarios, load_scenario, parameter_docs, parameter_unit
 
-    for name in available_scenarios():
-        sc = load_scenario(name)
-        click.echo(f"{name}: {sc.description}")
-        for k, v in sc.params.items():
-            click.echo(f"    {k} = {v}")
+    if name is None:
+        rows = []
+        for n in available_scenarios():
+            sc = load_scenario(n)
+            rows.append((n, f"{len(sc.params)}", sc.description or "-"))
+        for line in _wrap_cells(("SCENARIO", "PARAMETERS", "DESCRIPTION"), rows):
+            click.echo(line)
+        click.echo("\nparameters, units and defaults of one: replay scenarios NAME")
+        return
+    import textwrap
+
+    sc = load_scenario(name)
+    docs = parameter_docs(sc.source)
+    click.echo(textwrap.fill(f"{sc.name}: {sc.description or '(no description)'}", TABLE_WIDTH,
+                             subsequent_indent="  "))
+    click.echo(f"recorder {sc.recorder}; file {sc.source}")
+    click.echo("")
+    rows = [(k, _format_value(v), parameter_unit(k) or "-", docs.get(k, "-")) for k, v in sc.params.items()]
+    for line in _wrap_cells(("NAME", "DEFAULT", "UNIT", "MEANING"), rows):
+        click.echo(line)
+    click.echo(f"\nchange any: replay simulate {sc.name} --set NAME=VALUE -o data.mcap (a list: comma-separated)")
 
 
 @main.group("convert")
 def convert_group():
-    """Convert recorded data into the MCAP data contract."""
+    """Convert recorded data into the MCAP data contract.
+
+    \b
+    Example:
+      replay convert plots-csv plots.csv -o plots.mcap --set sigma_bearing_deg=0.8
+      replay convert array-wav array.wav -o rec.mcap --spacing-m 0.04 --frequency-hz 2000
+    """
 
 
 @convert_group.command("plots-csv")
@@ -441,7 +784,8 @@ def convert_plots_cmd(csv_path, output, sets):
 @click.argument("outputs", required=False, type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--json", "as_json", is_flag=True, help="Print long-form JSON records (tracker, metric, scope, value).")
 @click.option("--per-scan", is_flag=True, help="Include per-scan records (scope 'scan:K') in --json.")
-@click.option("--export", "export_dir", type=click.Path(file_okay=False, path_type=Path), help="Also write CSV/Parquet tables and a PNG plot here.")
+@click.option("--export", "export_dir", type=click.Path(file_okay=False, path_type=Path),
+              help="Also write CSV/Parquet tables and PNG plots into this folder (their paths are printed).")
 @click.option("--recover", is_flag=True, help="Accept truncated MCAP files.")
 @tracker_option
 def eval_cmd(data, outputs, as_json, per_scan, export_dir, recover, tracker_specs):
@@ -454,15 +798,23 @@ def eval_cmd(data, outputs, as_json, per_scan, export_dir, recover, tracker_spec
     Example:
       replay eval radar.mcap replay-out/radar/tracks.mcap --json
       replay eval radar.mcap --tracker my_trackers.py:ConstantVelocity
+      replay eval radar.mcap --export tables/
     """
-    from pipeline.replay import evaluate_files
+    from pipeline.replay import evaluate_files, replay
 
     if tracker_specs and outputs is not None:
         raise InputError("--tracker applies when eval replays in memory (no OUTPUTS); the trackers of "
                          f"{outputs} already ran")
     if export_dir:
         refuse_input_overwrite([data, outputs], [export_dir / n for n in REPORT_FILES])
-    res = evaluate_files(data, outputs, recover=recover, tracker_specs=resolve_tracker_specs(tracker_specs))
+    specs = resolve_tracker_specs(tracker_specs)
+    if outputs is None:  # replay in memory, phase by phase
+        with progress.Phases(f"evaluating {data.name}", ("filter", "evaluate")) as phases:
+            res = replay(data, recover=recover, tracker_specs=specs, progress=phases.step)
+    else:
+        with progress.bar(1, f"evaluating {outputs.name}") as bar, progress.timed("evaluate"):
+            res = evaluate_files(data, outputs, recover=recover)
+            bar.update(1)
     if as_json:
         records = res.summary.to_dicts()
         if per_scan:
@@ -475,9 +827,14 @@ def eval_cmd(data, outputs, as_json, per_scan, export_dir, recover, tracker_spec
         _print_summary(res.summary, f"metrics for {data.name}")
         _print_stage_reports(res)
     if export_dir:
-        _export_tables(res, export_dir)
-        _report_plot(res, export_dir)
-    fail_on_tracker_errors([str(exc) for exc in res.failures])
+        with progress.timed("export"):
+            tables = _export_tables(res, export_dir)
+            plots = _report_plot(res, export_dir)
+        # with --json, stdout stays pure JSON: the paths go to stderr
+        click.echo(f"\ntables:    {', '.join(str(p) for p in tables if p.suffix == '.csv')} (+ .parquet)", err=as_json)
+        if plots:
+            click.echo(f"plots:     {', '.join(str(p) for p in plots)}", err=as_json)
+    fail_on_tracker_errors([str(exc) for exc in getattr(res, "failures", [])])
 
 
 def _json_value(v):
@@ -556,7 +913,13 @@ def compare_cmd(a_path, b_path, data_path, pairs, as_json, out_dir, recover):
 @click.argument("command", required=False)
 @click.pass_context
 def help_cmd(ctx, command):
-    """The help of replay, or of one command (`replay help sweep`)."""
+    """The help of replay, or of one command.
+
+    \b
+    Example:
+      replay help
+      replay help sweep
+    """
     group = ctx.parent.command
     if command is None:
         click.echo(group.get_help(ctx.parent))
@@ -573,12 +936,16 @@ def help_cmd(ctx, command):
 
 @main.command("check")
 @click.argument("data_dir", required=False, type=click.Path(file_okay=False, path_type=Path))
-@click.option("--update", is_flag=True, help="Rewrite the baselines from the current code (deliberately).")
+@click.option("--update", is_flag=True,
+              help="Rewrite the baselines (DATA_DIR/baselines/) from the current code, deliberately; refused "
+                   "for the copy inside an installed package: pass the checkout's data folder.")
 @tracker_option
 def check_cmd(data_dir, update, tracker_specs):
     """Re-run every bundled data set and compare its metrics with the stored baselines.
 
-    Exits 1 and names every metric that moved beyond its tolerance. A tracker given with
+    DATA_DIR defaults to the data/ folder of the checkout you are in (found from the current
+    folder upwards), else to the installed copy. Exits 1 and names every metric that moved
+    beyond its tolerance. A tracker given with
     --tracker runs beside the built-ins on every data set and sweep of its family; its metrics
     are compared with the baseline entries that exist for it, and --update adds them.
 
@@ -590,8 +957,37 @@ def check_cmd(data_dir, update, tracker_specs):
     """
     from pipeline.check import run_check
 
-    data_dir = data_dir or bundled_data_dir()
-    report = run_check(data_dir, update=update, echo=click.echo, tracker_specs=resolve_tracker_specs(tracker_specs))
+    data_dir = data_dir or checkout_data_dir() or bundled_data_dir()
+    if update and inside_installed_package(data_dir):
+        raise InputError(f"{data_dir} is inside an installed package: --update will not rewrite its baselines; pass "
+                         "the data folder to update, e.g. `replay check path/to/checkout/data --update`")
+    specs = resolve_tracker_specs(tracker_specs)
+    click.echo(f"{'updating baselines of' if update else 'checking'} the data sets in {data_dir}")
+    names = ([m.stem for m in sorted(Path(data_dir).glob("*.mcap"))]
+             + [f"sweep-{t.stem}" for t in sorted((Path(data_dir) / "sweeps").glob("*.toml"))])
+    with progress.bar(len(names), "check", show_pos=True) as bar:
+        state = {"i": 0, "t": time.perf_counter()}
+
+        def label():
+            return f"check {names[state['i']]}" if state["i"] < len(names) else "check"
+
+        bar.set_label(label())
+
+        def echo(line=""):
+            # one of these lines ends each data set (pipeline.check's report lines)
+            if line.split(" ", 1)[0] not in ("ok", "FAIL", "wrote", "skip"):
+                bar.echo(line)
+                return
+            finished = names[state["i"]] if state["i"] < len(names) else None
+            state["i"] += 1
+            bar.pos = min(bar.pos + 1, bar.length)
+            bar.label = label()
+            bar.echo(line)
+            if finished is not None and progress.verbose():
+                bar.echo(f"timing: {finished} {time.perf_counter() - state['t']:.2f} s", err=True)
+            state["t"] = time.perf_counter()
+
+        report = run_check(data_dir, update=update, echo=echo, tracker_specs=specs)
     fail_on_tracker_errors(report.errors)
     if report.failed:
         raise click.exceptions.Exit(1)
@@ -613,7 +1009,7 @@ def check_cmd(data_dir, update, tracker_specs):
 @click.option("--workers", type=click.IntRange(min=1), help="Processes (default: the machine's cores).")
 @click.option("--scheduler", metavar="ADDRESS", help="Send the work to an existing Dask cluster (implies --executor dask).")
 @click.option("--keep-data/--no-keep-data", default=True, show_default=True, help="Keep each point's data set and recording.")
-@click.option("--resume", is_flag=True, help="Skip points whose metrics are already in the output folder (computed with the same trackers).")
+@click.option("--resume", is_flag=True, help="Reuse the points already in the output folder whose record (scenario parameters, runs, seed, trackers, version) is unchanged; refuses a folder that holds another sweep.")
 @tracker_option
 def sweep_cmd(scenario, params, sets, runs, seed, trackers, out_dir, executor, workers, scheduler, keep_data, resume,
               tracker_specs):
@@ -631,7 +1027,7 @@ def sweep_cmd(scenario, params, sets, runs, seed, trackers, out_dir, executor, w
       replay sweep radar-tws --param plot_sigma_m=100,200 --tracker my_trackers.py:ConstantVelocity -o cv/
     """
     from pipeline.registry import canonical_spec
-    from pipeline.sweep import build_grid, parse_param_specs, run_sweep, write_sweep_outputs
+    from pipeline.sweep import build_grid, check_resume, parse_param_specs, run_sweep, write_sweep_outputs
     from recorders.scenarios import parse_assignments
 
     if scheduler:
@@ -657,10 +1053,14 @@ def sweep_cmd(scenario, params, sets, runs, seed, trackers, out_dir, executor, w
             raise InputError(f"unknown tracker(s) {', '.join(bad)} (have: {', '.join(sorted(known))})")
     spec = {"scenario": scenario, "params": specs, "fixed": fixed, "runs": runs, "seed": seed,
             "trackers": wanted, "tracker_specs": plugged, "executor": executor, "points": len(tasks)}
+    if resume:
+        check_resume(out_dir, spec)
     with click.progressbar(length=len(tasks), label=f"sweep {scenario} ({len(tasks)} points, {executor})",
                            file=sys.stderr, show_pos=True) as bar:
         report = run_sweep(tasks, list(specs), out_dir, executor, workers, scheduler, resume, bar.update)
     write_sweep_outputs(report, list(specs), spec)
+    for note in report.notes:
+        click.echo(note, err=True)
     click.echo(f"points: {report.done} done, {report.skipped} resumed, {len(report.failed)} failed; "
                f"wall {report.wall_s:.1f} s, median point {report.median_point_s:.2f} s")
     for label, err in report.failed.items():
@@ -829,6 +1229,52 @@ def view_cmd(rrd, png, size):
         open_viewer(rrd)
 
 
+# --------------------------------------------------------------------------- export
+
+
+@main.command("export")
+@click.argument("tracks", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--foxglove", is_flag=True,
+              help="JSON messages with JSON Schemas in MCAP, as Foxglove and PlotJuggler read them.")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path), help="The MCAP file to write.")
+@click.option("--runs", "runs_spec", metavar="LIST",
+              help="Monte Carlo runs to export, e.g. 0,1,2 or 0-4 (default: the first 10).")
+@click.option("--data", "data_path", type=click.Path(dir_okay=False, path_type=Path),
+              help="The data set the replay read, for truth and per-scan metrics (default: the one the "
+                   "outputs' provenance names, beside them, here or among the bundled data sets).")
+@click.option("--recover", is_flag=True, help="Accept truncated MCAP files.")
+def export_cmd(tracks, foxglove, output, runs_spec, data_path, recover):
+    """Export a replay's outputs for other plotting tools.
+
+    --foxglove writes, per chosen run, one topic per tracker (/run_000/kalman: t, scan, x, y,
+    vx, vy, sd_x, …, flags) and the truth (/run_000/truth), plus the per-scan metrics over all
+    runs (/metrics/kalman), as JSON messages at the scan times (docs/export.md).
+
+    \b
+    Example:
+      replay data/radar_tws_demo.mcap --out r/tracks.mcap
+      replay export --foxglove r/tracks.mcap -o view.mcap
+      replay export --foxglove r/tracks.mcap -o view.mcap --runs 0,1,2
+    """
+    from pipeline.face.export_foxglove import export_foxglove
+
+    if not foxglove:
+        raise click.UsageError("choose the format: --foxglove (JSON MCAP for Foxglove and PlotJuggler)")
+    refuse_input_overwrite([tracks, data_path], [output])
+    with progress.bar(0, f"exporting {tracks.name}") as bar, progress.timed("export"):
+        report = export_foxglove(tracks, output, runs_spec, data_path, recover, progress=bar.update)
+    runs = report.runs
+    shown = (f"{runs[0]}–{runs[-1]}" if runs == list(range(runs[0], runs[-1] + 1)) and len(runs) > 2
+             else ",".join(map(str, runs)))
+    click.echo(f"wrote {report.path}: {report.messages} messages on {len(report.topics)} topics")
+    click.echo(f"  runs {shown} of {report.n_runs}; trackers {', '.join(report.trackers)}"
+               f"{'; truth' if report.truth else ''}{'; per-scan metrics' if report.metrics else ''}")
+    click.echo(f"  time: {report.time_base}")
+    for note in report.notes:
+        click.echo(f"  note: {note}")
+    click.echo(f"  open it in Foxglove (Plot panel, message path {report.example}) or PlotJuggler (Load Data)")
+
+
 # --------------------------------------------------------------------------- extensions
 # Paper-specific commands (e.g. `replay crlb`) live next to their paper's code; each module
 # listed here exposes COMMANDS, a list of click commands added to `replay`.
@@ -851,6 +1297,8 @@ def _register_extensions() -> None:
 
 
 _register_extensions()
+for _command in main.commands.values():  # --quiet / --verbose are accepted by every command
+    progress.add_progress_options(_command)
 
 if __name__ == "__main__":  # pragma: no cover
     main()

@@ -18,6 +18,7 @@ from pathlib import Path
 import click
 
 from pipeline.errors import InputError
+from pipeline.paths import refuse_input_overwrite
 
 ESTIMATORS = ("joint", "tdoa", "fdoa")
 
@@ -131,7 +132,7 @@ MAX_GRID_POINTS = 251_001  # 501 × 501; larger grids are refused rather than ex
               help="CEP formula: exact 2-D Gaussian, the paper's eq. 21, or 0.75·√(λ1+λ2).")
 @click.option("--probability", default=0.5, show_default=True, type=click.FloatRange(0, 1, min_open=True, max_open=True))
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path),
-              help="PNG to write (default: cep-plane-<geometry>.png).")
+              help="PNG to write (default: replay-out/cep-plane-<geometry>.png).")
 @click.option("--rrd", "rrd_path", type=click.Path(dir_okay=False, path_type=Path), help="Rerun recording (default: next to the PNG).")
 @click.option("--no-rrd", is_flag=True, help="Skip the Rerun recording.")
 def cep_plane_cmd(sets, scenario, estimator, emitter, geometry, extent_km, step_m, method, probability, output, rrd_path, no_rrd):
@@ -141,6 +142,8 @@ def cep_plane_cmd(sets, scenario, estimator, emitter, geometry, extent_km, step_
 
     The emitter's velocity (from --emitter or --set emitter_velocity_mps) is used at every grid
     point. Points where no CRLB exists (on a sensor, or collinear with the sensors) are blank.
+
+    Writes replay-out/cep-plane-<geometry>.png and .rrd unless -o / --rrd say otherwise.
 
     \b
     Example:
@@ -170,7 +173,10 @@ def cep_plane_cmd(sets, scenario, estimator, emitter, geometry, extent_km, step_
                       axis, axis, estimator, stationary, method, probability)
     elapsed = time.perf_counter() - t0
     label = sc.params["geometry"] if not sc.params["sensor_positions_m"] else "custom"
-    output = output or Path(f"cep-plane-{label}.png")
+    output = output or Path.cwd() / "replay-out" / f"cep-plane-{label}.png"
+    rrd_path = None if no_rrd else (rrd_path or output.with_suffix(".rrd"))
+    refuse_input_overwrite([Path(scenario)] if Path(scenario).suffix else [], [output, rrd_path])
+    output.parent.mkdir(parents=True, exist_ok=True)
     title = (f"{sc.name}: geometry {label}, emitter velocity ({es.emitter[0, 2]:g}, {es.emitter[0, 3]:g}) m/s, "
              f"{estimator}, σ_TDOA {es.sigma[0, 0] * 1e9:g} ns, σ_FDOA {es.sigma[0, es.n_pairs]:g} Hz")
     png = write_cep_png(plane, output, es.sensor_pos[0], es.emitter[0, :2], title)
@@ -182,10 +188,10 @@ def cep_plane_cmd(sets, scenario, estimator, emitter, geometry, extent_km, step_
         click.echo(f"  {key.split('_')[0]:<9} min {stats['min']:.4g} {unit}; area {parts}")
     click.echo(f"  no CRLB at {int(plane.singular.sum())} grid point(s) (on a sensor or collinear with sensors)")
     click.echo(f"png:       {png}")
-    if not no_rrd:
+    if rrd_path is not None:
         from pipeline.face.timeline import recording
 
-        rrd_path = rrd_path or png.with_suffix(".rrd")
+        rrd_path.parent.mkdir(parents=True, exist_ok=True)
         with recording(rrd_path, "trackreplay", f"cep-plane-{label}") as rec:
             log_cep_plane(rec, plane, es.sensor_pos[0], es.emitter[0, :2])
         click.echo(f"recording: {rrd_path}   (view: replay view {rrd_path})")

@@ -205,7 +205,7 @@ def plot_association(panels, path: Path) -> Path:
     return save_figure(fig, path)
 
 
-@click.command("association-table")
+@click.command("association-table", short_help="Print and plot the Fig. 8 table of xcorr sweeps.")
 @click.argument("studies", nargs=-1, required=True, type=click.Path(file_okay=False, path_type=Path))
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path),
               help="The figure (default: fig8.png in the first study folder).")

@@ -1,5 +1,11 @@
 """Open a recording in the Rerun viewer, or render it headless to a PNG.
 
+Every viewer this module starts listens on the loopback interface only. The ``rerun`` viewer
+always runs a gRPC server (the SDK's and ``ViewerClient``'s way in), by default on
+``0.0.0.0:9876``; :func:`viewer_command` passes ``--bind 127.0.0.1`` and a random port
+(``--port 0`` for the desktop viewer, a free loopback port for the headless one, which we
+connect to). ``rr.spawn`` is not used: it has no bind address and takes the fixed port 9876.
+
 Headless rendering uses the real viewer (software Vulkan from Debian's
 ``mesa-vulkan-drivers``): ``rerun --headless`` serves on 127.0.0.1, and
 ``rerun.experimental.ViewerClient`` opens the file, waits for it to load, moves the time
@@ -22,9 +28,12 @@ from pathlib import Path
 from pipeline.errors import InputError
 
 
+LOOPBACK = "127.0.0.1"
+
+
 def _free_port() -> int:
     with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
+        s.bind((LOOPBACK, 0))
         return s.getsockname()[1]
 
 
@@ -33,9 +42,29 @@ def _rerun_cli() -> list[str]:
     return [exe] if exe else [sys.executable, "-m", "rerun"]
 
 
+def viewer_command(rrd: str | Path | None = None, *, port: int = 0, headless: bool = False,
+                   size: str | None = None) -> list[str]:
+    """The ``rerun`` command line of a viewer whose server listens on 127.0.0.1 only.
+
+    ``port=0`` lets the system choose a free port (nothing else is served: no web viewer).
+    """
+    cmd = [*_rerun_cli(), "--bind", LOOPBACK, "--port", str(int(port))]
+    if headless:
+        cmd.append("--headless")
+    if size:
+        cmd += ["--window-size", size]
+    if rrd is not None:
+        cmd.append(str(rrd))
+    return cmd
+
+
+def _start(cmd: list[str], **kwargs) -> subprocess.Popen:
+    return subprocess.Popen(cmd, **kwargs)
+
+
 def open_viewer(rrd: str | Path) -> subprocess.Popen:
-    """Start the desktop viewer on a recording (returns at once)."""
-    return subprocess.Popen([*_rerun_cli(), str(rrd)], start_new_session=True)
+    """Start the desktop viewer on a recording (returns at once), listening on loopback only."""
+    return _start(viewer_command(rrd), start_new_session=True)
 
 
 def screenshot(rrd: str | Path, png: str | Path, size: str = "1600x900", timeline: str = "scan",
@@ -57,10 +86,8 @@ def screenshot(rrd: str | Path, png: str | Path, size: str = "1600x900", timelin
     home = tempfile.mkdtemp(prefix="rerun-home-")
     env = dict(os.environ, XDG_CONFIG_HOME=home, XDG_DATA_HOME=home, XDG_CACHE_HOME=home)
     log = open(Path(home) / "viewer.log", "wb")
-    proc = subprocess.Popen(
-        [*_rerun_cli(), "--headless", "--bind", "127.0.0.1", "--port", str(port), "--window-size", size],
-        start_new_session=True, env=env, stdout=log, stderr=subprocess.STDOUT,
-    )
+    proc = _start(viewer_command(port=port, headless=True, size=size),
+                  start_new_session=True, env=env, stdout=log, stderr=subprocess.STDOUT)
     tmp = png.with_name(png.name + ".tmp.png")
     try:
         client = _connect(rrx, port, proc, timeout_s, home)
@@ -105,7 +132,7 @@ def _connect(rrx, port, proc, timeout_s, home):
             raise InputError(f"headless viewer exited ({' '.join(tail) or 'no output'}); "
                              "is a Vulkan driver installed (Debian: mesa-vulkan-drivers)?")
         try:
-            client = rrx.ViewerClient.connect(f"rerun+http://127.0.0.1:{port}/proxy")
+            client = rrx.ViewerClient.connect(f"rerun+http://{LOOPBACK}:{port}/proxy")
             client.get_state()
             return client
         except Exception as exc:  # not listening yet
