@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from evaluators.set_distances import optimal_assignment, pairwise_distance
+from evaluators.set_distances import BRUTE_FORCE_MAX, optimal_assignment, pairwise_distance
 
 MOSTLY_TRACKED = 0.8
 MOSTLY_LOST = 0.2
@@ -130,6 +130,22 @@ def _identity_counts(ids, matched_id, present, track_present) -> dict:
     from scipy.optimize import linear_sum_assignment
 
     R = ids.shape[0]
+    T = matched_id.shape[-1]
+    top = int(ids.max()) if ids.size else -1
+    if top < BRUTE_FORCE_MAX and T <= BRUTE_FORCE_MAX:
+        # few identities (e.g. the track slots themselves): every run's assignment in one call
+        U = max(top + 1, 1)
+        weight = np.zeros((R, T, U), np.int64)
+        r_i, k_i, t_i = np.nonzero(matched_id >= 0)
+        np.add.at(weight, (r_i, t_i, matched_id[r_i, k_i, t_i]), 1)
+        seen = np.zeros((R, U), bool)
+        r_s, *_rest, = np.nonzero(ids >= 0)
+        seen[r_s, ids[ids >= 0]] = True
+        total, _ = optimal_assignment(-weight.astype(float), np.ones((R, T), bool), seen)
+        idtp = (-total).round().astype(np.int64)
+        false_tracks = np.sum(seen & (weight.sum(axis=1) == 0), axis=1)
+        return {"idtp": idtp, "idfp": track_present.sum(axis=(1, 2)) - idtp, "idfn": present.sum(axis=(1, 2)) - idtp,
+                "false_tracks": false_tracks}
     idtp, false_tracks = np.zeros(R, np.int64), np.zeros(R, np.int64)
     for r in range(R):  # one assignment per run between target and track identities
         uniq = np.unique(ids[r][ids[r] >= 0])

@@ -250,9 +250,50 @@ def test_jackknife_interval_covers_a_known_rmse_at_its_nominal_rate():
     assert _within_mc_error(_coverage(trials, make, sigma * np.sqrt(2)), trials)
 
 
+@pytest.mark.parametrize("runs", [60, 240], ids=["jackknife", "random-groups"])
+def test_summary_intervals_cover_a_known_rmse_at_their_nominal_rate(runs):
+    # the path every evaluator's table takes (evaluators.confidence.summary_intervals): grouped
+    # jackknife below RANDOM_GROUPS_MIN_RUNS runs, random groups from there on
+    import polars as pl
+
+    from evaluators.confidence import RANDOM_GROUPS_MIN_RUNS, summary_intervals
+
+    assert (runs >= RANDOM_GROUPS_MIN_RUNS) == (runs == 240)
+    sigma, trials = 1.0, 300
+
+    def make(rng):
+        err = rng.normal(scale=sigma, size=(runs, 5, 2))
+
+        def score(data):
+            rmse = float(np.sqrt(np.mean(np.sum(data["err"] ** 2, axis=-1))))
+            return None, pl.DataFrame({"tracker": ["t"], "metric": ["rmse"], "scope": ["overall"], "value": [rmse]})
+
+        _, table = summary_intervals(score, {"err": err}, runs)
+        return table["ci_low"][0], table["ci_high"][0]
+
+    assert _within_mc_error(_coverage(trials, make, sigma * np.sqrt(2)), trials)
+
+
 def test_mean_and_wilson_intervals_cover_at_their_nominal_rate():
     trials = 800
     rate_mean = _coverage(trials, lambda rng: mean_interval(rng.normal(3.0, 2.0, 30))[2:], 3.0)
     assert _within_mc_error(rate_mean, trials)
     rate_p = _coverage(trials, lambda rng: wilson_interval(rng.binomial(100, 0.9), 100), 0.9)
     assert _within_mc_error(rate_p, trials)
+
+
+def test_identity_counts_agree_between_the_vectorised_and_the_per_run_paths():
+    # few identities take one vectorised assignment; relabelling them beyond the brute-force
+    # size sends the same histories through the per-run path: the counts must not change
+    from evaluators.assignment_metrics import _identity_counts
+
+    rng = np.random.default_rng(7)
+    R, K, T, S = 40, 30, 3, 4
+    ids = np.where(rng.random((R, K, S)) < 0.8, rng.integers(0, 5, (R, K, S)), -1)
+    matched_id = np.where(rng.random((R, K, T)) < 0.7, rng.integers(0, 5, (R, K, T)), -1)
+    present, track_present = rng.random((R, K, T)) < 0.9, ids >= 0
+    fast = _identity_counts(ids, matched_id, present, track_present)
+    shift = lambda a: np.where(a >= 0, a + 100, -1)
+    slow = _identity_counts(shift(ids), shift(matched_id), present, track_present)
+    for key in ("idtp", "idfp", "idfn", "false_tracks"):
+        np.testing.assert_array_equal(fast[key], slow[key])
