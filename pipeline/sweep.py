@@ -423,7 +423,11 @@ def _iter_dask(tasks, workers, scheduler):
     finished = False
     try:
         if scheduler:
-            client = Client(scheduler)
+            try:
+                client = Client(scheduler, timeout="10s")
+            except (OSError, TimeoutError) as exc:
+                raise InputError(f"cannot reach the Dask scheduler at {scheduler} ({type(exc).__name__}: "
+                                 f"{str(exc).splitlines()[0] if str(exc) else 'no answer'})") from None
         else:
             cluster = local_cluster(workers)
             client = Client(cluster)

@@ -38,7 +38,14 @@ def read_plots_csv(path: str | Path) -> tuple[SimulatedData, float]:
     if "run" not in df.columns:
         df = df.with_columns(pl.lit(0).alias("run"))
     try:
-        df = df.select(pl.col("run").cast(pl.Int64), pl.col("time").cast(pl.Float64),
+        run_values = df["run"].cast(pl.Float64)
+    except pl.exceptions.PolarsError:
+        raise InputError("non-numeric values in time/range_m/bearing_deg/run", path) from None
+    fractional = run_values.is_not_null() & (run_values.round(0) != run_values)
+    if fractional.any():
+        raise InputError(f"column 'run' holds {int(fractional.sum())} non-integer value(s) (run indices count runs)", path)
+    try:
+        df = df.select(pl.col("run").cast(pl.Float64).cast(pl.Int64), pl.col("time").cast(pl.Float64),
                        pl.col("range_m").cast(pl.Float64), pl.col("bearing_deg").cast(pl.Float64))
     except pl.exceptions.PolarsError:
         raise InputError("non-numeric values in time/range_m/bearing_deg/run", path) from None

@@ -126,7 +126,38 @@ def load_scenario(name_or_path: str) -> Scenario:
         if key not in doc:
             raise InputError(f"scenario file lacks {key!r}", path)
     params = dict(doc["params"])
+    if path.parent.resolve() != scenario_dir().resolve():
+        params = _complete_user_params(doc["recorder"], params, path)
     return Scenario(doc["name"], doc["recorder"], params, doc.get("description", ""), str(path), dict(params))
+
+
+def _complete_user_params(recorder: str, params: dict, path: Path) -> dict:
+    """A user's scenario file checked against the bundled scenario of its recorder: parameters
+    it leaves out take the bundled defaults, each value is read as its default's type, and a
+    parameter the recorder does not know is refused (a typo would otherwise be ignored)."""
+    from recorders import RECORDERS
+
+    if recorder not in RECORDERS:
+        raise InputError(f"unknown recorder {recorder!r} (known: {', '.join(sorted(RECORDERS))})", path)
+    template = None
+    for name in available_scenarios():
+        bundled = tomllib.loads((scenario_dir() / f"{name}.toml").read_text())
+        if bundled.get("recorder") == recorder:
+            template = bundled["params"]
+            break
+    if template is None:
+        return params
+    unknown = sorted(set(params) - set(template))
+    if unknown:
+        raise InputError(f"unknown parameter(s) {', '.join(map(repr, unknown))} for recorder {recorder!r} "
+                         f"(known: {', '.join(sorted(template))})", path)
+    out = dict(template)
+    for key, raw in params.items():
+        try:
+            out[key] = coerce(key, raw, template[key])
+        except InputError as exc:
+            raise InputError(exc.problem, path) from None
+    return out
 
 
 # unit of a parameter from the last part of its name (``sigma_range_m`` → m)

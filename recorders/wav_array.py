@@ -105,6 +105,8 @@ def convert_array_wav(src, dst, spacing_m: float, frequency_hz: float, sound_spe
     fs, samples = read_wav(src)
     if frequency_hz >= fs / 2:
         raise InputError(f"frequency_hz = {frequency_hz:g} is not below the Nyquist frequency {fs / 2:g} Hz", src)
+    if nfft > samples.shape[0]:
+        raise InputError(f"nfft = {nfft} is longer than the recording ({samples.shape[0]} samples per channel)", src)
     snaps, bin_hz = narrowband_snapshots(samples, fs, frequency_hz, nfft, hop)
     if bin_hz <= 0:
         raise InputError(f"frequency_hz = {frequency_hz:g} falls in the DC bin (nfft = {nfft} at {fs} Hz)", src)

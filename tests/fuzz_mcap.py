@@ -6,7 +6,7 @@ Used by ``tests/test_fuzz.py`` (a few hundred mutants) and as a script for a lon
     python tests/fuzz_mcap.py --mutants 10000 --seed 1
 
 which prints: mutants tried, refused cleanly, accepted with the original metrics, accepted with
-different metrics (silently wrong), tracebacks.
+different metrics (silently wrong), tracebacks (or internal errors, exit status 3).
 """
 
 from __future__ import annotations
@@ -106,6 +106,8 @@ def metrics_of(path: Path):
     res = CliRunner().invoke(main, ["eval", str(path), "--json"])
     if res.exception is not None and not isinstance(res.exception, SystemExit):
         return res.exit_code, None, "".join(traceback.format_exception(res.exception))
+    if res.exit_code == 3:  # the CLI's one-line report of a bug of ours: as bad as a traceback here
+        return res.exit_code, None, res.stderr
     # a refusal is judged by what the user sees on stderr (a tracker that fails on odd but
     # well-formed data is reported there too, after the others' metrics on stdout)
     return res.exit_code, res.stdout if res.exit_code == 0 else res.stderr, None

@@ -477,3 +477,37 @@ def test_a_csv_time_beyond_any_recording_is_one_line(tmp_path, sha):
     assert res.exit_code == 2 and "scan time" in res.stderr and "Traceback" not in res.output, res.output
     assert len([l for l in res.stderr.splitlines() if l.strip()]) == 1
     assert sha(csv) == before and not (tmp_path / "p.mcap").exists()
+
+
+# ---- environment and parameter failures: one line each, nothing written
+
+
+def test_catalogue_of_environment_and_parameter_failures(tmp_path, sha):
+    import wave
+
+    data = tmp_path / "d.mcap"
+    data.write_bytes((REPO / "data" / "radar_tws_demo.mcap").read_bytes())
+    (tmp_path / "afile").write_text("")
+    (tmp_path / "bad.toml").write_text('name = "x"\nrecorder = "radar-tws"\n[params]\nn_scans = "abc"\n')
+    (tmp_path / "typo.toml").write_text('name = "x"\nrecorder = "radar-tws"\n[params]\nscan_perod_s = 4.0\n')
+    (tmp_path / "frac.csv").write_text("time,range_m,bearing_deg,run\n0,1000,10,0.5\n5,1001,10,0\n10,1002,10,0\n")
+    with wave.open(str(tmp_path / "short.wav"), "wb") as w:
+        w.setnchannels(4), w.setsampwidth(2), w.setframerate(16000)
+        w.writeframes(np.zeros((4000, 4), "<i2").tobytes())
+    cases = [
+        ([data, "--out", tmp_path / "afile" / "x" / "tracks.mcap", "--no-rrd"], "Not a directory"),
+        (["simulate", tmp_path / "bad.toml", "-o", tmp_path / "x.mcap"], "cannot read 'abc' as int"),
+        (["simulate", tmp_path / "typo.toml", "-o", tmp_path / "y.mcap"], "unknown parameter(s) 'scan_perod_s'"),
+        (["convert", "plots-csv", tmp_path / "frac.csv", "-o", tmp_path / "f.mcap"], "non-integer"),
+        (["convert", "array-wav", tmp_path / "short.wav", "-o", tmp_path / "w.mcap", "--spacing-m", "0.05",
+          "--frequency-hz", "2000", "--nfft", "10000000"], "longer than the recording"),
+    ]
+    inputs = [data, tmp_path / "bad.toml", tmp_path / "typo.toml", tmp_path / "frac.csv", tmp_path / "short.wav"]
+    before = {p: sha(p) for p in inputs}
+    for args, fragment in cases:
+        res = invoke(*args)
+        lines = [l for l in res.stderr.splitlines() if l.strip()]
+        assert res.exit_code == 2 and len(lines) == 1 and lines[0].startswith("replay: error:"), (args, res.output)
+        assert fragment in lines[0] and "Traceback" not in res.output, (args, lines[0])
+    assert {p: sha(p) for p in inputs} == before
+    assert not any((tmp_path / n).exists() for n in ("x.mcap", "y.mcap", "f.mcap", "w.mcap"))

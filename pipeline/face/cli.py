@@ -120,6 +120,12 @@ def resolve_tracker_specs(specs) -> list[str]:
     return out
 
 
+class InternalError(UserError):
+    """A failure that is the program's, not the input's: one line still, exit status 3."""
+
+    exit_code = 3
+
+
 def fail_on_tracker_errors(lines) -> None:
     """Print one ``replay: error:`` line per failed tracker and exit 2 (after the outputs are written)."""
     if lines:
@@ -156,6 +162,21 @@ class ReplayGroup(click.Group):
             return super().invoke(ctx)
         except InputError as exc:
             raise UserError(str(exc)) from None
+        except OSError as exc:
+            # the file system's answer (a folder that is a file, no permission, disk full)
+            where = f"{exc.filename}: " if exc.filename else ""
+            raise UserError(f"{where}{exc.strerror or exc}") from None
+        except MemoryError:
+            raise UserError("not enough memory for this data set (MemoryError)") from None
+        except click.ClickException:
+            raise
+        except Exception as exc:  # a bug of ours: one line for the user, the traceback with --verbose
+            from pipeline.face import progress
+
+            if progress.verbose():
+                raise
+            raise InternalError(f"internal error: {type(exc).__name__}: {exc} (run again with --verbose for the "
+                                "traceback, and please report it)") from None
 
     def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
         import warnings

@@ -91,7 +91,10 @@ def screenshot(rrd: str | Path, png: str | Path, size: str = "1600x900", timelin
     tmp = png.with_name(png.name + ".tmp.png")
     try:
         client = _connect(rrx, port, proc, timeout_s, home)
-        client.open(str(rrd))
+        try:
+            client.open(str(rrd))
+        except ConnectionError:
+            raise InputError("the viewer could not open it (not a Rerun recording?)", rrd) from None
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             if not client.get_state().loading:  # empty once every source has arrived
