@@ -200,12 +200,15 @@ def test_scenario_parameters_show_meaning_unit_and_default(runner, tmp_path):
     rows = {line.split()[0]: line.split() for line in res.stdout.splitlines() if line.strip()}
     assert rows["sensor_positions_m"][1] == "(none)" and rows["sigma_fdoa_hz"][2] == "Hz"
     toml = tmp_path / "mine.toml"
-    toml.write_text('name = "mine"\nrecorder = "radar-tws"\n[params]\nknots_s = []   # knot times\n'
-                    'label = "a # b"  # what "#" does\ngain_db = 3.0\n')
+    toml.write_text('name = "mine"\nrecorder = "radar-tws"\n[params]\nn_scans = 10   # a short "#" run\n'
+                    'sigma_range_m = 50.0  # my radar\n')
     res = invoke(runner, "scenarios", toml)
+    assert res.exit_code == 0, res.output
     rows = {line.split()[0]: line for line in res.stdout.splitlines() if line.strip()}
-    assert rows["knots_s"].split()[1:3] == ["[]", "s"] and "knot times" in rows["knots_s"]
-    assert 'what "#" does' in rows["label"] and rows["gain_db"].split()[1:] == ["3", "dB", "-"]
+    assert rows["n_scans"].split()[1] == "10" and 'a short "#" run' in rows["n_scans"]
+    assert rows["sigma_range_m"].split()[1:3] == ["50", "m"] and "my radar" in rows["sigma_range_m"]
+    # parameters the file leaves out take the recorder's bundled defaults
+    assert rows["sigma_bearing_deg"].split()[1:3] == ["1", "deg"]
     listing = invoke(runner, "scenarios").stdout
     assert "radar-tws" in listing and "replay scenarios NAME" in listing
     assert max(len(line) for line in listing.splitlines()) <= 100

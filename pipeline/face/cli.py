@@ -168,7 +168,7 @@ class ReplayGroup(click.Group):
             raise UserError(f"{where}{exc.strerror or exc}") from None
         except MemoryError:
             raise UserError("not enough memory for this data set (MemoryError)") from None
-        except click.ClickException:
+        except (click.ClickException, click.exceptions.Exit, click.exceptions.Abort):
             raise
         except Exception as exc:  # a bug of ours: one line for the user, the traceback with --verbose
             from pipeline.face import progress
