@@ -66,6 +66,12 @@ class OutputSet:
         self.stage: Path | None = None
 
     def __enter__(self) -> "OutputSet":
+        # folders this set creates, removed again (when empty) if it fails
+        self.created = []
+        for folder in [self.folder, *self.folder.parents]:
+            if folder.exists():
+                break
+            self.created.append(folder)
         self.folder.mkdir(parents=True, exist_ok=True)
         self.clean_stale()
         self.stage = self.folder / f"{self.PREFIX}{os.getpid()}"
@@ -85,6 +91,11 @@ class OutputSet:
     def __exit__(self, exc_type, exc, tb) -> bool:
         if exc_type is not None:
             _remove_tree(self.stage)
+            for folder in self.created:  # innermost first
+                try:
+                    folder.rmdir()
+                except OSError:
+                    break
             return False
         produced = sorted(p for p in self.stage.rglob("*") if p.is_file())
         for p in produced:

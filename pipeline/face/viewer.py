@@ -62,9 +62,31 @@ def _start(cmd: list[str], **kwargs) -> subprocess.Popen:
     return subprocess.Popen(cmd, **kwargs)
 
 
+RRD_MAGIC = b"RRF"  # every Rerun recording file starts with it (then the format version)
+
+
+def check_recording(rrd: str | Path) -> Path:
+    """``rrd`` as a Path after checking that it exists and is a Rerun recording (``.mcap``
+    inputs, which the viewer also opens, are passed through).
+
+    Raises
+    ------
+    InputError
+        A missing file, a folder, or a ``.rrd`` whose header is not a Rerun recording's.
+    """
+    rrd = Path(rrd).resolve()
+    if not rrd.is_file():
+        raise InputError("no such recording" if not rrd.exists() else "is a folder, not a recording", rrd)
+    if rrd.suffix != ".mcap":
+        with open(rrd, "rb") as f:
+            if f.read(len(RRD_MAGIC)) != RRD_MAGIC:
+                raise InputError("not a Rerun recording (its header is not RRF)", rrd)
+    return rrd
+
+
 def open_viewer(rrd: str | Path) -> subprocess.Popen:
     """Start the desktop viewer on a recording (returns at once), listening on loopback only."""
-    return _start(viewer_command(rrd), start_new_session=True)
+    return _start(viewer_command(check_recording(rrd)), start_new_session=True)
 
 
 def screenshot(rrd: str | Path, png: str | Path, size: str = "1600x900", timeline: str = "scan",
@@ -78,9 +100,7 @@ def screenshot(rrd: str | Path, png: str | Path, size: str = "1600x900", timelin
     """
     import rerun.experimental as rrx
 
-    rrd, png = Path(rrd).resolve(), Path(png).resolve()
-    if not rrd.exists():
-        raise InputError("no such recording", rrd)
+    rrd, png = check_recording(rrd), Path(png).resolve()
     png.parent.mkdir(parents=True, exist_ok=True)
     port = _free_port()
     home = tempfile.mkdtemp(prefix="rerun-home-")
