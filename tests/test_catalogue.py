@@ -88,6 +88,7 @@ CASES = (
     + [(["good.mcap", "--no-rrd", "--set", s], None)
        for s in ("nominal_cross_range_m=nan", "design_sigma_v_mps2=0", "sigma_range_m=-1", "sigma_range_m=1e-6",
                  "nominal_cross_range_m=1e-6", "no_such_param=3", "sigma_bearing_deg=abc")]
+    + [(["good.mcap", "--no-rrd", "--set", s], None) for s in ("ospa_cutoff_m=-1", "ospa_order=0", "assignment_gate_m=inf")]
     + [(["good.mcap", "--no-rrd", "--tracker", t], None)
        for t in ("notracker.py:X", "broken.py:X", "missing.py:X", "no_such_module_xyz:X", "noclass")]
     + [(["good.mcap", "--no-rrd", "--trackers", "no_such_tracker"], None),

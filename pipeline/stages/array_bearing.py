@@ -30,6 +30,7 @@ class ArrayBearingStage(Stage):
     scenario = "array-crossing"
     # decoding (the array's d/λ) and evaluation (the swap/loss gate)
     design_keys = ("spacing_wavelengths", "track_gate_deg")
+    design_ranges = {"spacing_wavelengths": (0.0, 1e6), "track_gate_deg": (0.0, 180.0)}
 
     # ------------------------------------------------------------------ input
 

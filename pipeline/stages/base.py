@@ -130,7 +130,30 @@ class Stage:
             if k not in defaults:
                 raise InputError(f"unknown tracker parameter {k!r} (known: {', '.join(defaults)})")
             out[k] = coerce(k, v, defaults[k])
+        self.check_design(out)
         return out
+
+    # ranges (low, high), both exclusive, of the design values the stage itself uses; the
+    # trackers check their own parameters
+    design_ranges: dict = {}
+    EVALUATION_RANGES = {"ospa_order": (0.999999, 100.0)}
+
+    def check_design(self, design: dict) -> None:
+        """Refuse a design value the stage uses that is not finite or outside its declared range
+        (:attr:`design_ranges`; the standard measures' cut-off and gate must be > 0 and their
+        order ≥ 1), with one line naming it."""
+        import math
+
+        ranges = dict(self.design_ranges)
+        for key in self.evaluation_defaults:
+            ranges.setdefault(key, self.EVALUATION_RANGES.get(key, (0.0, math.inf)))
+        for key, value in design.items():
+            if isinstance(value, float) and not math.isfinite(value):
+                raise InputError(f"design value {key} = {value} must be finite")
+            if key in ranges and isinstance(value, (int, float)) and not isinstance(value, bool):
+                low, high = ranges[key]
+                if not low < value < high:
+                    raise InputError(f"design value {key} = {value:g} must be in ({low:g}, {high:g})")
 
     def build(self, entry, design: dict):
         """Construct ``entry``'s tracker with its design values."""
