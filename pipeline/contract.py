@@ -1482,6 +1482,24 @@ def check_values(channels: Mapping[str, "ChannelData"], path=None) -> None:
             i = int(np.argmax(bad))
             raise InputError(f"{topic}: scan time {t[i]!r} s at run {ch.run[i]} scan {ch.scan[i]} is not a finite "
                              f"time within ±{vocab.TIME_LIMIT_S:g} s", path)
+        if ch.run.size:
+            # one frame per run and scan: a second one would silently replace or shadow the first
+            key = ch.run.astype(np.int64) * (int(ch.scan.max()) + 1) + ch.scan.astype(np.int64)
+            order = np.argsort(key, kind="stable")
+            same = np.flatnonzero(np.diff(key[order]) == 0)
+            if same.size:
+                i = order[same[0] + 1]
+                raise InputError(f"{topic} holds {same.size} duplicated frame(s), the first at run {ch.run[i]} "
+                                 f"scan {ch.scan[i]}", path)
+        parallel = [n for n in vocab.PARALLEL.get(topic_key.get(topic), ()) if n in ch.arrays]
+        if len(parallel) > 1:
+            lengths = [_item_counts(ch, n) for n in parallel]
+            for name, length in zip(parallel[1:], lengths[1:]):
+                bad = np.flatnonzero(length != lengths[0])
+                if bad.size:
+                    i = bad[0]
+                    raise InputError(f"{topic}: {parallel[0]} and {name} list different numbers of items at run "
+                                     f"{ch.run[i]} scan {ch.scan[i]} ({lengths[0][i]} vs {length[i]})", path)
         specs = vocab.VALUES.get(topic_key.get(topic), {})
         for name, spec in specs.items():
             if name not in ch.arrays:
@@ -1496,6 +1514,18 @@ def check_values(channels: Mapping[str, "ChannelData"], path=None) -> None:
                 problem = _values_problem(np.asarray(a), spec)
                 if problem is not None:
                     raise InputError(f"{topic} {name} {problem} at run {ch.run[i]} scan {ch.scan[i]}", path)
+
+
+def _item_counts(ch: "ChannelData", name: str) -> np.ndarray:
+    """Items (length of the first axis) of array ``name`` in each frame, in bulk where the file
+    stores it as one block."""
+    column = ch._column(name)
+    if column is not None and column.frames is None:
+        if column.kind == RAGGED:
+            return column.lengths()
+        if column.kind == FIXED:
+            return np.full(column.count, column.values.shape[1] if column.values.ndim > 1 else 1)
+    return np.array([np.shape(a)[0] if np.ndim(a) else 1 for a in ch.array(name)])
 
 
 def _values_problem(a: np.ndarray, spec) -> str | None:

@@ -75,6 +75,12 @@ VALUES = {
     "colored_measurements": {"position_m": ValueSpec(low=-_FAR_M, high=_FAR_M)},
     "colored_truth": {"state": ValueSpec(low=-_FAR_M, high=_FAR_M), "alpha": ValueSpec(low=-1.0, high=1.0)},
 }
+# arrays of a channel that list the same items (one entry per plot, per peak): equal lengths in
+# every frame
+PARALLEL = {
+    "radar_plots": ("range_m", "bearing_rad"),
+    "xcorr_peaks": ("bearing_rad", "amplitude", "origin"),
+}
 TIME_LIMIT_S = 1e10  # scan times: finite and within ±317 years of the recording's epoch
 
 

@@ -511,3 +511,19 @@ def test_catalogue_of_environment_and_parameter_failures(tmp_path, sha):
         assert fragment in lines[0] and "Traceback" not in res.output, (args, lines[0])
     assert {p: sha(p) for p in inputs} == before
     assert not any((tmp_path / n).exists() for n in ("x.mcap", "y.mcap", "f.mcap", "w.mcap"))
+
+
+@pytest.mark.parametrize("case", ["duplicate", "mismatch"])
+def test_duplicated_frames_and_unequal_item_lists_are_refused(tmp_path, case, sha):
+    frames = [(0, k, 5.0 * k, {"range_m": np.array([1000.0 + k]), "bearing_rad": np.array([0.3])}) for k in range(4)]
+    if case == "duplicate":
+        frames.append((0, 2, 10.0, {"range_m": np.array([1000.0]), "bearing_rad": np.array([0.3])}))
+        fragment = "1 duplicated frame(s), the first at run 0 scan 2"
+    else:
+        frames[1] = (0, 1, 5.0, {"range_m": np.array([1001.0, 7.0]), "bearing_rad": np.array([0.3])})
+        fragment = "range_m and bearing_rad list different numbers of items at run 0 scan 1 (2 vs 1)"
+    path = write_frames(tmp_path / f"{case}.mcap", {"/radar/plots": frames})
+    before = sha(path)
+    res = invoke(path, "--out", tmp_path / "o" / "tracks.mcap", "--no-rrd")
+    assert_one_line_error(res, path, fragment)
+    assert sha(path) == before and not (tmp_path / "o").exists()
