@@ -139,11 +139,15 @@ ARRAY = st.sampled_from([np.float64, np.int32, np.complex64, np.bool_])
 
 @st.composite
 def frame_lists(draw):
-    """Frames as a hand-written file may hold them: runs in any order, some repeated, arrays
-    missing from some frames, shapes, dtypes and times changing from frame to frame."""
-    frames = []
+    """Frames as a hand-written file may hold them: runs in any order, arrays missing from some
+    frames, shapes, dtypes and times changing from frame to frame (each run and scan once: a
+    duplicated frame is refused, see test_duplicated_frames_are_refused_by_both_contracts)."""
+    frames, seen = [], set()
     for _ in range(draw(st.integers(1, 14))):
         run, scan = draw(st.integers(0, 3)), draw(st.integers(0, 3))
+        if (run, scan) in seen:
+            continue
+        seen.add((run, scan))
         t = draw(st.sampled_from([0.0, 0.5, float(scan)]))
         arrays = {}
         for name in draw(st.lists(st.sampled_from(["a", "b", "c"]), unique=True, max_size=3)):
@@ -165,6 +169,19 @@ def test_any_frames_read_the_same_in_v1_and_v2(tmp_path_factory, frames, batched
             if batched:
                 w.write_grid("/g", np.arange(3.0), {"s": np.arange(24.0).reshape(2, 3, 4)})
     assert_same_dataset(read_dataset(d / f"{CONTRACT_V1}.mcap"), read_dataset(d / f"{CONTRACT_V2}.mcap"))
+
+
+def test_duplicated_frames_are_refused_by_both_contracts(tmp_path):
+    messages = set()
+    for contract in (CONTRACT_V1, CONTRACT_V2):
+        path = tmp_path / f"{contract}.mcap"
+        with write_dataset(path, contract=contract) as w:
+            for scan in (0, 1, 1):
+                w.write("/x", 0, scan, float(scan), {"a": np.arange(3.0)})
+        with pytest.raises(InputError) as err:
+            read_dataset(path)
+        messages.add(err.value.problem)
+    assert messages == {"/x holds 1 duplicated frame(s), the first at run 0 scan 1"}
 
 
 def test_ragged_writes_equal_frame_by_frame_writes(tmp_path):
