@@ -235,7 +235,7 @@ def test_xcorr_origin_length_differs_from_bearings(tmp_path):
     ch = xcorr_frames()
     ch["/xcorr/peaks"] = replace_array(ch["/xcorr/peaks"], "origin", lambda a: a[:2], lambda r, k: k == 2)
     p = write_frames(tmp_path / "origin.mcap", ch)
-    assert_one_line_error(invoke(p, "--no-rrd"), p, "/xcorr/peaks: bearing_rad and origin differ in length",
+    assert_one_line_error(invoke(p, "--no-rrd"), p, "/xcorr/peaks: bearing_rad and origin list different numbers of items",
                           "run 0 scan 2 (3 vs 2)")
 
 
