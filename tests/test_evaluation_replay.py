@@ -143,3 +143,20 @@ def test_check_names_the_standard_errors_a_doctored_baseline_moved(runner, tmp_p
     assert res.exit_code != 0
     line = next(l for l in res.output.splitlines() if "kalman rmse_position_m [overall]" in l)
     assert "+3.00 standard errors" in line
+
+
+def test_a_tracker_without_covariance_is_reported_as_such_not_as_zero(demo_result, capsys):
+    from evaluators.standard import evaluate_standard
+    from pipeline.face.cli import _print_summary
+
+    result = demo_result.results["radar-tws"]
+    bare = {"bare": {"state": result["tracks"]["kalman"]["state"], "flags": result["tracks"]["kalman"]["flags"]}}
+    stage = next(s for s in __import__("pipeline.stages", fromlist=["STAGES"]).STAGES if s.name == "radar-tws")
+    design = demo_result.dataset.cache[("design", "radar-tws")]
+    reference = stage.reference(demo_result.dataset, design)
+    _, summary = evaluate_standard(result["times"], bare, stage.standard_truth(reference), stage.standard_space(design))
+    rows = {(r["metric"], r["scope"]): r["value"] for r in summary.iter_rows(named=True)}
+    assert rows[("nees", "no covariance")] is None and rows[("nis", "no innovation covariance")] is None
+    assert not any(m.startswith("nees_time") or m.startswith("anees") for m, _ in rows)
+    _print_summary(summary.with_columns(pl.lit("standard").alias("kind")), "t")
+    assert "no covariance" in capsys.readouterr().out

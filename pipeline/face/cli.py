@@ -337,7 +337,8 @@ def _print_summary(summary: pl.DataFrame, title: str) -> None:
     sections = summary["section"].unique(maintain_order=True).to_list()
     sections = [s for s in dict.fromkeys([*_declared_scopes(summary), *sections]) if s is not None]
     sections.sort(key=lambda s: (s != "overall", s == "standard measures"))
-    summary = summary.filter(pl.col("value").is_not_null())
+    # a measure a tracker cannot have (NEES without a covariance) is shown as such, never as 0
+    summary = summary.filter(pl.col("value").is_not_null() | pl.col("scope").str.starts_with("no "))
     click.echo(title + "   (± half the 95 % interval over Monte Carlo runs)")
     if summary.height == 0:
         click.echo("\n(no metric has a value: nothing to show)")
@@ -352,7 +353,8 @@ def _print_summary(summary: pl.DataFrame, title: str) -> None:
                 click.echo("(empty: no scan falls in this scope, so it has no metrics)")
                 continue
             metrics = part["metric"].unique(maintain_order=True).to_list()
-            cells = {(r["metric"], r["tracker"]): _cell(r["value"], r["ci_low"], r["ci_high"])
+            cells = {(r["metric"], r["tracker"]): (_cell(r["value"], r["ci_low"], r["ci_high"])
+                                                   if r["value"] is not None else r["scope"])
                      for r in part.iter_rows(named=True)}
             shown = [t for t in trackers if any((m, t) in cells for m in metrics)]
             columns = {t: [cells.get((m, t), "") for m in metrics] for t in shown}
