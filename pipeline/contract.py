@@ -1507,8 +1507,14 @@ def check_values(channels: Mapping[str, "ChannelData"], path=None) -> None:
             column = ch._column(name)
             # in bulk where the file stores the array as one block (v2); frame by frame otherwise,
             # and always frame by frame to name the first offending frame
-            blocks = [column.values] if column is not None and column.kind != IRREGULAR else None
-            if blocks is not None and _values_problem(blocks[0], spec) is None:
+            if column is not None and column.kind != IRREGULAR:
+                block = column.values
+            else:  # frames decoded one by one (v1, irregular): check them joined, in one pass
+                items = ch.array(name)
+                kinds = {np.asarray(a).dtype.kind for a in items}
+                block = (np.concatenate([np.ravel(a) for a in items]) if len(kinds) == 1 and items
+                         else None)
+            if block is not None and _values_problem(block, spec) is None:
                 continue
             for i, a in enumerate(ch.array(name)):
                 problem = _values_problem(np.asarray(a), spec)
