@@ -262,16 +262,16 @@ def _plot_variances(z_range, dt: float, design: TrackerDesign):
 
 
 def _floor_innovation_covariance(s_cov):
-    """Innovation covariances ``(scans, 3, runs)`` (s00, s01, s11) with their correlation limited
-    to ρ² ≤ 1 − 10⁻⁹ where it is above (the α-β filters' predicted covariance next to the radar);
-    returns them and the mask of those changed (None when none were)."""
-    s00, s01, s11 = s_cov[:, 0], s_cov[:, 1], s_cov[:, 2]
+    """Innovation covariances ``(scans, runs, 4)`` (s00, s01, s10, s11) with their correlation
+    limited to ρ² ≤ 1 − 10⁻⁹ where it is above (the α-β filters' predicted covariance next to
+    the radar); returns them and the mask of those changed (None when none were)."""
+    s00, s01, s11 = s_cov[..., 0], s_cov[..., 1], s_cov[..., 3]
     limit = (1.0 - 1e-9) * s00 * s11
     high = s01 * s01 > limit  # False where there was no update (NaN)
     if not high.any():
         return s_cov, None
     s_cov = s_cov.copy()
-    s_cov[:, 1] = np.where(high, np.sign(s01) * np.sqrt(limit), s01)
+    s_cov[..., 1] = s_cov[..., 2] = np.where(high, np.sign(s01) * np.sqrt(limit), s01)
     return s_cov, high
 
 
@@ -331,8 +331,10 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
     lam = np.full((n_scans, n_runs), nan)
     innov = np.full((n_scans, 2, n_runs), nan)
     used = np.full((n_scans, 2, n_runs), nan)  # the plot each run used (for NPE against it)
-    s_cov = np.full((n_scans, 3, n_runs), nan)  # innovation covariance components s00, s01, s11
-    gains = np.full((n_scans, 8, n_runs), nan)
+    # innovation covariance (s00, s01, s10, s11) and gain rows runs-first, so that the (runs,
+    # scans, 2, 2) and (runs, scans, 4, 2) outputs are views, not copies
+    s_cov = np.full((n_scans, n_runs, 4), nan)
+    gains = np.full((n_scans, n_runs, 8), nan)
     flags = np.zeros((n_scans, n_runs), np.uint16)
 
     x = np.zeros((4, n_runs))
@@ -380,9 +382,11 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
             lam[k][sel] = diag["lambda_cross"]
             innov[k][:, sel] = nu
             # S = H P⁻ Hᵀ + R: the covariance the innovation has if the prediction is right
-            s_cov[k][:, sel] = np.stack([cp[0, sel] + r_cov[0][sel], cp[1, sel] + r_cov[1][sel],
-                                         cp[2, sel] + r_cov[2][sel]])
-            gains[k][:, sel] = gain
+            s_k = s_cov[k]
+            s_k[sel, 0] = cp[0, sel] + r_cov[0][sel]
+            s_k[sel, 1] = s_k[sel, 2] = cp[1, sel] + r_cov[1][sel]
+            s_k[sel, 3] = cp[2, sel] + r_cov[2][sel]
+            gains[k][sel] = gain.T
             if diag["clamped"].any():
                 flags[k][sel] |= np.where(diag["clamped"], FLAG_CLAMPED, 0).astype(np.uint16)
             if diag["floored"].any():
@@ -428,12 +432,12 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
     s_cov, repaired = _floor_innovation_covariance(s_cov)
     if repaired is not None:
         flags |= np.where(repaired, FLAG_FLOORED, 0).astype(np.uint16)
-    s = s_cov.transpose(2, 0, 1)
-    g = gains.transpose(2, 0, 1)
+    s = s_cov.transpose(1, 0, 2)
+    g = gains.transpose(1, 0, 2)
     return {
         "state": state.transpose(2, 0, 1),
         "covariance": components_to_matrix(cov.transpose(1, 2, 0)),
-        "innovation_covariance": np.stack([s[..., 0], s[..., 1], s[..., 1], s[..., 2]], axis=-1).reshape(s.shape[:2] + (2, 2)),
+        "innovation_covariance": s.reshape(s.shape[:2] + (2, 2)),
         "gain": g.reshape(g.shape[:2] + (4, 2)),  # rows x, y, ẋ, ẏ; columns the converted x, y
         "alpha": alpha.transpose(2, 0, 1),
         "beta": beta.transpose(2, 0, 1),
