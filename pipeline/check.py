@@ -79,11 +79,13 @@ def _sweep_summary(spec: Path, plugged: dict) -> _Outcome:
     report = sweep_spec_report(spec, tracker_specs=specs)
     table = report.table
     if table.height == 0:
-        table = pl.DataFrame(schema={"tracker": pl.Utf8, "metric": pl.Utf8, "point": pl.Utf8, "value": pl.Float64})
+        table = pl.DataFrame(schema={"tracker": pl.Utf8, "metric": pl.Utf8, "point": pl.Utf8, "value": pl.Float64,
+                                     "se": pl.Float64})
     failures = [(where, f"{message} (point {label})")
                 for label, errors in report.tracker_failures.items() for where, message in errors]
-    return _Outcome(table.select(pl.col("tracker"), pl.col("metric"), pl.col("point").alias("scope"), pl.col("value")),
-                    failures)
+    # the standard error rides along, so that a drift says how many of them it moved
+    return _Outcome(table.select(pl.col("tracker"), pl.col("metric"), pl.col("point").alias("scope"), pl.col("value"),
+                                 pl.col("se")), failures)
 
 
 def run_check(data_dir: str | Path, update: bool = False, echo=print, tracker_specs=()) -> CheckReport:

@@ -250,9 +250,14 @@ def _run_point(task: PointTask) -> tuple[list[dict], list]:
         if not keep:
             shutil.rmtree(work, ignore_errors=True)
     overall = res.summary.filter(pl.col("scope") == "overall")
-    records = [{"tracker": r["tracker"], "metric": r["metric"], "value": r["value"]}
-               for r in overall.iter_rows(named=True)]
+    records = [{k: r.get(k) for k in RECORD_COLUMNS} for r in overall.iter_rows(named=True)]
     return records, res.failures
+
+
+# every metric of a point with its Monte Carlo standard error and 95 % interval (docs/evaluation.md)
+RECORD_COLUMNS = ("tracker", "metric", "value", "se", "ci_low", "ci_high")
+RECORD_SCHEMA = {"tracker": pl.Utf8, "metric": pl.Utf8, "value": pl.Float64, "se": pl.Float64,
+                 "ci_low": pl.Float64, "ci_high": pl.Float64}
 
 
 # --------------------------------------------------------------------------- executors
@@ -652,8 +657,10 @@ def _reuse(task: PointTask, out_dir: Path, swept: list[str]) -> tuple[pl.DataFra
     if old != new:
         return None, "; ".join(record_changes(old, new)) or "point.json differs"
     try:
-        stored = pl.read_parquet(metrics, columns=["tracker", "metric", "value"])
-        records = stored.cast({"tracker": pl.Utf8, "metric": pl.Utf8, "value": pl.Float64}).to_dicts()
+        stored = pl.read_parquet(metrics)
+        stored = stored.with_columns(*(pl.lit(None, pl.Float64).alias(c) for c in RECORD_COLUMNS
+                                       if c not in stored.columns))
+        records = stored.select(RECORD_COLUMNS).cast(RECORD_SCHEMA).to_dicts()
     except Exception as exc:  # any damage: compute the point again rather than trust it
         return None, f"metrics.parquet unreadable ({type(exc).__name__})"
     # the stored values under this grid's index, label and columns, as a fresh run builds them
@@ -715,12 +722,12 @@ def check_resume(out_dir: Path, spec: dict) -> None:
 
 def _point_frame(task: PointTask, records: list[dict], swept: list[str]) -> pl.DataFrame:
     values = {**dict(task.overrides), **dict(task.design)}  # the swept values come last, so they win
-    df = pl.DataFrame(records, schema={"tracker": pl.Utf8, "metric": pl.Utf8, "value": pl.Float64})
+    df = pl.DataFrame(records, schema=RECORD_SCHEMA)
     return df.with_columns(
         pl.lit(task.label).alias("point"), pl.lit(task.index).alias("point_index"),
         pl.lit(task.seed, dtype=pl.UInt64).alias("seed"),
         *[pl.lit(values[n]).alias(n) for n in swept],
-    ).select("point_index", "point", *swept, "seed", "tracker", "metric", "value")
+    ).select("point_index", "point", *swept, "seed", *RECORD_COLUMNS)
 
 
 def run_sweep(tasks: list[PointTask], swept: list[str], out_dir: Path | None, executor: str = "process",
@@ -803,8 +810,7 @@ def _run_sweep(tasks, swept, out_dir, executor, workers, scheduler, resume, prog
         finally:
             it.close()  # stops the workers when interrupted here rather than in the executor
     table = (pl.concat([frames[i] for i in sorted(frames)], how="vertical_relaxed") if frames
-             else pl.DataFrame(schema={"point_index": pl.Int64, "point": pl.Utf8, "tracker": pl.Utf8,
-                                       "metric": pl.Utf8, "value": pl.Float64}))
+             else pl.DataFrame(schema={"point_index": pl.Int64, "point": pl.Utf8, **RECORD_SCHEMA}))
     return SweepReport(table, len(todo) - len(failed), skipped, failed, time.perf_counter() - t0, work, out_dir,
                        tracker_failures, _resume_notes(again))
 
