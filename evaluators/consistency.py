@@ -42,8 +42,9 @@ def average_bounds(dim: int, count, prob: float = 0.95):
         return lo / count, hi / count
 
 
-def normalised_squared(error, covariance):
-    """``eᵀ P⁻¹ e`` over the last axes, through a Cholesky solve (no inverse).
+def whitened(error, covariance):
+    """``w = L⁻¹ e`` with ``P = L Lᵀ`` (Cholesky, then a triangular solve; no inverse), so that
+    ``eᵀ P⁻¹ e = ‖w‖²`` and white errors have unit covariance.
 
     Parameters
     ----------
@@ -52,34 +53,35 @@ def normalised_squared(error, covariance):
 
     Returns
     -------
-    ndarray (...)
+    ndarray (..., n)
         NaN where the error or the covariance is missing or the covariance is not positive
         definite (such a covariance has no NEES; validation flags it upstream).
     """
     e = np.asarray(error, float)
     P = np.asarray(covariance, float)
-    out = np.full(e.shape[:-1], np.nan)
+    out = np.full(e.shape, np.nan)
     ok = np.isfinite(e).all(axis=-1) & np.isfinite(P).all(axis=(-2, -1))
     if not ok.any():
         return out
     Pk, ek = P[ok], e[ok]
     try:
-        L = np.linalg.cholesky(Pk)
+        out[ok] = np.linalg.solve(np.linalg.cholesky(Pk), ek[..., None])[..., 0]
     except np.linalg.LinAlgError:
-        # fall back one by one, leaving the indefinite ones NaN
-        vals = np.full(len(ek), np.nan)
+        # one by one, leaving the indefinite ones NaN
+        w = np.full(ek.shape, np.nan)
         for i in range(len(ek)):
             try:
-                Li = np.linalg.cholesky(Pk[i])
+                w[i] = np.linalg.solve(np.linalg.cholesky(Pk[i]), ek[i])
             except np.linalg.LinAlgError:
                 continue
-            w = np.linalg.solve(Li, ek[i])
-            vals[i] = w @ w
-        out[ok] = vals
-        return out
-    w = np.linalg.solve(L, ek[..., None])[..., 0]  # L w = e, so eᵀP⁻¹e = ‖w‖²
-    out[ok] = np.sum(w * w, axis=-1)
+        out[ok] = w
     return out
+
+
+def normalised_squared(error, covariance):
+    """``eᵀ P⁻¹ e`` over the last axes: ``‖w‖²`` of :func:`whitened` (NaN where it is)."""
+    w = whitened(error, covariance)
+    return np.sum(w * w, axis=-1)
 
 
 def consistency_summary(nx, dim: int, prob: float = 0.95) -> dict:
@@ -106,7 +108,7 @@ def consistency_summary(nx, dim: int, prob: float = 0.95) -> dict:
             "time_low": float(t_low), "time_high": float(t_high), "count": count}
 
 
-def innovation_whiteness(innovation, covariance, max_lag: int = 5) -> dict:
+def innovation_whiteness(innovation, covariance, max_lag: int = 5, whitened_innovation=None) -> dict:
     """Normalised autocorrelation of the whitened innovations at lags 1..``max_lag``.
 
     With ``w_k = L_k⁻¹ ν_k`` (``S_k = L_k L_kᵀ``), the sample autocorrelation at lag j, pooled
@@ -114,21 +116,16 @@ def innovation_whiteness(innovation, covariance, max_lag: int = 5) -> dict:
     normal with zero mean and variance 1/M for white innovations, M the number of products in
     the sum times the dimension (Bar-Shalom et al. 2001, §5.4.2). The bounds are ±1.96/√M.
 
+    ``whitened_innovation`` (the :func:`whitened` innovations, when the caller has them already,
+    e.g. from the NIS) skips the factorisations.
+
     Returns
     -------
     dict
         ``lags`` (max_lag,), ``rho`` (max_lag,), ``bound`` (max_lag,), ``outside`` count.
     """
     nu = np.asarray(innovation, float)
-    S = np.asarray(covariance, float)
-    w = np.full(nu.shape, np.nan)
-    ok = np.isfinite(nu).all(axis=-1) & np.isfinite(S).all(axis=(-2, -1))
-    if ok.any():
-        try:
-            L = np.linalg.cholesky(S[ok])
-            w[ok] = np.linalg.solve(L, nu[ok][..., None])[..., 0]
-        except np.linalg.LinAlgError:
-            pass
+    w = whitened(nu, covariance) if whitened_innovation is None else np.asarray(whitened_innovation, float)
     K = nu.shape[1]
     lags = np.arange(1, max_lag + 1)
     rho, bound = np.full(max_lag, np.nan), np.full(max_lag, np.nan)

@@ -25,7 +25,7 @@ import polars as pl
 
 from evaluators.assignment_metrics import assignment_metrics, scan_matches
 from evaluators.confidence import jackknife, mean_interval, rms_interval
-from evaluators.consistency import consistency_summary, innovation_whiteness, normalised_squared
+from evaluators.consistency import consistency_summary, innovation_whiteness, normalised_squared, whitened
 from evaluators.set_distances import gospa
 from evaluators.tracking_metrics import nanmean
 from pipeline.vocabulary import DELETED, NO_TRACK
@@ -120,7 +120,8 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
             nu = _as_slots(out["innovation"], 1)
             Sv = _as_slots(out["innovation_covariance"], 2)
             m = nu.shape[-1]
-            nis = normalised_squared(nu, Sv)                       # (R, K, S)
+            w_nu = whitened(nu, Sv)                                 # (R, K, S, m)
+            nis = np.sum(w_nu * w_nu, axis=-1)                     # (R, K, S)
             nis_run = nanmean(nis, axis=2)                         # average over slots
             c = consistency_summary(nis_run, m, prob)
             cols.update(anis=c["per_scan"], anis_low=c["low"], anis_high=c["high"])
@@ -130,8 +131,8 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
             rows.append(_with_ci(name, "nis_time_average_low", c["time_low"], np.nan, np.nan, np.nan))
             rows.append(_with_ci(name, "nis_time_average_high", c["time_high"], np.nan, np.nan, np.nan))
             # slots are independent sequences: pool them as if they were more runs
-            w = innovation_whiteness(np.swapaxes(nu, 1, 2).reshape(R * S, K, m),
-                                     np.swapaxes(Sv, 1, 2).reshape(R * S, K, m, m))
+            w = innovation_whiteness(np.swapaxes(nu, 1, 2).reshape(R * S, K, m), None,
+                                     whitened_innovation=np.swapaxes(w_nu, 1, 2).reshape(R * S, K, m))
             rows.append(_with_ci(name, "whiteness_lags_outside", w["outside"], np.nan, np.nan, np.nan))
             rows.append(_with_ci(name, "whiteness_max_abs_rho", np.nanmax(np.abs(w["rho"])) if np.isfinite(w["rho"]).any()
                                  else np.nan, np.nan, np.nan, np.nan))
