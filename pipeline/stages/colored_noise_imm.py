@@ -2,8 +2,9 @@
 
 Input channels: ``/colored/measurements`` (``position_m`` per axis) and, optionally,
 ``/colored/truth`` (``state`` = [p, v, a] per axis, ``alpha``). The thesis starts every filter at
-the true state (Kwon 1997, ch. V), so a file without truth is refused unless the replay runs
-with ``--set track_start=measurements``. Outputs on ``/tracks/colored/<tracker>``: see
+the true state (Kwon 1997, ch. V); a file without truth (a recording) starts them from the
+measurements instead (``track_start="auto"``, the default), and ``--set track_start=truth``
+insists on the truth. Outputs on ``/tracks/colored/<tracker>``: see
 :mod:`pipeline.trackers.colored_noise`; ``/tracks/colored/ar_estimator`` (:meth:`extras`) holds
 ``alpha``, ``alpha_biased``, ``noise_variance``, ``flags`` per axis and ``warm``.
 

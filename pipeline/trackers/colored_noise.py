@@ -19,9 +19,10 @@ or square-root information (:mod:`pipeline.cores.filters.srif`, eqs. 4.2.18–4.
 State ``[p, v, a]`` per axis, axes concatenated (family ``colored-position``). The filters
 update from scan 1 (a decorrelated measurement needs ``z_{k−1}``); scan 0 holds the start.
 
-Start (``track_start``): ``"truth"`` (default) starts every filter at the true state of scan 0
-with ``P₀ = initial_variance · I``, as the thesis does (ch. V); ``"measurements"`` needs no
-truth: position from the first measurement with variance ``measurement_variance_m2``, zero
+Start (``track_start``): ``"truth"`` starts every filter at the true state of scan 0 with
+``P₀ = initial_variance · I``, as the thesis does (ch. V); ``"measurements"`` needs no truth;
+``"auto"`` (default) is ``"truth"`` when the file has it and ``"measurements"`` for a recording.
+With ``"measurements"``: position from the first measurement with variance ``measurement_variance_m2``, zero
 velocity and acceleration with the large variances :data:`START_VELOCITY_VARIANCE` and
 :data:`START_ACCELERATION_VARIANCE` (``initial_variance`` is then unused).
 
@@ -50,7 +51,7 @@ from pipeline.errors import InputError
 from pipeline.trackers.interface import ColoredPositions, Param, Tracker
 
 MODEL_NAMES = ("cv", "ca_transition", "ca_steady")
-TRACK_STARTS = ("truth", "measurements")
+TRACK_STARTS = ("auto", "truth", "measurements")
 # track_start="measurements": zero velocity and acceleration with these variances (1 km/s and
 # 100 m/s² standard deviations: far wider than any target of the scenarios, so the first
 # updates, not the start, fix them)
@@ -114,9 +115,10 @@ def ar1_outputs(measurements: ColoredPositions, beta: float, rho: float) -> dict
 
 P_MEASUREMENT = Param("measurement_variance_m2", None, "m²", "measurement noise variance R per axis")
 P_INITIAL = Param("initial_variance", None, "", "P₀ = initial_variance · I at the true start state")
-P_START = Param("track_start", "truth", "",
+P_START = Param("track_start", "auto", "",
                 "'truth': start at the true state of scan 0 (thesis); 'measurements': position from z₀, "
-                "zero velocity/acceleration with a large variance")
+                "zero velocity/acceleration with a large variance; 'auto': truth when the file has it, "
+                "else measurements (a recording)")
 P_AR = (Param("ar_forgetting_factor", None, "", "AR estimator forgetting factor β, 0 < β < 1"),
         Param("ar_zero_pole", None, "", "AR estimator zero-cancelling pole ρ, 0 ≤ ρ < 1"))
 P_KF = (Param("kf_process_noise", None, "m²/s⁴", "CA model's acceleration-increment variance per sample"),)
@@ -148,7 +150,10 @@ class _ColoredNoiseTracker(Tracker):
     def start(self, m: ColoredPositions, axes: int):
         """``x₀`` (runs, 3·axes) and ``P₀`` (3·axes, 3·axes) of scan 0 (see ``track_start``)."""
         N = 3 * axes
-        if self.track_start == "truth":
+        start = self.track_start
+        if start == "auto":
+            start = "truth" if m.truth_state is not None else "measurements"
+        if start == "truth":
             if m.truth_state is None:
                 raise InputError("track_start='truth' needs the true state (use track_start=measurements)")
             x0 = np.asarray(m.truth_state, dtype=float)[:, 0]
