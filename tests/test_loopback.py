@@ -151,6 +151,7 @@ def headless_viewers(monkeypatch):
         return proc
 
     monkeypatch.setattr(viewer, "_start", start)
+    monkeypatch.setenv("DISPLAY", ":0")  # the CLI's display check passes; the viewer itself runs headless
     yield started
     for proc in started:
         if proc.poll() is None:
@@ -195,3 +196,12 @@ def test_screenshot_viewer_listens_on_loopback_only(tmp_path, recording, monkeyp
     assert png.stat().st_size > 0
     assert seen and seen[0], "the headless viewer was not seen listening"
     assert_loopback(seen[0])
+
+
+def test_the_viewer_without_a_display_is_one_line_with_the_alternatives(recording, monkeypatch):
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    res = CliRunner().invoke(main, ["view", str(recording)])
+    lines = [l for l in res.stderr.splitlines() if l.strip()]
+    assert res.exit_code == 2 and len(lines) == 1 and lines[0].startswith("replay: error: ")
+    assert "--screenshot" in lines[0] and "127.0.0.1" in lines[0]

@@ -84,9 +84,26 @@ def check_recording(rrd: str | Path) -> Path:
     return rrd
 
 
+def require_display() -> None:
+    """Refuse, in one line with the alternatives, to open a desktop window where there is no
+    display (a server, CI, an SSH session): the viewer would otherwise fail silently."""
+    if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        raise InputError("no display to open the viewer on (DISPLAY and WAYLAND_DISPLAY are unset); render a PNG "
+                         "with `replay view FILE --screenshot out.png`, or serve it to a browser with "
+                         "`rerun FILE --web-viewer --bind 127.0.0.1` and open the printed http://127.0.0.1 address")
+
+
 def open_viewer(rrd: str | Path) -> subprocess.Popen:
-    """Start the desktop viewer on a recording (returns at once), listening on loopback only."""
-    return _start(viewer_command(check_recording(rrd)), start_new_session=True)
+    """Start the desktop viewer on a recording (returns at once), listening on loopback only.
+
+    Raises
+    ------
+    InputError
+        No such recording, not a recording, or no display (:func:`require_display`).
+    """
+    rrd = check_recording(rrd)
+    require_display()
+    return _start(viewer_command(rrd), start_new_session=True)
 
 
 def screenshot(rrd: str | Path, png: str | Path, size: str = "1600x900", timeline: str = "scan",
