@@ -69,6 +69,7 @@ CASES = (
     + [(["fit-peaks", f], f) for f in ("garbage.mcap", "truncated.mcap", "good.mcap")]
     + [(["colored-report", f, "-o", "rep"], f) for f in ("garbage.mcap", "good.mcap")]
     + [(["convert", "upgrade", f, "-o", "u.mcap"], f) for f in ("garbage.mcap", "truncated.mcap", "missing.mcap")]
+    + [(["convert", "upgrade", "good.mcap", "-o", "good.mcap"], "good.mcap")]
     + [(["compare", f, "good.mcap", "--data", "good.mcap"], f) for f in ("garbage.mcap", "good.mcap")]
     # converters
     + [(["convert", "plots-csv", f, "-o", "p.mcap"], f)

@@ -253,9 +253,11 @@ def test_v1_file_still_reads_and_upgrades_on_the_command_line(radar_v2, tmp_path
     assert res.exit_code == 0, res.output
     assert "replay.v1" in res.output and "→ 128 messages (replay.v2)" in res.output
     assert (tmp_path / "new.mcap").read_bytes() == radar_v2.read_bytes()
-    # in place: the file is replaced only once the rewrite succeeded
+    # never in place: an input is never written over
+    before = v1.read_bytes()
     res = invoke("convert", "upgrade", v1, "-o", v1)
-    assert res.exit_code == 0 and v1.read_bytes() == radar_v2.read_bytes()
+    assert res.exit_code == 2 and "refusing to write an output over the input" in res.stderr
+    assert v1.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["new.mcap", "old.mcap"]
 
 

@@ -16,7 +16,7 @@ COMMANDS: list = []  # defined first: importing pipeline.face.cli below may re-e
 @click.command("upgrade")
 @click.argument("src", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path),
-              help="The rewritten file (may be SRC itself: it is replaced only when the rewrite succeeded).")
+              help="The rewritten file (never SRC itself: an input is never written over).")
 @click.option("--recover", is_flag=True, help="Keep the intact chunks of a truncated or damaged file.")
 def upgrade_cmd(src, output, recover):
     """Rewrite a replay.v1 (or any) data set in the current contract (replay.v2).
@@ -31,7 +31,9 @@ def upgrade_cmd(src, output, recover):
       replay convert upgrade cut.mcap -o kept.mcap --recover
     """
     from pipeline.contract import rewrite_dataset
+    from pipeline.paths import refuse_input_overwrite
 
+    refuse_input_overwrite([src], [output])
     rep = rewrite_dataset(src, output, recover=recover)
     was = ", ".join(rep.source_contracts) or "no frames"
     click.echo(f"wrote {output}: {rep.frames} frames, {rep.messages_in} messages ({was}) → {rep.messages_out} "
