@@ -1083,8 +1083,7 @@ def sweep_cmd(scenario, params, sets, runs, seed, trackers, out_dir, executor, w
             "trackers": wanted, "tracker_specs": plugged, "executor": executor, "points": len(tasks)}
     if resume:
         check_resume(out_dir, spec)
-    with click.progressbar(length=len(tasks), label=f"sweep {scenario} ({len(tasks)} points, {executor})",
-                           file=sys.stderr, show_pos=True) as bar:
+    with progress.bar(len(tasks), f"sweep {scenario} ({len(tasks)} points, {executor})", show_pos=True) as bar:
         report = run_sweep(tasks, list(specs), out_dir, executor, workers, scheduler, resume, bar.update)
     write_sweep_outputs(report, list(specs), spec)
     for note in report.notes:
