@@ -819,7 +819,12 @@ def write_sweep_outputs(report: SweepReport, swept: list[str], spec: dict) -> li
     """Table as Parquet + CSV, the spec as JSON, and one PNG per metric vs the first swept parameter."""
     out = report.out_dir
     with _stop_on_signals(), _folder_lock(out):
-        return _write_sweep_outputs(report, swept, {**spec, "version": __version__})
+        try:
+            return _write_sweep_outputs(report, swept, {**spec, "version": __version__})
+        finally:
+            # a signal can land between a temporary's creation and the code that removes it
+            # (inside tempfile.mkstemp); whatever is left is swept up here
+            _remove_temporaries(out)
 
 
 def _write_sweep_outputs(report: SweepReport, swept: list[str], spec: dict) -> list[Path]:
