@@ -1,5 +1,5 @@
 """The README's main command, exactly as written, on a copy of the repository in a fresh virtual
-environment (the test command itself is what runs this suite, via scripts/test.sh)."""
+environment (the test command itself is what runs this suite, via scripts/install-test-deps.sh)."""
 
 from __future__ import annotations
 
