@@ -354,19 +354,11 @@ def cv_position_update_components(c, r00, r01, r11):
     c_post : ndarray (10, runs)
         Posterior covariance components.
     """
+    g = cv_position_gain_components(c, r00, r01, r11)
     a00, a01, a11 = c[A00], c[A01], c[A11]
     b00, b01, b10, b11 = c[B00], c[B01], c[B10], c[B11]
     s00, s01, s11 = a00 + r00, a01 + r01, a11 + r11
     inv_det = 1.0 / (s00 * s11 - s01 * s01)
-    g = np.empty((8,) + s00.shape)
-    g[0] = (a00 * s11 - a01 * s01) * inv_det
-    g[1] = (a01 * s00 - a00 * s01) * inv_det
-    g[2] = (a01 * s11 - a11 * s01) * inv_det
-    g[3] = (a11 * s00 - a01 * s01) * inv_det
-    g[4] = (b00 * s11 - b10 * s01) * inv_det
-    g[5] = (b10 * s00 - b00 * s01) * inv_det
-    g[6] = (b01 * s11 - b11 * s01) * inv_det
-    g[7] = (b11 * s00 - b01 * s01) * inv_det
     m00 = (r00 * s11 - r01 * s01) * inv_det
     m01 = (r01 * s00 - r00 * s01) * inv_det
     m10 = (r01 * s11 - r11 * s01) * inv_det
