@@ -80,20 +80,13 @@ class FilterPyKF(Tracker):
     family = "radar-plots"
     form = "run"
     params = (
-        Param("design_sigma_v_mps2", None, "m/s²", "design acceleration noise σ_v"),
-        Param("sigma_range_m", None, "m", "plot range noise σ_r of the converted covariance"),
-        Param("sigma_bearing_deg", None, "deg", "plot bearing noise σ_θ of the converted covariance"),
+        Param("design_sigma_v_mps2", None, "m/s²", "design acceleration noise σ_v", low=0.0),
+        Param("sigma_range_m", None, "m", "plot range noise σ_r of the converted covariance", low=0.0),
+        Param("sigma_bearing_deg", None, "deg", "plot bearing noise σ_θ of the converted covariance", low=0.0),
     )
 
     def __init__(self, **design):
-        super().__init__(**design)
-        for p in self.params:
-            if self.design[p.name] is None:
-                raise ValueError(f"{p.name} has no value: pass it, or replay a data set whose radar-tws scenario "
-                                 "records it")
-            value = float(self.design[p.name])
-            if not (np.isfinite(value) and value > 0):
-                raise ValueError(f"{p.name} must be a finite number > 0 (got {self.design[p.name]!r})")
+        super().__init__(**design)  # checks every value against its Param's bounds
         self.sigma_v = float(self.design_sigma_v_mps2)
         self.sigma_r = float(self.sigma_range_m)
         self.sigma_b = float(np.deg2rad(self.sigma_bearing_deg))

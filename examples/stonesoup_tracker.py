@@ -106,23 +106,16 @@ class StoneSoupTracker(Tracker):
     family = "radar-plots"
     form = "run"
     params = (
-        Param("design_sigma_v_mps2", None, "m/s²", "σ_v; Stone Soup ConstantVelocity q = σ_v²"),
-        Param("sigma_range_m", None, "m", "plot range noise σ_r"),
-        Param("sigma_bearing_deg", None, "deg", "plot bearing noise σ_θ"),
-        Param("initial_speed_sigma_mps", 50.0, "m/s", "std of the zero-mean velocity prior of a new track"),
-        Param("gate_sigmas", 5.0, "", "Mahalanobis missed distance of the hypothesiser"),
-        Param("delete_after_scans", 3, "scans", "delete a track after this many scans without an update"),
+        Param("design_sigma_v_mps2", None, "m/s²", "σ_v; Stone Soup ConstantVelocity q = σ_v²", low=0.0),
+        Param("sigma_range_m", None, "m", "plot range noise σ_r", low=0.0),
+        Param("sigma_bearing_deg", None, "deg", "plot bearing noise σ_θ", low=0.0),
+        Param("initial_speed_sigma_mps", 50.0, "m/s", "std of the zero-mean velocity prior of a new track", low=0.0),
+        Param("gate_sigmas", 5.0, "", "Mahalanobis missed distance of the hypothesiser", low=0.0),
+        Param("delete_after_scans", 3, "scans", "delete a track after this many scans without an update", low=0.0),
     )
 
     def __init__(self, **design):
-        super().__init__(**design)
-        for p in self.params:
-            if self.design[p.name] is None:
-                raise ValueError(f"{p.name} has no value: pass it, or replay a data set whose radar-tws scenario "
-                                 "records it")
-            value = float(self.design[p.name])
-            if not (np.isfinite(value) and value > 0):
-                raise ValueError(f"{p.name} must be a finite number > 0 (got {self.design[p.name]!r})")
+        super().__init__(**design)  # checks every value against its Param's bounds
         self.sigma_r = float(self.sigma_range_m)
         self.sigma_b = float(np.deg2rad(self.sigma_bearing_deg))
 

@@ -51,12 +51,29 @@ class Param:
         Unit shown by ``replay trackers``.
     doc : str
         One-line meaning.
+    low, high : float, optional
+        Open bounds of a numeric value; the base class refuses a value outside them (or not
+        finite) when the tracker is constructed, so a tracker need not check its own ranges.
     """
 
     name: str
     default: object
     unit: str = ""
     doc: str = ""
+    low: float | None = None
+    high: float | None = None
+
+    def check(self, value) -> None:
+        """Raise ``ValueError`` for a value this parameter does not accept."""
+        if self.low is None and self.high is None:
+            return
+        if value is None:
+            raise ValueError(f"{self.name} has no value: pass it, or replay a data set whose scenario records it")
+        number = float(value)
+        if not (np.isfinite(number) and (self.low is None or number > self.low)
+                and (self.high is None or number < self.high)):
+            bounds = f"({'-inf' if self.low is None else f'{self.low:g}'}, {'inf' if self.high is None else f'{self.high:g}'})"
+            raise ValueError(f"{self.name} must be a finite number in {bounds} (got {value!r})")
 
 
 class Tracker:
@@ -74,6 +91,8 @@ class Tracker:
         if unknown:
             raise TypeError(f"{type(self).__name__} has no design parameter(s) {', '.join(unknown)}")
         self.design = {**defaults, **design}
+        for p in self.params:
+            p.check(self.design[p.name])
         for key, value in self.design.items():
             setattr(self, key, value)
 
