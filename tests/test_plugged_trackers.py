@@ -484,3 +484,16 @@ def test_both_forms_give_identical_metrics_through_replay_eval_and_every_sweep_e
     assert sweeps["serial"] and sweeps["serial"] == sweeps["process"] == sweeps["dask"]
     rmse = {k: v for k, v in sweeps["serial"].items() if k[0] == "rmse_position_m"}
     assert rmse
+
+
+def test_param_bounds_are_checked_by_the_base_class():
+    from pipeline.trackers.interface import Param, Tracker
+
+    class Bounded(Tracker):
+        name, family = "bounded", "radar-plots"
+        params = (Param("gain", 0.5, "", "a gain in (0, 1)", low=0.0, high=1.0),)
+
+    assert Bounded(gain=0.25).gain == 0.25
+    for bad in (0.0, 1.0, float("nan"), None):
+        with pytest.raises(ValueError, match="gain"):
+            Bounded(gain=bad)
