@@ -48,7 +48,7 @@ import numpy as np
 from pipeline.cores.filters.imm import MeasurementStream, ModelFilter, imm_filter, kinematic_model, single_model_filter
 from pipeline.cores.filters.kalman import gaussian_log_likelihood, kf_predict, kf_update
 from pipeline.cores.filters.srif import srif_filter
-from pipeline.stages.colored_noise_imm import parse_matrix
+from pipeline.trackers.colored_noise import parse_matrix
 from recorders.colored_noise import simulate
 from recorders.scenarios import load_scenario
 

@@ -67,6 +67,22 @@ class EvaluationSpace:
     scale: float = 1.0
 
 
+def position_space(design: dict, truth_components, position_components) -> EvaluationSpace:
+    """A space of positions in metres, its cut-off, gate and order from the design values
+    ``ospa_cutoff_m``, ``assignment_gate_m`` and ``ospa_order``."""
+    return EvaluationSpace(truth_components=tuple(truth_components), position_components=tuple(position_components),
+                           angular=False, cutoff=float(design["ospa_cutoff_m"]),
+                           gate=float(design["assignment_gate_m"]), order=float(design["ospa_order"]))
+
+
+def bearing_space(design: dict) -> EvaluationSpace:
+    """The space of one wrapped angle (state component 0), reported in degrees, from the design
+    values ``ospa_cutoff_deg``, ``assignment_gate_deg`` and ``ospa_order``."""
+    return EvaluationSpace(truth_components=(0,), position_components=(0,), angular=True,
+                           cutoff=float(np.deg2rad(design["ospa_cutoff_deg"])),
+                           gate=float(np.deg2rad(design["assignment_gate_deg"])), order=float(design["ospa_order"]),
+                           unit="deg", scale=float(np.rad2deg(1.0)))
+
 def _as_slots(a, extra_dims: int):
     """(R, K, n...) → (R, K, 1, n...) for single-track families; slot families pass through.
     ``extra_dims`` counts the per-track dimensions (1 for a state vector, 0 for flags)."""

@@ -10,7 +10,6 @@ psutil over its whole process tree.
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -63,16 +62,7 @@ def wait_listening(pid: int, timeout: float = 60.0, proc=None) -> set:
     return set()
 
 
-def stop_group(proc) -> None:
-    try:
-        os.killpg(proc.pid, signal.SIGTERM)
-        proc.wait(timeout=10)
-    except (ProcessLookupError, subprocess.TimeoutExpired):
-        try:
-            os.killpg(proc.pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
-        proc.wait(timeout=10)
+stop_group = viewer.stop_process_group
 
 
 # --------------------------------------------------------------------------- Dask

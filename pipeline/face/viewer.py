@@ -58,6 +58,20 @@ def viewer_command(rrd: str | Path | None = None, *, port: int = 0, headless: bo
     return cmd
 
 
+def stop_process_group(proc: subprocess.Popen, timeout_s: float = 10.0) -> None:
+    """Stop a viewer started in its own session: SIGTERM to its process group, SIGKILL if it
+    has not gone within ``timeout_s``."""
+    try:
+        os.killpg(proc.pid, signal.SIGTERM)
+        proc.wait(timeout=timeout_s)
+    except (ProcessLookupError, subprocess.TimeoutExpired):
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait(timeout=timeout_s)
+        except (ProcessLookupError, subprocess.TimeoutExpired):
+            pass
+
+
 def _start(cmd: list[str], **kwargs) -> subprocess.Popen:
     return subprocess.Popen(cmd, **kwargs)
 
@@ -149,14 +163,7 @@ def screenshot(rrd: str | Path, png: str | Path, size: str = "1600x900", timelin
         os.replace(tmp, png)
         return png
     finally:
-        try:
-            os.killpg(proc.pid, signal.SIGTERM)
-            proc.wait(timeout=10)
-        except (ProcessLookupError, subprocess.TimeoutExpired):
-            try:
-                os.killpg(proc.pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
+        stop_process_group(proc)
         log.close()
         if tmp.exists():
             tmp.unlink()

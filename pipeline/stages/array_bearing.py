@@ -17,7 +17,7 @@ from evaluators import array_bearing as array_eval
 from pipeline import vocabulary as vocab
 from pipeline.errors import InputError, require_finite
 from pipeline.stages.base import Stage
-from evaluators.standard import EvaluationSpace
+from evaluators.standard import bearing_space
 from pipeline.trackers.interface import ArraySnapshots
 
 SNAPSHOTS = vocab.CHANNELS["array_snapshots"]
@@ -138,10 +138,7 @@ class ArrayBearingStage(Stage):
                                    flop_table=self.flop_table(result["tracks"], M))
 
     def standard_space(self, design: dict, reference: dict | None = None):
-        return EvaluationSpace(truth_components=(0,), position_components=(0,), angular=True,
-                               cutoff=float(np.deg2rad(design["ospa_cutoff_deg"])),
-                               gate=float(np.deg2rad(design["assignment_gate_deg"])), order=float(design["ospa_order"]),
-                               unit="deg", scale=float(np.rad2deg(1.0)))
+        return bearing_space(design)
 
     def standard_truth(self, reference: dict):
         truth = reference["runs"]["truth"]

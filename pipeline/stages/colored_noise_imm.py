@@ -23,8 +23,8 @@ from evaluators import colored_noise_imm as colored_eval
 from pipeline import vocabulary as vocab
 from pipeline.errors import InputError, require_finite
 from pipeline.stages.base import Stage
-from evaluators.standard import EvaluationSpace
-from pipeline.trackers.colored_noise import MODEL_NAMES, ar1_outputs, parse_matrix  # noqa: F401 (parse_matrix: benchmarks)
+from evaluators.standard import position_space
+from pipeline.trackers.colored_noise import MODEL_NAMES, ar1_outputs
 from pipeline.trackers.interface import ColoredPositions
 
 MEASUREMENTS = vocab.CHANNELS["colored_measurements"]
@@ -111,9 +111,7 @@ class ColoredNoiseImmStage(Stage):
         state = None if reference is None else reference["runs"]["truth_state"]
         n = 3 if state is None else state.shape[-1]
         # state [p, v, a] per axis: the positions are every third component
-        return EvaluationSpace(truth_components=tuple(range(n)), position_components=tuple(range(0, n, 3)),
-                               angular=False, cutoff=float(design["ospa_cutoff_m"]),
-                               gate=float(design["assignment_gate_m"]), order=float(design["ospa_order"]))
+        return position_space(design, truth_components=range(n), position_components=range(0, n, 3))
 
     def standard_truth(self, reference: dict):
         return reference["runs"]["truth_state"]

@@ -32,7 +32,7 @@ from pipeline.cores.localisation.tdoa_fdoa_crlb import truth_bounds
 from pipeline.cores.localisation.tdoa_fdoa_model import MEASUREMENT_KINDS, equivalent_sigmas, underdetermined_reason
 from pipeline.errors import InputError, require_finite
 from pipeline.stages.base import Stage
-from evaluators.standard import EvaluationSpace
+from evaluators.standard import position_space
 from pipeline.trackers.interface import TdoaFdoa
 
 MEASUREMENTS = vocab.CHANNELS["emitter_measurements"]
@@ -193,9 +193,7 @@ class EmitterLocalisationStage(Stage):
     evaluation_defaults = {"ospa_cutoff_m": 5000.0, "ospa_order": 2.0, "assignment_gate_m": 2000.0}
 
     def standard_space(self, design: dict, reference: dict | None = None):
-        return EvaluationSpace(truth_components=(0, 1), position_components=(0, 1), angular=False,
-                               cutoff=float(design["ospa_cutoff_m"]), gate=float(design["assignment_gate_m"]),
-                               order=float(design["ospa_order"]))
+        return position_space(design, truth_components=(0, 1), position_components=(0, 1))
 
     def standard_truth(self, reference: dict):
         truth = reference["runs"].get("truth_state")

@@ -19,7 +19,7 @@ from pipeline.trackers.interface import RadarPlots
 from pipeline.errors import InputError, require_finite
 from pipeline.stages.base import Stage
 from pipeline.trackers.radar_tws import radar_pcrb
-from evaluators.standard import EvaluationSpace
+from evaluators.standard import position_space
 
 PLOTS = vocab.CHANNELS["radar_plots"]
 TRUTH = vocab.CHANNELS["radar_truth"]
@@ -92,9 +92,7 @@ class RadarTwsStage(Stage):
                                    None if pcrb is None else pcrb[:, 0, 0] + pcrb[:, 1, 1])
 
     def standard_space(self, design: dict, reference: dict | None = None):
-        return EvaluationSpace(truth_components=(0, 1, 2, 3), position_components=(0, 1), angular=False,
-                               cutoff=float(design["ospa_cutoff_m"]), gate=float(design["assignment_gate_m"]),
-                               order=float(design["ospa_order"]))
+        return position_space(design, truth_components=(0, 1, 2, 3), position_components=(0, 1))
 
     def standard_truth(self, reference: dict):
         return reference["runs"].get("truth_state")
