@@ -44,11 +44,7 @@ class RadarTwsStage(Stage):
         ch = dataset.channel(PLOTS)
         rng, counts = ch.ragged("range_m")
         brg, _ = ch.ragged("bearing_rad")
-        for name, arr in (("range_m", rng), ("bearing_rad", brg)):
-            valid = np.arange(arr.shape[2])[None, None, :] < counts[..., None]
-            require_finite(f"{PLOTS} {name}", arr[valid], dataset.path)
-        if np.any(rng[np.isfinite(rng)] < 0):
-            raise InputError(f"{PLOTS} holds negative ranges", dataset.path)
+        # finite values and ranges ≥ 0 are the contract's checks at read time (pipeline.vocabulary.VALUES)
         if ch.n_scans < 3:
             raise InputError(f"{PLOTS} has {ch.n_scans} scan(s); a track needs at least 3", dataset.path)
         return rng, brg, counts, ch.times()
