@@ -23,12 +23,12 @@ NORMAL_95 = 1.959963984540054  # the two-sided 95 % quantile of the standard nor
 
 def chi2_interval(dof, prob: float = 0.95):
     """Two-sided ``prob`` interval of a χ² variable with ``dof`` degrees of freedom (array-like)."""
-    from scipy.stats import chi2
+    # chdtri(k, q) is the χ²_k quantile of upper tail q: the function scipy.stats.chi2.ppf
+    # evaluates, without the 0.5 s import of scipy.stats that every replay would pay
+    from scipy.special import chdtri
 
-    dof = np.asarray(dof, float)
-    lo = chi2.ppf((1 - prob) / 2, np.where(dof > 0, dof, np.nan))
-    hi = chi2.ppf((1 + prob) / 2, np.where(dof > 0, dof, np.nan))
-    return lo, hi
+    dof = np.where(np.asarray(dof, float) > 0, dof, np.nan)
+    return chdtri(dof, (1 + prob) / 2), chdtri(dof, (1 - prob) / 2)
 
 
 def average_bounds(dim: int, count, prob: float = 0.95):
@@ -59,13 +59,19 @@ def whitened(error, covariance):
     """
     e = np.asarray(error, float)
     P = np.asarray(covariance, float)
-    out = np.full(e.shape, np.nan)
     ok = np.isfinite(e).all(axis=-1) & np.isfinite(P).all(axis=(-2, -1))
+    if ok.all():
+        # the common case: no copies of the present entries
+        try:
+            return forward_substitution(np.linalg.cholesky(P), e)
+        except np.linalg.LinAlgError:
+            pass
+    out = np.full(e.shape, np.nan)
     if not ok.any():
         return out
     Pk, ek = P[ok], e[ok]
     try:
-        out[ok] = np.linalg.solve(np.linalg.cholesky(Pk), ek[..., None])[..., 0]
+        out[ok] = forward_substitution(np.linalg.cholesky(Pk), ek)
     except np.linalg.LinAlgError:
         # one by one, leaving the indefinite ones NaN
         w = np.full(ek.shape, np.nan)
@@ -76,6 +82,22 @@ def whitened(error, covariance):
                 continue
         out[ok] = w
     return out
+
+
+def forward_substitution(lower, b):
+    """``x`` with ``lower @ x = b`` for a batch of lower-triangular ``(..., n, n)`` factors.
+
+    The triangular solve row by row, each row one vectorised operation over the whole batch:
+    for the small n of tracking states this is n array operations, where ``np.linalg.solve``
+    would LU-factorise every already-triangular matrix again (about 15× slower at n = 4 on
+    32,000 matrices) and ``scipy.linalg.solve_triangular`` loops over the batch in Python.
+    """
+    L = np.asarray(lower, float)
+    b = np.asarray(b, float)
+    x = np.empty(np.broadcast_shapes(L.shape[:-1], b.shape))
+    for i in range(L.shape[-1]):
+        x[..., i] = (b[..., i] - np.einsum("...j,...j->...", L[..., i, :i], x[..., :i])) / L[..., i, i]
+    return x
 
 
 def normalised_squared(error, covariance):
@@ -129,15 +151,20 @@ def innovation_whiteness(innovation, covariance, max_lag: int = 5, whitened_inno
     K = nu.shape[1]
     lags = np.arange(1, max_lag + 1)
     rho, bound = np.full(max_lag, np.nan), np.full(max_lag, np.nan)
+    # missing innovations as zeros with a presence mask: each lag's sums are then plain products
+    # over whole arrays (no copies of the present pairs)
+    present = np.isfinite(w).all(axis=-1)
+    w0 = np.where(present[..., None], w, 0.0)
+    power = np.sum(w0 * w0, axis=-1)                               # ‖w_k‖², 0 where missing
     for i, j in enumerate(lags):
         if j >= K:
             break
-        a, b = w[:, :-j], w[:, j:]
-        both = np.isfinite(a).all(axis=-1) & np.isfinite(b).all(axis=-1)
-        if not both.any():
+        both = present[:, :-j] & present[:, j:]
+        count = int(np.count_nonzero(both))
+        if not count:
             continue
-        num = np.sum(a[both] * b[both])
-        den = np.sqrt(np.sum(a[both] ** 2) * np.sum(b[both] ** 2))
+        num = np.sum(w0[:, :-j] * w0[:, j:])                     # a missing partner contributes 0
+        den = np.sqrt(np.sum(power[:, :-j], where=both) * np.sum(power[:, j:], where=both))
         rho[i] = num / den if den > 0 else np.nan
-        bound[i] = NORMAL_95 / np.sqrt(both.sum() * nu.shape[-1])
+        bound[i] = NORMAL_95 / np.sqrt(count * nu.shape[-1])
     return {"lags": lags, "rho": rho, "bound": bound, "outside": int(np.sum(np.abs(rho) > bound))}

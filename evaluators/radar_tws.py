@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 import polars as pl
 
-from evaluators.tracking_metrics import (long_form, nanmean, npe_from_squared, rmse_overall, rmse_per_scan,
+from evaluators.tracking_metrics import (long_form, nanmean, npe_from_squared, rmse_overall, rmse_per_scan, root,
                                         squared_error)
 from pipeline.vocabulary import CLAMPED as FLAG_CLAMPED, COASTED as FLAG_COASTED, INITIALISING as FLAG_INITIALISING, NO_TRACK as FLAG_NO_TRACK
 
@@ -58,7 +58,7 @@ def evaluate(times, tracks: dict, measured_xy, truth_state=None, cross_range_std
         Long form: ``tracker, metric, scope, value``.
     """
     scans = np.arange(len(times))
-    per_scan_parts, summary_parts = [], []
+    per_scan_parts, rows = [], []
     if cross_range_std is not None and nominal_cross_range_m is not None:
         above_scan = np.nanmean(cross_range_std, axis=0) > nominal_cross_range_m
     else:
@@ -83,17 +83,17 @@ def evaluate(times, tracks: dict, measured_xy, truth_state=None, cross_range_std
             innov = np.where(ok[..., None], out["innovation"], np.nan)
             cols["rms_innovation_m"] = _rms0(innov)
             row["rms_innovation_m"] = rmse_overall(innov, 0.0) if ok.any() else np.nan
-        rows = [row]
+        rows.append(row)
         if truth_state is not None:
             # squared errors once per tracker; every RMSE below is a masked mean of these
             se_pos = squared_error(est[..., :2], truth_state[..., :2])
             se_vel = squared_error(est[..., 2:], truth_state[..., 2:])
             measured = out.get("measurement", measured_xy)
             npe = npe_from_squared(se_pos, squared_error(measured, truth_state[..., :2]))
-            cols["rmse_position_m"] = _root(nanmean(se_pos, axis=0))
-            cols["rmse_velocity_mps"] = _root(nanmean(se_vel, axis=0))
+            cols["rmse_position_m"] = root(nanmean(se_pos, axis=0))
+            cols["rmse_velocity_mps"] = root(nanmean(se_vel, axis=0))
             cols["npe"] = npe
-            row.update(rmse_position_m=float(_root(nanmean(se_pos))), rmse_velocity_mps=float(_root(nanmean(se_vel))),
+            row.update(rmse_position_m=float(root(nanmean(se_pos))), rmse_velocity_mps=float(root(nanmean(se_vel))),
                        npe_max=float(np.nanmax(npe)), npe_mean=float(nanmean(npe)),
                        scans_npe_ge_1=float(np.sum(npe >= 1.0)))
             if pcrb_position_var is not None:
@@ -105,19 +105,15 @@ def evaluate(times, tracks: dict, measured_xy, truth_state=None, cross_range_std
                 if not (sel & ok.any(axis=0)).any():
                     continue
                 rows.append({"tracker": name, "scope": scope,
-                             "rmse_position_m": float(_root(nanmean(se_pos[:, sel]))),
-                             "rmse_velocity_mps": float(_root(nanmean(se_vel[:, sel]))),
+                             "rmse_position_m": float(root(nanmean(se_pos[:, sel]))),
+                             "rmse_velocity_mps": float(root(nanmean(se_vel[:, sel]))),
                              "npe_mean": float(nanmean(npe[sel])), "scans": float(sel.sum())})
         per_scan_parts.append(pl.DataFrame(cols))
-        summary_parts.append(long_form(pl.DataFrame(rows, infer_schema_length=None), ["tracker", "scope"]).drop_nulls("value"))
     per_scan = pl.concat(per_scan_parts, how="diagonal")
-    summary = pl.concat(summary_parts).select("tracker", "metric", "scope", "value")
-    return per_scan, summary
-
-
-def _root(mean_square):
-    with np.errstate(invalid="ignore"):
-        return np.sqrt(mean_square)
+    # one table for every tracker and scope: the metrics a row lacks are null and dropped, and
+    # the metric order is that of first appearance, as the per-tracker tables had it
+    summary = long_form(pl.DataFrame(rows, infer_schema_length=None), ["tracker", "scope"]).drop_nulls("value")
+    return per_scan, summary.select("tracker", "metric", "scope", "value")
 
 
 def _nanmean0(a):

@@ -185,9 +185,12 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
         match, _ = scan_matches(positions, true_positions, space.gate, space.angular)   # (R, K, T)
         if "covariance" in out:
             P = _as_slots(out["covariance"], 2)[..., comps, :][..., :, comps]         # (R, K, S, c, c)
-            sel = np.maximum(match, 0)
-            est_m = np.take_along_axis(est, sel[..., None], axis=2)
-            P_m = np.take_along_axis(P, sel[..., None, None], axis=2)
+            if S == 1:
+                est_m, P_m = est, P   # one slot: every match is slot 0, and it broadcasts over targets
+            else:
+                sel = np.maximum(match, 0)
+                est_m = np.take_along_axis(est, sel[..., None], axis=2)
+                P_m = np.take_along_axis(P, sel[..., None, None], axis=2)
             err = est_m - tr
             if space.angular:
                 err[..., pos] = (err[..., pos] + np.pi) % (2 * np.pi) - np.pi

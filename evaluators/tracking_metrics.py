@@ -21,6 +21,12 @@ def nanmean(a, axis=None):
         return np.nanmean(a, axis=axis)
 
 
+def root(mean_square):
+    """``√mean_square``, NaN (no estimate) passing through without a warning."""
+    with np.errstate(invalid="ignore"):
+        return np.sqrt(mean_square)
+
+
 def squared_error(estimate, truth):
     """``‖estimate − truth‖²`` over the last axis, ``(runs, scans)``."""
     d = np.asarray(estimate, float) - np.asarray(truth, float)
