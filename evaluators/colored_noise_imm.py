@@ -30,6 +30,7 @@ from evaluators.tracking_metrics import long_form, nanmean, rms, root, squared_e
 AR_TRACKER = "ar_estimator"
 KINEMATICS = (("position", "rmse_position_m", 0), ("velocity", "rmse_velocity_mps", 1),
               ("acceleration", "rmse_acceleration_mps2", 2))
+UNITS = {"position": "m", "velocity": "mps"}
 
 
 def settled_scans(truth_alpha: np.ndarray, warm: np.ndarray, beta: float) -> np.ndarray:
@@ -54,7 +55,7 @@ def _component(state: np.ndarray, c: int) -> np.ndarray:
 
 
 def evaluate(times, tracks: dict, truth_state, truth_alpha, measurement_variance: float, beta: float,
-             model_names: list[str]):
+             model_names: list[str], pcrb_position_var=None, pcrb_velocity_var=None):
     """Per-scan and summary tables.
 
     Parameters
@@ -72,6 +73,11 @@ def evaluate(times, tracks: dict, truth_state, truth_alpha, measurement_variance
         The estimator's forgetting factor (defines the settled scans).
     model_names : list of str
         IMM model names (columns ``prob_<name>``).
+    pcrb_position_var, pcrb_velocity_var : ndarray (scans,), optional
+        Trace of the position (velocity) block of the posterior Cramér–Rao bound per scan
+        (Tichavský, Muravchik & Nehorai 1998; ``docs/evaluation.md``): reported per scan as
+        ``pcrb_position_m`` / ``pcrb_velocity_mps`` and, per scope, as the bound's RMS over the
+        scope's scans and the efficiency bound RMS / RMSE (≤ 1 for an unbiased tracker).
 
     Returns
     -------
@@ -97,6 +103,11 @@ def evaluate(times, tracks: dict, truth_state, truth_alpha, measurement_variance
             metric: squared_error(_component(est, c), _component(truth_state, c)) for _, metric, c in KINEMATICS}
         for metric, se in squared.items():
             cols[metric] = root(nanmean(se, axis=0))
+        bounds = {} if truth_state is None else {
+            kind: var for kind, var in (("position", pcrb_position_var), ("velocity", pcrb_velocity_var))
+            if var is not None}
+        for kind, var in bounds.items():
+            cols[f"pcrb_{kind}_{UNITS[kind]}"] = np.sqrt(var)
         mu = out.get("model_probabilities")
         is_imm = mu is not None and mu.shape[-1] == len(model_names) and len(model_names) > 1
         if is_imm:
@@ -108,6 +119,10 @@ def evaluate(times, tracks: dict, truth_state, truth_alpha, measurement_variance
             row = {"tracker": name, "scope": scope, "scans": float(sel.sum())}
             for metric, se in squared.items():
                 row[metric] = float(root(nanmean(se[:, sel])))
+            for kind, var in bounds.items():
+                bound = float(np.sqrt(np.mean(var[sel])))
+                row[f"pcrb_{kind}_{UNITS[kind]}"] = bound
+                row[f"{kind}_efficiency"] = bound / row[f"rmse_{kind}_{UNITS[kind]}"]
             if is_imm:
                 for j, m in enumerate(model_names):
                     row[f"prob_{m}"] = float(nanmean(mu[:, sel, j]))

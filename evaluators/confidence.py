@@ -109,11 +109,19 @@ def jackknife(statistic, n_runs: int, groups: int = JACKKNIFE_GROUPS, prob: floa
     left_out = np.stack([np.asarray(statistic(np.setdiff1d(everything, p)), float) for p in parts])
     G = len(parts)
     with np.errstate(invalid="ignore"):
-        centre = nanmean(left_out, axis=0)
-        se = np.sqrt((G - 1) / G * np.nansum((left_out - centre) ** 2, axis=0))
+        se = np.sqrt((G - 1) / G * _sum_of_squared_deviations(left_out))
     se = np.where(np.isfinite(value), se, np.nan)
     half = t_quantile(G - 1, prob) * se
     return value, se, value - half, value + half
+
+
+def _sum_of_squared_deviations(estimates):
+    """``Σ_g (θ_g − θ̄)²`` over axis 0, NaN left out. Deviations are taken from the first group
+    first, so a metric that no run changes (a bound, a design value) has exactly zero spread
+    rather than the rounding error of its mean."""
+    shifted = estimates - estimates[:1]
+    centre = nanmean(shifted, axis=0)
+    return np.nansum((shifted - centre) ** 2, axis=0)
 
 
 class _RunSubset(Mapping):
@@ -213,8 +221,7 @@ def summary_intervals(score, runs_data: dict, n_runs: int, groups: int = 10, pro
     G = len(parts)
     value = summary["value"].to_numpy().astype(float)
     with np.errstate(invalid="ignore"):
-        centre = nanmean(estimates, axis=0)
-        spread = np.nansum((estimates - centre) ** 2, axis=0)
+        spread = _sum_of_squared_deviations(estimates)
         se = np.sqrt(spread / (G * (G - 1))) if alone else np.sqrt((G - 1) / G * spread)
     ok = np.isfinite(value) & np.all(np.isfinite(estimates), axis=0)
     half = t_quantile(G - 1, prob) * se

@@ -24,7 +24,7 @@ from pipeline import vocabulary as vocab
 from pipeline.errors import InputError, require_finite
 from pipeline.stages.base import Stage
 from evaluators.standard import position_space
-from pipeline.trackers.colored_noise import MODEL_NAMES, ar1_outputs
+from pipeline.trackers.colored_noise import MODEL_NAMES, ar1_outputs, colored_noise_pcrb
 from pipeline.trackers.interface import ColoredPositions
 
 MEASUREMENTS = vocab.CHANNELS["colored_measurements"]
@@ -98,14 +98,25 @@ class ColoredNoiseImmStage(Stage):
     evaluation_defaults = {"ospa_cutoff_m": 100.0, "ospa_order": 2.0, "assignment_gate_m": 50.0}
 
     def reference(self, dataset, design: dict) -> dict:
-        _, _, state, alpha = self.decode_inputs(dataset)
-        return {"runs": {"truth_state": state, "truth_alpha": alpha}, "fixed": {}}
+        _, times, state, alpha = self.decode_inputs(dataset)
+        fixed = {}
+        recorded = dataset.scenario.get("params", {})
+        q = recorded.get("process_noise_variance")
+        if state is not None and alpha is not None and q is not None and float(q) > 0 \
+                and "measurement_variance_m2" in recorded:
+            # the bound needs the truth's own noise, which only a simulated file records; without
+            # process noise the truth is deterministic and, from a true start, the bound is zero
+            bound = colored_noise_pcrb(alpha, times, float(q), float(recorded["measurement_variance_m2"]))
+            axes = state.shape[-1] // 3
+            fixed["pcrb_position_var"] = axes * bound[:, 0, 0]
+            fixed["pcrb_velocity_var"] = axes * bound[:, 1, 1]
+        return {"runs": {"truth_state": state, "truth_alpha": alpha}, "fixed": fixed}
 
     def score(self, reference: dict, result: dict, design: dict):
-        runs = reference["runs"]
+        runs, fixed = reference["runs"], reference.get("fixed", {})
         return colored_eval.evaluate(result["times"], result["tracks"], runs["truth_state"], runs["truth_alpha"],
                                      float(design["measurement_variance_m2"]), float(design["ar_forgetting_factor"]),
-                                     list(MODEL_NAMES))
+                                     list(MODEL_NAMES), fixed.get("pcrb_position_var"), fixed.get("pcrb_velocity_var"))
 
     def standard_space(self, design: dict, reference: dict | None = None):
         state = None if reference is None else reference["runs"]["truth_state"]

@@ -265,3 +265,57 @@ class SquareRootImm(_ThreeModelImm):
 
 
 TRACKERS = (KalmanFilter, KalmanFilterDecorrelated, StandardImm, DecorrelatedImm, SquareRootImm)
+
+
+# --------------------------------------------------------------------------- the bound
+
+
+def colored_noise_pcrb(truth_alpha, times, process_noise_variance: float, measurement_variance: float) -> np.ndarray:
+    """Posterior Cramér–Rao bound of position and velocity per axis and scan for a target with
+    white-acceleration motion seen through AR(1) coloured measurement noise (``docs/evaluation.md``).
+
+    The truth's own model (Kwon 1997, eqs. 2.1–2.11): per axis ``x = [p, v]`` with
+    ``x_k = Φ x_{k−1} + Ψ (u_k + w_k)``, ``Ψ = [T²/2, T]``, ``w ~ N(0, q)``, and
+    ``z_k = p_k + ν_k`` with ``ν_k = α_k ν_{k−1} + η_k``, ``var η_k = (1 − α_k²) R``,
+    ``ν_0 ~ N(0, R)``. Appending ``ν`` to the state makes the model linear-Gaussian with an exact
+    measurement, whose bound is the Kalman covariance of the augmented state
+    (:func:`pipeline.cores.filters.pcrb.linear_gaussian_bound`). The known input ``u`` does not
+    change the information. The start is the true state (as the papers' filters are given it),
+    so the bound is zero at scan 0 and holds for any estimator that knows no more than that
+    start and the measurements.
+
+    Parameters
+    ----------
+    truth_alpha : ndarray (runs, scans[, axes])
+        α_k of the truth; runs with different histories get their own bound, then averaged.
+    times : ndarray (scans,)
+    process_noise_variance : float
+        q, the truth's white acceleration variance (m²/s⁴).
+    measurement_variance : float
+        R (m²).
+
+    Returns
+    -------
+    ndarray (scans, 2, 2)
+        Bound covariance of ``[p, v]`` of one axis (every axis has the same), averaged over runs.
+    """
+    from pipeline.cores.filters.pcrb import linear_gaussian_bound
+
+    alpha = np.asarray(truth_alpha, float)
+    alpha = alpha[..., 0] if alpha.ndim == 3 else alpha          # (runs, scans): the same α on every axis
+    histories = np.unique(alpha, axis=0)                         # usually one: every run shares α_k
+    n_hist, K = histories.shape
+    dt = np.diff(np.asarray(times, float), prepend=np.nan)
+    F = np.zeros((K, n_hist, 3, 3))
+    Q = np.zeros((K, n_hist, 3, 3))
+    F[:, :, 0, 0] = F[:, :, 1, 1] = 1.0
+    F[:, :, 0, 1] = dt[:, None]
+    F[:, :, 2, 2] = histories.T
+    psi = np.stack([dt**2 / 2, dt], axis=-1)                     # (K, 2)
+    Q[:, :, :2, :2] = (process_noise_variance * psi[:, :, None] * psi[:, None, :])[:, None]
+    Q[:, :, 2, 2] = ((1.0 - histories**2) * measurement_variance).T
+    P0 = np.zeros((n_hist, 3, 3))
+    P0[:, 2, 2] = measurement_variance                          # the start is the truth; ν₀ ~ N(0, R)
+    bound = linear_gaussian_bound(P0, F, Q, np.array([[1.0, 0.0, 1.0]]), np.zeros((1, 1)))
+    weight = np.array([np.sum(np.all(alpha == h, axis=1)) for h in histories], float)
+    return np.einsum("h,khij->kij", weight / weight.sum(), bound[:, :, :2, :2])

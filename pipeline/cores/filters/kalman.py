@@ -46,10 +46,15 @@ def apply_gain(x: np.ndarray, P: np.ndarray, K: np.ndarray, innovation: np.ndarr
     x_post = x + np.einsum("...ij,...j->...i", K, innovation)
     if R is None:
         return x_post, P
-    n = P.shape[-1]
-    A = np.eye(n) - K @ H
+    return x_post, joseph_covariance(P, K, H, R)
+
+
+def joseph_covariance(P: np.ndarray, K: np.ndarray, H: np.ndarray, R: np.ndarray):
+    """Posterior covariance ``(I − KH) P (I − KH)ᵀ + K R Kᵀ`` of an update with gain ``K``
+    (symmetric positive semi-definite for any gain, and for a singular or zero ``R``)."""
+    A = np.eye(P.shape[-1]) - K @ H
     P_post = A @ P @ np.swapaxes(A, -1, -2) + K @ R @ np.swapaxes(K, -1, -2)
-    return x_post, 0.5 * (P_post + np.swapaxes(P_post, -1, -2))
+    return 0.5 * (P_post + np.swapaxes(P_post, -1, -2))
 
 
 def gaussian_log_likelihood(innovation: np.ndarray, S: np.ndarray, return_parts: bool = False):

@@ -11,6 +11,10 @@ trajectories (here: the Monte Carlo runs). In covariance form, with ``A = Q + F 
 ``M = E[Hᵀ R⁻¹ H]``, the bound is ``P_{k+1} = (A⁻¹ + M)⁻¹ = (I + A M)⁻¹ A``: one linear solve per
 scan, no inverse, and ``Q = 0`` (deterministic motion) is allowed. For a linear-Gaussian model the
 bound equals the Kalman filter's covariance. See ``docs/evaluation.md``.
+
+:func:`linear_gaussian_bound` is that covariance computed in gain form, for models whose
+measurements carry no noise of their own (``R`` singular or zero, e.g. a state augmented with a
+coloured measurement noise), where the information form above has no ``R⁻¹``.
 """
 
 from __future__ import annotations
@@ -55,6 +59,42 @@ def pcrb_recursion(P0, F, Q, information) -> np.ndarray:
             out[k:] = np.nan  # no bound from here on rather than a wrong one
             break
         out[k] = 0.5 * (P + P.T)  # symmetric to rounding
+    return out
+
+
+def linear_gaussian_bound(P0, F, Q, H, R) -> np.ndarray:
+    """PCRB of a linear-Gaussian model: the Kalman filter's covariance, batched.
+
+    For ``x_k = F_k x_{k−1} + w_k`` (w ~ N(0, Q_k)) and ``z_k = H x_k + v_k`` (v ~ N(0, R)) the
+    posterior is Gaussian and its covariance, the Riccati recursion, attains the bound
+    (Tichavský et al. 1998, §IV). The gain form needs ``S = H P Hᵀ + R`` to be positive
+    definite, not ``R``: a measurement that is exact given an augmented state is allowed.
+
+    Parameters
+    ----------
+    P0 : ndarray (..., n, n)
+        Prior covariance at scan 0, before its measurement.
+    F, Q : ndarray (K, ..., n, n)
+        Transition into scan k and its process noise (entry 0 unused).
+    H : ndarray (m, n)
+    R : ndarray (m, m)
+
+    Returns
+    -------
+    ndarray (K, ..., n, n)
+        The bound after each scan's measurement.
+    """
+    from pipeline.cores.filters.kalman import joseph_covariance, kalman_gain
+
+    F, Q = np.asarray(F, float), np.asarray(Q, float)
+    H, R = np.asarray(H, float), np.asarray(R, float)
+    P = np.asarray(P0, float)
+    out = np.empty((F.shape[0],) + P.shape)
+    for k in range(F.shape[0]):
+        if k:
+            P = F[k] @ out[k - 1] @ np.swapaxes(F[k], -1, -2) + Q[k]
+        K, _ = kalman_gain(P, H, R)
+        out[k] = joseph_covariance(P, K, H, R)
     return out
 
 
