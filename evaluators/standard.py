@@ -184,7 +184,9 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
         # ---- NEES on matched pairs
         match, _ = scan_matches(positions, true_positions, space.gate, space.angular)   # (R, K, T)
         if "covariance" in out:
-            P = _as_slots(out["covariance"], 2)[..., comps, :][..., :, comps]         # (R, K, S, c, c)
+            P = _as_slots(out["covariance"], 2)                                     # (R, K, S, c, c)
+            if comps != list(range(P.shape[-1])):
+                P = P[..., comps, :][..., :, comps]
             if S == 1:
                 est_m, P_m = est, P   # one slot: every match is slot 0, and it broadcasts over targets
             else:

@@ -15,7 +15,6 @@ import time
 from pathlib import Path
 
 import click
-import polars as pl
 
 from pipeline import __version__
 from pipeline.errors import InputError
@@ -271,6 +270,8 @@ TABLE_WIDTH = 100  # printed tables are split (or wrapped) to fit this many colu
 def _declared_scopes(summary: pl.DataFrame) -> list[str]:
     """The scopes the stages in ``summary`` always report, so that an empty one is named rather
     than silently missing (a stage leaves out a scope no scan falls in)."""
+    import polars as pl
+
     from evaluators.radar_tws import SCOPES as RADAR_SCOPES
 
     stages = summary["stage"].unique(maintain_order=True).to_list() if "stage" in summary.columns else []
@@ -327,6 +328,8 @@ def _print_summary(summary: pl.DataFrame, title: str) -> None:
     """One table per scope (and one for the standard measures): metrics down, trackers across;
     a table wider than TABLE_WIDTH is split into several with the metric column repeated, and
     a scope without values says so."""
+    import polars as pl
+
     for c in ("ci_low", "ci_high"):
         if c not in summary.columns:
             summary = summary.with_columns(pl.lit(None, pl.Float64).alias(c))
@@ -506,6 +509,8 @@ def _export_tables(res, out_dir: Path) -> list[Path]:
 
 def _report_plot(res, out_dir: Path) -> list[Path]:
     """The generic per-scan figure plus every applicable stage's own figures."""
+    import polars as pl
+
     from evaluators.report_plots import plot_consistency, plot_metrics_vs
     from pipeline.stages import STAGES
 
@@ -828,6 +833,8 @@ def eval_cmd(data, outputs, as_json, per_scan, export_dir, recover, tracker_spec
       replay eval radar.mcap --tracker my_trackers.py:ConstantVelocity
       replay eval radar.mcap --export tables/
     """
+    import polars as pl
+
     from pipeline.replay import evaluate_files, replay
 
     if tracker_specs and outputs is not None:
@@ -895,6 +902,8 @@ def compare_cmd(a_path, b_path, data_path, pairs, as_json, out_dir, recover):
       replay data/radar_tws_demo.mcap --out after/tracks.mcap --set nominal_cross_range_m=120
       replay compare after/tracks.mcap before/tracks.mcap
     """
+    import polars as pl
+
     from evaluators.compare import write_comparison_figure
     from pipeline.contract import atomic_output
     from pipeline.replay import compare_files

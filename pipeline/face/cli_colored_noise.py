@@ -10,7 +10,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
-import polars as pl
 
 from pipeline.errors import InputError
 
@@ -29,6 +28,8 @@ def colored_report_cmd(data, outputs, out_dir):
       replay colored-report imm.mcap -o figs/   # rmse.png, model_probabilities.png, ar_alpha.png, ar_noise_variance.png
       replay simulate colored-ar --runs 250 -o ar.mcap && replay colored-report ar.mcap -o ar-figs/
     """
+    import polars as pl
+
     from evaluators.colored_noise_imm import write_figures
     from pipeline import vocabulary as vocab
     from pipeline.contract import atomic_output

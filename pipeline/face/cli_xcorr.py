@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import click
-import numpy as np
 
 from pipeline.errors import InputError
 
@@ -45,11 +45,11 @@ def fit_dataset(path, reference: str = "auto", gate_deg: float | None = None, th
     ds = read_dataset(path)
     peaks = read_peaks(ds)
     params = ds.scenario.get("params", {})
-    gate = float(np.deg2rad(gate_deg if gate_deg is not None else recorded_float(ds, "gate_deg", 10.0)))
+    gate = math.radians(gate_deg if gate_deg is not None else recorded_float(ds, "gate_deg", 10.0))
     if not gate > 0:
         raise InputError("--gate-deg must be > 0")
     ref, name = reference_bearings(ds, reference)
-    field = tuple(np.deg2rad(field_deg(ds)))
+    field = tuple(math.radians(float(v)) for v in field_deg(ds))
     fit = fit_peak_model(peaks["bearing"], peaks["amplitude"], peaks["run"], peaks["scan"], ref, gate, threshold,
                          field, name)
     pair = str(params.get("pair", "strong-weak")).split("-")
