@@ -59,9 +59,24 @@ def whitened(error, covariance):
     """
     e = np.asarray(error, float)
     P = np.asarray(covariance, float)
+    lead = np.broadcast_shapes(e.shape[:-1], P.shape[:-2])
+    n = e.shape[-1]
+    e_flat = np.broadcast_to(e, lead + (n,)).reshape(-1, n)
+    P_flat = np.broadcast_to(P, lead + (n, n)).reshape(-1, n, n)
+    out = np.empty(e_flat.shape)
+    # in blocks: the factors and temporaries stay a few MB at any number of runs
+    for start in range(0, len(e_flat), WHITEN_BLOCK):
+        part = slice(start, start + WHITEN_BLOCK)
+        out[part] = _whitened_block(e_flat[part], P_flat[part])
+    return out.reshape(lead + (n,))
+
+
+WHITEN_BLOCK = 32768
+
+
+def _whitened_block(e, P):
     ok = np.isfinite(e).all(axis=-1) & np.isfinite(P).all(axis=(-2, -1))
     if ok.all():
-        # the common case: no copies of the present entries
         try:
             return forward_substitution(np.linalg.cholesky(P), e)
         except np.linalg.LinAlgError:
@@ -73,13 +88,19 @@ def whitened(error, covariance):
     try:
         out[ok] = forward_substitution(np.linalg.cholesky(Pk), ek)
     except np.linalg.LinAlgError:
-        # one by one, leaving the indefinite ones NaN
+        # some are not positive definite: factorise only those whose eigenvalues are all
+        # positive, leaving the others NaN
+        definite = np.linalg.eigvalsh(Pk)[:, 0] > 0
         w = np.full(ek.shape, np.nan)
-        for i in range(len(ek)):
+        for idx in np.array_split(np.flatnonzero(definite), max(1, int(definite.sum()) // 4096)):
             try:
-                w[i] = np.linalg.solve(np.linalg.cholesky(Pk[i]), ek[i])
+                w[idx] = forward_substitution(np.linalg.cholesky(Pk[idx]), ek[idx])
             except np.linalg.LinAlgError:
-                continue
+                for i in idx:  # rounding at the edge of definiteness: one by one
+                    try:
+                        w[i] = forward_substitution(np.linalg.cholesky(Pk[i]), ek[i])
+                    except np.linalg.LinAlgError:
+                        continue
         out[ok] = w
     return out
 

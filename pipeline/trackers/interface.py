@@ -353,38 +353,51 @@ def validate_outputs(outputs: dict, n_runs: int, n_scans: int, name: str, where:
     return out
 
 
+COVARIANCE_CHECK_BLOCK = 32768  # matrices per block: a few MB of temporaries, whatever the run count
+
+
 def _check_covariance(cov, state, name, where) -> None:
+    """Finite, symmetric and positive (semi-)definite wherever the state is finite; checked in
+    blocks of :data:`COVARIANCE_CHECK_BLOCK` matrices so that the temporaries stay small and in
+    cache at any number of runs."""
     n = state.shape[-1]
     if cov.shape != state.shape + (n,):
         raise TrackerError(f"tracker {name!r}: covariance has shape {cov.shape}, expected {state.shape + (n,)}", where)
-    live = np.isfinite(state).all(axis=-1)
-    if not live.any():
-        return
-    c = cov[live]
-    if not np.isfinite(c).all():
-        bad = np.zeros(live.shape, bool)
-        bad[live] = ~np.isfinite(c).all(axis=(-2, -1))
-        raise TrackerError(f"tracker {name!r}: {_first(bad)}: covariance not finite where the state is", where)
-    scale = np.maximum(np.abs(np.diagonal(c, axis1=-2, axis2=-1)).max(axis=-1), np.finfo(float).tiny)
-    asym = np.abs(c - np.swapaxes(c, -1, -2)).max(axis=(-2, -1)) > 1e-8 * scale
-    if asym.any():
-        bad = np.zeros(live.shape, bool)
-        bad[live] = asym
-        raise TrackerError(f"tracker {name!r}: {_first(bad)}: covariance not symmetric", where)
-    # c + δI has a Cholesky factor exactly when c's smallest eigenvalue exceeds −δ: one batched
-    # factorisation (a fifth of the cost of the eigenvalues) clears the common case; the
-    # eigenvalues are computed only to name the offending entry
-    tolerance = 1e-9 * scale
-    try:
-        np.linalg.cholesky(c + tolerance[:, None, None] * np.eye(n))
-        return
-    except np.linalg.LinAlgError:
-        pass
-    lowest = np.linalg.eigvalsh(c)[..., 0]
-    indefinite = lowest <= -tolerance
-    if indefinite.any():
-        bad = np.zeros(live.shape, bool)
-        bad[live] = indefinite
-        i = int(np.flatnonzero(indefinite)[0])
-        raise TrackerError(f"tracker {name!r}: {_first(bad)}: covariance not positive definite (smallest eigenvalue "
-                           f"{lowest[i]:.3g})", where)
+    live_all = np.isfinite(state).all(axis=-1)
+    live_flat, cov_flat = live_all.reshape(-1), cov.reshape(-1, n, n)
+    eye = np.eye(n)
+
+    def fail(block_start: int, bad_in_block, problem: str):
+        bad = np.zeros(live_flat.shape, bool)
+        bad[block_start + np.flatnonzero(bad_in_block)[:1]] = True
+        raise TrackerError(f"tracker {name!r}: {_first(bad.reshape(live_all.shape))}: {problem}", where)
+
+    for start in range(0, live_flat.size, COVARIANCE_CHECK_BLOCK):
+        live = live_flat[start:start + COVARIANCE_CHECK_BLOCK]
+        block = cov_flat[start:start + COVARIANCE_CHECK_BLOCK]
+        everything = live.all()
+        c = block if everything else block[live]
+        if not len(c):
+            continue
+        where_live = np.arange(len(live)) if everything else np.flatnonzero(live)
+        finite = np.isfinite(c).all(axis=(-2, -1))
+        if not finite.all():
+            fail(start, np.isin(np.arange(len(live)), where_live[~finite]), "covariance not finite where the state is")
+        scale = np.maximum(np.abs(np.diagonal(c, axis1=-2, axis2=-1)).max(axis=-1), np.finfo(float).tiny)
+        asym = np.abs(c - np.swapaxes(c, -1, -2)).max(axis=(-2, -1)) > 1e-8 * scale
+        if asym.any():
+            fail(start, np.isin(np.arange(len(live)), where_live[asym]), "covariance not symmetric")
+        # c + δI has a Cholesky factor exactly when c's smallest eigenvalue exceeds −δ: one batched
+        # factorisation (a fifth of the cost of the eigenvalues) clears the common case; the
+        # eigenvalues are computed only to name the offending entry
+        tolerance = 1e-9 * scale
+        try:
+            np.linalg.cholesky(c + tolerance[:, None, None] * eye)
+            continue
+        except np.linalg.LinAlgError:
+            pass
+        lowest = np.linalg.eigvalsh(c)[..., 0]
+        indefinite = lowest <= -tolerance
+        if indefinite.any():
+            fail(start, np.isin(np.arange(len(live)), where_live[indefinite]),
+                 f"covariance not positive definite (smallest eigenvalue {lowest[indefinite][0]:.3g})")
