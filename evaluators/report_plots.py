@@ -8,25 +8,210 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
 import polars as pl  # noqa: E402
 
 from pipeline.contract import atomic_output  # noqa: E402
 
+# line style and marker per series, cycled with the colours (see series_style)
+STYLES = [("-", "o"), ("--", "s"), ("-.", "^"), (":", "D"), ((0, (5, 1, 1, 1)), "v"), ((0, (3, 1)), "x")]
+
+
+def series_style(i: int) -> dict:
+    """Colour, line style and marker of the i-th series: each alone tells the series apart, so
+    curves lying on top of each other (two trackers that agree) stay distinguishable."""
+    ls, marker = STYLES[i % len(STYLES)]
+    return {"color": f"C{i % 10}", "ls": ls, "marker": marker}
+
+
+def legend_outside(ax, **kwargs) -> None:
+    """The legend to the right of the axes, never over the data."""
+    ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, **kwargs)
+
 
 def plot_metrics_vs(table: pl.DataFrame, x: str, metrics: list[str], path: str | Path,
-                    group: str = "tracker", title: str = "", hlines: dict | None = None) -> Path:
-    """One panel per metric, one line per ``group`` value, written atomically to ``path``."""
-    fig, axes = plt.subplots(len(metrics), 1, figsize=(8, 2.6 * len(metrics)), sharex=True, squeeze=False)
+                    group: str = "tracker", title: str = "", hlines: dict | None = None,
+                    log_x: bool = False, log_y: bool = False) -> Path:
+    """One panel per metric, one series per ``group`` value (its own colour, line style and
+    marker), the legend outside the data; written atomically to ``path``."""
+    fig, axes = plt.subplots(len(metrics), 1, figsize=(9, 2.6 * len(metrics) + 0.5), sharex=True, squeeze=False)
     for ax, metric in zip(axes[:, 0], metrics):
-        for (name,), part in table.sort(x).group_by([group], maintain_order=True):
-            ax.plot(part[x].to_numpy(), part[metric].to_numpy(), marker="." if part.height < 30 else None,
-                    label=str(name))
+        for i, ((name,), part) in enumerate(table.sort(x).group_by([group], maintain_order=True)):
+            style = series_style(i)
+            ax.plot(part[x].to_numpy(), part[metric].to_numpy(), markevery=max(1, part.height // 12), ms=4, lw=1.1,
+                    label=str(name), **style)
         for y in (hlines or {}).get(metric, []):
             ax.axhline(y, color="grey", lw=0.8, ls="--")
         ax.set_ylabel(metric)
         ax.grid(alpha=0.3)
-    axes[0, 0].legend(fontsize="small", ncol=4)
+        if log_x:
+            ax.set_xscale("log")
+        if log_y:
+            ax.set_yscale("log")
+    legend_outside(axes[0, 0])
     axes[-1, 0].set_xlabel(x)
+    if title:
+        fig.suptitle(title)
+    return save_figure(fig, path)
+
+
+def plot_facets(table: pl.DataFrame, x: str, metric: str, facets: list[str], path: str | Path,
+                group: str = "tracker", title: str = "") -> Path:
+    """``metric`` against ``x``, one panel per combination of the ``facets`` columns' values, one
+    series per ``group`` value: readable for any number of swept parameters."""
+    keys = table.select(facets).unique(maintain_order=True).sort(facets).rows()
+    ncols = min(3, len(keys))
+    nrows = -(-len(keys) // ncols)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(4.2 * ncols + 1.6, 3.0 * nrows + 0.6), sharex=True, sharey=True,
+                             squeeze=False)
+    groups = table[group].unique(maintain_order=True).to_list()
+    for ax, key in zip(axes.ravel(), keys):
+        part = table.filter(pl.all_horizontal([pl.col(c) == v for c, v in zip(facets, key)])).sort(x)
+        for i, name in enumerate(groups):
+            line = part.filter(pl.col(group) == name)
+            if line.height:
+                ax.plot(line[x].to_numpy(), line[metric].to_numpy(), ms=4, lw=1.1, label=str(name), **series_style(i))
+        ax.set_title(", ".join(f"{c} = {v}" for c, v in zip(facets, key)), fontsize="small")
+        ax.grid(alpha=0.3)
+    for ax in axes.ravel()[len(keys):]:
+        ax.set_visible(False)
+    for ax in axes[-1]:
+        ax.set_xlabel(x)
+    for ax in axes[:, 0]:
+        ax.set_ylabel(metric)
+    legend_outside(axes[0, -1] if len(keys) >= ncols else axes[0, 0])
+    if title:
+        fig.suptitle(title)
+    return save_figure(fig, path)
+
+
+def plot_bearing_time(times_s, tracks_deg: dict, path: str | Path, truth_deg=None, peaks=None,
+                      field_deg=None, title: str = "") -> Path:
+    """A bearing–time record of one run: time down the page as on a sonar display, the
+    measurements as grey dots, the truth dashed, every tracker's tracks in its own style.
+
+    Parameters
+    ----------
+    times_s : ndarray (K,)
+    tracks_deg : dict
+        ``tracker -> (K, S)`` bearings in degrees, NaN where a slot holds no track.
+    truth_deg : ndarray (K, T), optional
+    peaks : tuple of ndarray ``(time_s, bearing_deg)``, optional
+        Every measured bearing of the run.
+    field_deg : (low, high), optional
+        The sensor's field of view (its edges drawn).
+    """
+    fig, ax = plt.subplots(figsize=(9, 6))
+    t = np.asarray(times_s, float)
+    if peaks is not None and len(peaks[0]):
+        ax.plot(peaks[1], peaks[0], ".", color="0.65", ms=2.5, label="measured bearings", zorder=1)
+    if truth_deg is not None:
+        truth = np.asarray(truth_deg, float).reshape(len(t), -1)
+        for j in range(truth.shape[1]):
+            ax.plot(truth[:, j], t, color="k", ls="--", lw=1.0, label="truth" if j == 0 else None, zorder=2)
+    for i, (name, bearings) in enumerate(tracks_deg.items()):
+        b = np.asarray(bearings, float).reshape(len(t), -1)
+        style = series_style(i)
+        for j in range(b.shape[1]):
+            if np.isfinite(b[:, j]).any():
+                ax.plot(b[:, j], t, lw=1.3, ms=3.5, markevery=max(1, len(t) // 15), label=name if j == 0 else None,
+                        zorder=3, **style)
+    if field_deg is not None:
+        for edge in field_deg:
+            ax.axvline(edge, color="grey", lw=0.8, ls=":")
+    ax.invert_yaxis()
+    ax.set_xlabel("bearing (deg)")
+    ax.set_ylabel("time (s)")
+    ax.grid(alpha=0.3)
+    legend_outside(ax)
+    if title:
+        ax.set_title(title)
+    return save_figure(fig, path)
+
+
+def ellipse_points(centre, covariance, prob: float = 0.95, n: int = 120):
+    """Points of the ``prob`` ellipse of a 2-D Gaussian (boundary ``dᵀ C⁻¹ d = χ²₂(prob)``)."""
+    radius = np.sqrt(-2.0 * np.log1p(-prob))           # the χ²₂ quantile has this closed form
+    L = np.linalg.cholesky(np.asarray(covariance, float))
+    angle = np.linspace(0.0, 2 * np.pi, n)
+    circle = radius * np.stack([np.cos(angle), np.sin(angle)])
+    return np.asarray(centre, float)[:, None] + L @ circle
+
+
+def plot_emitter_geometry(sensors_m, sensor_velocity_mps, path: str | Path, truth_m=None, estimates: dict | None = None,
+                          covariances: dict | None = None, bound_covariance=None, title: str = "") -> Path:
+    """Sensors (with their velocity), the emitter's true position, every tracker's estimates over
+    the Monte Carlo runs, the 95 % ellipse of the covariance each tracker reports (its median over
+    the runs, around the median estimate), and the CRLB's 95 % ellipse around the truth.
+
+    Two panels: the geometry, framed on the sensors and the emitter, and a zoom on the emitter
+    framed on the bound's ellipse; estimates outside a frame are counted in the legend.
+    """
+    sensors = np.asarray(sensors_m, float)
+    velocity = np.asarray(sensor_velocity_mps, float)
+    truth = None if truth_m is None else np.asarray(truth_m, float)[:2]
+    fig, (overview, zoom) = plt.subplots(1, 2, figsize=(12.5, 5.4))
+    overview.plot(sensors[:, 0] / 1e3, sensors[:, 1] / 1e3, "^", color="k", ms=8, label="sensors")
+    for ax in (overview, zoom):
+        if truth is not None:
+            ax.plot(truth[0] / 1e3, truth[1] / 1e3, "*", color="k", ms=13, label="emitter (truth)", zorder=5)
+    anchors = sensors if truth is None else np.vstack([sensors, truth])
+    lo, hi = anchors.min(axis=0), anchors.max(axis=0)
+    pad = 0.2 * max(np.max(hi - lo), 1.0)
+    frames = {overview: (lo - pad, hi + pad)}
+    span = np.max(hi - lo) if len(anchors) > 1 else 1.0
+    speed = np.abs(velocity).max()
+    if speed > 0:
+        scale = 0.12 * span / speed
+        overview.quiver(sensors[:, 0] / 1e3, sensors[:, 1] / 1e3, velocity[:, 0] * scale / 1e3,
+                        velocity[:, 1] * scale / 1e3, angles="xy", scale_units="xy", scale=1, color="0.4", width=0.004)
+    # the zoom frames the truth and every ellipse (the bound's and the reported ones), not the
+    # runs that went astray: those are counted in the legend instead
+    ellipses = []
+    if bound_covariance is not None and truth is not None:
+        ellipses.append(("CRLB 95 % around the truth", {"color": "k", "ls": "--"}, ellipse_points(truth, bound_covariance)))
+    clouds = {}
+    for i, (name, xy) in enumerate((estimates or {}).items()):
+        xy = np.asarray(xy, float)
+        xy = xy[np.isfinite(xy).all(axis=1)]
+        if not len(xy):
+            continue
+        clouds[name] = (series_style(i), xy)
+        cov = None if covariances is None else covariances.get(name)
+        if cov is not None and np.all(np.isfinite(cov)) and np.all(np.linalg.eigvalsh(cov) > 0):
+            style = series_style(i)
+            ellipses.append((f"{name}: reported 95 %", {"color": style["color"], "ls": style["ls"]},
+                             ellipse_points(np.median(xy, axis=0), cov)))
+    framed = [e.T for _, _, e in ellipses] + ([truth[None]] if truth is not None else [])
+    if framed:
+        pts = np.vstack(framed)
+        centre, half = (pts.min(axis=0) + pts.max(axis=0)) / 2, 0.6 * max(np.ptp(pts, axis=0).max(), 1.0)
+        frames[zoom] = (centre - half, centre + half)
+    for label, style, e in ellipses:
+        zoom.plot(e[0] / 1e3, e[1] / 1e3, lw=1.3, label=label, **style)
+    for name, (style, xy) in clouds.items():
+        for ax in (overview, zoom):
+            low, high = frames.get(ax, (xy.min(axis=0), xy.max(axis=0)))
+            inside = np.all((xy >= low) & (xy <= high), axis=1)
+            outside = f", {int((~inside).sum())} outside the zoom" if (~inside).any() else ""
+            ax.plot(xy[inside, 0] / 1e3, xy[inside, 1] / 1e3, ls="none", marker=style["marker"], color=style["color"],
+                    ms=3, alpha=0.5, label=f"{name}: {len(xy)} runs{outside}" if ax is zoom else "_nolegend_")
+    for ax, (low, high) in frames.items():
+        ax.set_xlim(low[0] / 1e3, high[0] / 1e3)
+        ax.set_ylim(low[1] / 1e3, high[1] / 1e3)
+    for ax, name in ((overview, "geometry"), (zoom, "around the emitter")):
+        ax.set_xlabel("x (km)")
+        ax.set_ylabel("y (km)")
+        ax.set_aspect("equal", adjustable="box")
+        ax.grid(alpha=0.3)
+        ax.set_title(name, fontsize="medium")
+    handles, labels = [], []
+    for ax in (overview, zoom):
+        for h, label in zip(*ax.get_legend_handles_labels()):
+            if label not in labels:
+                handles.append(h)
+                labels.append(label)
+    zoom.legend(handles, labels, fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
     if title:
         fig.suptitle(title)
     return save_figure(fig, path)
@@ -40,9 +225,6 @@ def save_figure(fig, path: str | Path, dpi: int = 110) -> Path:
         fig.savefig(f, format="png", dpi=dpi)
     plt.close(fig)
     return path
-
-
-STYLES = [("-", "o"), ("--", "s"), ("-.", "^"), (":", "D"), ((0, (5, 1, 1, 1)), "v"), ((0, (3, 1)), "x")]
 
 
 def plot_consistency(per_scan: pl.DataFrame, path: str | Path, title: str = "") -> Path | None:
@@ -60,15 +242,14 @@ def plot_consistency(per_scan: pl.DataFrame, path: str | Path, title: str = "") 
     for ax, (metric, lo, hi, label) in zip(axes[:, 0], panels):
         for i, name in enumerate(trackers):
             part = per_scan.filter(pl.col("tracker") == name).sort("scan")
-            ls, marker = STYLES[i % len(STYLES)]
-            ax.plot(part["scan"].to_numpy(), part[metric].to_numpy(), ls=ls, marker=marker, markevery=max(1, part.height // 12),
-                    ms=4, lw=1.1, label=name)
+            ax.plot(part["scan"].to_numpy(), part[metric].to_numpy(), markevery=max(1, part.height // 12),
+                    ms=4, lw=1.1, label=name, **series_style(i))
             if lo and i == 0:
                 ax.fill_between(part["scan"].to_numpy(), part[lo].to_numpy(), part[hi].to_numpy(), color="grey",
                                 alpha=0.2, label="95 % χ² bounds")
         ax.set_ylabel(metric if label == "OSPA" else label)
         ax.grid(alpha=0.3)
-    axes[0, 0].legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    legend_outside(axes[0, 0])
     axes[-1, 0].set_xlabel("scan")
     if title:
         fig.suptitle(title)

@@ -828,7 +828,7 @@ def write_sweep_outputs(report: SweepReport, swept: list[str], spec: dict) -> li
 
 
 def _write_sweep_outputs(report: SweepReport, swept: list[str], spec: dict) -> list[Path]:
-    from evaluators.report_plots import plot_metrics_vs
+    from evaluators.report_plots import plot_facets, plot_metrics_vs
 
     out = report.out_dir
     paths = []
@@ -844,15 +844,13 @@ def _write_sweep_outputs(report: SweepReport, swept: list[str], spec: dict) -> l
     x = swept[0]
     others = swept[1:]
     wide = report.table.pivot(on="metric", index=["point", *swept, "tracker"], values="value", aggregate_function="first")
-    if others:
-        wide = wide.with_columns(pl.concat_str([pl.col("tracker"), *[pl.format(f"{o}={{}}", pl.col(o)) for o in others]],
-                                               separator=" ").alias("line"))
-    else:
-        wide = wide.with_columns(pl.col("tracker").alias("line"))
     plot_dir = out / "plots"
     for metric in report.table["metric"].unique(maintain_order=True):
-        paths.append(plot_metrics_vs(wide, x, [metric], plot_dir / f"{metric}.png", group="line",
-                                     title=f"{spec.get('scenario', '')}: {metric} vs {x}"))
+        title = f"{spec.get('scenario', '')}: {metric} vs {x}"
+        if others:  # one panel per combination of the other parameters' values, readable for any number
+            paths.append(plot_facets(wide, x, metric, others, plot_dir / f"{metric}.png", title=title))
+        else:
+            paths.append(plot_metrics_vs(wide, x, [metric], plot_dir / f"{metric}.png", title=title))
     return paths
 
 

@@ -2,6 +2,7 @@
 
 import json
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -169,3 +170,13 @@ def test_eval_of_an_output_file_uses_the_design_the_replay_used(runner, radar_sm
     assert ev[key] != pytest.approx(de[key], rel=1e-6)  # the override changed the fixed gains
     # the above/below-nominal split follows the overridden nominal too
     assert ev[("fixed", "scans", "cross_range_above_nominal")] == ran_d[("fixed", "scans", "cross_range_above_nominal")]
+
+
+def test_the_bundled_data_sets_pass_their_baselines(runner):
+    """Every change to the trackers, evaluators or read/write path leaves the bundled data sets'
+    metrics within their stored tolerance (a new metric must be added to the baselines
+    deliberately, with `replay check --update`)."""
+    data = Path(__file__).resolve().parents[1] / "data"
+    res = runner.invoke(main, ["check", str(data)])
+    assert res.exit_code == 0, res.output
+    assert "0 drifted" in res.output

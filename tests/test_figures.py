@@ -34,3 +34,64 @@ def test_every_report_figure_is_rendered_and_not_blank(tmp_path, demo):
         colours = np.unique((img.reshape(-1, 3) * 255).astype(np.uint8), axis=0).shape[0]
         assert 0.01 < ink < 0.9, (png.name, ink)
         assert colours > 20, (png.name, colours)  # axes, text and data in several colours
+
+
+# the trackers each bundled demo must show, by the name its figures label them with
+TRACKERS = {
+    "radar_tws_demo.mcap": {"fixed", "approximate", "exact", "kalman"},
+    "xcorr_crossing_demo.mcap": {"jpda", "jpda_a"},
+    "array_crossing_demo.mcap": {"proposed", "ryu"},
+    "tdoa_fdoa_demo.mcap": {"joint", "tdoa"},
+    "tdoa_fdoa_noise_demo.mcap": {"joint", "tdoa", "fdoa"},
+    "colored_imm_demo.mcap": {"kf", "kf_dp", "imm", "mimm_k", "pimm"},
+    "colored_circle_demo.mcap": {"kf", "kf_dp", "imm", "mimm_k", "pimm"},
+}
+
+
+def _record_figures(monkeypatch) -> list[dict]:
+    """Patch the one exit of every figure to note what each panel shows before it is written."""
+    import evaluators.report_plots as rp
+
+    seen, original = [], rp.save_figure
+
+    def noting(fig, path, *args, **kwargs):
+        panels = []
+        for ax in fig.axes:
+            if not ax.get_visible():
+                continue
+            lines = [(line.get_label(), np.asarray(line.get_xdata(), float), np.asarray(line.get_ydata(), float))
+                     for line in ax.get_lines()]
+            legend = ax.get_legend()
+            panels.append({"xlim": sorted(ax.get_xlim()), "ylim": sorted(ax.get_ylim()), "lines": lines,
+                           "legend": [t.get_text() for t in legend.get_texts()] if legend else []})
+        seen.append({"name": Path(path).name, "panels": panels})
+        return original(fig, path, *args, **kwargs)
+
+    monkeypatch.setattr(rp, "save_figure", noting)
+    return seen
+
+
+@pytest.mark.parametrize("demo", sorted(TRACKERS))
+def test_every_figure_shows_every_tracker_labelled_and_its_data_inside_the_axes(tmp_path, monkeypatch, demo):
+    seen = _record_figures(monkeypatch)
+    out = tmp_path / "o"
+    res = CliRunner().invoke(main, [str(DATA / demo), "--no-rrd", "--out", str(out / "tracks.mcap"), "-q"])
+    assert res.exit_code == 0, res.output
+    names = {f["name"] for f in seen}
+    assert "report.png" in names and names <= {p.name for p in out.glob("*.png")}, names
+    for fig in seen:
+        legends = [label for p in fig["panels"] for label in p["legend"]]
+        assert legends, f"{demo} {fig['name']}: no legend"
+        if fig["name"] in ("report.png", "consistency.png", "errors.png", "rmse.png", "fig7.png"):
+            # every tracker is a labelled series (a label may carry more, e.g. "joint RMSE")
+            shown = {t for t in TRACKERS[demo] if any(label.split(":")[0].split(" ")[0] == t for label in legends)}
+            assert shown == TRACKERS[demo], (demo, fig["name"], legends)
+        for p in fig["panels"]:
+            (x0, x1), (y0, y1) = p["xlim"], p["ylim"]
+            for label, x, y in p["lines"]:
+                ok = np.isfinite(x) & np.isfinite(y)
+                if not ok.any() or label.startswith("_"):
+                    continue  # reference lines (axhline/axvline) and empty series
+                inside = (x[ok] >= x0) & (x[ok] <= x1) & (y[ok] >= y0) & (y[ok] <= y1)
+                # ellipses may be cut by a zoom frame; data series must lie inside the axes
+                assert inside.mean() >= (0.5 if "95 %" in label else 1.0), (demo, fig["name"], label, inside.mean())

@@ -241,7 +241,7 @@ def main():
 
 # what a replay writes beside tracks.mcap (checked against the inputs before anything is written)
 REPORT_FILES = ("metrics.csv", "metrics.parquet", "per_scan.csv", "per_scan.parquet", "report.png",
-                "consistency.png")
+                "consistency.png", "errors.png", "fig7.png")
 
 
 def _spec_files(specs) -> list:
@@ -508,25 +508,22 @@ def _export_tables(res, out_dir: Path) -> list[Path]:
 
 
 def _report_plot(res, out_dir: Path) -> list[Path]:
-    """The generic per-scan figure plus every applicable stage's own figures."""
+    """Every applicable stage's figures (``report.png`` and the family's own) and the standard
+    measures' consistency figure."""
     import polars as pl
 
-    from evaluators.report_plots import plot_consistency, plot_metrics_vs
+    from evaluators.report_plots import plot_consistency
     from pipeline.stages import STAGES
 
     paths = []
     title = Path(res.dataset.path).name
-    metrics = [m for m in ("rmse_position_m", "rmse_velocity_mps", "npe", "alpha_cross") if m in res.per_scan.columns]
-    if metrics:
-        part = res.per_scan.filter(pl.col(metrics[0]).is_not_null()) if "stage" in res.per_scan.columns else res.per_scan
-        paths.append(plot_metrics_vs(part, "scan", metrics, out_dir / "report.png", title=title, hlines={"npe": [1.0]}))
-    consistency = plot_consistency(res.per_scan, out_dir / "consistency.png", title=title)
-    if consistency is not None:
-        paths.append(consistency)
     for stage in STAGES:
         if stage.name in res.results:
             own = res.per_scan.filter(pl.col("stage") == stage.name) if "stage" in res.per_scan.columns else res.per_scan
-            paths += stage.figures(own, out_dir, title=title)
+            paths += stage.figures(own, out_dir, title=title, result=res.results[stage.name], dataset=res.dataset)
+    consistency = plot_consistency(res.per_scan, out_dir / "consistency.png", title=title)
+    if consistency is not None:
+        paths.append(consistency)
     return paths
 
 

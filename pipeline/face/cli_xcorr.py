@@ -178,29 +178,35 @@ def association_table(table, swept: list[str], path=None):
 
 
 def plot_association(panels, path: Path) -> Path:
-    """Success rate vs the swept parameter, one panel per study, one line per tracker (± 1.96 SE)."""
+    """Success rate vs the swept parameter, one panel per study, one line per tracker, with its
+    95 % Wilson interval (which, unlike ± 1.96 SE, stays inside 0–100 %)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from evaluators.report_plots import save_figure
+    import numpy as np
+
+    from evaluators.confidence import wilson_interval
+    from evaluators.report_plots import legend_outside, save_figure, series_style
 
     fig, axes = plt.subplots(1, len(panels), figsize=(5.5 * len(panels), 3.8), squeeze=False)
     for ax, (title, rows, swept) in zip(axes[0], panels):
         x = swept[0]
         keys = ["tracker", *swept[1:]]
-        for key, part in rows.group_by(keys, maintain_order=True):
+        for i, (key, part) in enumerate(rows.group_by(keys, maintain_order=True)):
             label = " ".join(f"{k}={v}" if k != "tracker" else str(v) for k, v in zip(keys, key))
             part = part.sort(x)
-            ax.errorbar(part[x].to_numpy(), 100 * part["success_rate"].to_numpy(),
-                        yerr=196 * part["success_rate_stderr"].to_numpy(), marker="o", capsize=3, label=label)
+            rate, runs = part["success_rate"].to_numpy(), part["runs"].to_numpy()
+            low, high = wilson_interval(rate * runs, runs)
+            ax.errorbar(part[x].to_numpy(), 100 * rate, yerr=100 * np.stack([rate - low, high - rate]), capsize=3,
+                        label=label, **series_style(i))
         ax.set_xlabel(x)
         ax.set_ylabel("success (%)")
-        ax.set_ylim(0, 100)
+        ax.set_ylim(0, 102)
         ax.grid(alpha=0.3)
         ax.set_title(title, fontsize="medium")
-        ax.legend(fontsize="small")
+    legend_outside(axes[0, -1])
     fig.suptitle("track-association success, JPDA vs JPDA_A (cf. Park, Ryu & Lee 1994, Fig. 8)")
     return save_figure(fig, path)
 

@@ -11,6 +11,8 @@ bookkeeping live here: the trackers (``proposed``, ``ryu``) are in
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from evaluators import array_bearing as array_eval
@@ -143,6 +145,17 @@ class ArrayBearingStage(Stage):
     def standard_truth(self, reference: dict):
         truth = reference["runs"]["truth"]
         return None if truth is None else truth[..., None]
+
+    def figures(self, per_scan, out_dir, title: str = "", result: dict | None = None, dataset=None) -> list:
+        """``report.png``: the bearing–time record of run 0 (tracks and truth, the array's ±90°
+        field); ``errors.png``: the MSE, innovation RMS and subspace error per scan."""
+        paths = []
+        if result is not None and dataset is not None:
+            truth, _ = self.truth(dataset, self.snapshots(dataset).shape[:2])
+            paths.append(self.bearing_time_record(result, out_dir, title, truth, field_deg=(-90.0, 90.0)))
+        errors = self.per_scan_figure(per_scan, Path(out_dir) / "errors.png",
+                                      ("mse_deg2", "rms_innovation_deg", "subspace_error_deg"), title)
+        return paths + ([errors] if errors else [])
 
     def report(self, summary, per_scan) -> str:
         """The paper's Table 1 layout (MSE per SNR, innovation FLOPs for N = 5, 6)."""

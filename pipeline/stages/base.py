@@ -10,6 +10,8 @@ the class attributes; their Rerun views live in the face (:mod:`pipeline.face.re
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from pipeline import vocabulary as vocab
@@ -215,9 +217,48 @@ class Stage:
         """Optional extra text after the generic metrics table (e.g. a paper's table layout)."""
         return ""
 
-    def figures(self, per_scan, out_dir, title: str = "") -> list:
-        """Optional paper-style PNG figures written by ``replay`` and ``replay eval --export``."""
-        return []
+    #: per-scan metrics of the default ``report.png`` (one panel each, against time)
+    report_metrics: tuple = ()
+    #: horizontal reference lines per metric in that figure (e.g. NPE = 1)
+    report_lines: dict = {}
+
+    def figures(self, per_scan, out_dir, title: str = "", result: dict | None = None, dataset=None) -> list:
+        """PNG figures written by ``replay`` and ``replay eval --export``: by default
+        ``report.png``, the :attr:`report_metrics` per scan against time, every tracker
+        distinguishable. A family overrides it to add its own (bearing–time records, geometry,
+        the paper's figures) from the replay's ``result`` and ``dataset``."""
+        path = self.per_scan_figure(per_scan, Path(out_dir) / "report.png", self.report_metrics, title)
+        return [] if path is None else [path]
+
+    def per_scan_figure(self, per_scan, path, metrics, title: str = ""):
+        """``metrics`` per scan against time, one panel each (those the table has), or None."""
+        import polars as pl
+
+        from evaluators.report_plots import plot_metrics_vs
+
+        metrics = [m for m in metrics if m in per_scan.columns and per_scan[m].drop_nulls().len()]
+        if not metrics:
+            return None
+        part = per_scan.filter(pl.col(metrics[0]).is_not_null())
+        return plot_metrics_vs(part, "time_s", metrics, path, title=title, hlines=self.report_lines)
+
+    def bearing_time_record(self, result: dict, out_dir, title: str = "", truth_rad=None, peaks=None,
+                            field_deg=None, run: int = 0) -> Path:
+        """``report.png`` of a bearing family: run ``run``'s tracks of every tracker (state
+        component 0, radians) on a bearing–time record, with the truth ``(runs, scans, T)`` and
+        the measured bearings ``(time_s, bearing_rad)`` where given."""
+        from evaluators.report_plots import plot_bearing_time
+
+        tracks = {name: np.rad2deg(np.asarray(out["state"], float)[run, ..., 0])
+                  for name, out in result["tracks"].items() if "state" in out and "flags" in out}
+        flags = {name: np.asarray(result["tracks"][name]["flags"])[run] for name in tracks}
+        for name, bearings in tracks.items():
+            bearings[(flags[name] & (vocab.NO_TRACK | vocab.DELETED)) > 0] = np.nan
+        truth = None if truth_rad is None else np.rad2deg(np.asarray(truth_rad, float)[run])
+        measured = None if peaks is None else (peaks[0], np.rad2deg(peaks[1]))
+        label = f"{title}: run {run}" if title else f"run {run}"
+        return plot_bearing_time(result["times"], tracks, Path(out_dir) / "report.png", truth_deg=truth,
+                                 peaks=measured, field_deg=field_deg, title=f"{label}, bearing–time record")
 
     # --- to implement
 

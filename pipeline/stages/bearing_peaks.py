@@ -10,6 +10,8 @@ Lee 1994; see ``docs/papers/bearing-peaks.md``), the scores in
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import polars as pl
 
@@ -188,6 +190,20 @@ class BearingPeaksStage(Stage):
     def standard_truth(self, reference: dict):
         truth = reference["runs"]["truth"]
         return None if truth is None else truth[..., None]
+
+    def figures(self, per_scan, out_dir, title: str = "", result: dict | None = None, dataset=None) -> list:
+        """``report.png``: the bearing–time record of run 0 (peaks, truth, tracks); ``errors.png``:
+        bearing RMSE, on-own-target fraction and the JPDA's miss probability per scan."""
+        paths = []
+        if result is not None and dataset is not None:
+            m = self.decode(dataset)
+            scan, slot = np.nonzero(np.arange(m.bearing_rad.shape[-1]) < m.counts[0][:, None])
+            peaks = (np.asarray(m.times_s, float)[scan], m.bearing_rad[0][scan, slot])
+            paths.append(self.bearing_time_record(result, out_dir, title, m.truth_bearing_rad, peaks,
+                                                  field_deg(dataset)))
+        errors = self.per_scan_figure(per_scan, Path(out_dir) / "errors.png",
+                                      ("rmse_bearing_deg", "on_own_target_fraction", "mean_beta0"), title)
+        return paths + ([errors] if errors else [])
 
     def report(self, summary, per_scan) -> str:
         if "stage" in summary.columns:

@@ -127,8 +127,10 @@ class ColoredNoiseImmStage(Stage):
     def standard_truth(self, reference: dict):
         return reference["runs"]["truth_state"]
 
-    def figures(self, per_scan, out_dir, title: str = "") -> list:
-        return colored_eval.write_figures(per_scan, out_dir, title=title)
+    report_metrics = ("rmse_position_m", "rmse_velocity_mps")
+
+    def figures(self, per_scan, out_dir, title: str = "", result: dict | None = None, dataset=None) -> list:
+        return super().figures(per_scan, out_dir, title) + colored_eval.write_figures(per_scan, out_dir, title=title)
 
     def report(self, summary, per_scan) -> str:
         part = summary.filter(summary["stage"] == self.name) if "stage" in summary.columns else summary

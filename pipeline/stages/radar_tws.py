@@ -56,6 +56,8 @@ class RadarTwsStage(Stage):
                           truth_state=truth.grid("state") if truth is not None else None)
 
     evaluation_defaults = {"ospa_cutoff_m": 1000.0, "ospa_order": 2.0, "assignment_gate_m": 500.0}
+    report_metrics = ("rmse_position_m", "rmse_velocity_mps", "npe", "alpha_cross")
+    report_lines = {"npe": [1.0]}  # NPE ≥ 1: no better than the raw plots
 
     def reference(self, dataset, design: dict) -> dict:
         rng, brg, counts, times = self.decode_plots(dataset)
