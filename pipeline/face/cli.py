@@ -240,7 +240,7 @@ def main():
 
 
 # what a replay writes beside tracks.mcap (checked against the inputs before anything is written)
-REPORT_FILES = ("metrics.csv", "metrics.parquet", "per_scan.csv", "per_scan.parquet", "report.png",
+REPORT_FILES = ("metrics.csv", "metrics.parquet", "per_scan.csv", "per_scan.parquet", "report.txt", "report.png",
                 "consistency.png", "errors.png", "fig7.png")
 
 
@@ -373,27 +373,6 @@ def _print_summary(summary: pl.DataFrame, title: str) -> None:
 
 # Blocks of a stage's paper layout that repeat the generic table above it (same numbers, other
 # layout): left out of `replay` and `replay eval` (`replay colored-report` prints them all).
-REPEATED_BLOCKS = {"colored-noise-imm": ("RMSE [",)}
-
-
-def _without_repeats(stage_name: str, text: str) -> str:
-    """``text`` without the blocks (a header line and its indented rows) that REPEATED_BLOCKS
-    names for the stage."""
-    heads = REPEATED_BLOCKS.get(stage_name, ())
-    if not heads:
-        return text
-    out, skipping = [], False
-    for line in text.split("\n"):
-        if any(line.startswith(h) for h in heads):
-            skipping = True
-            continue
-        if skipping and line.startswith(" "):
-            continue
-        skipping = False
-        out.append(line)
-    return "\n".join(out)
-
-
 def _is_rule(line: str) -> bool:
     body = line.strip()
     return len(body) >= 3 and set(body) <= set("-=─━")
@@ -482,19 +461,21 @@ def fit_width(text: str, width: int = TABLE_WIDTH) -> str:
 
 
 def _print_stage_reports(res) -> None:
-    """Paper-specific layouts (e.g. a paper's table) that stages add after the generic summary,
-    without the blocks that repeat it, fitted to TABLE_WIDTH."""
+    """What the stages add after the generic summary that it does not show (each result is
+    printed once: :meth:`pipeline.stages.base.Stage.replay_report`), fitted to TABLE_WIDTH."""
     from pipeline.stages import STAGES
 
     for stage in STAGES:
         if stage.name in res.results:
-            text = _without_repeats(stage.name, stage.report(res.summary, res.per_scan) or "")
+            text = stage.replay_report(res.summary, res.per_scan) or ""
             if text.strip():
                 click.echo("\n" + fit_width(text.strip("\n")))
 
 
 def _export_tables(res, out_dir: Path) -> list[Path]:
     from pipeline.contract import atomic_output
+
+    from pipeline.stages import STAGES
 
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
@@ -504,6 +485,13 @@ def _export_tables(res, out_dir: Path) -> list[Path]:
             with atomic_output(p) as f:
                 df.write_csv(f) if ext == "csv" else df.write_parquet(f)
             written.append(p)
+    # the papers' own table layouts (printed only in part, where they add to the tables above)
+    layouts = [stage.report(res.summary, res.per_scan) or "" for stage in STAGES if stage.name in res.results]
+    layouts = [text.strip("\n") for text in layouts if text.strip()]
+    if layouts:
+        with atomic_output(out_dir / "report.txt", "w") as f:
+            f.write("\n\n".join(layouts) + "\n")
+        written.append(out_dir / "report.txt")
     return written
 
 
@@ -525,6 +513,29 @@ def _report_plot(res, out_dir: Path) -> list[Path]:
     if consistency is not None:
         paths.append(consistency)
     return paths
+
+
+def _echo_wrapped(text: str, indent: str = "", err: bool = False) -> None:
+    """``text`` wrapped at :data:`TABLE_WIDTH` columns (paths are never broken)."""
+    import textwrap
+
+    click.echo(textwrap.fill(text, TABLE_WIDTH, subsequent_indent=indent, break_long_words=False,
+                             break_on_hyphens=False), err=err)
+
+
+def _list_outputs(folder: Path, groups, err: bool = False) -> None:
+    """Where the files went: the folder once, then the file names per kind (a file elsewhere,
+    e.g. an ``--rrd`` path, in full), every line within :data:`TABLE_WIDTH` columns where the
+    names allow it. CSV and Parquet twins are listed once, as ``name.csv (+ .parquet)``."""
+    folder = Path(folder)
+    _echo_wrapped(f"written to {folder}{'/' if not str(folder).endswith('/') else ''}", err=err)
+    for kind, paths in groups:
+        paths = [Path(p) for p in paths]
+        names = [p.name if p.parent == folder else str(p) for p in paths if p.suffix != ".parquet"]
+        twins = any(p.suffix == ".parquet" for p in paths)
+        if names:
+            tail = " (+ .parquet)" if twins and kind == "tables" else ""
+            _echo_wrapped(f"{kind + ':':10s} {', '.join(names)}{tail}", indent=" " * 11, err=err)
 
 
 def _previous_outputs(out_dir: Path, out_name: str, rrd_path: Path | None) -> list[Path]:
@@ -602,7 +613,7 @@ def run_cmd(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, s
         if previous:
             _refuse_replacing(previous, str(out_dir if explicit_out else previous[0].parent))
     if out_dir != base:
-        click.echo(f"{base} holds an earlier replay: writing to {out_dir} (--force would replace it)")
+        _echo_wrapped(f"{base} holds an earlier replay: writing to {out_dir} (--force would replace it)")
     wanted = [t.strip() for t in trackers.split(",")] if trackers else None
     specs = resolve_tracker_specs(tracker_specs)  # a tracker that does not load fails here
     t_read = time.perf_counter()
@@ -629,12 +640,10 @@ def run_cmd(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, s
     res.out_path = out_path
     res.rrd_path = rrd_path
     click.echo("")
-    click.echo(f"outputs:   {res.out_path}")
+    _list_outputs(out_dir, [("outputs", [res.out_path]), ("recording", [res.rrd_path] if res.rrd_path else []),
+                            ("tables", tables), ("plots", plots)])
     if res.rrd_path:
-        click.echo(f"recording: {res.rrd_path}   (view: replay view {res.rrd_path})")
-    click.echo(f"tables:    {', '.join(str(p) for p in tables if p.suffix == '.csv')} (+ .parquet)")
-    if plots:
-        click.echo(f"plots:     {', '.join(str(p) for p in plots)}")
+        click.echo(f"view:      replay view {res.rrd_path}")
     t = res.timings
     click.echo(f"time:      {t['total_s']:.2f} s" + (
         f" (read {t['read_s']:.2f}, filter {t['filter_s']:.2f}, evaluate {t['evaluate_s']:.2f}, "
@@ -863,9 +872,8 @@ def eval_cmd(data, outputs, as_json, per_scan, export_dir, recover, tracker_spec
             tables = _export_tables(res, export_dir)
             plots = _report_plot(res, export_dir)
         # with --json, stdout stays pure JSON: the paths go to stderr
-        click.echo(f"\ntables:    {', '.join(str(p) for p in tables if p.suffix == '.csv')} (+ .parquet)", err=as_json)
-        if plots:
-            click.echo(f"plots:     {', '.join(str(p) for p in plots)}", err=as_json)
+        click.echo("", err=as_json)
+        _list_outputs(export_dir, [("tables", tables), ("plots", plots)], err=as_json)
     fail_on_tracker_errors([str(exc) for exc in getattr(res, "failures", [])])
 
 

@@ -157,6 +157,10 @@ class ArrayBearingStage(Stage):
                                       ("mse_deg2", "rms_innovation_deg", "subspace_error_deg"), title)
         return paths + ([errors] if errors else [])
 
+    # the MSE and FLOP tables repeat the snr_db and n_targets scopes; the ratios and the counted
+    # FLOPs per step are this layout's own
+    replay_report_lines = ("proposed / Ryu FLOP ratio", "counted FLOPs")
+
     def report(self, summary, per_scan) -> str:
         """The paper's Table 1 layout (MSE per SNR, innovation FLOPs for N = 5, 6)."""
         part = summary.filter(summary["stage"] == self.name) if "stage" in summary.columns else summary

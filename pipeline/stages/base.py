@@ -214,8 +214,29 @@ class Stage:
         return {"times": times, "tracks": tracks}
 
     def report(self, summary, per_scan) -> str:
-        """Optional extra text after the generic metrics table (e.g. a paper's table layout)."""
+        """Optional text in a paper's own layout (e.g. its table), for reports written to files."""
         return ""
+
+    #: line beginnings of :meth:`report` that the generic metric tables do not show (with their
+    #: indented continuation lines); None: all of it
+    replay_report_lines: tuple | None = None
+
+    def replay_report(self, summary, per_scan) -> str:
+        """What ``replay`` prints after the generic metric tables: the lines of :meth:`report`
+        that say something those tables do not (:attr:`replay_report_lines`), so that every
+        result is printed once."""
+        text = self.report(summary, per_scan) or ""
+        if self.replay_report_lines is None:
+            return text
+        kept, keeping = [], False
+        for line in text.split("\n"):
+            if line.startswith(self.replay_report_lines):
+                keeping = True
+            elif not line.startswith(" "):
+                keeping = False
+            if keeping:
+                kept.append(line)
+        return "\n".join(kept)
 
     #: per-scan metrics of the default ``report.png`` (one panel each, against time)
     report_metrics: tuple = ()

@@ -205,6 +205,8 @@ class BearingPeaksStage(Stage):
                                       ("rmse_bearing_deg", "on_own_target_fraction", "mean_beta0"), title)
         return paths + ([errors] if errors else [])
 
+    replay_report_lines = ()  # the Fig. 8 success table repeats success_rate, swap_rate and loss_rate
+
     def report(self, summary, per_scan) -> str:
         if "stage" in summary.columns:
             summary = summary.filter(pl.col("stage") == self.name)

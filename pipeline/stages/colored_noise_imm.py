@@ -132,6 +132,9 @@ class ColoredNoiseImmStage(Stage):
     def figures(self, per_scan, out_dir, title: str = "", result: dict | None = None, dataset=None) -> list:
         return super().figures(per_scan, out_dir, title) + colored_eval.write_figures(per_scan, out_dir, title=title)
 
+    # the RMSE, model-probability and AR tables repeat the scopes of the generic tables
+    replay_report_lines = ("PIMM vs MIMM_K",)
+
     def report(self, summary, per_scan) -> str:
         part = summary.filter(summary["stage"] == self.name) if "stage" in summary.columns else summary
         trackers = list(self.trackers)

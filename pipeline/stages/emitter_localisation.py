@@ -244,5 +244,7 @@ class EmitterLocalisationStage(Stage):
                                          title=f"{title}: position RMSE and CRLB against the range noise"))
         return paths
 
+    replay_report_lines = ()  # every table of the layout repeats a scope of the generic tables
+
     def report(self, summary, per_scan) -> str:
         return emitter_eval.report(summary, per_scan)
