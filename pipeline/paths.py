@@ -42,6 +42,14 @@ def refuse_input_overwrite(inputs, outputs) -> None:
                 raise InputError(f"refusing to write an output over the input {src} (choose another output path)", out)
 
 
+def refuse_replacing_file(output, force: bool) -> None:
+    """Raise :class:`InputError` when ``output`` exists and ``force`` was not given: a file a
+    command writes replaces an earlier one only when asked (``--force``)."""
+    output = Path(output)
+    if output.exists() and not force:
+        raise InputError("exists; add --force to replace it, or choose another output path", output)
+
+
 class OutputSet:
     """A folder's outputs written as a set: all of them appear, or none.
 

@@ -12,8 +12,10 @@ default, and an unknown name is an error that lists the known ones. Parameters s
 carry ``_deg`` in their name and are converted to radians by the recorder, nowhere else.
 
 A parameter's meaning is the comment after it on its line (``sigma_range_m = 100.0  # plot
-noise, range``, read by :func:`parameter_docs`), its unit the suffix of its name
-(:func:`parameter_unit`); ``replay scenarios NAME`` shows both.
+noise, range``) or, when it has none, the block of comment lines directly above it (read by
+:func:`parameter_docs`); its unit the suffix of its name, or for a dimensionless parameter what
+kind of number it is (``count``, ``probability``, ``flag``, ...: :func:`parameter_unit`).
+``replay scenarios NAME`` shows both.
 """
 
 from __future__ import annotations
@@ -164,19 +166,85 @@ def _complete_user_params(recorder: str, params: dict, path: Path) -> dict:
 UNIT_SUFFIXES = {
     "m": "m", "km": "km", "m2": "m²", "s": "s", "deg": "deg", "deg2": "deg²", "rad": "rad",
     "radps": "rad/s", "mps": "m/s", "mps2": "m/s²", "hz": "Hz", "db": "dB", "wavelengths": "λ",
-    "samples": "samples",
+    "samples": "samples", "scans": "scans",
 }
 
+# units of parameters whose name does not state theirs (or states only a part of it: the q of a
+# white-noise acceleration model is a spectral density, deg²/s³, not deg²)
+NAMED_UNITS = {
+    "q_deg2": "deg²/s³", "process_noise_q_deg2": "deg²/s³",
+    "process_noise_variance": "m²/s⁴", "cv_process_noise": "m²/s⁴", "kf_process_noise": "m²/s⁴",
+    "ca_transition_process_noise": "m²/s⁶", "ca_steady_process_noise": "m²/s⁶",
+    "initial_variance": "SI²",            # P₀ = v·I over [p, v, a]: m², (m/s)², (m/s²)²
+    "noise_variance": "power",            # sensor noise power, the reference of every SNR
+    "clutter_alpha": "1/amplitude", "amplitude_threshold": "amplitude", "peak_threshold": "amplitude",
+    "step_tolerance_sigma": "σ",          # a multiple of a standard deviation
+    "imm_transition": "probability",      # a matrix of transition probabilities
+    "emitter": "preset", "pairs": "pair list",
+    # flags and choices (their value's type is not known from the name alone)
+    "startup_gains": "flag", "gcc_phat": "flag", "amplitude_tracking": "flag", "stationary_emitter": "flag",
+    "trajectory": "choice", "geometry": "choice", "pair": "choice", "track_start": "choice",
+    "initial_guess": "choice", "subspace_tracker": "choice", "source_count_criterion": "choice",
+    "snapshot_dtype": "choice",
+}
 
-def parameter_unit(name: str) -> str | None:
-    """The unit a parameter's name states by its suffix (``_m``, ``_s``, ``_deg``, ``_mps``,
-    ``_mps2``, ``_hz``, ``_db``, ``_rad``, ...), or None (a count, a ratio, a choice)."""
-    if "_" not in name:
-        return None
-    return UNIT_SUFFIXES.get(name.rsplit("_", 1)[1])
+# what kind of number a dimensionless parameter is, from the shape of its name (first match)
+KIND_PATTERNS = (
+    (re.compile(r"^n_|_count$|_per_scan$|^iterations$|^max_\w*tracks$"), "count"),
+    (re.compile(r"_per_gate$"), "count/gate"),
+    (re.compile(r"_probability$"), "probability"),
+    (re.compile(r"_(first|last)_sample$"), "sample index"),
+    (re.compile(r"^alpha(_|$)|_pole$"), "coefficient"),
+    (re.compile(r"_forgetting(_factor)?$|_scales?$"), "factor"),
+    (re.compile(r"_gain$|_ratio$|_relative_mse$"), "ratio"),
+    (re.compile(r"_amplitude_(mean|std)$|_strength$"), "amplitude"),
+)
+
+
+def parameter_unit(name: str, value=None) -> str | None:
+    """The unit of a scenario parameter, or None when nothing names one.
+
+    In this order:
+
+    1. :data:`NAMED_UNITS`, by the whole name: parameters whose name does not state their unit
+       (``cv_process_noise`` → m²/s⁴, ``clutter_alpha`` → 1/amplitude), or states only a part of it
+       (``q_deg2`` → deg²/s³), and the flags and choices of the bundled scenarios;
+    2. a ``_X_per_Y`` ending with two units of :data:`UNIT_SUFFIXES` (``approach_rate_deg_per_s``
+       → deg/s);
+    3. the suffix of the name, :data:`UNIT_SUFFIXES` (``_m``, ``_s``, ``_deg``, ``_mps``,
+       ``_mps2``, ``_hz``, ``_db``, ``_rad``, ``_samples``, ``_scans``, ...);
+    4. for a dimensionless parameter, what kind of number it is, from the shape of its name
+       (:data:`KIND_PATTERNS`): ``count`` (``n_…``, ``…_count``, ``…_per_scan``, ``iterations``),
+       ``count/gate`` (an expected count per gate, ``…_per_gate``), ``probability``
+       (``…_probability``), ``sample index``, ``coefficient`` (AR coefficients ``alpha…``, poles),
+       ``factor`` (forgetting factors, scales), ``ratio`` (gains, ratios), ``amplitude``
+       (correlator amplitude units);
+    5. from ``value`` when given: ``flag`` for a bool, ``choice`` for a string (for a parameter
+       none of the above knows; ``replay scenarios`` passes the name only).
+
+    A unit written in the parameter's comment is not read: the unit comes from the name, so the
+    same parameter shows the same unit in every scenario file.
+    """
+    if name in NAMED_UNITS:
+        return NAMED_UNITS[name]
+    parts = name.split("_")
+    if len(parts) >= 3 and parts[-2] == "per" and parts[-3] in UNIT_SUFFIXES and parts[-1] in UNIT_SUFFIXES:
+        return f"{UNIT_SUFFIXES[parts[-3]]}/{UNIT_SUFFIXES[parts[-1]]}"
+    if len(parts) > 1 and parts[-1] in UNIT_SUFFIXES:
+        return UNIT_SUFFIXES[parts[-1]]
+    for pattern, kind in KIND_PATTERNS:
+        if pattern.search(name):
+            return kind
+    if isinstance(value, bool):
+        return "flag"
+    if isinstance(value, str):
+        return "choice"
+    return None
 
 
 _KEY = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)\s*=(.*)$")
+# a comment line that only heads a group of parameters: "# ---- filter design ----", "# === ..."
+_HEADING = re.compile(r"^(-{2,}|={2,}|\*{2,})")
 
 
 def _trailing_comment(value: str) -> str:
@@ -199,16 +267,43 @@ def _trailing_comment(value: str) -> str:
 
 
 def parameter_docs(path) -> dict[str, str]:
-    """``name → meaning`` of a scenario file's parameters: the comment after each one on its
-    line in ``[params]`` (parameters without one are left out)."""
+    """``name → meaning`` of a scenario file's parameters in ``[params]``.
+
+    A parameter's meaning is the comment after it on its line::
+
+        sigma_range_m = 100.0          # plot noise, range
+
+    or, when it has none, the comment lines directly above it (a contiguous block of ``#``
+    lines, joined into one text)::
+
+        # The paper's truth is constant velocity; with truth process noise > 0 the target
+        # wanders by kilometres over the run.
+        truth_process_noise_mps2 = 0.0
+
+    The comment on the line wins over the lines above. A blank line, a value, a table header
+    or a heading line (a comment starting with ``--``, ``==`` or ``**``, such as
+    ``# ---- filter design ----``) ends a block, so a comment that introduces a group of
+    parameters is kept from the first of them by a blank line or by writing it as a heading.
+    Parameters without either are left out.
+    """
     docs: dict[str, str] = {}
     section = None
+    above: list[str] = []  # comment lines directly above the current line
     try:
         lines = Path(path).read_text().splitlines()
     except OSError:
         return docs
     for line in lines:
         stripped = line.strip()
+        if stripped.startswith("#"):
+            text = stripped.lstrip("#").strip()
+            if _HEADING.match(text):
+                above = []
+            elif text:
+                above.append(text)
+            continue
+        comment_above = " ".join(above)
+        above = []
         if stripped.startswith("[") and not line[:1].isspace() and "=" not in stripped:
             section = stripped.strip("[]").strip()
             continue
@@ -216,7 +311,7 @@ def parameter_docs(path) -> dict[str, str]:
             continue
         m = _KEY.match(line)
         if m:
-            comment = _trailing_comment(m.group(2))
+            comment = _trailing_comment(m.group(2)) or comment_above
             if comment:
                 docs[m.group(1)] = comment
     return docs

@@ -62,8 +62,10 @@ def test_replay_eval_and_report(short_imm, tmp_path):
     out = tmp_path / "o" / "tracks.mcap"
     res = invoke(short_imm, "--out", out)
     assert res.exit_code == 0, res.output
-    for text in ("[overall]", "rmse_position_m", "mimm_k", "pimm", "mean model probability", "AR(1) estimator"):
+    for text in ("[overall]", "rmse_position_m", "mimm_k", "pimm", "prob_cv", "[manoeuvre]"):
         assert text in res.output
+    layout = (out.parent / "report.txt").read_text()  # the thesis's layouts of the same numbers
+    assert "mean model probability" in layout and "AR(1) estimator" in layout
     assert out.exists() and out.with_suffix(".rrd").stat().st_size > 0
     res = invoke("eval", short_imm, out, "--json")
     assert res.exit_code == 0, res.output

@@ -77,7 +77,9 @@ def test_replay_classifies_runs_and_eval_matches_the_output_file(runner, triangl
     res = invoke(runner, triangle3, "--out", tmp_path / "o" / "t.mcap")
     assert res.exit_code == 0, res.output
     assert sha(triangle3) == before
-    assert "truth" in res.output and "elsewhere" in res.output and "n=5" in res.output
+    assert "runs_truth" in res.output and "runs_elsewhere" in res.output and "[iteration=05]" in res.output
+    layout = (tmp_path / "o" / "report.txt").read_text()  # the paper's layout of the same numbers
+    assert "truth" in layout and "elsewhere" in layout and "n=5" in layout
     for name in ("t.mcap", "t.rrd", "metrics.csv", "per_scan.csv"):
         assert (tmp_path / "o" / name).stat().st_size > 0
     a = json.loads(invoke(runner, "eval", triangle3, "--json").output)
@@ -153,7 +155,7 @@ def test_grid_start_needs_no_prior(runner, tmp_path):
 def test_fig7_noise_study_joint_beats_single_measurement_types(runner, tmp_path):
     assert invoke(runner, "simulate", "tdoa-fdoa-noise", "--runs", "300", "--seed", "2", "-o", "n.mcap").exit_code == 0
     res = invoke(runner, "eval", "n.mcap")
-    assert res.exit_code == 0 and "Fig. 7" in res.output
+    assert res.exit_code == 0 and "[sigma_range_m=" in res.output
     a = json.loads(invoke(runner, "eval", "n.mcap", "--json").output)
     noise_scopes = sorted({r["scope"] for r in a if r["scope"].startswith("sigma_range_m=")},
                           key=lambda s: float(s.split("=")[1]))

@@ -361,3 +361,73 @@ def test_foxglove_export_runs_and_refusals(runner, tmp_path, radar, sha):
     assert res.exit_code == 0 and "note: no truth or per-scan metrics" in res.stdout, res.output
     _, channels, _ = _read_json_mcap(tmp_path / "lone.mcap")
     assert not [t for t in channels if t.startswith("/metrics") or t.endswith("/truth")]
+
+
+# --------------------------------------------------------------------------- viewing a data set
+
+
+def test_view_of_a_data_set_opens_the_recording_of_its_replay(runner, tmp_path, monkeypatch, radar):
+    """`replay view DATA.mcap` shows the family's views (a recording with the tracks, built in a
+    scratch folder), not the raw file the viewer would show as an empty view."""
+    import pipeline.face.viewer as viewer
+
+    data, _ = radar
+    opened = []
+    monkeypatch.setattr(viewer, "open_viewer", lambda path: opened.append(Path(path)))
+    before = sorted(p.name for p in data.parent.iterdir())
+    res = invoke(runner, "view", data)
+    assert res.exit_code == 0, res.output
+    assert len(opened) == 1 and opened[0].suffix == ".rrd" and opened[0].parent != data.parent
+    assert opened[0].read_bytes()[:3] == viewer.RRD_MAGIC  # a Rerun recording
+    assert sorted(p.name for p in data.parent.iterdir()) == before  # nothing written beside the data
+
+
+def test_view_of_a_replay_output_without_its_recording_says_what_to_do(runner, tmp_path, radar):
+    from pipeline.replay import replay
+
+    data, _ = radar
+    out = tmp_path / "r" / "tracks.mcap"
+    replay(data, out_path=out)
+    res = invoke(runner, "view", out)
+    assert res.exit_code == 2
+    assert res.output.count("\n") == 1 and "without its recording" in res.output
+
+
+def test_on_a_pseudo_terminal_bars_go_to_stderr_and_json_stays_pure(tmp_path, radar):
+    """A real terminal on stderr (not a patched check): the bar is drawn there, stdout stays
+    parseable JSON, and --quiet silences the terminal."""
+    import os
+    import pty
+    import subprocess
+    import sys
+
+    data, _ = radar
+
+    def run(*extra):
+        leader, follower = pty.openpty()
+        try:
+            done = subprocess.run([sys.executable, "-c", "from pipeline.face.cli import main; main()", "eval", str(data),
+                                   "--json", *extra], stdout=subprocess.PIPE, stderr=follower, cwd=tmp_path,
+                                  timeout=120, env={**os.environ, "COLUMNS": "100"})
+            os.close(follower)
+            drawn = b""
+            while True:
+                try:
+                    chunk = os.read(leader, 65536)
+                except OSError:  # the terminal closed with the child
+                    break
+                if not chunk:
+                    break
+                drawn += chunk
+        finally:
+            os.close(leader)
+        return done, drawn.decode("utf-8", "replace")
+
+    done, terminal = run()
+    assert done.returncode == 0
+    json.loads(done.stdout)
+    assert f"evaluating {data.name}" in terminal and "[####" in terminal, terminal[:200]
+    done, terminal = run("--quiet")
+    assert done.returncode == 0
+    json.loads(done.stdout)
+    assert terminal.strip() == ""

@@ -47,8 +47,8 @@ def test_replay_runs_both_filters_prints_fig8_table_and_writes_rerun(small, tmp_
     out = tmp_path / "o" / "tracks.mcap"
     res = invoke(small, "--out", out)
     assert res.exit_code == 0, res.output
-    assert "track association (Park, Ryu & Lee 1994, Fig. 8)" in res.output
-    assert "jpda_a" in res.output and "success" in res.output
+    assert "jpda_a" in res.output and "success_rate" in res.output
+    assert "track association (Park, Ryu & Lee 1994, Fig. 8)" in (out.parent / "report.txt").read_text()
     assert out.with_suffix(".rrd").stat().st_size > 10_000
     ds = read_dataset(out)
     assert {"/tracks/xcorr/jpda", "/tracks/xcorr/jpda_a"} <= set(ds.channels)

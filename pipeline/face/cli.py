@@ -19,7 +19,7 @@ import click
 from pipeline import __version__
 from pipeline.errors import InputError
 from pipeline.face import progress
-from pipeline.paths import OutputSet, refuse_input_overwrite
+from pipeline.paths import OutputSet, refuse_input_overwrite, refuse_replacing_file
 
 DEMO_NAME = "radar_tws_demo.mcap"
 
@@ -79,6 +79,11 @@ def inside_installed_package(path: Path) -> bool:
 
 TRACKER_HELP = ("A plugged tracker to run beside the built-ins: FILE.py:CLASS, MODULE:CLASS or the name of an "
                 "installed (entry-point) tracker; repeat for several (see `replay trackers`).")
+
+
+def force_option(f):
+    """``--force``: replace the output file if it exists (without it, an existing one is refused)."""
+    return click.option("--force", is_flag=True, help="Replace the output file if it exists.")(f)
 
 
 def tracker_option(f):
@@ -682,8 +687,9 @@ def _parameter_options(args) -> dict:
 @click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0), help="Random seed (same seed, same bytes).")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--set", "sets", multiple=True, metavar="NAME=VALUE", help="Override a scenario parameter.")
+@force_option
 @click.pass_context
-def simulate_cmd(ctx, scenario, runs, seed, output, sets):
+def simulate_cmd(ctx, scenario, runs, seed, output, sets, force):
     """Simulate a scenario (a name from data/scenarios/ or a TOML path) into an MCAP file.
 
     Any scenario parameter also works as an option: --name value means --set name=value.
@@ -702,6 +708,7 @@ def simulate_cmd(ctx, scenario, runs, seed, output, sets):
     rec = recorder_module(sc.recorder)
     t0 = time.perf_counter()
     refuse_input_overwrite([Path(scenario)], [output])
+    refuse_replacing_file(output, force)
     with progress.bar(1, f"simulating {sc.name} ({runs} runs)") as bar, progress.timed("simulate"):
         data = rec.simulate(sc.params, runs, seed)
         bar.update(1)
@@ -748,8 +755,9 @@ def scenarios_cmd(name):
     """List the bundled scenarios, or show one scenario's parameters.
 
     With NAME (a bundled scenario or a TOML path): every parameter with its default, its unit
-    (from the suffix of its name: _m, _s, _deg, _mps, _mps2, _hz, _db, _rad, ...) and its
-    meaning (the comment after it in the scenario file). Any of them can be changed with
+    (from the suffix of its name: _m, _s, _deg, _mps, _mps2, _hz, _db, _rad, ...; count,
+    probability, flag, ... for the dimensionless ones) and its meaning (the comment after it in
+    the scenario file, or the comment lines directly above it). Any of them can be changed with
     `replay simulate NAME --set name=value` (or --name value).
 
     \b
@@ -777,7 +785,7 @@ def scenarios_cmd(name):
                              subsequent_indent="  "))
     click.echo(f"recorder {sc.recorder}; file {sc.source}")
     click.echo("")
-    rows = [(k, _format_value(v), parameter_unit(k) or "-", docs.get(k, "-")) for k, v in sc.params.items()]
+    rows = [(k, _format_value(v), parameter_unit(k, v) or "-", docs.get(k, "-")) for k, v in sc.params.items()]
     for line in _wrap_cells(("NAME", "DEFAULT", "UNIT", "MEANING"), rows):
         click.echo(line)
     click.echo(f"\nchange any: replay simulate {sc.name} --set NAME=VALUE -o data.mcap (a list: comma-separated)")
@@ -799,7 +807,8 @@ def convert_group():
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--set", "sets", multiple=True, metavar="NAME=VALUE",
               help="Sensor/design values (defaults from radar-tws), e.g. sigma_range_m=50.")
-def convert_plots_cmd(csv_path, output, sets):
+@force_option
+def convert_plots_cmd(csv_path, output, sets, force):
     """Radar plots CSV (time, range_m, bearing_deg[, run]) → MCAP.
 
     \b
@@ -810,6 +819,7 @@ def convert_plots_cmd(csv_path, output, sets):
     from recorders.scenarios import load_scenario, parse_assignments
 
     refuse_input_overwrite([csv_path], [output])
+    refuse_replacing_file(output, force)
     sc = load_scenario("radar-tws").with_overrides(parse_assignments(sets))
     n = convert_plots_csv(csv_path, output, sc.params)
     click.echo(f"wrote {output}: {n} messages")
@@ -1255,19 +1265,55 @@ def trackers_cmd(tracker_specs, as_json):
 def view_cmd(rrd, png, size):
     """Open a recording in the Rerun viewer, or render it headless to a PNG.
 
+    A data set (.mcap) opens as the recording of its replay, with the family's views: it is
+    replayed in memory and the recording written to a temporary folder (nothing is written beside
+    the data). A replay's tracks.mcap opens the tracks.rrd beside it.
+
     \b
     Example:
       replay view replay-out/radar_tws_demo/tracks.rrd --screenshot fig.png
+      replay view data/radar_tws_demo.mcap
     """
+    import shutil
+    import tempfile
+
     from pipeline.face.viewer import open_viewer, screenshot
 
     if not rrd.exists():
         raise InputError("no such recording", rrd)
     if png:
         refuse_input_overwrite([rrd], [png])
-        click.echo(f"wrote {screenshot(rrd, png, size=size)}")
-    else:
-        open_viewer(rrd)
+    scratch = None
+    if rrd.suffix == ".mcap":
+        scratch = Path(tempfile.mkdtemp(prefix="replay-view-"))
+        rrd = _recording_of_mcap(rrd, scratch)
+    try:
+        if png:
+            click.echo(f"wrote {screenshot(rrd, png, size=size)}")
+        else:
+            open_viewer(rrd)  # the viewer reads the file after this returns: a scratch one stays
+    finally:
+        if png and scratch is not None:
+            shutil.rmtree(scratch, ignore_errors=True)
+
+
+def _recording_of_mcap(path: Path, scratch: Path) -> Path:
+    """The Rerun recording to show for an MCAP: a replay output's own (beside it), or, for a data
+    set, the recording of replaying it (every tracker, written to ``scratch``)."""
+    from pipeline.contract import dataset_topics
+    from pipeline.replay import replay
+
+    if any(t.startswith("/tracks/") for t in dataset_topics(path)):
+        beside = path.with_suffix(".rrd")
+        if not beside.is_file():
+            raise InputError(f"a replay output without its recording ({beside.name}) beside it; replay the data set "
+                             "again without --no-rrd, or view the data set itself", path)
+        return beside
+    target = scratch / f"{path.stem}.rrd"
+    with progress.Phases(f"replaying {path.name} for the viewer", ("filter", "evaluate", "write", "rerun")) as phases:
+        replay(path, rrd_path=target, progress=phases.step)
+    click.echo(f"recording of {path.name}: {target}")
+    return target
 
 
 # --------------------------------------------------------------------------- export
@@ -1284,7 +1330,8 @@ def view_cmd(rrd, png, size):
               help="The data set the replay read, for truth and per-scan metrics (default: the one the "
                    "outputs' provenance names, beside them, here or among the bundled data sets).")
 @click.option("--recover", is_flag=True, help="Accept truncated MCAP files.")
-def export_cmd(tracks, foxglove, output, runs_spec, data_path, recover):
+@force_option
+def export_cmd(tracks, foxglove, output, runs_spec, data_path, recover, force):
     """Export a replay's outputs for other plotting tools.
 
     --foxglove writes, per chosen run, one topic per tracker (/run_000/kalman: t, scan, x, y,
@@ -1302,6 +1349,7 @@ def export_cmd(tracks, foxglove, output, runs_spec, data_path, recover):
     if not foxglove:
         raise click.UsageError("choose the format: --foxglove (JSON MCAP for Foxglove and PlotJuggler)")
     refuse_input_overwrite([tracks, data_path], [output])
+    refuse_replacing_file(output, force)
     with progress.bar(0, f"exporting {tracks.name}") as bar, progress.timed("export"):
         report = export_foxglove(tracks, output, runs_spec, data_path, recover, progress=bar.update)
     runs = report.runs

@@ -24,7 +24,9 @@ COMMANDS: list = []  # defined first: importing pipeline.face.cli below may re-e
 @click.option("--hop", type=int, help="STFT hop (samples; default nfft/2).")
 @click.option("--snapshots-per-scan", default=30, show_default=True, type=int, help="STFT frames grouped into one scan (Ns).")
 @click.option("--complex128", "wide", is_flag=True, help="Store complex128 snapshots (default complex64).")
-def array_wav_cmd(wav_path, output, spacing_m, frequency_hz, sound_speed_mps, nfft, hop, snapshots_per_scan, wide):
+@click.option("--force", is_flag=True, help="Replace the output file if it exists.")
+def array_wav_cmd(wav_path, output, spacing_m, frequency_hz, sound_speed_mps, nfft, hop, snapshots_per_scan, wide,
+                  force):
     """Multichannel WAV (uniform linear array) → /array/snapshots, ready for `replay`.
 
     \b
@@ -34,9 +36,10 @@ def array_wav_cmd(wav_path, output, spacing_m, frequency_hz, sound_speed_mps, nf
     """
     from recorders.wav_array import convert_array_wav
 
-    from pipeline.paths import refuse_input_overwrite
+    from pipeline.paths import refuse_input_overwrite, refuse_replacing_file
 
     refuse_input_overwrite([wav_path], [output])
+    refuse_replacing_file(output, force)
     info = convert_array_wav(wav_path, output, spacing_m, frequency_hz, sound_speed_mps, nfft, hop,
                              snapshots_per_scan, "complex128" if wide else "complex64")
     click.echo(f"wrote {output}: {info['scans']} scans × {info['sensors']} sensors × {snapshots_per_scan} snapshots "

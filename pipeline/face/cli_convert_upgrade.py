@@ -18,7 +18,8 @@ COMMANDS: list = []  # defined first: importing pipeline.face.cli below may re-e
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path),
               help="The rewritten file (never SRC itself: an input is never written over).")
 @click.option("--recover", is_flag=True, help="Keep the intact chunks of a truncated or damaged file.")
-def upgrade_cmd(src, output, recover):
+@click.option("--force", is_flag=True, help="Replace the output file if it exists.")
+def upgrade_cmd(src, output, recover, force):
     """Rewrite a replay.v1 (or any) data set in the current contract (replay.v2).
 
     Every frame, array and metadata record is kept exactly (the scenario record's `contract`
@@ -31,9 +32,10 @@ def upgrade_cmd(src, output, recover):
       replay convert upgrade cut.mcap -o kept.mcap --recover
     """
     from pipeline.contract import rewrite_dataset
-    from pipeline.paths import refuse_input_overwrite
+    from pipeline.paths import refuse_input_overwrite, refuse_replacing_file
 
     refuse_input_overwrite([src], [output])
+    refuse_replacing_file(output, force)
     rep = rewrite_dataset(src, output, recover=recover)
     was = ", ".join(rep.source_contracts) or "no frames"
     click.echo(f"wrote {output}: {rep.frames} frames, {rep.messages_in} messages ({was}) → {rep.messages_out} "
