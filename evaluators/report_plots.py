@@ -24,6 +24,13 @@ def series_style(i: int) -> dict:
     return {"color": f"C{i % 10}", "ls": ls, "marker": marker}
 
 
+def staggered_markers(n_points: int, i: int, per_line: int = 12):
+    """``markevery`` for series i: about ``per_line`` markers, shifted from series to series so
+    that the markers of curves lying on top of each other do not hide one another."""
+    step = max(1, n_points // per_line)
+    return (int(i * step / 4) % step, step)
+
+
 def legend_outside(ax, **kwargs) -> None:
     """The legend to the right of the axes, never over the data."""
     ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, **kwargs)
@@ -38,7 +45,8 @@ def plot_metrics_vs(table: pl.DataFrame, x: str, metrics: list[str], path: str |
     for ax, metric in zip(axes[:, 0], metrics):
         for i, ((name,), part) in enumerate(table.sort(x).group_by([group], maintain_order=True)):
             style = series_style(i)
-            ax.plot(part[x].to_numpy(), part[metric].to_numpy(), markevery=max(1, part.height // 12), ms=4, lw=1.1,
+            ax.plot(part[x].to_numpy(), part[metric].to_numpy(), markevery=staggered_markers(part.height, i), ms=4,
+                    lw=1.1,
                     label=str(name), **style)
         for y in (hlines or {}).get(metric, []):
             ax.axhline(y, color="grey", lw=0.8, ls="--")
@@ -114,7 +122,7 @@ def plot_bearing_time(times_s, tracks_deg: dict, path: str | Path, truth_deg=Non
         style = series_style(i)
         for j in range(b.shape[1]):
             if np.isfinite(b[:, j]).any():
-                ax.plot(b[:, j], t, lw=1.3, ms=3.5, markevery=max(1, len(t) // 15), label=name if j == 0 else None,
+                ax.plot(b[:, j], t, lw=1.3, ms=3.5, markevery=staggered_markers(len(t), i, 15), label=name if j == 0 else None,
                         zorder=3, **style)
     if field_deg is not None:
         for edge in field_deg:
@@ -242,7 +250,7 @@ def plot_consistency(per_scan: pl.DataFrame, path: str | Path, title: str = "") 
     for ax, (metric, lo, hi, label) in zip(axes[:, 0], panels):
         for i, name in enumerate(trackers):
             part = per_scan.filter(pl.col("tracker") == name).sort("scan")
-            ax.plot(part["scan"].to_numpy(), part[metric].to_numpy(), markevery=max(1, part.height // 12),
+            ax.plot(part["scan"].to_numpy(), part[metric].to_numpy(), markevery=staggered_markers(part.height, i),
                     ms=4, lw=1.1, label=name, **series_style(i))
             if lo and i == 0:
                 ax.fill_between(part["scan"].to_numpy(), part[lo].to_numpy(), part[hi].to_numpy(), color="grey",
