@@ -8,12 +8,19 @@ through the same trackers (``replay out.mcap``; see ``docs/papers/array-bearing.
 
 Conventions:
 
-* channel 1 of the file is sensor 1 (the reference, left end); channels are equally spaced by
+* the channels of the file are the sensors in order along the line, equally spaced by
   ``spacing_m``; the electrical spacing d/λ = spacing_m · f_bin / c is recorded as the data set's
-  ``spacing_wavelengths`` (must be ≤ 1/2: no grating lobes);
-* a wave that reaches channel 1 first has θ > 0: channel m lags by τ = (m−1) d sin θ / c, its
-  STFT carries exp(−jωτ), and the snapshots are conjugated to the paper's exp(+jωτ) model
-  (conjugation keeps every subspace property);
+  ``spacing_wavelengths``. Above 1/2 the array has grating lobes; a bin up to half a bin width
+  above the half-wavelength frequency is accepted (the field free of ambiguity then ends short
+  of endfire, at ``unambiguous_field_deg``, recorded), anything higher is refused with the
+  highest bin that would pass;
+* bearings θ are measured from broadside. By default (``positive_toward="last"``) a source on
+  the side of the last channel, whose wave reaches the last channel first, has θ > 0, as in
+  most array texts and toolboxes; ``positive_toward="first"`` mirrors it. Either way the
+  sensor the wave reaches last is the paper's reference, so its channel m lags by
+  τ = (m−1) d sin θ / c; the STFT then carries exp(−jωτ), and the snapshots are conjugated to
+  the paper's exp(+jωτ) model (conjugation keeps every subspace property). The choice is
+  recorded as ``bearing_positive_toward``;
 * the STFT uses a Hann window of ``nfft`` samples and hop ``hop``; only the chosen bin is
   computed (one windowed DFT row per frame, not a full FFT).
 """
@@ -30,6 +37,7 @@ from pipeline.errors import InputError, check_all, require_finite
 from recorders.simulated import SimulatedData, write_simulated
 
 SNAPSHOTS_TOPIC = vocab.CHANNELS["array_snapshots"]
+POSITIVE_TOWARD = ("last", "first")
 
 
 def read_wav(path: str | Path) -> tuple[int, np.ndarray]:
@@ -78,7 +86,7 @@ def narrowband_snapshots(samples: np.ndarray, fs: int, frequency_hz: float, nfft
 
 def convert_array_wav(src, dst, spacing_m: float, frequency_hz: float, sound_speed_mps: float = 343.0,
                       nfft: int = 512, hop: int | None = None, snapshots_per_scan: int = 30,
-                      snapshot_dtype: str = "complex64") -> dict:
+                      snapshot_dtype: str = "complex64", positive_toward: str = "last") -> dict:
     """Convert ``src`` (WAV) to ``dst`` (MCAP); returns a summary of what was written.
 
     Parameters
@@ -93,6 +101,8 @@ def convert_array_wav(src, dst, spacing_m: float, frequency_hz: float, sound_spe
         STFT window length and hop (default nfft / 2).
     snapshots_per_scan : int
         Frames per scan (Ns).
+    positive_toward : {"last", "first"}
+        The end of the array a positive bearing points to (see the module's conventions).
     """
     hop = nfft // 2 if hop is None else hop
     checks = [
@@ -100,6 +110,7 @@ def convert_array_wav(src, dst, spacing_m: float, frequency_hz: float, sound_spe
         (nfft >= 8, "nfft must be ≥ 8"), (0 < hop <= nfft, "hop must be in (0, nfft]"),
         (snapshots_per_scan >= 1, "snapshots_per_scan must be ≥ 1"), (frequency_hz > 0, "frequency_hz must be > 0"),
         (snapshot_dtype in ("complex64", "complex128"), "snapshot_dtype must be complex64 or complex128"),
+        (positive_toward in POSITIVE_TOWARD, f"positive_toward must be one of {', '.join(POSITIVE_TOWARD)}"),
     ]
     check_all(checks)
     fs, samples = read_wav(src)
@@ -107,13 +118,23 @@ def convert_array_wav(src, dst, spacing_m: float, frequency_hz: float, sound_spe
         raise InputError(f"frequency_hz = {frequency_hz:g} is not below the Nyquist frequency {fs / 2:g} Hz", src)
     if nfft > samples.shape[0]:
         raise InputError(f"nfft = {nfft} is longer than the recording ({samples.shape[0]} samples per channel)", src)
+    if positive_toward == "last":
+        # the paper's reference sensor is the one a positive bearing's wave reaches last
+        samples = samples[:, ::-1]
     snaps, bin_hz = narrowband_snapshots(samples, fs, frequency_hz, nfft, hop)
     if bin_hz <= 0:
         raise InputError(f"frequency_hz = {frequency_hz:g} falls in the DC bin (nfft = {nfft} at {fs} Hz)", src)
     spacing_wavelengths = spacing_m * bin_hz / sound_speed_mps
-    if spacing_wavelengths > 0.5:
-        raise InputError(f"spacing {spacing_m:g} m is {spacing_wavelengths:.3f} wavelengths at {bin_hz:g} Hz; "
-                         "above 1/2 the array has grating lobes (choose a lower frequency)", src)
+    half_wave_hz = sound_speed_mps / (2 * spacing_m)        # d = λ/2 at this frequency
+    bin_width_hz = fs / nfft
+    if bin_hz > half_wave_hz + bin_width_hz / 2:
+        highest = np.floor((half_wave_hz + bin_width_hz / 2) / bin_width_hz) * bin_width_hz
+        hint = (f"a frequency up to {highest:g} Hz (its bin) passes" if highest > 0 else
+                "no bin passes: a longer --nfft or a smaller spacing")
+        raise InputError(f"spacing {spacing_m:g} m is {spacing_wavelengths:.3f} wavelengths at the {bin_hz:g} Hz bin; "
+                         f"above 1/2 (at {half_wave_hz:g} Hz) the array has grating lobes: {hint}", src)
+    # |sin θ| < λ/d − 1 is free of grating lobes: the whole field up to d = λ/2
+    unambiguous_deg = float(np.rad2deg(np.arcsin(min(1.0, 1.0 / spacing_wavelengths - 1.0))))
     M, frames = snaps.shape
     K = frames // snapshots_per_scan
     if K < 3:
@@ -126,7 +147,9 @@ def convert_array_wav(src, dst, spacing_m: float, frequency_hz: float, sound_spe
     params = {"source_wav": Path(src).name, "sample_rate_hz": fs, "frequency_hz": float(bin_hz),
               "spacing_m": float(spacing_m), "sound_speed_mps": float(sound_speed_mps), "nfft": int(nfft),
               "hop": int(hop), "snapshots_per_scan": int(snapshots_per_scan), "n_sensors": int(M),
-              "spacing_wavelengths": float(spacing_wavelengths), "scan_period_s": float(scan_period_s)}
+              "spacing_wavelengths": float(spacing_wavelengths), "scan_period_s": float(scan_period_s),
+              "bearing_positive_toward": f"{positive_toward} channel", "unambiguous_field_deg": unambiguous_deg}
     n = write_simulated(dst, data, scenario_metadata("array-wav", params, 0))
     return {"messages": n, "scans": K, "sensors": M, "bin_hz": bin_hz,
-            "spacing_wavelengths": spacing_wavelengths, "scan_period_s": scan_period_s}
+            "spacing_wavelengths": spacing_wavelengths, "scan_period_s": scan_period_s,
+            "unambiguous_field_deg": unambiguous_deg}

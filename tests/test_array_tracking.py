@@ -178,6 +178,9 @@ def test_rerun_recording_of_a_small_file(tmp_path):
 
 
 def write_array_wav(path, angles_deg, fs=16000, M=8, d=0.04, seconds=5.0, noise=0.3, seed=3):
+    """Wideband noise sources at ``angles_deg`` from broadside in the documented convention: a
+    positive angle's wave reaches the last channel first (channel m leads channel 0 by
+    m d sin θ / c)."""
     from scipy.io import wavfile
 
     rng = np.random.default_rng(seed)
@@ -186,8 +189,8 @@ def write_array_wav(path, angles_deg, fs=16000, M=8, d=0.04, seconds=5.0, noise=
     out = noise * rng.standard_normal((n, M))
     for th in np.deg2rad(angles_deg):
         spectrum = np.fft.rfft(rng.standard_normal(n))
-        for m in range(M):  # channel m lags channel 0 by m d sin θ / c
-            out[:, m] += np.fft.irfft(spectrum * np.exp(-2j * np.pi * freqs * m * d * np.sin(th) / 343.0), n)
+        for m in range(M):  # channel m leads channel 0 by m d sin θ / c
+            out[:, m] += np.fft.irfft(spectrum * np.exp(2j * np.pi * freqs * m * d * np.sin(th) / 343.0), n)
     wavfile.write(path, fs, (out / np.abs(out).max() * 0.9 * 32767).astype(np.int16))
 
 
@@ -205,6 +208,34 @@ def test_wav_recording_goes_through_the_same_trackers(tmp_path):
     est = np.rad2deg(res.results["array-bearing"]["tracks"]["proposed"]["state"][0, 2:, :, 0])
     assert est.shape[-1] == 2
     assert np.all(np.abs(est - [-20.0, 25.0]) < 1.0)
+    assert ds.scenario["params"]["bearing_positive_toward"] == "last channel"
+    # the other convention mirrors every bearing
+    mirrored = tmp_path / "mirrored.mcap"
+    r = runner.invoke(main, ["convert", "array-wav", str(wav), "-o", str(mirrored), "--spacing-m", "0.04",
+                             "--frequency-hz", "2000", "--nfft", "256", "--positive-toward", "first"])
+    assert r.exit_code == 0, r.output
+    other = np.rad2deg(replay(mirrored).results["array-bearing"]["tracks"]["proposed"]["state"][0, 2:, :, 0])
+    assert np.all(np.abs(other - [-25.0, 20.0]) < 1.0)
+
+
+def test_wav_frequency_within_half_a_bin_of_half_wavelength_passes_and_a_higher_one_names_one_that_would(tmp_path):
+    """3430 Hz at 0.05 m is exactly d = λ/2; its nearest bin (3437.5 Hz at 16 kHz / 512) is
+    0.501 λ, within half a bin, and passes with its field of no ambiguity recorded; 3500 Hz is
+    refused with the highest frequency that passes."""
+    wav = tmp_path / "rec.wav"
+    write_array_wav(wav, [10.0], d=0.05, seconds=2.0)
+    runner = CliRunner()
+    r = runner.invoke(main, ["convert", "array-wav", str(wav), "-o", str(tmp_path / "a.mcap"), "--spacing-m", "0.05",
+                             "--frequency-hz", "3430"])
+    assert r.exit_code == 0, r.output
+    params = read_dataset(tmp_path / "a.mcap").scenario["params"]
+    assert 0.5 < params["spacing_wavelengths"] < 0.502
+    field = np.rad2deg(np.arcsin(1 / params["spacing_wavelengths"] - 1))
+    assert params["unambiguous_field_deg"] == pytest.approx(field) and 80 < field < 90
+    r = runner.invoke(main, ["convert", "array-wav", str(wav), "-o", str(tmp_path / "b.mcap"), "--spacing-m", "0.05",
+                             "--frequency-hz", "3500"])
+    assert r.exit_code == 2 and "grating lobes" in r.output and "up to 3437.5 Hz" in r.output, r.output
+    assert not (tmp_path / "b.mcap").exists()
 
 
 def test_bad_wav_files(tmp_path):

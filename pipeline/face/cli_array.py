@@ -17,17 +17,25 @@ COMMANDS: list = []  # defined first: importing pipeline.face.cli below may re-e
 @click.command("array-wav")
 @click.argument("wav_path", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path))
-@click.option("--spacing-m", required=True, type=float, help="Sensor spacing d (m); channel 1 is sensor 1.")
+@click.option("--spacing-m", required=True, type=float, help="Sensor spacing d (m); the channels are the sensors "
+              "in order along the line.")
 @click.option("--frequency-hz", required=True, type=float, help="Narrowband frequency; the nearest STFT bin is used.")
 @click.option("--sound-speed-mps", default=343.0, show_default=True, type=float, help="Propagation speed c.")
 @click.option("--nfft", default=512, show_default=True, type=int, help="STFT window length (samples, Hann).")
 @click.option("--hop", type=int, help="STFT hop (samples; default nfft/2).")
 @click.option("--snapshots-per-scan", default=30, show_default=True, type=int, help="STFT frames grouped into one scan (Ns).")
 @click.option("--complex128", "wide", is_flag=True, help="Store complex128 snapshots (default complex64).")
+@click.option("--positive-toward", type=click.Choice(["last", "first"]), default="last", show_default=True,
+              help="The end of the array a positive bearing points to: 'last' = a source whose wave reaches the "
+                   "last channel first has θ > 0 (θ from broadside); 'first' mirrors it.")
 @click.option("--force", is_flag=True, help="Replace the output file if it exists.")
 def array_wav_cmd(wav_path, output, spacing_m, frequency_hz, sound_speed_mps, nfft, hop, snapshots_per_scan, wide,
-                  force):
+                  positive_toward, force):
     """Multichannel WAV (uniform linear array) → /array/snapshots, ready for `replay`.
+
+    Bearings are angles from broadside; by default a positive one points to the last channel's
+    end of the array (its wave reaches the last channel first), as in most array texts;
+    --positive-toward first mirrors them. The convention is recorded in the data set.
 
     \b
     Example:
@@ -41,9 +49,12 @@ def array_wav_cmd(wav_path, output, spacing_m, frequency_hz, sound_speed_mps, nf
     refuse_input_overwrite([wav_path], [output])
     refuse_replacing_file(output, force)
     info = convert_array_wav(wav_path, output, spacing_m, frequency_hz, sound_speed_mps, nfft, hop,
-                             snapshots_per_scan, "complex128" if wide else "complex64")
+                             snapshots_per_scan, "complex128" if wide else "complex64", positive_toward)
     click.echo(f"wrote {output}: {info['scans']} scans × {info['sensors']} sensors × {snapshots_per_scan} snapshots "
                f"at {info['bin_hz']:.1f} Hz (d = {info['spacing_wavelengths']:.3f} λ, T = {info['scan_period_s']:.3f} s)")
+    click.echo(f"bearings from broadside, positive toward the {positive_toward} channel"
+               + (f"; free of grating lobes within ±{info['unambiguous_field_deg']:.1f}°"
+                  if info["unambiguous_field_deg"] < 90 else ""))
 
 
 def _register() -> None:

@@ -199,7 +199,9 @@ def plot_association(panels, path: Path) -> Path:
             part = part.sort(x)
             rate, runs = part["success_rate"].to_numpy(), part["runs"].to_numpy()
             low, high = wilson_interval(rate * runs, runs)
-            ax.errorbar(part[x].to_numpy(), 100 * rate, yerr=100 * np.stack([rate - low, high - rate]), capsize=3,
+            # (at a rate of 0 or 1 one end of the interval is the rate itself, up to rounding)
+            spread = np.clip(np.stack([rate - low, high - rate]), 0.0, None)
+            ax.errorbar(part[x].to_numpy(), 100 * rate, yerr=100 * spread, capsize=3,
                         label=label, **series_style(i))
         ax.set_xlabel(x)
         ax.set_ylabel("success (%)")
