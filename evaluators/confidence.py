@@ -23,6 +23,7 @@ import numpy as np
 from evaluators.tracking_metrics import nanmean
 
 JACKKNIFE_GROUPS = 20
+ROUNDING_SPREAD = 1e-12  # a standard error this small relative to its value is rounding, reported as 0
 
 
 def t_quantile(dof, prob: float = 0.95):
@@ -110,6 +111,7 @@ def jackknife(statistic, n_runs: int, groups: int = JACKKNIFE_GROUPS, prob: floa
     G = len(parts)
     with np.errstate(invalid="ignore"):
         se = np.sqrt((G - 1) / G * _sum_of_squared_deviations(left_out))
+        se = np.where(se <= ROUNDING_SPREAD * np.abs(value), 0.0, se)
     se = np.where(np.isfinite(value), se, np.nan)
     half = t_quantile(G - 1, prob) * se
     return value, se, value - half, value + half
@@ -223,6 +225,8 @@ def summary_intervals(score, runs_data: dict, n_runs: int, groups: int = 10, pro
     with np.errstate(invalid="ignore"):
         spread = _sum_of_squared_deviations(estimates)
         se = np.sqrt(spread / (G * (G - 1))) if alone else np.sqrt((G - 1) / G * spread)
+        # a metric no run changes (a bound averaged over different runs) spreads by rounding alone
+        se = np.where(se <= ROUNDING_SPREAD * np.abs(value), 0.0, se)
     ok = np.isfinite(value) & np.all(np.isfinite(estimates), axis=0)
     half = t_quantile(G - 1, prob) * se
     column = lambda a: pl.Series(np.where(ok, a, np.nan)).fill_nan(None)

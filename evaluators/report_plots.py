@@ -137,6 +137,70 @@ def plot_bearing_time(times_s, tracks_deg: dict, path: str | Path, truth_deg=Non
     return save_figure(fig, path)
 
 
+def plot_tracks_xy(tracks_m: dict, path: str | Path, measured_m=None, truth_m=None, title: str = "") -> Path:
+    """One run's tracks in the plane (km): the measured positions as grey dots, the truth dashed,
+    every tracker in its own style, its start marked.
+
+    Parameters
+    ----------
+    tracks_m : dict
+        ``tracker -> (K, 2)`` positions, NaN where there is no track.
+    measured_m : ndarray (N, 2), optional
+    truth_m : ndarray (K, 2), optional
+    """
+    fig, ax = plt.subplots(figsize=(8, 6.5))
+    if measured_m is not None and len(measured_m):
+        m = np.asarray(measured_m, float) / 1e3
+        ax.plot(m[:, 0], m[:, 1], ".", color="0.6", ms=3, label="measured positions", zorder=1)
+    if truth_m is not None:
+        t = np.asarray(truth_m, float) / 1e3
+        ax.plot(t[:, 0], t[:, 1], color="k", ls="--", lw=1.0, label="truth", zorder=2)
+    for i, (name, xy) in enumerate(tracks_m.items()):
+        xy = np.asarray(xy, float) / 1e3
+        ax.plot(xy[:, 0], xy[:, 1], lw=1.2, ms=3.5, markevery=staggered_markers(len(xy), i), label=name, zorder=3,
+                **series_style(i))
+    ax.set_xlabel("x (km)")
+    ax.set_ylabel("y (km)")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.grid(alpha=0.3)
+    legend_outside(ax)
+    if title:
+        ax.set_title(title)
+    return save_figure(fig, path)
+
+
+def plot_positions_time(times_s, tracks_m: dict, path: str | Path, measured_m=None, truth_m=None,
+                        title: str = "") -> Path:
+    """One run's position per axis against time: one panel per axis, the measurements as grey
+    dots, the truth dashed, every tracker in its own style.
+
+    Parameters
+    ----------
+    times_s : ndarray (K,)
+    tracks_m : dict
+        ``tracker -> (K, axes)`` positions.
+    measured_m, truth_m : ndarray (K, axes), optional
+    """
+    t = np.asarray(times_s, float)
+    axes_n = next(iter(tracks_m.values())).shape[-1] if tracks_m else 1
+    fig, axes = plt.subplots(axes_n, 1, figsize=(9, 2.8 * axes_n + 0.6), sharex=True, squeeze=False)
+    for a, ax in enumerate(axes[:, 0]):
+        if measured_m is not None:
+            ax.plot(t, np.asarray(measured_m, float)[:, a], ".", color="0.6", ms=2.5, label="measurements", zorder=1)
+        if truth_m is not None:
+            ax.plot(t, np.asarray(truth_m, float)[:, a], color="k", ls="--", lw=1.0, label="truth", zorder=2)
+        for i, (name, p) in enumerate(tracks_m.items()):
+            ax.plot(t, np.asarray(p, float)[:, a], lw=1.1, ms=3.5, markevery=staggered_markers(len(t), i), label=name,
+                    zorder=3, **series_style(i))
+        ax.set_ylabel(f"position, axis {a} (m)" if axes_n > 1 else "position (m)")
+        ax.grid(alpha=0.3)
+    axes[-1, 0].set_xlabel("time (s)")
+    legend_outside(axes[0, 0])
+    if title:
+        fig.suptitle(title)
+    return save_figure(fig, path)
+
+
 def ellipse_points(centre, covariance, prob: float = 0.95, n: int = 120):
     """Points of the ``prob`` ellipse of a 2-D Gaussian (boundary ``dᵀ C⁻¹ d = χ²₂(prob)``)."""
     radius = np.sqrt(-2.0 * np.log1p(-prob))           # the χ²₂ quantile has this closed form
@@ -235,30 +299,41 @@ def save_figure(fig, path: str | Path, dpi: int = 110) -> Path:
     return path
 
 
-def plot_consistency(per_scan: pl.DataFrame, path: str | Path, title: str = "") -> Path | None:
+def plot_consistency(per_scan: pl.DataFrame, path: str | Path, title: str = "", x: str = "scan",
+                     log_x: bool = False) -> Path | None:
     """Filter consistency and set distance per scan: ANEES and ANIS with their two-sided 95 % χ²
     bounds for the runs present (shaded), and OSPA; every tracker with its own line style and
-    marker, the legend outside the data (``docs/evaluation.md``)."""
+    marker, the legend outside the data (``docs/evaluation.md``). ``x`` is the per-scan column
+    the scans stand for (e.g. the noise level of a noise study). None when there is nothing to
+    draw or fewer than two scans (a single value is a table entry, not a curve). A consistency
+    panel whose values spread over more than two decades is drawn on a log scale, so that the
+    bounds stay visible next to a badly inconsistent tracker."""
     panels = [(m, lo, hi, label) for m, lo, hi, label in
               (("anees", "anees_low", "anees_high", "ANEES"), ("anis", "anis_low", "anis_high", "ANIS"),
                (next((c for c in per_scan.columns if c.startswith("ospa_")), None), None, None, "OSPA"))
               if m is not None and m in per_scan.columns and per_scan[m].drop_nulls().len() > 0]
-    if not panels:
+    if not panels or x not in per_scan.columns or per_scan[x].n_unique() < 2:
         return None
     fig, axes = plt.subplots(len(panels), 1, figsize=(9, 2.4 * len(panels) + 0.6), sharex=True, squeeze=False)
     trackers = per_scan.filter(pl.col(panels[0][0]).is_not_null())["tracker"].unique(maintain_order=True).to_list()
     for ax, (metric, lo, hi, label) in zip(axes[:, 0], panels):
         for i, name in enumerate(trackers):
-            part = per_scan.filter(pl.col("tracker") == name).sort("scan")
-            ax.plot(part["scan"].to_numpy(), part[metric].to_numpy(), markevery=staggered_markers(part.height, i),
+            part = per_scan.filter(pl.col("tracker") == name).sort(x)
+            ax.plot(part[x].to_numpy(), part[metric].to_numpy(), markevery=staggered_markers(part.height, i),
                     ms=4, lw=1.1, label=name, **series_style(i))
             if lo and i == 0:
-                ax.fill_between(part["scan"].to_numpy(), part[lo].to_numpy(), part[hi].to_numpy(), color="grey",
+                ax.fill_between(part[x].to_numpy(), part[lo].to_numpy(), part[hi].to_numpy(), color="grey",
                                 alpha=0.2, label="95 % χ² bounds")
+        values = per_scan[metric].drop_nulls().drop_nans().to_numpy()
+        values = values[values > 0]
+        if lo and values.size and values.max() > 100 * values.min():
+            ax.set_yscale("log")
         ax.set_ylabel(metric if label == "OSPA" else label)
         ax.grid(alpha=0.3)
+    if log_x:
+        axes[-1, 0].set_xscale("log")
     legend_outside(axes[0, 0])
-    axes[-1, 0].set_xlabel("scan")
+    axes[-1, 0].set_xlabel(x)
     if title:
         fig.suptitle(title)
     return save_figure(fig, path)

@@ -505,6 +505,7 @@ class SweepReport:
 
     @property
     def median_point_s(self) -> float:
+        """Median compute time of the points computed now; NaN when every point was resumed."""
         return float(np.median(self.point_work_s)) if self.point_work_s else float("nan")
 
 
@@ -732,10 +733,11 @@ def _point_frame(task: PointTask, records: list[dict], swept: list[str]) -> pl.D
 
 def run_sweep(tasks: list[PointTask], swept: list[str], out_dir: Path | None, executor: str = "process",
               workers: int | None = None, scheduler: str | None = None, resume: bool = False,
-              progress=None) -> SweepReport:
+              progress=None, outcome=None) -> SweepReport:
     """Run the grid and assemble one tidy table (point × tracker × metric).
 
-    ``progress(n)`` is called as points finish. Finished points are written immediately (when
+    ``progress(n)`` is called as points finish, and ``outcome(kind)`` with ``"done"``,
+    ``"resumed"`` or ``"failed"`` for each. Finished points are written immediately (when
     ``out_dir`` is given) so an interrupted sweep resumes with ``resume=True``; a point is
     reused only when its record (:meth:`PointTask.record`) is the task's.
 
@@ -754,13 +756,13 @@ def run_sweep(tasks: list[PointTask], swept: list[str], out_dir: Path | None, ex
         if out_dir is not None:
             _remove_temporaries(out_dir)  # left by a sweep that was killed
         try:
-            return _run_sweep(tasks, swept, out_dir, executor, workers, scheduler, resume, progress)
+            return _run_sweep(tasks, swept, out_dir, executor, workers, scheduler, resume, progress, outcome)
         finally:
             if out_dir is not None:  # the unfinished points' half-written files, if any survived
                 _remove_temporaries(out_dir)
 
 
-def _run_sweep(tasks, swept, out_dir, executor, workers, scheduler, resume, progress) -> SweepReport:
+def _run_sweep(tasks, swept, out_dir, executor, workers, scheduler, resume, progress, outcome=None) -> SweepReport:
     t0 = time.perf_counter()
     frames: dict[int, pl.DataFrame] = {}
     todo = []
@@ -774,6 +776,8 @@ def _run_sweep(tasks, swept, out_dir, executor, workers, scheduler, resume, prog
                 skipped += 1
                 if progress:
                     progress(1)
+                if outcome:
+                    outcome("resumed")
                 continue
             if why:
                 again[t.label] = why
@@ -807,6 +811,8 @@ def _run_sweep(tasks, swept, out_dir, executor, workers, scheduler, resume, prog
                             json.dump(task.record(), fh, indent=1)
                 if progress:
                     progress(1)
+                if outcome:
+                    outcome("failed" if res.error is not None else "done")
         finally:
             it.close()  # stops the workers when interrupted here rather than in the executor
     table = (pl.concat([frames[i] for i in sorted(frames)], how="vertical_relaxed") if frames

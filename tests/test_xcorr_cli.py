@@ -156,7 +156,9 @@ def test_missing_labels_for_two_point_start_and_missing_truth(base_data, tmp_pat
     p, data = base_data
     no_truth = SimulatedData(data.times, ragged=data.ragged)
     path = _write(tmp_path / "notruth.mcap", no_truth, p)
-    res = invoke(path, "--no-rrd")
+    res = invoke(path, "--no-rrd", "--set", "track_start=truth")
     assert res.exit_code == 2 and "track_start='truth' needs /xcorr/truth" in res.output
-    res = invoke(path, "--no-rrd", "--set", "track_start=two-point")
+    res = invoke(path, "--no-rrd")  # auto: no truth, labelled peaks: the two-point start
     assert res.exit_code == 0, res.output  # no truth: association statistics only
+    res = invoke(path, "--no-rrd", "--set", "track_start=peaks")  # as a recording without labels
+    assert res.exit_code == 0, res.output

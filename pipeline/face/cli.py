@@ -246,7 +246,7 @@ def main():
 
 # what a replay writes beside tracks.mcap (checked against the inputs before anything is written)
 REPORT_FILES = ("metrics.csv", "metrics.parquet", "per_scan.csv", "per_scan.parquet", "report.txt", "report.png",
-                "consistency.png", "errors.png", "fig7.png")
+                "consistency.png", "errors.png", "fig7.png", "tracks.png", "positions.png")
 
 
 def _spec_files(specs) -> list:
@@ -347,6 +347,11 @@ def _print_summary(summary: pl.DataFrame, title: str) -> None:
     sections.sort(key=lambda s: (s != "overall", s == "standard measures"))
     # a measure a tracker cannot have (NEES without a covariance) is shown as such, never as 0
     summary = summary.filter(pl.col("value").is_not_null() | pl.col("scope").str.starts_with("no "))
+    # a standard-error column a metric carries beside itself is its ± already (kept in the files)
+    summary = summary.filter(~pl.col("metric").str.ends_with("_stderr"))
+    # a metric no tracker has a number for in a section (an error without truth) is left out
+    # rather than printed as a row of dashes
+    summary = summary.filter(pl.col("value").is_null() | pl.col("value").is_not_nan().any().over("section", "metric"))
     click.echo(title + "   (± half the 95 % interval over Monte Carlo runs)")
     if summary.height == 0:
         click.echo("\n(no metric has a value: nothing to show)")
@@ -510,11 +515,12 @@ def _report_plot(res, out_dir: Path) -> list[Path]:
 
     paths = []
     title = Path(res.dataset.path).name
-    for stage in STAGES:
-        if stage.name in res.results:
-            own = res.per_scan.filter(pl.col("stage") == stage.name) if "stage" in res.per_scan.columns else res.per_scan
-            paths += stage.figures(own, out_dir, title=title, result=res.results[stage.name], dataset=res.dataset)
-    consistency = plot_consistency(res.per_scan, out_dir / "consistency.png", title=title)
+    present = [stage for stage in STAGES if stage.name in res.results]
+    for stage in present:
+        own = res.per_scan.filter(pl.col("stage") == stage.name) if "stage" in res.per_scan.columns else res.per_scan
+        paths += stage.figures(own, out_dir, title=title, result=res.results[stage.name], dataset=res.dataset)
+    x, log_x = present[0].per_scan_axis if present else ("scan", False)
+    consistency = plot_consistency(res.per_scan, out_dir / "consistency.png", title=title, x=x, log_x=log_x)
     if consistency is not None:
         paths.append(consistency)
     return paths
@@ -1062,9 +1068,10 @@ def check_cmd(data_dir, update, tracker_specs):
 @click.option("--scheduler", metavar="ADDRESS", help="Send the work to an existing Dask cluster (implies --executor dask).")
 @click.option("--keep-data/--no-keep-data", default=True, show_default=True, help="Keep each point's data set and recording.")
 @click.option("--resume", is_flag=True, help="Reuse the points already in the output folder whose record (scenario parameters, runs, seed, trackers, version) is unchanged; refuses a folder that holds another sweep.")
+@click.option("--force", is_flag=True, help="Compute every point again in a folder that holds an earlier sweep.")
 @tracker_option
 def sweep_cmd(scenario, params, sets, runs, seed, trackers, out_dir, executor, workers, scheduler, keep_data, resume,
-              tracker_specs):
+              force, tracker_specs):
     """Simulate, replay and evaluate every point of a parameter grid.
 
     Writes sweep.parquet / sweep.csv (one row per point × tracker × metric), a PNG per metric
@@ -1107,13 +1114,26 @@ def sweep_cmd(scenario, params, sets, runs, seed, trackers, out_dir, executor, w
             "trackers": wanted, "tracker_specs": plugged, "executor": executor, "points": len(tasks)}
     if resume:
         check_resume(out_dir, spec)
-    with progress.bar(len(tasks), f"sweep {scenario} ({len(tasks)} points, {executor})", show_pos=True) as bar:
-        report = run_sweep(tasks, list(specs), out_dir, executor, workers, scheduler, resume, bar.update)
-    write_sweep_outputs(report, list(specs), spec)
+    elif not force and (out_dir / "sweep.json").is_file():
+        raise InputError(f"{out_dir} holds an earlier sweep; add --resume to reuse its finished points, --force to "
+                         "compute them all again, or choose another -o")
+    counts = {"done": 0, "resumed": 0, "failed": 0}
+    label = f"sweep {scenario} ({len(tasks)} points, {executor})"
+    with progress.bar(len(tasks), label, show_pos=True) as bar:
+        def tally(kind: str) -> None:
+            counts[kind] += 1
+            bar.set_label(f"{label}: {counts['done']} done, {counts['resumed']} resumed, {counts['failed']} failed")
+
+        t0 = time.perf_counter()
+        report = run_sweep(tasks, list(specs), out_dir, executor, workers, scheduler, resume, bar.update, tally)
+        progress.timing("points", time.perf_counter() - t0)
+    with progress.timed("tables and plots"):
+        write_sweep_outputs(report, list(specs), spec)
     for note in report.notes:
         click.echo(note, err=True)
+    median = (f", median point {report.median_point_s:.2f} s" if report.point_work_s else "")
     click.echo(f"points: {report.done} done, {report.skipped} resumed, {len(report.failed)} failed; "
-               f"wall {report.wall_s:.1f} s, median point {report.median_point_s:.2f} s")
+               f"wall {report.wall_s:.1f} s{median}")
     for label, err in report.failed.items():
         click.echo(f"FAILED {label}: {err}", err=True)
     click.echo(f"table: {out_dir / 'sweep.parquet'} (+ .csv); plots: {out_dir / 'plots'}/")

@@ -209,7 +209,8 @@ def plot_association(panels, path: Path) -> Path:
         ax.grid(alpha=0.3)
         ax.set_title(title, fontsize="medium")
     legend_outside(axes[0, -1])
-    fig.suptitle("track-association success, JPDA vs JPDA_A (cf. Park, Ryu & Lee 1994, Fig. 8)")
+    # wrapped: one study's figure is narrower than the title
+    fig.suptitle("track-association success, JPDA vs JPDA_A\n(cf. Park, Ryu & Lee 1994, Fig. 8)", fontsize="medium")
     return save_figure(fig, path)
 
 
@@ -228,21 +229,31 @@ def association_table_cmd(studies, output):
       replay sweep xcorr-maneuver --param min_distance_deg=0.5,1,2,4,8 --runs 100 -o maneuver/
       replay association-table crossing/ maneuver/
     """
+    from evaluators.confidence import wilson_interval
+
     panels = []
     for study in studies:
         spec, swept, table = read_study(study)
         rows = association_table(table, swept, study)
         click.echo(f"{spec.get('scenario', study)} ({study}); success = every track ends on its own target and was "
-                   "never on another; ± 1.96 SE")
-        click.echo(f"{'  '.join(f'{s:>18}' for s in swept)} {'tracker':<8} {'success %':>14} {'swap %':>7} {'loss %':>7} {'runs':>5}")
+                   "never on another; 95 % Wilson interval")
+        click.echo(f"{'  '.join(f'{s:>18}' for s in swept)} {'tracker':<8} {'success %':>9} {'95 % interval':>13} "
+                   f"{'swap %':>7} {'loss %':>7} {'runs':>5}")
         for r in rows.iter_rows(named=True):
-            click.echo(f"{'  '.join(f'{r[s]!s:>18}' for s in swept)} {r['tracker']:<8} "
-                       f"{100 * r['success_rate']:>6.1f} ± {196 * r['success_rate_stderr']:>4.1f} "
+            low, high = wilson_interval(r["success_rate"] * r["runs"], r["runs"])
+            values = "  ".join(f"{_plain(r[s]):>18}" for s in swept)
+            click.echo(f"{values} {r['tracker']:<8} {100 * r['success_rate']:>9.1f} "
+                       f"{f'{100 * max(low, 0):.1f}–{100 * min(high, 1):.1f}':>13} "
                        f"{100 * r['swap_rate']:>7.1f} {100 * r['loss_rate']:>7.1f} {int(r['runs']):>5d}")
         click.echo("")
         panels.append((str(spec.get("scenario", study)), rows, swept))
     path = plot_association(panels, output or studies[0] / "fig8.png")
     click.echo(f"figure: {path}")
+
+
+def _plain(value) -> str:
+    """A swept value as typed: 2 rather than 2.0."""
+    return f"{value:g}" if isinstance(value, float) else str(value)
 
 
 COMMANDS = [fit_peaks_cmd, association_table_cmd]

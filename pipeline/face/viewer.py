@@ -120,6 +120,9 @@ def open_viewer(rrd: str | Path) -> subprocess.Popen:
     return _start(viewer_command(rrd), start_new_session=True)
 
 
+STARTUP_TOAST_S = 10.0  # the headless viewer's start-up notification has gone by then
+
+
 def screenshot(rrd: str | Path, png: str | Path, size: str = "1600x900", timeline: str = "scan",
                settle_s: float = 3.0, timeout_s: float = 90.0) -> Path:
     """Render ``rrd`` in the headless viewer and save a PNG of the whole window.
@@ -139,6 +142,7 @@ def screenshot(rrd: str | Path, png: str | Path, size: str = "1600x900", timelin
     log = open(Path(home) / "viewer.log", "wb")
     proc = _start(viewer_command(port=port, headless=True, size=size),
                   start_new_session=True, env=env, stdout=log, stderr=subprocess.STDOUT)
+    started = time.monotonic()
     tmp = png.with_name(png.name + ".tmp.png")
     try:
         client = _connect(rrx, port, proc, timeout_s, home)
@@ -156,7 +160,9 @@ def screenshot(rrd: str | Path, png: str | Path, size: str = "1600x900", timelin
             client.set_time(timeline, play_state="following")
         except Exception:  # a recording without that timeline still gets a picture
             pass
-        time.sleep(settle_s)
+        # the viewer greets a headless start with a toast over the top right corner for several
+        # seconds: the picture is taken once it has gone (and the views have settled)
+        time.sleep(max(settle_s, STARTUP_TOAST_S - (time.monotonic() - started)))
         client.save_screenshot(str(tmp))
         if not tmp.exists() or tmp.stat().st_size == 0:
             raise InputError("the viewer produced no screenshot", rrd)

@@ -240,6 +240,9 @@ class Stage:
 
     #: per-scan metrics of the default ``report.png`` (one panel each, against time)
     report_metrics: tuple = ()
+    #: the per-scan column the scans stand for in the consistency figure, and whether on a log
+    #: scale (a noise study's scans are noise levels)
+    per_scan_axis: tuple = ("scan", False)
     #: horizontal reference lines per metric in that figure (e.g. NPE = 1)
     report_lines: dict = {}
 

@@ -21,7 +21,7 @@ from pipeline.errors import InputError, require_finite
 from pipeline.stages.base import Stage
 from evaluators.standard import bearing_space
 from pipeline.trackers.interface import BearingPeaks, call_tracker
-from pipeline.trackers.peak_roles import roles_for
+from pipeline.trackers.peak_roles import roles_for, track_roles
 
 PEAKS = vocab.CHANNELS["xcorr_peaks"]
 TRUTH = vocab.CHANNELS["xcorr_truth"]
@@ -141,14 +141,18 @@ def read_truth_rate(dataset, bearing: np.ndarray | None) -> np.ndarray | None:
     return rate
 
 
-def n_targets(peaks: dict, truth: np.ndarray | None, path) -> int:
-    """Track slots to fill: the targets of the truth, else the labels of the peaks."""
+def n_targets(peaks: dict, truth: np.ndarray | None, path, pair: str | None = None) -> int:
+    """Track slots to fill: the targets of the truth, else the labels of the peaks, else the
+    roles of the design's ``pair`` (a recording: as many tracks as it names)."""
     if truth is not None:
         return int(truth.shape[2])
     n = int(peaks["origin"].max()) + 1 if peaks["origin"].size else 0
-    if n < 1:
-        raise InputError(f"{PEAKS} carries no labelled true peaks and there is no {TRUTH}: cannot start tracks", path)
-    return n
+    if n >= 1:
+        return n
+    if pair is None:
+        raise InputError(f"{PEAKS} carries no labelled true peaks and there is no {TRUTH}: set pair= to say how "
+                         "many tracks to start", path)
+    return len(track_roles({"pair": pair}))
 
 
 class BearingPeaksStage(Stage):
@@ -169,7 +173,8 @@ class BearingPeaksStage(Stage):
             dataset.cache["bearing_peaks"] = BearingPeaks(
                 bearing_rad=bearing, amplitude=amplitude, origin=origin, counts=counts, times_s=peaks["times"],
                 field_rad=tuple(float(v) for v in np.deg2rad(field_deg(dataset))),
-                n_targets=n_targets(peaks, truth, dataset.path), truth_bearing_rad=truth, truth_rate_radps=rate)
+                n_targets=n_targets(peaks, truth, dataset.path, (design or self.design(dataset)).get("pair")),
+                truth_bearing_rad=truth, truth_rate_radps=rate)
         return dataset.cache["bearing_peaks"]
 
     evaluation_defaults = {"ospa_cutoff_deg": 10.0, "ospa_order": 2.0, "assignment_gate_deg": 5.0}
@@ -235,7 +240,8 @@ def track_simulated(data, params: dict, trackers=("jpda", "jpda_a"), overrides: 
     tracks = {}
     for name in trackers:
         entry = entries[name]
-        design = {p.name: params[p.name] for p in entry.cls.params}
+        design = {p.name: params[p.name] if p.name in params or p.default is None else p.default
+                  for p in entry.cls.params}
         design.update({k: v for k, v in (overrides or {}).items() if k in design})
         tracks[name] = call_tracker(stage.build(entry, design), peaks)
     return {"tracks": tracks, "truth": truth["bearing_rad"], "gate_rad": float(np.deg2rad(gate_deg)),

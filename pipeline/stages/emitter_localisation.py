@@ -245,6 +245,7 @@ class EmitterLocalisationStage(Stage):
         return paths
 
     replay_report_lines = ()  # every table of the layout repeats a scope of the generic tables
+    per_scan_axis = ("sigma_range_m", True)  # the scans of a noise study are its noise levels
 
     def report(self, summary, per_scan) -> str:
         return emitter_eval.report(summary, per_scan)

@@ -59,6 +59,27 @@ class RadarTwsStage(Stage):
     report_metrics = ("rmse_position_m", "rmse_velocity_mps", "npe", "alpha_cross")
     report_lines = {"npe": [1.0]}  # NPE ≥ 1: no better than the raw plots
 
+    def figures(self, per_scan, out_dir, title: str = "", result: dict | None = None, dataset=None) -> list:
+        """``report.png``: the errors per scan (with truth), else the α cross-range per scan; and
+        ``tracks.png``: run 0 in the plane, every plot, the truth and each tracker's track."""
+        from pathlib import Path
+
+        from evaluators.report_plots import plot_tracks_xy
+
+        paths = super().figures(per_scan, out_dir, title)
+        if result is not None and dataset is not None:
+            rng, brg, counts, _ = self.decode_plots(dataset)
+            have = np.arange(rng.shape[2])[None, :] < counts[0][:, None]
+            measured = polar_to_cartesian(rng[0][have], brg[0][have])
+            truth = dataset.channels.get(TRUTH)
+            tracks = {name: np.where(((np.asarray(out["flags"])[0] & (vocab.NO_TRACK | vocab.DELETED)) > 0)[:, None],
+                                     np.nan, np.asarray(out["state"], float)[0, :, :2])
+                      for name, out in result["tracks"].items() if "state" in out and "flags" in out}
+            paths.append(plot_tracks_xy(tracks, Path(out_dir) / "tracks.png", measured,
+                                        None if truth is None else truth.grid("state")[0, :, :2],
+                                        title=f"{title}: run 0" if title else "run 0"))
+        return paths
+
     def reference(self, dataset, design: dict) -> dict:
         rng, brg, counts, times = self.decode_plots(dataset)
         first = np.where(counts > 0, 0, -1)

@@ -21,6 +21,13 @@ Track start (design ``track_start``):
                Needs ground truth, so it is for simulated and labelled data only.
 ``two-point``  two-point differencing of the labelled true peaks (``origin``) of scans 0 and 1,
                whose covariance *is* eq. 8c; filtering starts at scan 2.
+``peaks``      the same two-point start from unlabelled peaks, as a recording has them: the
+               ``n`` strongest peaks above the amplitude threshold at scan 0 (the strongest to
+               the role with the largest expected amplitude), each paired with the nearest peak
+               of scan 1 within half a gate (none: zero rate); filtering starts at scan 2
+               (:func:`strongest_start_peaks`).
+``auto``       ``truth`` when the data have it, else ``two-point`` when the peaks are
+               labelled, else ``peaks`` (the default).
 
 Outputs (:data:`pipeline.vocabulary.OUTPUTS`): ``state`` (R, K, T, 2), ``covariance``,
 ``flags`` (``NO_TRACK | INITIALISING`` before the start scan, whose state is NaN;
@@ -32,18 +39,21 @@ combined innovation ν̄), ``innovation_covariance``, ``gain``, and the paper's 
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from pipeline import vocabulary as vocab
 from pipeline.cores.association.jpda import (STRATEGIES, BearingTrackerDesign, scans_from_padded,
                                              track_bearing_peaks, two_point_start)
+from pipeline.cores.association.track_ending import EndingRule
 from pipeline.errors import InputError, check_all
 from pipeline.trackers.interface import BearingPeaks, Param, Tracker
 from pipeline.trackers.peak_roles import roles_for, track_roles
 
 PEAKS = vocab.CHANNELS["xcorr_peaks"]
 TRUTH = vocab.CHANNELS["xcorr_truth"]
-TRACK_STARTS = ("truth", "two-point")
+TRACK_STARTS = ("auto", "truth", "two-point", "peaks")
 
 PARAMS = (
     Param("scan_period_s", None, "s", "scan period T of the motion model (eq. 8b)"),
@@ -64,7 +74,10 @@ PARAMS = (
     Param("initial_strength", None, "", "ẑ_a at the track start when amplitude_tracking is on"),
     Param("tracked_amplitude_std", None, "", "σ_a when amplitude_tracking is on"),
     Param("max_cluster_tracks", None, "", "largest cluster whose joint events are computed exactly"),
-    Param("track_start", None, "", "truth (true state at scan 0, simulated data) | two-point (labelled peaks of scans 0, 1)"),
+    Param("track_start", None, "", "auto | truth (true state at scan 0) | two-point (labelled peaks of scans 0, 1) | "
+          "peaks (the strongest unlabelled peaks of scans 0, 1)"),
+    Param("max_coasted_scans", 0, "scans", "a track coasting this many scans in a row ends (0: never; a track "
+          "leaving the field by more than half a gate always ends)", low=-1),
 )
 
 
@@ -108,7 +121,7 @@ def check_design(design: dict) -> None:
                (design["max_cluster_tracks"] >= 1, "max_cluster_tracks must be ≥ 1"),
                (all(v > 0 for v in role_values), "σ_p and σ_a of every role must be > 0"),
                (design["track_start"] in TRACK_STARTS,
-                f"track_start must be 'truth' or 'two-point' (got {design['track_start']!r})")])
+                f"track_start must be one of {', '.join(TRACK_STARTS)} (got {design['track_start']!r})")])
 
 
 def labelled_start_peaks(bearing: np.ndarray, origin: np.ndarray, counts: np.ndarray,
@@ -142,20 +155,80 @@ def labelled_start_peaks(bearing: np.ndarray, origin: np.ndarray, counts: np.nda
     return z[0], z[1]
 
 
+def strongest_start_peaks(bearing: np.ndarray, amplitude: np.ndarray, counts: np.ndarray, strength: np.ndarray,
+                          gate_rad: float, threshold: float) -> tuple[np.ndarray, np.ndarray]:
+    """Bearings ``(R, T)`` of scans 0 and 1 for a two-point start from unlabelled peaks.
+
+    At scan 0 the ``T`` strongest peaks above ``threshold`` go to the tracks in decreasing order
+    of their expected amplitude ``strength`` (T,); at scan 1 each track takes the nearest peak
+    within half a gate, one peak per track (``scipy.optimize.linear_sum_assignment``), or its
+    scan-0 bearing (zero rate) when none is near. (A line fitted through more scans was tried:
+    over five scans it follows clutter more often than it averages noise, and did worse.)
+
+    Raises
+    ------
+    InputError
+        A run whose scan 0 holds fewer than ``T`` peaks above the threshold.
+    """
+    from scipy.optimize import linear_sum_assignment
+
+    R, T = bearing.shape[0], len(strength)
+    z0, z1 = np.full((R, T), np.nan), np.full((R, T), np.nan)
+    by_strength = np.argsort(-np.asarray(strength), kind="stable")
+    for r in range(R):  # two scans per run: a loop over runs, not over scans
+        n0 = int(counts[r, 0])
+        b0, a0 = bearing[r, 0, :n0], amplitude[r, 0, :n0]
+        strong = np.flatnonzero(a0 >= threshold)
+        if strong.size < T:
+            raise InputError(f"{PEAKS}: run {r} scan 0 holds {strong.size} peak(s) above the amplitude threshold, "
+                             f"fewer than the {T} tracks to start (track_start='peaks')")
+        picked = strong[np.argsort(-a0[strong], kind="stable")[:T]]
+        z0[r, by_strength] = b0[picked]
+        # every peak of scan 1 is a candidate: a weak target below the threshold there still
+        # gives its rate (with the threshold, 51 % success against 66 % at ψ = 20°, 100 runs)
+        n1 = int(counts[r, 1]) if bearing.shape[1] > 1 else 0
+        b1 = bearing[r, 1, :n1] if n1 else np.zeros(0)
+        z1[r] = z0[r]
+        if b1.size:
+            distance = np.abs(z0[r][:, None] - b1[None, :])
+            cost = np.where(distance <= gate_rad / 2, distance, 1e6)
+            rows, cols = linear_sum_assignment(cost)
+            near = cost[rows, cols] < 1e6
+            z1[r, rows[near]] = b1[cols[near]]
+    return z0, z1
+
+
+def resolved_start(m: BearingPeaks, track_start: str) -> str:
+    """``auto`` resolved for these data (truth, else labelled peaks, else unlabelled peaks)."""
+    if track_start != "auto":
+        return track_start
+    if m.truth_bearing_rad is not None and m.truth_rate_radps is not None:
+        return "truth"
+    labelled = np.arange(m.origin.shape[2])[None, None, :] < m.counts[..., None]
+    return "two-point" if np.any((m.origin[:, :2] >= 0) & labelled[:, :2]) else "peaks"
+
+
 def start_tracks(m: BearingPeaks, track_start: str, d: BearingTrackerDesign):
     """Initial states ``(R, T, 2)``, covariances ``(R, T, 2, 2)`` and the scan they belong to.
 
-    ``two-point``: eq. 8c from the labelled peaks of scans 0 and 1 (start scan 1). ``truth``:
-    the true state of scan 0 with the covariance of eq. 8c around it (start scan 0).
+    ``two-point``: eq. 8c from the labelled peaks of scans 0 and 1 (start scan 1). ``peaks``: the
+    same from the strongest unlabelled peaks (:func:`strongest_start_peaks`). ``truth``: the
+    true state of scan 0 with the covariance of eq. 8c around it (start scan 0). ``auto``:
+    :func:`resolved_start`.
     """
-    if track_start == "two-point":
-        z0, z1 = labelled_start_peaks(m.bearing_rad, m.origin, m.counts, m.n_targets)
+    track_start = resolved_start(m, track_start)
+    if track_start in ("two-point", "peaks"):
+        if track_start == "peaks":
+            z0, z1 = strongest_start_peaks(m.bearing_rad, m.amplitude, m.counts, d.strength, d.gate_rad,
+                                           d.amplitude_threshold)
+        else:
+            z0, z1 = labelled_start_peaks(m.bearing_rad, m.origin, m.counts, m.n_targets)
         x0, P0 = two_point_start(z0, z1, d.scan_period_s, d.sigma_p_rad)
         return x0, P0, 1
     b, rate = m.truth_bearing_rad, m.truth_rate_radps
     if b is None or rate is None:
         raise InputError(f"track_start='truth' needs {TRUTH} (bearing_rad, bearing_rate_radps); "
-                         "use --set track_start=two-point for data without truth")
+                         "use --set track_start=auto (or peaks) for data without truth")
     if b.shape != rate.shape or b.shape[2] != m.n_targets:
         raise InputError(f"truth bearings {b.shape} and rates {rate.shape} must both be (runs, scans, "
                          f"{m.n_targets} targets)")
@@ -177,6 +250,8 @@ class _JpdaTracker(Tracker):
 
     def track(self, peaks: BearingPeaks) -> dict:
         d = core_design(self.design, peaks.n_targets)
+        d = replace(d, ending=EndingRule(field=tuple(peaks.field_rad), margin=d.gate_rad / 2,
+                                         max_coasted_scans=int(self.max_coasted_scans)))
         x0, P0, start = start_tracks(peaks, self.track_start, d)
         scans = scans_from_padded(peaks.bearing_rad, peaks.amplitude, peaks.counts)
         return track_bearing_peaks(scans, x0, P0, d, STRATEGIES[self.name], start)

@@ -45,11 +45,13 @@ from scipy.special import erf, ndtr
 from pipeline import vocabulary as vocab
 from pipeline.cores.filters.kalman import apply_gain, continuous_white_noise_model, kalman_gain, kf_predict
 from pipeline.cores.filters.kalman import two_point_start  # noqa: F401  (eq. 8c; importable from here as before)
+from pipeline.cores.association.track_ending import EndingRule, coasting_run, ended
 
 # Flag bits of the one table (pipeline.vocabulary.FLAGS), as this core uses them:
 FLAG_NO_TRACK = vocab.NO_TRACK            # before the track start scan: no state yet
 FLAG_INITIALISING = vocab.INITIALISING    # up to and including the start scan: start values, not filtered
 FLAG_COASTED = vocab.COASTED              # no peak in the gate: the state is the prediction
+FLAG_DELETED = vocab.DELETED              # the track ended (track_ending): this scan, and NO_TRACK after
 FLAG_CLUSTER_SPLIT = vocab.CLUSTER_SPLIT  # the track's cluster exceeded max_cluster_tracks (approximate β)
 MEMORY_BUDGET_FLOATS = 1 << 22  # forward table of one recursion batch (32 MB)
 TOP_WEIGHTS = 3
@@ -93,6 +95,7 @@ class BearingTrackerDesign:
     initial_strength: float = 15000.0
     tracked_sigma_a: float = 3500.0
     max_cluster_tracks: int = 12
+    ending: EndingRule = EndingRule()  # when a track ends (pipeline.cores.association.track_ending)
 
     @property
     def clutter_density(self) -> float:
@@ -479,6 +482,8 @@ def track_bearing_peaks(scans: list[ScanPeaks], x0: np.ndarray, P0: np.ndarray, 
     out["strength"][:, start_scan] = strength
     half_gate = design.gate_rad / 2
     lam = design.clutter_density
+    alive = np.ones((R, T), bool)          # tracks not ended (track_ending.ended)
+    coasting = np.zeros((R, T), np.int64)
     for k in range(start_scan + 1, K):
         sp = scans[k]
         x, P = kf_predict(x, P, F, Q)
@@ -486,7 +491,8 @@ def track_bearing_peaks(scans: list[ScanPeaks], x0: np.ndarray, P0: np.ndarray, 
         S1 = S[..., 0, 0]
         nu = sp.bearing[:, None, :] - x[..., 0, None]  # (R, T, m)
         usable = sp.valid & (sp.amplitude >= design.amplitude_threshold)
-        gated = usable[:, None, :] & (np.abs(nu) <= half_gate)
+        # an ended track keeps predicting (finite, harmless) but takes no peak and is not output
+        gated = usable[:, None, :] & (np.abs(nu) <= half_gate) & alive[..., None]
         pd = np.full((R, T), design.detection_probability)
         if strategy.amplitude:
             amp_ratio, survive = amplitude_likelihood_ratio(sp.amplitude, strength, sigma_a,
@@ -502,14 +508,20 @@ def track_bearing_peaks(scans: list[ScanPeaks], x0: np.ndarray, P0: np.ndarray, 
         if design.amplitude_tracking:
             strength = update_strength(strength, sp.amplitude, gated)
         n_gated = gated.sum(axis=2)
+        coasting = coasting_run(coasting, n_gated == 0)
+        ending = alive & ended(x[..., 0], coasting, design.ending)
+        gone = ~alive  # ended at an earlier scan
         out["state"][:, k], out["covariance"][:, k] = x, P
+        out["state"][:, k][gone], out["covariance"][:, k][gone] = np.nan, np.nan
         out["beta0"][:, k] = beta0
         out["strength"][:, k] = strength
         out["n_gated"][:, k] = n_gated
-        out["flags"][:, k] = np.where(n_gated == 0, FLAG_COASTED, 0) | np.where(split, FLAG_CLUSTER_SPLIT, 0)
-        out["innovation"][:, k, :, 0] = np.where(n_gated > 0, nu_bar, np.nan)
-        out["innovation_covariance"][:, k] = S
-        out["gain"][:, k] = Kg
+        out["flags"][:, k] = (np.where(n_gated == 0, FLAG_COASTED, 0) | np.where(split, FLAG_CLUSTER_SPLIT, 0)
+                              | np.where(ending, FLAG_DELETED, 0) | np.where(gone, FLAG_NO_TRACK | FLAG_DELETED, 0))
+        out["innovation"][:, k, :, 0] = np.where((n_gated > 0) & ~gone, nu_bar, np.nan)
+        out["innovation_covariance"][:, k] = np.where(gone[..., None, None], np.nan, S)
+        out["gain"][:, k] = np.where(gone[..., None, None], np.nan, Kg)
+        alive &= ~ending
         if beta.shape[2]:
             top = np.argsort(-beta, axis=2, kind="stable")[..., :TOP_WEIGHTS]
             w = np.take_along_axis(beta, top, axis=2)
