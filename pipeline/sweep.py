@@ -852,6 +852,9 @@ def _write_sweep_outputs(report: SweepReport, swept: list[str], spec: dict) -> l
     wide = report.table.pivot(on="metric", index=["point", *swept, "tracker"], values="value", aggregate_function="first")
     plot_dir = out / "plots"
     for metric in report.table["metric"].unique(maintain_order=True):
+        values = report.table.filter(pl.col("metric") == metric)["value"].drop_nulls().drop_nans()
+        if values.n_unique() <= 1:
+            continue  # the same at every point for every tracker (a bound, a count that stays 0): nothing to plot
         title = f"{spec.get('scenario', '')}: {metric} vs {x}"
         if others:  # one panel per combination of the other parameters' values, readable for any number
             paths.append(plot_facets(wide, x, metric, others, plot_dir / f"{metric}.png", title=title))

@@ -237,7 +237,7 @@ def main():
       replay eval radar.mcap --json
       replay check
       replay sweep radar-tws --param sigma_bearing_deg=0.5,1,2 --runs 100 -o study/
-      replay export --foxglove replay-out/radar/tracks.mcap -o view.mcap
+      replay export --foxglove replay-out/radar_tws_demo/tracks.mcap -o view.mcap
     """
 
 
@@ -612,6 +612,10 @@ def run_cmd(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, s
     if data is None:
         data = bundled_data_dir() / DEMO_NAME
         click.echo(f"no data set given: replaying the bundled demo {data}")
+    if spawn:  # no display: say so before the replay, not after it
+        from pipeline.face.viewer import require_display
+
+        require_display()
     explicit_out, explicit_rrd = out_path is not None, rrd_path is not None and not no_rrd
     base = out_path.parent if explicit_out else _default_out_dir(data)
     out_dir = base if (explicit_out or force) else _numbered_out_dir(base, "tracks.mcap")
