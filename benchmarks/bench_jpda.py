@@ -32,7 +32,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from pipeline.cores.association.jpda import STRATEGIES, scans_from_padded, track_bearing_peaks, two_point_start  # noqa: E402
-from pipeline.trackers.bearing_peaks import PARAMS, core_design  # noqa: E402
+from pipeline.trackers.bearing_peaks import core_design, design_from  # noqa: E402
 from recorders.scenarios import load_scenario  # noqa: E402
 from recorders.xcorr_peaks import simulate  # noqa: E402
 
@@ -48,7 +48,7 @@ def crossing_workload(runs=1, seed=4):
     data = simulate(sc.params, runs, seed)
     arr, counts = data.ragged["/xcorr/peaks"]
     truth = data.fixed["/xcorr/truth"]
-    design = core_design({p.name: sc.params[p.name] for p in PARAMS}, 2)
+    design = core_design(design_from(sc.params), 2)
     x0 = np.stack([truth["bearing_rad"][:, 0], truth["bearing_rate_radps"][:, 0]], -1)
     _, P0 = two_point_start(truth["bearing_rad"][:, 0], truth["bearing_rad"][:, 0], 1.0, design.sigma_p_rad)
     scans = scans_from_padded(arr["bearing_rad"], arr["amplitude"], counts)
@@ -230,7 +230,7 @@ def main():
             data = simulate(sc.params, 100, 1)
             a, c = data.ragged["/xcorr/peaks"]
             tr = data.fixed["/xcorr/truth"]
-            dsn = core_design({p.name: sc.params[p.name] for p in PARAMS}, 2)
+            dsn = core_design(design_from(sc.params), 2)
             x = np.stack([tr["bearing_rad"][:, 0], tr["bearing_rate_radps"][:, 0]], -1)
             _, P = two_point_start(tr["bearing_rad"][:, 0], tr["bearing_rad"][:, 0], 1.0, dsn.sigma_p_rad)
             s = scans_from_padded(a["bearing_rad"], a["amplitude"], c)

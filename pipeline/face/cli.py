@@ -357,6 +357,7 @@ def _print_summary(summary: pl.DataFrame, title: str) -> None:
         click.echo("\n(no metric has a value: nothing to show)")
         return
     trackers = summary["tracker"].unique(maintain_order=True).to_list()
+    overall: dict = {}
     with pl.Config(tbl_rows=400, tbl_cols=30, tbl_width_chars=TABLE_WIDTH, tbl_hide_dataframe_shape=True,
                    tbl_hide_column_data_types=True, fmt_str_lengths=60, tbl_cell_alignment="RIGHT"):
         for section in sections:
@@ -369,6 +370,12 @@ def _print_summary(summary: pl.DataFrame, title: str) -> None:
             cells = {(r["metric"], r["tracker"]): (_cell(r["value"], r["ci_low"], r["ci_high"])
                                                    if r["value"] is not None else r["scope"])
                      for r in part.iter_rows(named=True)}
+            if section == "overall":
+                overall = cells
+            elif section != "standard measures" and cells and all(overall.get(k) == v for k, v in cells.items()):
+                # a scope every scan falls in (e.g. a manoeuvre that lasts the whole run)
+                click.echo("(every scan falls in this scope: its metrics are those of [overall])")
+                continue
             shown = [t for t in trackers if any((m, t) in cells for m in metrics)]
             columns = {t: [cells.get((m, t), "") for m in metrics] for t in shown}
             # a box-table column takes its widest cell + 3 (padding and rule); the frame 1 more
@@ -381,8 +388,6 @@ def _print_summary(summary: pl.DataFrame, title: str) -> None:
                                          **{shown[i]: [columns[shown[i]][k] for k in rows] for i in group}}))
 
 
-# Blocks of a stage's paper layout that repeat the generic table above it (same numbers, other
-# layout): left out of `replay` and `replay eval` (`replay colored-report` prints them all).
 def _is_rule(line: str) -> bool:
     body = line.strip()
     return len(body) >= 3 and set(body) <= set("-=─━")

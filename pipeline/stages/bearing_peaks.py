@@ -20,6 +20,7 @@ from pipeline import vocabulary as vocab
 from pipeline.errors import InputError, require_finite
 from pipeline.stages.base import Stage
 from evaluators.standard import bearing_space
+from pipeline.trackers.bearing_peaks import design_from
 from pipeline.trackers.interface import BearingPeaks, call_tracker
 from pipeline.trackers.peak_roles import roles_for, track_roles
 
@@ -240,8 +241,7 @@ def track_simulated(data, params: dict, trackers=("jpda", "jpda_a"), overrides: 
     tracks = {}
     for name in trackers:
         entry = entries[name]
-        design = {p.name: params[p.name] if p.name in params or p.default is None else p.default
-                  for p in entry.cls.params}
+        design = design_from(params, entry.cls.params)
         design.update({k: v for k, v in (overrides or {}).items() if k in design})
         tracks[name] = call_tracker(stage.build(entry, design), peaks)
     return {"tracks": tracks, "truth": truth["bearing_rad"], "gate_rad": float(np.deg2rad(gate_deg)),

@@ -81,6 +81,12 @@ PARAMS = (
 )
 
 
+def design_from(params: dict, params_spec=PARAMS) -> dict:
+    """The design values of ``params_spec`` from a scenario's ``params``, a parameter the scenario
+    does not name taking its own default."""
+    return {p.name: params[p.name] if p.name in params or p.default is None else p.default for p in params_spec}
+
+
 def core_design(design: dict, n_tracks: int) -> BearingTrackerDesign:
     """The core's design (SI units, radians, one σ_p, ẑ_a, σ_a per track from its role).
 
