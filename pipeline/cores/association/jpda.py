@@ -508,20 +508,26 @@ def track_bearing_peaks(scans: list[ScanPeaks], x0: np.ndarray, P0: np.ndarray, 
         if design.amplitude_tracking:
             strength = update_strength(strength, sp.amplitude, gated)
         n_gated = gated.sum(axis=2)
-        coasting = coasting_run(coasting, n_gated == 0)
+        coasted = n_gated == 0
+        if design.ending.max_coasted_scans:
+            coasting = coasting_run(coasting, coasted)
         ending = alive & ended(x[..., 0], coasting, design.ending)
-        gone = ~alive  # ended at an earlier scan
         out["state"][:, k], out["covariance"][:, k] = x, P
-        out["state"][:, k][gone], out["covariance"][:, k][gone] = np.nan, np.nan
         out["beta0"][:, k] = beta0
         out["strength"][:, k] = strength
         out["n_gated"][:, k] = n_gated
-        out["flags"][:, k] = (np.where(n_gated == 0, FLAG_COASTED, 0) | np.where(split, FLAG_CLUSTER_SPLIT, 0)
-                              | np.where(ending, FLAG_DELETED, 0) | np.where(gone, FLAG_NO_TRACK | FLAG_DELETED, 0))
-        out["innovation"][:, k, :, 0] = np.where((n_gated > 0) & ~gone, nu_bar, np.nan)
-        out["innovation_covariance"][:, k] = np.where(gone[..., None, None], np.nan, S)
-        out["gain"][:, k] = np.where(gone[..., None, None], np.nan, Kg)
-        alive &= ~ending
+        flags = coasted * FLAG_COASTED | split * FLAG_CLUSTER_SPLIT | ending * FLAG_DELETED
+        out["innovation"][:, k, :, 0] = np.where(coasted, np.nan, nu_bar)
+        out["innovation_covariance"][:, k] = S
+        out["gain"][:, k] = Kg
+        if not alive.all():  # tracks ended at an earlier scan: no state, nothing associated
+            gone = ~alive
+            flags = np.where(gone, FLAG_NO_TRACK | FLAG_DELETED, flags)
+            for key in ("state", "covariance", "innovation", "innovation_covariance", "gain"):
+                out[key][:, k][gone] = np.nan
+        out["flags"][:, k] = flags
+        if ending.any():
+            alive &= ~ending
         if beta.shape[2]:
             top = np.argsort(-beta, axis=2, kind="stable")[..., :TOP_WEIGHTS]
             w = np.take_along_axis(beta, top, axis=2)
