@@ -109,6 +109,8 @@ def test_every_family_replays_a_data_set_without_its_truth(tmp_path, scenario):
     assert res.exit_code == 0, res.output
     assert "Traceback" not in res.output and "rmse" not in res.output.lower()  # no error it cannot compute
     assert out.is_file() and (out.parent / "report.png").is_file()
+    if scenario in ("xcorr-crossing", "array-crossing"):  # bearings, the one thing to show without truth
+        assert "run 0 without truth: track positions (deg) per scan" in res.output
     from pipeline import vocabulary as vocab
 
     prefixes = tuple(f.output_prefix for f in vocab.FAMILIES.values())

@@ -483,6 +483,7 @@ def _print_stage_reports(res) -> None:
     for stage in STAGES:
         if stage.name in res.results:
             text = stage.replay_report(res.summary, res.per_scan) or ""
+            text += "\n\n" + (stage.track_listing(res.dataset, res.results[stage.name]) or "")
             if text.strip():
                 click.echo("\n" + fit_width(text.strip("\n")))
 

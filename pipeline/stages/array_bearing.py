@@ -28,6 +28,7 @@ TRUTH = vocab.CHANNELS["array_truth"]
 
 class ArrayBearingStage(Stage):
     name = "array-bearing"
+    truth_channel = TRUTH  # without it, replay lists run 0's bearings per scan
     family = "array-snapshots"
     scenario = "array-crossing"
     # decoding (the array's d/λ) and evaluation (the swap/loss gate)

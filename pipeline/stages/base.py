@@ -266,6 +266,47 @@ class Stage:
         part = per_scan.filter(pl.col(metrics[0]).is_not_null())
         return plot_metrics_vs(part, "time_s", metrics, path, title=title, hlines=self.report_lines)
 
+    #: channel of the truth that, when absent, makes :meth:`track_listing` print the tracks
+    truth_channel: str | None = None
+    #: the state component listed by :meth:`track_listing` and its unit ("deg": radians shown in degrees)
+    listing = (0, "deg")
+    LISTING_SCANS = 40  # more scans than this: the first and last halves, the rest in the outputs
+
+    def track_listing(self, dataset, result: dict, run: int = 0) -> str:
+        """For data without truth (a recording), where no error can be computed: run ``run``'s
+        track positions per scan, one column per tracker and slot, so that a user sees what the
+        trackers made of the data. Empty when the data have truth or the family lists nothing."""
+        if self.truth_channel is None or self.truth_channel in dataset.channels:
+            return ""
+        component, unit = self.listing
+        columns = {}
+        for name, out in result["tracks"].items():
+            if "state" not in out or "flags" not in out:
+                continue
+            state = np.asarray(out["state"], float)[run, ..., component]
+            state = state.reshape(state.shape[0], -1)
+            gone = (np.asarray(out["flags"])[run].reshape(state.shape) & (vocab.NO_TRACK | vocab.DELETED)) > 0
+            state = np.where(gone, np.nan, np.rad2deg(state) if unit == "deg" else state)
+            for slot in range(state.shape[1]):
+                columns[name if state.shape[1] == 1 else f"{name}[{slot}]"] = state[:, slot]
+        if not columns:
+            return ""
+        times = np.asarray(result["times"], float)
+        scans = list(range(len(times)))
+        if len(scans) > self.LISTING_SCANS:
+            half = self.LISTING_SCANS // 2
+            scans = scans[:half] + [None] + scans[-half:]
+        head = f"{'scan':>5} {'time s':>9}" + "".join(f" {c:>12}" for c in columns)
+        lines = [f"run {run} without truth: track positions ({unit}) per scan; every scan of every run is "
+                 "in tracks.mcap", head]
+        for k in scans:
+            if k is None:
+                lines.append(f"{'…':>5}")
+                continue
+            cells = "".join(f" {'—' if not np.isfinite(v[k]) else f'{v[k]:.2f}':>12}" for v in columns.values())
+            lines.append(f"{k:>5} {times[k]:>9.2f}{cells}")
+        return "\n".join(lines)
+
     def bearing_time_record(self, result: dict, out_dir, title: str = "", truth_rad=None, peaks=None,
                             field_deg=None, run: int = 0) -> Path:
         """``report.png`` of a bearing family: run ``run``'s tracks of every tracker (state

@@ -158,6 +158,7 @@ def n_targets(peaks: dict, truth: np.ndarray | None, path, pair: str | None = No
 
 class BearingPeaksStage(Stage):
     name = "xcorr-peaks"
+    truth_channel = TRUTH  # without it, replay lists run 0's bearings per scan
     family = "bearing-peaks"
     scenario = "xcorr-crossing"
     # what the evaluator needs: the gate (judge of "on target") and the targets' roles
