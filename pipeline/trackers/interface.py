@@ -367,9 +367,10 @@ def _check_covariance(cov, state, name, where) -> None:
     live_flat, cov_flat = live_all.reshape(-1), cov.reshape(-1, n, n)
     eye = np.eye(n)
 
-    def fail(block_start: int, bad_in_block, problem: str):
+    def fail(index: int, problem: str):
+        """``index``: the offending matrix in the flattened (runs, scans[, slots]) order."""
         bad = np.zeros(live_flat.shape, bool)
-        bad[block_start + np.flatnonzero(bad_in_block)[:1]] = True
+        bad[index] = True
         raise TrackerError(f"tracker {name!r}: {_first(bad.reshape(live_all.shape))}: {problem}", where)
 
     for start in range(0, live_flat.size, COVARIANCE_CHECK_BLOCK):
@@ -382,11 +383,11 @@ def _check_covariance(cov, state, name, where) -> None:
         where_live = np.arange(len(live)) if everything else np.flatnonzero(live)
         finite = np.isfinite(c).all(axis=(-2, -1))
         if not finite.all():
-            fail(start, np.isin(np.arange(len(live)), where_live[~finite]), "covariance not finite where the state is")
+            fail(start + where_live[np.argmin(finite)], "covariance not finite where the state is")
         scale = np.maximum(np.abs(np.diagonal(c, axis1=-2, axis2=-1)).max(axis=-1), np.finfo(float).tiny)
         asym = np.abs(c - np.swapaxes(c, -1, -2)).max(axis=(-2, -1)) > 1e-8 * scale
         if asym.any():
-            fail(start, np.isin(np.arange(len(live)), where_live[asym]), "covariance not symmetric")
+            fail(start + where_live[np.argmax(asym)], "covariance not symmetric")
         # c + δI has a Cholesky factor exactly when c's smallest eigenvalue exceeds −δ: one batched
         # factorisation (a fifth of the cost of the eigenvalues) clears the common case; the
         # eigenvalues are computed only to name the offending entry
@@ -399,5 +400,5 @@ def _check_covariance(cov, state, name, where) -> None:
         lowest = np.linalg.eigvalsh(c)[..., 0]
         indefinite = lowest <= -tolerance
         if indefinite.any():
-            fail(start, np.isin(np.arange(len(live)), where_live[indefinite]),
-                 f"covariance not positive definite (smallest eigenvalue {lowest[indefinite][0]:.3g})")
+            first = int(np.argmax(indefinite))
+            fail(start + where_live[first], f"covariance not positive definite (smallest eigenvalue {lowest[first]:.3g})")
