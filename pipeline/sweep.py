@@ -416,7 +416,10 @@ def local_cluster(workers: int):
         return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
                             dashboard_address=None, worker_dashboard_address=None,
                             scheduler_kwargs={"dashboard": False, "dashboard_address": "127.0.0.1:0"},
-                            silence_logs=logging.ERROR)
+                            # a point's failure reaches the user through its future, in one
+                            # line; the workers' own logs only race the shutdown of an interrupt
+                            # ("failed to communicate with scheduler") onto the terminal
+                            silence_logs=logging.CRITICAL)
 
 
 def _iter_dask(tasks, workers, scheduler):
