@@ -173,7 +173,7 @@ REQUIRED_OUTPUTS = tuple(name for name, o in OUTPUTS.items() if o.required)
 
 FLAGS = {
     "NO_TRACK": 1 << 0,         # no track in this slot at this scan (state is NaN)
-    "INITIALISING": 1 << 1,     # track in start-up: not yet filtered
+    "INITIALISING": 1 << 1,     # track in start-up or tentative: not yet filtered or not yet confirmed
     "COASTED": 1 << 2,          # no measurement used this scan: the state is the prediction
     "CLAMPED": 1 << 3,          # a gain or estimate was clamped into its valid range
     "CLUSTER_SPLIT": 1 << 4,    # association approximated: the cluster had too many tracks
@@ -185,7 +185,7 @@ FLAGS = {
     "UNDERDETERMINED": 1 << 10, # fewer independent equations than unknowns: not estimated
     "INVALID_START": 1 << 11,   # the initial guess was not finite
     "NOT_ESTIMATED": 1 << 12,   # some state components are not estimated (NaN)
-    "DELETED": 1 << 13,         # the track ended at this scan
+    "DELETED": 1 << 13,         # the track ended at this scan (with NO_TRACK; NO_TRACK alone after)
     "FLOORED": 1 << 14,         # a variance was raised to its floor
     "LIMITED": 1 << 15,         # a coefficient was limited to its stable range
 }

@@ -18,7 +18,7 @@ PARAMS = load_scenario("array-crossing").params
 
 
 def design(**over):
-    return {**{p.name: PARAMS[p.name] for p in ab.PARAMS}, **over}
+    return {**{p.name: PARAMS.get(p.name, p.default) for p in ab.PARAMS}, **over}
 
 
 @pytest.fixture(scope="module")

@@ -61,6 +61,7 @@ from pipeline.cores.array.angular_innovation import INNOVATIONS
 from pipeline.cores.array.flop_counts import ANALYTIC, counted_flops
 from pipeline.cores.array.music import angle_grid, eigen_decomposition, music_spectrum, pick_peaks, sample_covariance, source_count
 from pipeline.cores.array.past_subspace import batch_signal_subspace, initial_state, largest_principal_angle, past_update
+from pipeline.cores.association.track_management import EndingRule, TrackLife
 from pipeline.cores.filters.kalman import apply_gain, continuous_white_noise_model, kalman_gain, kf_predict, two_point_start
 from pipeline.errors import InputError
 from pipeline.trackers.interface import ArraySnapshots, Param, Tracker
@@ -94,6 +95,11 @@ class SubspaceTrackerDesign:
         MUSIC grid step.
     subspace : str
         ``"past"`` (the paper) or ``"batch"`` (per-scan EVD, reference).
+    max_coasted_scans : int
+        A track whose innovation is undefined (its prediction beyond the field) this many scans
+        in a row is deleted; 0: never. A track whose bearing leaves the field
+        (:attr:`field_rad`) is always deleted
+        (:mod:`pipeline.cores.association.track_management`).
     """
 
     spacing_wavelengths: float = 0.5
@@ -105,6 +111,13 @@ class SubspaceTrackerDesign:
     n_sources: int = 0
     grid_step_rad: float = np.deg2rad(0.1)
     subspace: str = "past"
+    max_coasted_scans: int = 3
+
+    @property
+    def field_rad(self) -> float:
+        """Half-width of the field free of grating lobes: |θ| < arcsin(λ/d − 1) above d = λ/2,
+        the whole half-plane (π/2) at or below it."""
+        return float(np.arcsin(min(1.0, 1.0 / self.spacing_wavelengths - 1.0)))
 
     def model(self):
         """``F, Q, H, R`` of the constant-angular-velocity filter."""
@@ -267,6 +280,10 @@ def _track_group(subspaces, theta_minus1, theta_0, design: SubspaceTrackerDesign
     out["covariance"][:, 1] = P
     out["flags"][:, :STARTUP_SCANS] = vocab.INITIALISING
     out["flags"][:, 0] |= vocab.NOT_ESTIMATED
+    # MUSIC's start-up is the confirmation; a track ends when its bearing leaves the field
+    field = design.field_rad
+    life = TrackLife((B, n), ending=EndingRule(field=(-field, field), max_coasted_scans=design.max_coasted_scans))
+    life.start(np.ones((B, n), bool), confirmed=True)
     for k in range(STARTUP_SCANS, K):
         x, P = kf_predict(x, P, F, Q)
         out["predicted_rad"][:, k] = x[..., 0]
@@ -281,7 +298,14 @@ def _track_group(subspaces, theta_minus1, theta_0, design: SubspaceTrackerDesign
         out["innovation"][:, k, :, 0] = dtheta
         out["innovation_covariance"][:, k] = S
         out["gain"][:, k] = gain
-        out["flags"][:, k] = np.where(ok, 0, vocab.COASTED)
+        _, ending = life.step(ok, x[..., 0])
+        flags = np.where(ok, 0, vocab.COASTED).astype(np.uint16)
+        gone = ~life.alive
+        if gone.any():  # ended here (DELETED) or before: an ended track's prediction runs on, unreported
+            flags = np.where(ending, vocab.NO_TRACK | vocab.DELETED, np.where(gone, vocab.NO_TRACK, flags))
+            for key in ("state", "covariance", "innovation", "innovation_covariance", "gain", "predicted_rad"):
+                out[key][:, k][gone] = np.nan
+        out["flags"][:, k] = flags
     return out
 
 
@@ -366,6 +390,8 @@ PARAMS = (
     Param("n_sources", None, "", "number of targets; 0 estimates it at start-up (≤ M − 1)"),
     Param("music_grid_step_deg", None, "deg", "MUSIC angle grid step at start-up"),
     Param("subspace_tracker", None, "", "past (the paper) | batch (per-scan EVD, reference)"),
+    Param("max_coasted_scans", 3, "scans", "a track without a usable innovation this many scans in a row is deleted "
+          "(0: never; a track whose bearing leaves the field is always deleted)", low=-1),
 )
 
 
@@ -401,7 +427,8 @@ class _AngularInnovationTracker(Tracker):
             scan_period_s=float(self.scan_period_s), process_noise_q=float(self.process_noise_q_deg2) * deg2,
             innovation_variance=float(self.innovation_variance_deg2) * deg2, forgetting=float(self.past_forgetting),
             source_count=str(self.source_count_criterion).lower(), n_sources=int(self.n_sources),
-            grid_step_rad=np.deg2rad(float(self.music_grid_step_deg)), subspace=str(self.subspace_tracker))
+            grid_step_rad=np.deg2rad(float(self.music_grid_step_deg)), subspace=str(self.subspace_tracker),
+            max_coasted_scans=int(self.max_coasted_scans))
 
     def track(self, snapshots: ArraySnapshots) -> dict:
         design = dataclasses.replace(self.tracker_design, spacing_wavelengths=float(snapshots.spacing_wavelengths))

@@ -21,13 +21,18 @@ Track start (design ``track_start``):
                Needs ground truth, so it is for simulated and labelled data only.
 ``two-point``  two-point differencing of the labelled true peaks (``origin``) of scans 0 and 1,
                whose covariance *is* eq. 8c; filtering starts at scan 2.
-``peaks``      the same two-point start from unlabelled peaks, as a recording has them: the
-               ``n`` strongest peaks above the amplitude threshold at scan 0 (the strongest to
-               the role with the largest expected amplitude), each paired with the nearest peak
-               of scan 1 within half a gate (none: zero rate); filtering starts at scan 2
-               (:func:`strongest_start_peaks`).
-``auto``       ``truth`` when the data have it, else ``two-point`` when the peaks are
-               labelled, else ``peaks`` (the default).
+``peaks``      a one-point start from unlabelled peaks, as a recording has them: the ``n``
+               strongest peaks above the amplitude threshold at scan 0 (the strongest to the
+               role with the largest expected amplitude), zero rate with the prior
+               ``start_rate_sigma_deg_s``; filtering starts at scan 1
+               (:func:`strongest_start_peaks`, :func:`one_point_start`). A slot without a
+               peak to start from stays empty.
+``auto``       ``truth`` when the data have it, else ``peaks`` (the default).
+
+A track started from peaks is tentative (``INITIALISING``) until ``confirm_hits`` of its first
+``confirm_window`` scans had a peak in its gate, and is deleted if it cannot get there; every
+track ends when it leaves the field by more than half a gate or coasts ``max_coasted_scans``
+scans in a row (:mod:`pipeline.cores.association.track_management`).
 
 Outputs (:data:`pipeline.vocabulary.OUTPUTS`): ``state`` (R, K, T, 2), ``covariance``,
 ``flags`` (``NO_TRACK | INITIALISING`` before the start scan, whose state is NaN;
@@ -46,7 +51,7 @@ import numpy as np
 from pipeline import vocabulary as vocab
 from pipeline.cores.association.jpda import (STRATEGIES, BearingTrackerDesign, scans_from_padded,
                                              track_bearing_peaks, two_point_start)
-from pipeline.cores.association.track_ending import EndingRule
+from pipeline.cores.association.track_management import ConfirmationRule, EndingRule
 from pipeline.errors import InputError, check_all
 from pipeline.trackers.interface import BearingPeaks, Param, Tracker
 from pipeline.trackers.peak_roles import roles_for, track_roles
@@ -74,10 +79,17 @@ PARAMS = (
     Param("initial_strength", None, "", "ẑ_a at the track start when amplitude_tracking is on"),
     Param("tracked_amplitude_std", None, "", "σ_a when amplitude_tracking is on"),
     Param("max_cluster_tracks", None, "", "largest cluster whose joint events are computed exactly"),
-    Param("track_start", None, "", "auto | truth (true state at scan 0) | two-point (labelled peaks of scans 0, 1) | "
-          "peaks (the strongest unlabelled peaks of scans 0, 1)"),
+    Param("track_start", None, "", "auto (truth if the data have it, else peaks) | truth (true state at scan 0) | "
+          "two-point (labelled peaks of scans 0, 1) | peaks (the strongest unlabelled peaks of scan 0, one-point)"),
     Param("max_coasted_scans", 0, "scans", "a track coasting this many scans in a row ends (0: never; a track "
           "leaving the field by more than half a gate always ends)", low=-1),
+    Param("start_rate_sigma_deg_s", 0.5, "deg/s", "prior standard deviation of the bearing rate of a track started "
+          "from one peak (track_start=peaks): about the largest rate a target is expected to have", low=0.0),
+    Param("confirm_hits", 3, "scans", "M of M-of-N confirmation: a track started from peaks is tentative until M of "
+          "its first N scans (the start's own scans included) had a peak in its gate; a truth start is confirmed; "
+          "0: no confirmation", low=-1),
+    Param("confirm_window", 4, "scans", "N of M-of-N confirmation (a tentative track that cannot reach M hits "
+          "within N scans is deleted)", low=-1),
 )
 
 
@@ -126,6 +138,8 @@ def check_design(design: dict) -> None:
                (design["clutter_alpha"] > 0, "clutter_alpha must be > 0"),
                (design["max_cluster_tracks"] >= 1, "max_cluster_tracks must be ≥ 1"),
                (all(v > 0 for v in role_values), "σ_p and σ_a of every role must be > 0"),
+               (design.get("confirm_hits", 0) <= max(design.get("confirm_window", 0), 0) or not design.get("confirm_hits"),
+                "confirm_hits (M) must be ≤ confirm_window (N)"),
                (design["track_start"] in TRACK_STARTS,
                 f"track_start must be one of {', '.join(TRACK_STARTS)} (got {design['track_start']!r})")])
 
@@ -162,82 +176,72 @@ def labelled_start_peaks(bearing: np.ndarray, origin: np.ndarray, counts: np.nda
 
 
 def strongest_start_peaks(bearing: np.ndarray, amplitude: np.ndarray, counts: np.ndarray, strength: np.ndarray,
-                          gate_rad: float, threshold: float) -> tuple[np.ndarray, np.ndarray]:
-    """Bearings ``(R, T)`` of scans 0 and 1 for a two-point start from unlabelled peaks.
+                          threshold: float) -> np.ndarray:
+    """Bearings ``(R, T)`` of scan 0 for a one-point start from unlabelled peaks.
 
-    At scan 0 the ``T`` strongest peaks above ``threshold`` go to the tracks in decreasing order
-    of their expected amplitude ``strength`` (T,); at scan 1 each track takes the nearest peak
-    within half a gate, one peak per track (``scipy.optimize.linear_sum_assignment``), or its
-    scan-0 bearing (zero rate) when none is near. (A line fitted through more scans was tried:
-    over five scans it follows clutter more often than it averages noise, and did worse.)
-
-    Raises
-    ------
-    InputError
-        A run whose scan 0 holds fewer than ``T`` peaks above the threshold.
+    The ``T`` strongest peaks above ``threshold`` go to the tracks in decreasing order of their
+    expected amplitude ``strength`` (T,). A run whose scan 0 holds fewer peaks starts only as
+    many tracks (the strongest roles first); the other slots get NaN and stay empty
+    (``NO_TRACK``): a recording's first scan may miss a target, and that must not fail the replay.
     """
-    from scipy.optimize import linear_sum_assignment
-
     R, W = bearing.shape[0], bearing.shape[2]
     T = len(strength)
     slots = np.arange(W)[None, :]
-    # scan 0, every run at once: the T strongest peaks above the threshold, strongest first
-    a0 = np.where((slots < counts[:, 0, None]) & (amplitude[:, 0] >= threshold), amplitude[:, 0], -np.inf)
+    # every run at once, padded to T slots so a scan with fewer peaks than tracks leaves the rest unstarted
+    width = max(W, T)
+    a0 = np.full((R, width), -np.inf)
+    a0[:, :W] = np.where((slots < counts[:, 0, None]) & (amplitude[:, 0] >= threshold), amplitude[:, 0], -np.inf)
+    b0 = np.full((R, width), np.nan)
+    b0[:, :W] = bearing[:, 0]
     strongest = np.argsort(-a0, axis=1, kind="stable")[:, :T]
-    short = ~np.isfinite(np.take_along_axis(a0, strongest, axis=1)).all(axis=1) if T <= W else np.ones(R, bool)
-    if short.any():
-        r = int(np.flatnonzero(short)[0])
-        raise InputError(f"{PEAKS}: run {r} scan 0 holds {int(np.isfinite(a0[r]).sum())} peak(s) above the amplitude "
-                         f"threshold, fewer than the {T} tracks to start (track_start='peaks')")
+    found = np.isfinite(np.take_along_axis(a0, strongest, axis=1))
     z0 = np.empty((R, T))
-    z0[:, np.argsort(-np.asarray(strength), kind="stable")] = np.take_along_axis(bearing[:, 0], strongest, axis=1)
-    z1 = z0.copy()  # no peak near at scan 1: zero rate
-    if bearing.shape[1] < 2:
-        return z0, z1
-    # scan 1: every peak is a candidate (a weak target below the threshold there still gives its
-    # rate: with the threshold, 51 % success against 66 % at ψ = 20°, 100 runs)
-    distance = np.abs(z0[:, :, None] - bearing[:, 1, None, :])               # (R, T, W)
-    near = (slots < counts[:, 1, None])[:, None, :] & (distance <= gate_rad / 2)
-    cost = np.where(near, distance, np.inf)
-    nearest = np.argmin(cost, axis=2)                                         # (R, T)
-    found = np.isfinite(np.min(cost, axis=2, initial=np.inf))
-    taken = np.where(found, nearest, -1 - np.arange(T))                       # distinct when not found
-    clash = (np.sort(taken, axis=1)[:, 1:] == np.sort(taken, axis=1)[:, :-1]).any(axis=1)
-    # each track's nearest peak is the best assignment unless two tracks want the same peak
-    z1 = np.where(found, np.take_along_axis(bearing[:, 1], nearest, axis=1), z1)
-    for r in np.flatnonzero(clash):  # the rare contested runs: the optimal one-to-one assignment
-        rows, cols = linear_sum_assignment(np.where(near[r], distance[r], 1e6))
-        ok = near[r][rows, cols]
-        z1[r] = z0[r]
-        z1[r, rows[ok]] = bearing[r, 1, cols[ok]]
-    return z0, z1
+    z0[:, np.argsort(-np.asarray(strength), kind="stable")] = np.where(found, np.take_along_axis(b0, strongest, axis=1),
+                                                                       np.nan)
+    return z0
+
+
+def one_point_start(z0: np.ndarray, sigma_p_rad, rate_sigma_radps: float):
+    """State ``[z₀, 0]`` and covariance ``diag(σ_p², σ_θ̇²)`` of a track started from one peak.
+
+    The rate is unknown, and the prior ``σ_θ̇`` (the design's largest plausible bearing rate)
+    lets the next scans' peaks, weighted by JPDA, estimate it. A two-point difference instead
+    gives the rate an error of √2 σ_p / T, about 1.8°/s with σ_p = 1.3° and T = 1 s: far more
+    than the targets' own rates, and the window gate then loses them (docs/papers/bearing-peaks.md).
+    """
+    x0 = np.stack([z0, np.zeros_like(z0)], axis=-1)
+    P0 = np.zeros(z0.shape + (2, 2))
+    P0[..., 0, 0] = np.broadcast_to(np.asarray(sigma_p_rad, float) ** 2, z0.shape)
+    P0[..., 1, 1] = rate_sigma_radps ** 2
+    return x0, P0
 
 
 def resolved_start(m: BearingPeaks, track_start: str) -> str:
-    """``auto`` resolved for these data (truth, else labelled peaks, else unlabelled peaks)."""
+    """``auto`` resolved for these data: the truth when they have it, else the unlabelled peaks
+    (labels are for judging; a recording has none)."""
     if track_start != "auto":
         return track_start
     if m.truth_bearing_rad is not None and m.truth_rate_radps is not None:
         return "truth"
-    labelled = np.arange(m.origin.shape[2])[None, None, :] < m.counts[..., None]
-    return "two-point" if np.any((m.origin[:, :2] >= 0) & labelled[:, :2]) else "peaks"
+    return "peaks"
 
 
-def start_tracks(m: BearingPeaks, track_start: str, d: BearingTrackerDesign):
+def start_tracks(m: BearingPeaks, track_start: str, d: BearingTrackerDesign, rate_sigma_radps: float):
     """Initial states ``(R, T, 2)``, covariances ``(R, T, 2, 2)`` and the scan they belong to.
 
-    ``two-point``: eq. 8c from the labelled peaks of scans 0 and 1 (start scan 1). ``peaks``: the
-    same from the strongest unlabelled peaks (:func:`strongest_start_peaks`). ``truth``: the
+    ``two-point``: eq. 8c from the labelled peaks of scans 0 and 1 (start scan 1). ``peaks``: a
+    one-point start (:func:`one_point_start`) from the strongest unlabelled peaks of scan 0
+    (:func:`strongest_start_peaks`, start scan 0). ``truth``: the
     true state of scan 0 with the covariance of eq. 8c around it (start scan 0). ``auto``:
     :func:`resolved_start`.
     """
     track_start = resolved_start(m, track_start)
-    if track_start in ("two-point", "peaks"):
-        if track_start == "peaks":
-            z0, z1 = strongest_start_peaks(m.bearing_rad, m.amplitude, m.counts, d.strength, d.gate_rad,
-                                           d.amplitude_threshold)
-        else:
-            z0, z1 = labelled_start_peaks(m.bearing_rad, m.origin, m.counts, m.n_targets)
+    if track_start == "peaks":
+        z0 = strongest_start_peaks(m.bearing_rad, m.amplitude, m.counts, d.strength, d.amplitude_threshold)
+        x0, P0 = one_point_start(z0, d.sigma_p_rad, rate_sigma_radps)
+        return x0, P0, 0
+    if track_start == "two-point":
+        z0, z1 = labelled_start_peaks(m.bearing_rad, m.origin, m.counts, m.n_targets)
         x0, P0 = two_point_start(z0, z1, d.scan_period_s, d.sigma_p_rad)
         return x0, P0, 1
     b, rate = m.truth_bearing_rad, m.truth_rate_radps
@@ -267,7 +271,9 @@ class _JpdaTracker(Tracker):
         d = core_design(self.design, peaks.n_targets)
         d = replace(d, ending=EndingRule(field=tuple(peaks.field_rad), margin=d.gate_rad / 2,
                                          max_coasted_scans=int(self.max_coasted_scans)))
-        x0, P0, start = start_tracks(peaks, self.track_start, d)
+        x0, P0, start = start_tracks(peaks, self.track_start, d, float(np.deg2rad(self.start_rate_sigma_deg_s)))
+        if resolved_start(peaks, self.track_start) != "truth":  # from measurements: tentative until M-of-N
+            d = replace(d, confirmation=ConfirmationRule(int(self.confirm_hits), int(self.confirm_window)))
         scans = scans_from_padded(peaks.bearing_rad, peaks.amplitude, peaks.counts)
         return track_bearing_peaks(scans, x0, P0, d, STRATEGIES[self.name], start)
 

@@ -44,6 +44,7 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline import vocabulary as vocab
+from pipeline.cores.association.track_management import ConfirmationRule, confirmation_scans
 from pipeline.cores.filters.ar1_estimation import check_design, estimate_ar1, scan_flags
 from pipeline.cores.filters.imm import (MeasurementStream, ModelFilter, check_transition, imm_filter,
                                         kinematic_model, single_model_filter)
@@ -119,6 +120,10 @@ P_START = Param("track_start", "auto", "",
                 "'truth': start at the true state of scan 0 (thesis); 'measurements': position from z₀, "
                 "zero velocity/acceleration with a large variance; 'auto': truth when the file has it, "
                 "else measurements (a recording)")
+P_CONFIRM = (Param("confirm_hits", 3, "scans", "M of M-of-N confirmation of a track started from measurements "
+                    "(tentative, flag INITIALISING, until M of its first N scans had a measurement; a truth start "
+                    "is confirmed; 0: no confirmation)", low=-1),
+             Param("confirm_window", 4, "scans", "N of M-of-N confirmation", low=-1))
 P_AR = (Param("ar_forgetting_factor", None, "", "AR estimator forgetting factor β, 0 < β < 1"),
         Param("ar_zero_pole", None, "", "AR estimator zero-cancelling pole ρ, 0 ≤ ρ < 1"))
 P_KF = (Param("kf_process_noise", None, "m²/s⁴", "CA model's acceleration-increment variance per sample"),)
@@ -144,15 +149,15 @@ class _ColoredNoiseTracker(Tracker):
             raise InputError(f"track_start must be one of {', '.join(TRACK_STARTS)}, got {self.track_start!r}")
         if self.decorrelate:
             check_design(float(self.ar_forgetting_factor), float(self.ar_zero_pole))
+        if 0 < int(self.confirm_hits) and int(self.confirm_window) < int(self.confirm_hits):
+            raise InputError(f"confirm_hits (M = {self.confirm_hits}) must be ≤ confirm_window (N = {self.confirm_window})")
 
     # --- pieces shared by the five
 
     def start(self, m: ColoredPositions, axes: int):
         """``x₀`` (runs, 3·axes) and ``P₀`` (3·axes, 3·axes) of scan 0 (see ``track_start``)."""
         N = 3 * axes
-        start = self.track_start
-        if start == "auto":
-            start = "truth" if m.truth_state is not None else "measurements"
+        start = self.resolved_start(m)
         if start == "truth":
             if m.truth_state is None:
                 raise InputError("track_start='truth' needs the true state (use track_start=measurements)")
@@ -165,6 +170,12 @@ class _ColoredNoiseTracker(Tracker):
         x0[:, 0::3] = z0
         P0 = np.diag(np.tile([self.R, START_VELOCITY_VARIANCE, START_ACCELERATION_VARIANCE], axes))
         return x0, P0
+
+    def resolved_start(self, m: ColoredPositions) -> str:
+        """``track_start`` with ``auto`` resolved for these data."""
+        if self.track_start == "auto":
+            return "truth" if m.truth_state is not None else "measurements"
+        return self.track_start
 
     def measurement_stream(self, z):
         """Plain ``(z, H, R)`` or decorrelated ``(y, Ĥ, diag σ̂_η²)`` stream, and the flags."""
@@ -190,12 +201,17 @@ class _ColoredNoiseTracker(Tracker):
         x0, P0 = self.start(m, axes)
         stream, flags = self.measurement_stream(z)
         out = self.run_filter(stream, x0, P0, T, axes)
+        if self.resolved_start(m) == "measurements":
+            # a measurement every scan: the track is tentative until its M-th (track_management)
+            rule = ConfirmationRule(int(self.confirm_hits), int(self.confirm_window))
+            tentative, _ = confirmation_scans(np.ones(z.shape[:2], bool), rule)
+            flags = flags | np.where(tentative, vocab.INITIALISING, 0).astype(flags.dtype)
         out["flags"] = flags
         return out
 
 
 class _SingleModel(_ColoredNoiseTracker):
-    params = (P_MEASUREMENT, P_INITIAL, *P_KF, P_START)
+    params = (P_MEASUREMENT, P_INITIAL, *P_KF, P_START, *P_CONFIRM)
 
     def __init__(self, **design):
         super().__init__(**design)
@@ -209,7 +225,7 @@ class _SingleModel(_ColoredNoiseTracker):
 
 
 class _ThreeModelImm(_ColoredNoiseTracker):
-    params = (P_MEASUREMENT, P_INITIAL, *P_IMM, P_START)
+    params = (P_MEASUREMENT, P_INITIAL, *P_IMM, P_START, *P_CONFIRM)
 
     def __init__(self, **design):
         super().__init__(**design)
@@ -236,7 +252,7 @@ class KalmanFilterDecorrelated(_SingleModel):
 
     name = "kf_dp"
     decorrelate = True
-    params = (P_MEASUREMENT, P_INITIAL, *P_KF, *P_AR, P_START)
+    params = (P_MEASUREMENT, P_INITIAL, *P_KF, *P_AR, P_START, *P_CONFIRM)
 
 
 class StandardImm(_ThreeModelImm):
@@ -251,7 +267,7 @@ class DecorrelatedImm(_ThreeModelImm):
 
     name = "mimm_k"
     decorrelate = True
-    params = (P_MEASUREMENT, P_INITIAL, *P_IMM, *P_AR, P_START)
+    params = (P_MEASUREMENT, P_INITIAL, *P_IMM, *P_AR, P_START, *P_CONFIRM)
 
 
 class SquareRootImm(_ThreeModelImm):
@@ -261,7 +277,7 @@ class SquareRootImm(_ThreeModelImm):
     name = "pimm"
     decorrelate = True
     filter_kind = "srif"
-    params = (P_MEASUREMENT, P_INITIAL, *P_IMM, *P_AR, P_START)
+    params = (P_MEASUREMENT, P_INITIAL, *P_IMM, *P_AR, P_START, *P_CONFIRM)
 
 
 TRACKERS = (KalmanFilter, KalmanFilterDecorrelated, StandardImm, DecorrelatedImm, SquareRootImm)

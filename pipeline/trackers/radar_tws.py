@@ -23,7 +23,13 @@ Every strategy reports its per-axis (along-range, cross-range) α and β — for
 the gain rotated into that frame — so the gains can be compared on one plot.
 
 Tracks start from two plots (position of the second, velocity from their difference) and are
-filtered from the third plot on.
+filtered from the third plot on. Track management is the shared mechanism of
+:mod:`pipeline.cores.association.track_management`: a track is tentative (``INITIALISING``) until
+``confirm_hits`` of its first ``confirm_window`` scans had a plot (the two start plots
+included), and is deleted (``NO_TRACK | DELETED``) after ``max_coasted_scans`` coasted scans in a
+row or when it fails confirmation; its run then starts a new track from its next two plots. With
+``gate_probability`` > 0 a started track uses the nearest plot only inside its χ² gate (for
+recordings with clutter; the paper's scenario has none, and no gate is the default).
 
 Covariances stay symmetric positive definite at every design value the trackers accept
 (:func:`check_design` refuses the rest with a one-line :class:`~pipeline.errors.InputError`).
@@ -76,6 +82,8 @@ from pipeline.cores.filters.kalman import (
     components_to_matrix,
 )
 
+from pipeline.cores.association.track_management import ConfirmationRule, EndingRule, TrackLife
+
 from pipeline import vocabulary as vocab
 from pipeline.errors import InputError
 from pipeline.trackers.interface import Param, Tracker
@@ -85,6 +93,7 @@ FLAG_COASTED = vocab.COASTED
 FLAG_NO_TRACK = vocab.NO_TRACK
 FLAG_INITIALISING = vocab.INITIALISING
 FLAG_FLOORED = vocab.FLOORED
+FLAG_DELETED = vocab.DELETED
 
 #: Largest tracking index λ = σ_v T²/σ of a plot's along- or cross-range error; a smaller σ is
 #: floored (flagged ``FLOORED``), and a design whose range index σ_v T²/σ_r or nominal index λ̄
@@ -118,6 +127,14 @@ class TrackerDesign:
         α-β strategies use the expanding-memory start-up gains while they exceed the
         steady-state ones (textbook track start; without it a two-point start followed by
         small steady-state gains is worse than the raw plots for several scans).
+    gate_chi2 : float
+        A started track uses the plot nearest its prediction only when the plot's squared
+        Mahalanobis distance ``νᵀ S⁻¹ ν`` is at most this (2 degrees of freedom); otherwise it
+        coasts. ``inf``: no gate (the paper's clutter-free scenario).
+    confirmation, ending : ConfirmationRule, EndingRule
+        Track management (:mod:`pipeline.cores.association.track_management`): M-of-N
+        confirmation counting the two start plots, and the end after coasted scans. A deleted
+        track's run starts a new track from its next two plots.
     """
 
     scan_period_s: float
@@ -126,6 +143,9 @@ class TrackerDesign:
     sigma_bearing_rad: float
     nominal_cross_range_m: float
     startup: bool = True
+    gate_chi2: float = np.inf
+    confirmation: ConfirmationRule = ConfirmationRule()
+    ending: EndingRule = EndingRule()
 
     @property
     def lam_along(self) -> float:
@@ -344,6 +364,8 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
     prev = np.zeros((5, n_runs))  # x, y, r00, r01, r11 of the first plot of a track
     prev_t = np.zeros(n_runs)
     n_plots = np.zeros(n_runs, np.int64)  # plots a track has used, the start-up gains' n
+    life = TrackLife((n_runs,), design.confirmation, design.ending)
+    gated = np.isfinite(design.gate_chi2)
     for k in range(n_scans):
         dt = float(times[k] - times[k - 1]) if k else design.scan_period_s
         xp, cp = cv_predict_components(x, c, dt, design.sigma_v)
@@ -357,6 +379,11 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
         if floored is not None:
             flags[k] |= np.where(floored & has, FLAG_FLOORED, 0).astype(np.uint16)
 
+        if gated:  # a started track takes the nearest plot only inside its χ² gate
+            s00, s01, s11 = cp[0] + r_cov[0], cp[1] + r_cov[1], cp[2] + r_cov[2]
+            ex, ey = zx - xp[0], zy - xp[1]
+            d2 = (s11 * ex * ex - 2 * s01 * ex * ey + s00 * ey * ey) / (s00 * s11 - s01 * s01)
+            has = has & (~started | (d2 <= design.gate_chi2))
         upd = started & has
         if upd.all():
             sel = slice(None)  # the common case: every run updates, no masking or copies
@@ -391,8 +418,21 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
                 flags[k][sel] |= np.where(diag["clamped"], FLAG_CLAMPED, 0).astype(np.uint16)
             if diag["floored"].any():
                 flags[k][sel] |= np.where(diag["floored"], FLAG_FLOORED, 0).astype(np.uint16)
+        tentative, ending = life.step(upd, x_new[0], c_new[0] + c_new[2])
+        if tentative.any():
+            flags[k][tentative] |= FLAG_INITIALISING
+        if ending.any():  # the track ends here (no state); its run starts afresh from its next plots
+            flags[k][ending] |= FLAG_NO_TRACK | FLAG_DELETED
+            started = started & ~ending
+            have_prev = have_prev & ~ending
+            upd = upd & ~ending
+            for a in (innov[k], used[k], alpha[k], beta[k]):
+                a[:, ending] = nan
+            lam[k][ending] = nan
+            s_cov[k][ending] = nan
+            gains[k][ending] = nan
         if not upd.all():
-            init = ~started & has & have_prev
+            init = ~started & has & have_prev & ~ending
             first = ~started & has & ~have_prev
             if init.any():
                 i = np.flatnonzero(init)
@@ -405,10 +445,11 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
                                         (r11 + prev[4, i]) / gap**2])
                 flags[k][i] |= FLAG_INITIALISING
                 n_plots[i] = 2
-            f = np.flatnonzero(first)
+                life.start(init, hits=2, scans=2)  # the two start plots count towards M-of-N
+            f = np.flatnonzero(first & ~ending)
             prev[:, f] = np.stack([zx[f], zy[f], r_cov[0][f], r_cov[1][f], r_cov[2][f]])
             prev_t[f] = times[k]
-            have_prev |= first
+            have_prev |= first & ~ending
             flags[k][started & ~has] |= FLAG_COASTED
             started = started | init
             flags[k][~started] |= FLAG_NO_TRACK
@@ -457,6 +498,15 @@ PARAMS = (
     Param("sigma_bearing_deg", None, "deg", "plot bearing noise the filter assumes"),
     Param("nominal_cross_range_m", None, "m", "cross-range error std at which the fixed gains are designed"),
     Param("startup_gains", None, "", "least-squares start-up gains while they exceed the steady-state ones"),
+    Param("gate_probability", 0.0, "", "χ² gate of a started track: the nearest plot is used only inside the gate "
+          "that holds the true plot with this probability (0: no gate, the paper's clutter-free scenario; e.g. "
+          "0.999 for recordings with clutter)", low=-1e-12, high=1.0),
+    Param("confirm_hits", 3, "scans", "M of M-of-N confirmation: a track is tentative until M of its first N "
+          "scans (its two start plots included) had a plot; 0: no confirmation", low=-1),
+    Param("confirm_window", 4, "scans", "N of M-of-N confirmation (a tentative track that cannot reach M is deleted)",
+          low=-1),
+    Param("max_coasted_scans", 5, "scans", "a track that coasts this many scans in a row is deleted, and its run "
+          "starts a new track from its next two plots (0: never)", low=-1),
 )
 
 
@@ -477,6 +527,9 @@ def check_design(design: dict) -> None:
             raise InputError(f"{key} must be a number in [{lo:g}, {hi:g}] (got {design[key]!r})") from None
         if not lo <= value <= hi:
             raise InputError(f"{key} must be in [{lo:g}, {hi:g}] (got {design[key]!r})")
+    hits, window = int(design.get("confirm_hits", 0)), int(design.get("confirm_window", 0))
+    if hits > 0 and window < hits:
+        raise InputError(f"confirm_hits (M = {hits}) must be ≤ confirm_window (N = {window})")
     sigma_v, T = float(design["design_sigma_v_mps2"]), float(design["scan_period_s"])
     least = sigma_v * T * T / MAX_TRACKING_INDEX
     for key, sigma in (("sigma_range_m", "σ_r"), ("nominal_cross_range_m", "σ_nominal")):
@@ -484,6 +537,14 @@ def check_design(design: dict) -> None:
             raise InputError(f"{key} must be in [{max(least, lo):.3g}, {hi:g}] m with design_sigma_v_mps2={sigma_v:g} "
                              f"and scan_period_s={T:g} (tracking index σ_v T²/{sigma} ≤ {MAX_TRACKING_INDEX:g}; "
                              f"got {design[key]!r})")
+
+
+def chi2_2dof_gate(probability: float) -> float:
+    """The χ² gate of 2 degrees of freedom holding a true plot with ``probability`` (closed
+    form: ``−2 ln(1 − p)``); ``inf`` for 0 (no gate) or 1."""
+    if probability <= 0.0 or probability >= 1.0:
+        return np.inf
+    return float(-2.0 * np.log1p(-probability))
 
 
 class _RadarStrategyTracker(Tracker):
@@ -498,7 +559,10 @@ class _RadarStrategyTracker(Tracker):
         self.tracker_design = TrackerDesign(
             scan_period_s=float(self.scan_period_s), sigma_v=float(self.design_sigma_v_mps2),
             sigma_range_m=float(self.sigma_range_m), sigma_bearing_rad=float(np.deg2rad(self.sigma_bearing_deg)),
-            nominal_cross_range_m=float(self.nominal_cross_range_m), startup=bool(self.startup_gains))
+            nominal_cross_range_m=float(self.nominal_cross_range_m), startup=bool(self.startup_gains),
+            gate_chi2=chi2_2dof_gate(float(self.gate_probability)),
+            confirmation=ConfirmationRule(int(self.confirm_hits), int(self.confirm_window)),
+            ending=EndingRule(max_coasted_scans=int(self.max_coasted_scans)))
 
     def track(self, plots):
         return track_plots(plots.range_m, plots.bearing_rad, plots.counts, plots.times_s, self.tracker_design,

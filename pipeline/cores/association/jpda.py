@@ -45,13 +45,13 @@ from scipy.special import erf, ndtr
 from pipeline import vocabulary as vocab
 from pipeline.cores.filters.kalman import apply_gain, continuous_white_noise_model, kalman_gain, kf_predict
 from pipeline.cores.filters.kalman import two_point_start  # noqa: F401  (eq. 8c; importable from here as before)
-from pipeline.cores.association.track_ending import EndingRule, coasting_run, ended
+from pipeline.cores.association.track_management import ConfirmationRule, EndingRule, TrackLife
 
 # Flag bits of the one table (pipeline.vocabulary.FLAGS), as this core uses them:
 FLAG_NO_TRACK = vocab.NO_TRACK            # before the track start scan: no state yet
 FLAG_INITIALISING = vocab.INITIALISING    # up to and including the start scan: start values, not filtered
 FLAG_COASTED = vocab.COASTED              # no peak in the gate: the state is the prediction
-FLAG_DELETED = vocab.DELETED              # the track ended (track_ending): this scan, and NO_TRACK after
+FLAG_DELETED = vocab.DELETED              # the track ended at this scan (track_management); NO_TRACK after
 FLAG_CLUSTER_SPLIT = vocab.CLUSTER_SPLIT  # the track's cluster exceeded max_cluster_tracks (approximate β)
 MEMORY_BUDGET_FLOATS = 1 << 22  # forward table of one recursion batch (32 MB)
 TOP_WEIGHTS = 3
@@ -95,7 +95,8 @@ class BearingTrackerDesign:
     initial_strength: float = 15000.0
     tracked_sigma_a: float = 3500.0
     max_cluster_tracks: int = 12
-    ending: EndingRule = EndingRule()  # when a track ends (pipeline.cores.association.track_ending)
+    ending: EndingRule = EndingRule()  # when a track ends (pipeline.cores.association.track_management)
+    confirmation: ConfirmationRule = ConfirmationRule()  # M-of-N; the default confirms at the start
 
     @property
     def clutter_density(self) -> float:
@@ -447,9 +448,11 @@ def track_bearing_peaks(scans: list[ScanPeaks], x0: np.ndarray, P0: np.ndarray, 
     (:data:`pipeline.vocabulary.OUTPUTS`):
         ``state`` (…, 2) and ``covariance`` (…, 2, 2): NaN before ``start_scan``, the start
         values at ``start_scan``, the PDA posterior after; ``flags`` (uint16):
-        ``NO_TRACK | INITIALISING`` before ``start_scan``, ``INITIALISING`` at it, then
-        ``COASTED`` where no peak fell in the gate and ``CLUSTER_SPLIT`` where the track's
-        cluster was cut; ``innovation`` (…, 1): the combined innovation ν̄ = Σ β_j ν_j of
+        ``NO_TRACK | INITIALISING`` before ``start_scan``, ``INITIALISING`` at it and while
+        the track is tentative (``design.confirmation``), then ``COASTED`` where no peak fell in
+        the gate and ``CLUSTER_SPLIT`` where the track's cluster was cut; ``NO_TRACK | DELETED``
+        (state NaN) at the scan a track ends (``design.ending`` or a failed confirmation), and
+        ``NO_TRACK`` after it (:mod:`pipeline.cores.association.track_management`); ``innovation`` (…, 1): the combined innovation ν̄ = Σ β_j ν_j of
         eq. A.7 (NaN where coasted, before and at the start); ``innovation_covariance``
         (…, 1, 1): S = H P⁻ Hᵀ + σ_p²; ``gain`` (…, 2, 1): the Kalman gain applied to ν̄.
         Paper-specific extras: ``beta0``, ``beta_top`` / ``beta_index`` (…, 3: the largest
@@ -470,9 +473,16 @@ def track_bearing_peaks(scans: list[ScanPeaks], x0: np.ndarray, P0: np.ndarray, 
         "innovation_covariance": np.full((R, K, T, 1, 1), np.nan), "gain": np.full((R, K, T, 2, 1), np.nan),
     }
     out["flags"][:, :start_scan] = FLAG_NO_TRACK | FLAG_INITIALISING
-    out["flags"][:, start_scan] = FLAG_INITIALISING
     x, P = np.array(x0, float), np.array(P0, float)
-    out["state"][:, start_scan], out["covariance"][:, start_scan] = x, P
+    # a slot without a start (NaN: no peak to start it from) stays empty the whole run; it
+    # carries a finite placeholder so the arithmetic stays finite, and takes no peak
+    started = np.isfinite(x).all(axis=-1) & np.isfinite(P).all(axis=(-2, -1))
+    if not started.all():
+        x = np.where(started[..., None], x, 0.0)
+        P = np.where(started[..., None, None], P, np.eye(2))
+    out["flags"][:, start_scan] = np.where(started, FLAG_INITIALISING, FLAG_NO_TRACK)
+    out["state"][:, start_scan] = np.where(started[..., None], x, np.nan)
+    out["covariance"][:, start_scan] = np.where(started[..., None, None], P, np.nan)
     if design.amplitude_tracking:
         strength = np.full((R, T), float(design.initial_strength))
         sigma_a = np.full((R, T), float(design.tracked_sigma_a))
@@ -482,8 +492,9 @@ def track_bearing_peaks(scans: list[ScanPeaks], x0: np.ndarray, P0: np.ndarray, 
     out["strength"][:, start_scan] = strength
     half_gate = design.gate_rad / 2
     lam = design.clutter_density
-    alive = np.ones((R, T), bool)          # tracks not ended (track_ending.ended)
-    coasting = np.zeros((R, T), np.int64)
+    # the start's own measurements count towards M-of-N: scans 0 … start_scan
+    life = TrackLife((R, T), design.confirmation, design.ending)
+    life.start(started, hits=start_scan + 1, scans=start_scan + 1)
     for k in range(start_scan + 1, K):
         sp = scans[k]
         x, P = kf_predict(x, P, F, Q)
@@ -492,6 +503,7 @@ def track_bearing_peaks(scans: list[ScanPeaks], x0: np.ndarray, P0: np.ndarray, 
         nu = sp.bearing[:, None, :] - x[..., 0, None]  # (R, T, m)
         usable = sp.valid & (sp.amplitude >= design.amplitude_threshold)
         # an ended track keeps predicting (finite, harmless) but takes no peak and is not output
+        alive = life.alive
         gated = usable[:, None, :] & (np.abs(nu) <= half_gate) & alive[..., None]
         pd = np.full((R, T), design.detection_probability)
         if strategy.amplitude:
@@ -509,25 +521,21 @@ def track_bearing_peaks(scans: list[ScanPeaks], x0: np.ndarray, P0: np.ndarray, 
             strength = update_strength(strength, sp.amplitude, gated)
         n_gated = gated.sum(axis=2)
         coasted = n_gated == 0
-        if design.ending.max_coasted_scans:
-            coasting = coasting_run(coasting, coasted)
-        ending = alive & ended(x[..., 0], coasting, design.ending)
+        tentative, ending = life.step(~coasted, x[..., 0])
         out["state"][:, k], out["covariance"][:, k] = x, P
         out["beta0"][:, k] = beta0
         out["strength"][:, k] = strength
         out["n_gated"][:, k] = n_gated
-        flags = coasted * FLAG_COASTED | split * FLAG_CLUSTER_SPLIT | ending * FLAG_DELETED
+        flags = coasted * FLAG_COASTED | split * FLAG_CLUSTER_SPLIT | tentative * FLAG_INITIALISING
         out["innovation"][:, k, :, 0] = np.where(coasted, np.nan, nu_bar)
         out["innovation_covariance"][:, k] = S
         out["gain"][:, k] = Kg
-        if not alive.all():  # tracks ended at an earlier scan: no state, nothing associated
-            gone = ~alive
-            flags = np.where(gone, FLAG_NO_TRACK | FLAG_DELETED, flags)
+        gone = ~life.alive
+        if gone.any():  # ended at this scan (DELETED), before, or never started: no state, nothing associated
+            flags = np.where(ending, FLAG_NO_TRACK | FLAG_DELETED, np.where(gone, FLAG_NO_TRACK, flags))
             for key in ("state", "covariance", "innovation", "innovation_covariance", "gain"):
                 out[key][:, k][gone] = np.nan
         out["flags"][:, k] = flags
-        if ending.any():
-            alive &= ~ending
         if beta.shape[2]:
             top = np.argsort(-beta, axis=2, kind="stable")[..., :TOP_WEIGHTS]
             w = np.take_along_axis(beta, top, axis=2)
