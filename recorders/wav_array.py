@@ -22,7 +22,15 @@ Conventions:
   the paper's exp(+jωτ) model (conjugation keeps every subspace property). The choice is
   recorded as ``bearing_positive_toward``;
 * the STFT uses a Hann window of ``nfft`` samples and hop ``hop``; only the chosen bin is
-  computed (one windowed DFT row per frame, not a full FFT).
+  computed (one windowed DFT row per frame, not a full FFT);
+* the number of sources is counted over a band around the bin (default ±10 % of its frequency,
+  or ``band_hz``) by the wideband MDL of :mod:`pipeline.cores.array.wideband_count`, from its own
+  STFT with a window long enough that a wideband source's spread within one bin stays well below
+  the noise, over the first ``COUNT_SPAN_S`` seconds (longer if the window needs
+  ``COUNT_MIN_FRAMES`` frames per sensor and the recording has them). The count is recorded as
+  the trackers' ``n_sources``, so a replay starts that many tracks (``--set n_sources=…``
+  overrides it; 0 makes the trackers count at start-up from the tracked bin, as before), with how
+  it was obtained (``source_count_*``).
 """
 
 from __future__ import annotations
@@ -33,11 +41,19 @@ import numpy as np
 
 from pipeline import vocabulary as vocab
 from pipeline.contract import scenario_metadata
+from pipeline.cores.array import wideband_count
 from pipeline.errors import InputError, check_all, require_finite
 from recorders.simulated import SimulatedData, write_simulated
 
 SNAPSHOTS_TOPIC = vocab.CHANNELS["array_snapshots"]
 POSITIVE_TOWARD = ("last", "first")
+# the default counting band, relative to the tracked bin's frequency: wide enough for dozens of
+# the count's fine bins (the criterion averages over them), narrow enough that the sources
+# counted are the ones the tracked bin sees
+BAND_RELATIVE = 0.10
+COUNT_SPAN_S = 4.0       # the count looks at the start of the recording, over which the sources are
+                         # taken to stay put (a mover spreads like a wideband source in one bin)
+COUNT_MIN_FRAMES = 2     # frames per sensor the count window should leave (the covariances need > M)
 
 
 def read_wav(path: str | Path) -> tuple[int, np.ndarray]:
@@ -77,7 +93,9 @@ def narrowband_snapshots(samples: np.ndarray, fs: int, frequency_hz: float, nfft
     n, C = samples.shape
     k = int(round(frequency_hz * nfft / fs))
     frames = 1 + (n - nfft) // hop if n >= nfft else 0
-    window = np.hanning(nfft + 2)[1:-1]  # Hann without the zero end points
+    # the count's STFT (pipeline.cores.array.wideband_count) uses the same window; this one DFT
+    # row per frame is kept as it was so that a recording converts to the same bytes
+    window = wideband_count.hann_window(nfft)  # Hann without the zero end points
     kernel = window * np.exp(-2j * np.pi * k * np.arange(nfft) / nfft)
     view = np.lib.stride_tricks.sliding_window_view(samples, nfft, axis=0)[::hop][:frames]  # (frames, C, nfft)
     stft = view @ kernel  # (frames, C)
@@ -86,7 +104,8 @@ def narrowband_snapshots(samples: np.ndarray, fs: int, frequency_hz: float, nfft
 
 def convert_array_wav(src, dst, spacing_m: float, frequency_hz: float, sound_speed_mps: float = 343.0,
                       nfft: int = 512, hop: int | None = None, snapshots_per_scan: int = 30,
-                      snapshot_dtype: str = "complex64", positive_toward: str = "last") -> dict:
+                      snapshot_dtype: str = "complex64", positive_toward: str = "last",
+                      band_hz: tuple[float, float] | None = None) -> dict:
     """Convert ``src`` (WAV) to ``dst`` (MCAP); returns a summary of what was written.
 
     Parameters
@@ -103,6 +122,8 @@ def convert_array_wav(src, dst, spacing_m: float, frequency_hz: float, sound_spe
         Frames per scan (Ns).
     positive_toward : {"last", "first"}
         The end of the array a positive bearing points to (see the module's conventions).
+    band_hz : (float, float), optional
+        Band over which the sources are counted (default ±10 % of the bin's frequency).
     """
     hop = nfft // 2 if hop is None else hop
     checks = [
@@ -112,8 +133,14 @@ def convert_array_wav(src, dst, spacing_m: float, frequency_hz: float, sound_spe
         (snapshot_dtype in ("complex64", "complex128"), "snapshot_dtype must be complex64 or complex128"),
         (positive_toward in POSITIVE_TOWARD, f"positive_toward must be one of {', '.join(POSITIVE_TOWARD)}"),
     ]
+    if band_hz is not None:
+        band_hz = tuple(float(b) for b in band_hz)
+        checks.append((len(band_hz) == 2 and 0 < band_hz[0] < band_hz[1],
+                       "band_hz must be two frequencies LOW,HIGH with 0 < LOW < HIGH"))
     check_all(checks)
     fs, samples = read_wav(src)
+    if band_hz is not None and band_hz[1] > fs / 2:
+        raise InputError(f"band_hz upper edge {band_hz[1]:g} Hz is above the Nyquist frequency {fs / 2:g} Hz", src)
     if frequency_hz >= fs / 2:
         raise InputError(f"frequency_hz = {frequency_hz:g} is not below the Nyquist frequency {fs / 2:g} Hz", src)
     if nfft > samples.shape[0]:
@@ -141,6 +168,12 @@ def convert_array_wav(src, dst, spacing_m: float, frequency_hz: float, sound_spe
         raise InputError(f"{frames} STFT frames make {K} scan(s) of {snapshots_per_scan}; the tracker needs ≥ 3 "
                          "(a longer recording, a smaller hop or fewer snapshots per scan)", src)
     blocks = snaps[:, : K * snapshots_per_scan].reshape(M, K, snapshots_per_scan).transpose(1, 0, 2)
+    if band_hz is None:
+        band_hz = (bin_hz * (1.0 - BAND_RELATIVE), min(bin_hz * (1.0 + BAND_RELATIVE), fs / 2))
+    # the tracker needs N ≤ M − 1 and N ≤ Ns (the stage refuses more)
+    counted = wideband_count.count_sources_in_band(
+        samples, fs, spacing_m / sound_speed_mps, band_hz, nfft, int(COUNT_SPAN_S * fs), COUNT_MIN_FRAMES * M,
+        max_sources=min(M - 1, snapshots_per_scan))
     scan_period_s = snapshots_per_scan * hop / fs
     data = SimulatedData(times=np.arange(K) * scan_period_s,
                          fixed={SNAPSHOTS_TOPIC: {"snapshots": blocks[None].astype(snapshot_dtype)}})
@@ -148,8 +181,17 @@ def convert_array_wav(src, dst, spacing_m: float, frequency_hz: float, sound_spe
               "spacing_m": float(spacing_m), "sound_speed_mps": float(sound_speed_mps), "nfft": int(nfft),
               "hop": int(hop), "snapshots_per_scan": int(snapshots_per_scan), "n_sensors": int(M),
               "spacing_wavelengths": float(spacing_wavelengths), "scan_period_s": float(scan_period_s),
-              "bearing_positive_toward": f"{positive_toward} channel", "unambiguous_field_deg": unambiguous_deg}
+              "bearing_positive_toward": f"{positive_toward} channel", "unambiguous_field_deg": unambiguous_deg,
+              # the trackers' own parameter: a replay follows this many sources unless --set overrides it
+              "n_sources": int(counted.count), "source_count_method": "wideband MDL over the band",
+              "source_count_band_hz": [counted.band_hz[0], counted.band_hz[1]], "source_count_nfft": counted.nfft,
+              "source_count_bins": counted.n_bins, "source_count_frames": counted.n_frames,
+              "source_count_effective_snapshots": counted.effective_snapshots,
+              "source_count_dynamic_range_db": float(10 * np.log10(max(counted.dynamic_range, 1.0))),
+              "source_count_leakage_db": float(10 * np.log10(counted.leakage_endfire))}
     n = write_simulated(dst, data, scenario_metadata("array-wav", params, 0))
     return {"messages": n, "scans": K, "sensors": M, "bin_hz": bin_hz,
             "spacing_wavelengths": spacing_wavelengths, "scan_period_s": scan_period_s,
-            "unambiguous_field_deg": unambiguous_deg}
+            "unambiguous_field_deg": unambiguous_deg, "n_sources": int(counted.count),
+            "count_band_hz": counted.band_hz, "count_nfft": counted.nfft, "count_bins": counted.n_bins,
+            "count_frames": counted.n_frames, "count_leakage_db": float(10 * np.log10(counted.leakage_endfire))}

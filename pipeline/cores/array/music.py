@@ -8,7 +8,7 @@ Everything is batched over leading axes (scans × runs in one call):
 
 * :func:`sample_covariance` ``R = X Xᴴ / Ns`` and :func:`eigen_decomposition` (ascending
   eigenvalues, as ``numpy.linalg.eigh`` returns them);
-* :func:`source_count`: ``MDL(k) = −Ns (M−k) log(g_k / a_k) + ½ k (2M − k) log Ns`` and
+* :func:`information_criterion` and :func:`source_count`: ``MDL(k) = −Ns (M−k) log(g_k / a_k) + ½ k (2M − k) log Ns`` and
   ``AIC(k) = −2 Ns (M−k) log(g_k / a_k) + 2 k (2M − k)`` with g_k, a_k the geometric and
   arithmetic means of the M − k smallest eigenvalues; the estimate is the minimising k;
 * :func:`music_spectrum` ``P(θ) = 1 / ‖E_nᴴ a(θ)‖²`` on an angle grid, evaluated as the
@@ -36,9 +36,52 @@ def eigen_decomposition(cov: np.ndarray):
     return np.linalg.eigh(cov)
 
 
+def information_criterion(eigenvalues: np.ndarray, n_snapshots: float, criterion: str = "mdl",
+                          max_sources: int | None = None) -> np.ndarray:
+    """MDL or AIC score of every source count k = 0 … kmax (Wax & Kailath 1985), batched.
+
+    ``MDL(k) = −Ns (M−k) log(g_k / a_k) + ½ k (2M − k) log Ns`` and
+    ``AIC(k) = −2 Ns (M−k) log(g_k / a_k) + 2 k (2M − k)``, with g_k and a_k the geometric and
+    arithmetic means of the M − k smallest eigenvalues. :func:`source_count` takes the minimising
+    k; the wideband count (:mod:`pipeline.cores.array.wideband_count`) sums the scores of the
+    bins of a band first.
+
+    Parameters
+    ----------
+    eigenvalues : ndarray, shape (..., M)
+        Sample-covariance eigenvalues in ascending order.
+    n_snapshots : float
+        Ns, the snapshots behind the covariance (an effective, non-integer number is accepted).
+    criterion : {"mdl", "aic"}
+    max_sources : int, optional
+        Largest count considered (default M − 1; never more than Ns − 1).
+
+    Returns
+    -------
+    ndarray, shape (..., kmax + 1)
+    """
+    lam = np.maximum(np.asarray(eigenvalues, float), np.finfo(float).tiny)
+    M = lam.shape[-1]
+    kmax = M - 1 if max_sources is None else min(int(max_sources), M - 1)
+    kmax = max(0, min(kmax, int(n_snapshots) - 1))
+    k = np.arange(kmax + 1)
+    p = M - k  # noise eigenvalues per hypothesis: the p smallest
+    csum = np.cumsum(lam, axis=-1)
+    clog = np.cumsum(np.log(lam), axis=-1)
+    arith = csum[..., p - 1] / p
+    log_geo = clog[..., p - 1] / p
+    log_ratio = log_geo - np.log(arith)  # ≤ 0
+    if criterion == "mdl":
+        return -n_snapshots * p * log_ratio + 0.5 * k * (2 * M - k) * np.log(n_snapshots)
+    if criterion == "aic":
+        return -2.0 * n_snapshots * p * log_ratio + 2.0 * k * (2 * M - k)
+    raise ValueError(f"unknown source-count criterion {criterion!r} (mdl or aic)")
+
+
 def source_count(eigenvalues: np.ndarray, n_snapshots: int, criterion: str = "mdl",
                  max_sources: int | None = None) -> np.ndarray:
-    """Number of sources by MDL or AIC (Wax & Kailath), batched.
+    """Number of sources by MDL or AIC (Wax & Kailath 1985), batched: the k minimising
+    :func:`information_criterion`.
 
     Parameters
     ----------
@@ -54,24 +97,7 @@ def source_count(eigenvalues: np.ndarray, n_snapshots: int, criterion: str = "md
     -------
     ndarray of int, shape (...)
     """
-    lam = np.maximum(np.asarray(eigenvalues, float), np.finfo(float).tiny)
-    M = lam.shape[-1]
-    kmax = M - 1 if max_sources is None else min(int(max_sources), M - 1)
-    kmax = max(0, min(kmax, n_snapshots - 1))
-    k = np.arange(kmax + 1)
-    p = M - k  # noise eigenvalues per hypothesis: the p smallest
-    csum = np.cumsum(lam, axis=-1)
-    clog = np.cumsum(np.log(lam), axis=-1)
-    arith = csum[..., p - 1] / p
-    log_geo = clog[..., p - 1] / p
-    log_ratio = log_geo - np.log(arith)  # ≤ 0
-    if criterion == "mdl":
-        score = -n_snapshots * p * log_ratio + 0.5 * k * (2 * M - k) * np.log(n_snapshots)
-    elif criterion == "aic":
-        score = -2.0 * n_snapshots * p * log_ratio + 2.0 * k * (2 * M - k)
-    else:
-        raise ValueError(f"unknown source-count criterion {criterion!r} (mdl or aic)")
-    return np.argmin(score, axis=-1)
+    return np.argmin(information_criterion(eigenvalues, n_snapshots, criterion, max_sources), axis=-1)
 
 
 def angle_grid(step_rad: float, limit_rad: float = np.pi / 2) -> np.ndarray:
