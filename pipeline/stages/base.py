@@ -359,12 +359,14 @@ class Stage:
         """Every metric with its Monte Carlo interval: the family's own scores (grouped
         jackknife over runs, :func:`evaluators.confidence.summary_intervals`) and the standard
         measures (:func:`evaluators.standard.evaluate_standard`) where the family has a truth
-        space. Returns ``(per_scan, summary)``; summary columns ``tracker, metric, scope, value,
-        se, ci_low, ci_high``."""
+        space, and the track summary (:func:`evaluators.track_summary.track_summary`, kind
+        ``standard``) for every family. Returns ``(per_scan, summary)``; summary columns
+        ``tracker, metric, scope, value, se, ci_low, ci_high, kind``."""
         import polars as pl
 
         from evaluators.confidence import summary_intervals
         from evaluators.standard import evaluate_standard
+        from evaluators.track_summary import track_summary
 
         try:
             reference = self.reference(dataset, design)
@@ -383,14 +385,24 @@ class Stage:
 
             per_scan, summary = summary_intervals(score, {"tracks": tracks, "reference": reference["runs"]}, n_runs,
                                                   groups=10)
+        tracks = {n: o for n, o in result["tracks"].items() if "state" in o and "flags" in o}
+        # the track summary reads the flags and innovations alone: every family has it, truth or not
+        lives = track_summary(result["times"], tracks).with_columns(kind=pl.lit("standard"))
         space = self.standard_space(design, reference)
         if space is None:
-            return per_scan, summary
+            family = summary if "kind" in summary.columns else summary.with_columns(kind=pl.lit("family"))
+            return per_scan, pl.concat([family, lives], how="diagonal_relaxed")
         truth = self.standard_truth(reference) if reference is not None else None
-        tracks = {n: o for n, o in result["tracks"].items() if "state" in o and "flags" in o}
         std_scan, std_summary = evaluate_standard(result["times"], tracks, truth, space)
         if std_scan.height and per_scan.height and "scan" in per_scan.columns:
             extra = [c for c in std_scan.columns if c not in per_scan.columns or c in ("tracker", "scan")]
             per_scan = per_scan.join(std_scan.select(extra), on=["tracker", "scan"], how="left")
         return per_scan, pl.concat([summary.with_columns(kind=pl.lit("family")),
-                                    std_summary.with_columns(kind=pl.lit("standard"))], how="diagonal_relaxed")
+                                    std_summary.with_columns(kind=pl.lit("standard")), lives], how="diagonal_relaxed")
+
+    def has_truth(self, dataset) -> bool:
+        """Whether ``dataset`` holds the truth of this stage's family (else only what needs no
+        truth is scored: innovation consistency and the track summary)."""
+        family = vocab.FAMILIES.get(self.family)
+        channel = family.truth if family is not None else self.truth_channel
+        return channel is None or channel in dataset.channels
