@@ -104,10 +104,16 @@ def test_filterpy_kf_equals_kalman_with_missed_plots(tmp_path_factory):
     # detection probability 0.7 and a wandering target: tracks start late and coast
     path = simulated(tmp_path_factory, "missed", runs=20, seed=3, detection_probability=0.7,
                      truth_process_noise_mps2=0.5)
-    out, _, _ = run_trackers(path, ["kalman", "filterpy_kf"], [FILTERPY])
+    # the example is a filter without track management: compare with the built-in's switched off
+    # (M-of-N confirmation and deletion after coasting; docs/trackers.md, track life)
+    out, _, _ = run_trackers(path, ["kalman", "filterpy_kf"], [FILTERPY],
+                             overrides={"confirm_hits": 0, "max_coasted_scans": 0})
     flags = out["kalman"]["flags"]
     assert np.any(flags & vocab.COASTED) and np.any(flags & vocab.INITIALISING)
     assert_filterpy_equals_kalman(out)
+    # with it on (the default), the same filter: tracks that coast five scans in a row end
+    managed, _, _ = run_trackers(path, ["kalman"], [])
+    assert np.any(managed["kalman"]["flags"] & vocab.DELETED)
 
 
 def test_filterpy_kf_equals_kalman_with_several_plots_per_scan():

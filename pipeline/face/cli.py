@@ -475,14 +475,77 @@ def fit_width(text: str, width: int = TABLE_WIDTH) -> str:
     return "\n".join(out)
 
 
-def _print_stage_reports(res) -> None:
-    """What the stages add after the generic summary that it does not show (each result is
-    printed once: :meth:`pipeline.stages.base.Stage.replay_report`), fitted to TABLE_WIDTH."""
+def _truthless_stages(res) -> list[str]:
+    """The stages of ``res`` whose data hold no truth (a recording)."""
     from pipeline.stages import STAGES
 
+    return [s.name for s in STAGES if s.name in res.results and not s.has_truth(res.dataset)]
+
+
+def _table_summary(res) -> pl.DataFrame:
+    """``res.summary`` as the metric tables show it: for data without truth the track summary
+    rows are left out, since :func:`_track_summary_block` prints them once, one line per tracker."""
+    import polars as pl
+
+    from evaluators.track_summary import METRICS
+
+    truthless = _truthless_stages(res)
+    if not truthless or "stage" not in res.summary.columns:
+        return res.summary
+    return res.summary.filter(~(pl.col("stage").is_in(truthless) & pl.col("metric").is_in(list(METRICS))))
+
+
+def _track_summary_block(summary: pl.DataFrame, stage: str) -> str:
+    """The track summary of one stage (:mod:`evaluators.track_summary`), one line per tracker:
+    tracks per run, lifetime (median, interquartile range), scans to confirmation, and the mean
+    NIS against its χ² interval. A digest: the intervals over runs are in the metrics tables
+    written beside. Empty without rows."""
+    import polars as pl
+
+    from evaluators.track_summary import METRICS
+
+    part = summary.filter(pl.col("metric").is_in(list(METRICS)))
+    if "stage" in part.columns:
+        part = part.filter(pl.col("stage") == stage)
+    if part.height == 0:
+        return ""
+    values = {(r["tracker"], r["metric"]): r["value"] for r in part.iter_rows(named=True)}
+    trackers = part["tracker"].unique(maintain_order=True).to_list()
+    cell = lambda t, m: _cell(values.get((t, m)), None, None)  # noqa: E731
+    unflagged = any(values.get((t, "tracks_ended_unflagged_per_run")) for t in trackers)
+    header = ["tracker", "started", "confirmed", "deleted", "open", *(["unflagged"] if unflagged else []),
+              "life s (IQR)", "scans", "confirm", "mean NIS"]
+    lines = []
+    for t in trackers:
+        nis, low, high = (values.get((t, m)) for m in ("mean_nis", "mean_nis_low", "mean_nis_high"))
+        verdict = "—" if nis is None or low is None else (
+            f"{nis:.3g} " + ("in" if values.get((t, "mean_nis_inside")) else ">" if nis > high else "<")
+            + f" [{low:.3g}, {high:.3g}]")
+        lines.append([t, *(cell(t, f"tracks_{c}_per_run") for c in ("started", "confirmed", "deleted", "open")),
+                      *([cell(t, "tracks_ended_unflagged_per_run")] if unflagged else []),
+                      f"{cell(t, 'track_lifetime_s')} ({cell(t, 'track_lifetime_s_iqr')})",
+                      cell(t, "track_lifetime_scans"), cell(t, "scans_to_confirmation"), verdict])
+    widths = [max(len(r[i]) for r in [header, *lines]) for i in range(len(header))]
+    fmt = lambda r: "  ".join(c.ljust(w) if i in (0, len(r) - 1) else c.rjust(w)  # noqa: E731
+                              for i, (c, w) in enumerate(zip(r, widths))).rstrip()
+    return "\n".join([f"track summary of {stage} (no truth: no error can be computed)",
+                      "tracks per run; lifetime median, s (interquartile range) and scans; mean scans to confirm;",
+                      "mean NIS of all updates, below (<), inside (in) or above (>) its χ² 95 % interval",
+                      fmt(header), *(fmt(r) for r in lines)])
+
+
+def _print_stage_reports(res) -> None:
+    """What the stages add after the generic summary that it does not show (each result is
+    printed once: :meth:`pipeline.stages.base.Stage.replay_report`), fitted to TABLE_WIDTH.
+    For data without truth, the track summary of every stage comes first."""
+    from pipeline.stages import STAGES
+
+    truthless = _truthless_stages(res)
     for stage in STAGES:
         if stage.name in res.results:
             text = stage.replay_report(res.summary, res.per_scan) or ""
+            if stage.name in truthless:
+                text += "\n\n" + _track_summary_block(res.summary, stage.name)
             text += "\n\n" + (stage.track_listing(res.dataset, res.results[stage.name]) or "")
             if text.strip():
                 click.echo("\n" + fit_width(text.strip("\n")))
@@ -596,8 +659,12 @@ def _refuse_replacing(previous: list[Path], where: str) -> None:
 @click.option("--recover", is_flag=True, help="Accept a truncated MCAP: keep its complete chunks.")
 @click.option("--set", "sets", multiple=True, metavar="NAME=VALUE", help="Override a tracker design value (e.g. nominal_cross_range_m=120).")
 @click.option("--rerun-run", type=click.IntRange(min=0), default=0, show_default=True, help="Monte Carlo run shown in the per-run Rerun views.")
+@click.option("--map", "map_path", type=click.Path(dir_okay=False, path_type=Path),
+              help="DATA is an MCAP recorded by another tool: convert it through this mapping file first "
+                   "(see `replay convert mcap --help`); outputs are named after DATA.")
 @tracker_option
-def run_cmd(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, sets, rerun_run, tracker_specs):
+def run_cmd(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, sets, rerun_run, tracker_specs,
+            map_path=None):
     """Replay a data set through every tracker that applies.
 
     A tracker given with --tracker runs beside the built-ins (its design values take --set too).
@@ -615,6 +682,8 @@ def run_cmd(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, s
     from pipeline.replay import replay
     from recorders.scenarios import parse_assignments
 
+    if data is None and map_path is not None:
+        raise click.UsageError("--map needs the recording it maps: replay FOREIGN.mcap --map MAP.toml")
     if data is None:
         data = bundled_data_dir() / DEMO_NAME
         click.echo(f"no data set given: replaying the bundled demo {data}")
@@ -627,7 +696,7 @@ def run_cmd(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, s
     out_dir = base if (explicit_out or force) else _numbered_out_dir(base, "tracks.mcap")
     out_path = out_path or out_dir / "tracks.mcap"
     rrd_path = None if no_rrd else (rrd_path or out_path.with_suffix(".rrd"))
-    refuse_input_overwrite([data, *(_spec_files(tracker_specs))],
+    refuse_input_overwrite([data, map_path, *(_spec_files(tracker_specs))],
                            [out_path, rrd_path, *(out_dir / n for n in REPORT_FILES)])
     if not force:  # never replace an earlier replay unasked
         previous = _previous_outputs(out_dir, out_path.name, rrd_path if explicit_rrd else None)
@@ -637,6 +706,10 @@ def run_cmd(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, s
         _echo_wrapped(f"{base} holds an earlier replay: writing to {out_dir} (--force would replace it)")
     wanted = [t.strip() for t in trackers.split(",")] if trackers else None
     specs = resolve_tracker_specs(tracker_specs)  # a tracker that does not load fails here
+    if map_path is not None:  # a recording made by another tool: replay its conversion
+        from pipeline.face.cli_convert_foreign import convert_for_replay
+
+        data = convert_for_replay(data, map_path)
     t_read = time.perf_counter()
     dataset = read_dataset(data, recover=recover)  # bad files fail here, before any progress output
     t_read = time.perf_counter() - t_read
@@ -653,7 +726,7 @@ def run_cmd(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, s
         res.timings["total_s"] += t_read
         if res.dataset.recovered_messages is not None:
             click.echo(f"recovered {res.dataset.recovered_messages} messages from complete chunks of {data}")
-        _print_summary(res.summary, f"metrics for {data.name} ({res.dataset.channel(next(iter(res.dataset.channels))).n_runs} runs)")
+        _print_summary(_table_summary(res), f"metrics for {data.name} ({res.dataset.channel(next(iter(res.dataset.channels))).n_runs} runs)")
         _print_stage_reports(res)
         with progress.timed("tables and plots"):
             tables = [outputs.final(p) for p in _export_tables(res, outputs.stage)]
@@ -811,34 +884,15 @@ def scenarios_cmd(name):
 def convert_group():
     """Convert recorded data into the MCAP data contract.
 
+    Tables of measurements (CSV or Parquet) come in with plots, peaks, tdoa-fdoa and positions;
+    `replay export --table` writes a data set's measurements out in the same format.
+
     \b
     Example:
-      replay convert plots-csv plots.csv -o plots.mcap --set sigma_bearing_deg=0.8
+      replay convert plots plots.csv -o plots.mcap --set sigma_bearing_deg=0.8
+      replay convert tdoa-fdoa pairs.parquet --sensors sensors.parquet -o emitter.mcap
       replay convert array-wav array.wav -o rec.mcap --spacing-m 0.04 --frequency-hz 2000
     """
-
-
-@convert_group.command("plots-csv")
-@click.argument("csv_path", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path))
-@click.option("--set", "sets", multiple=True, metavar="NAME=VALUE",
-              help="Sensor/design values (defaults from radar-tws), e.g. sigma_range_m=50.")
-@force_option
-def convert_plots_cmd(csv_path, output, sets, force):
-    """Radar plots CSV (time, range_m, bearing_deg[, run]) → MCAP.
-
-    \b
-    Example:
-      replay convert plots-csv plots.csv -o plots.mcap --set sigma_bearing_deg=0.8
-    """
-    from recorders.plots_csv import convert_plots_csv
-    from recorders.scenarios import load_scenario, parse_assignments
-
-    refuse_input_overwrite([csv_path], [output])
-    refuse_replacing_file(output, force)
-    sc = load_scenario("radar-tws").with_overrides(parse_assignments(sets))
-    n = convert_plots_csv(csv_path, output, sc.params)
-    click.echo(f"wrote {output}: {n} messages")
 
 
 # --------------------------------------------------------------------------- eval / check
@@ -891,7 +945,7 @@ def eval_cmd(data, outputs, as_json, per_scan, export_dir, recover, tracker_spec
             records += long.select("tracker", "metric", "scope", "value", "stage").to_dicts()
         click.echo(json.dumps([{k: _json_value(v) for k, v in r.items()} for r in records]))
     else:
-        _print_summary(res.summary, f"metrics for {data.name}")
+        _print_summary(_table_summary(res), f"metrics for {data.name}")
         _print_stage_reports(res)
     if export_dir:
         with progress.timed("export"):
@@ -1353,7 +1407,13 @@ def _recording_of_mcap(path: Path, scratch: Path) -> Path:
 @click.argument("tracks", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--foxglove", is_flag=True,
               help="JSON messages with JSON Schemas in MCAP, as Foxglove and PlotJuggler read them.")
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path), help="The MCAP file to write.")
+@click.option("--table", is_flag=True,
+              help="A data set's input channels as tables (one per measurement family, plus the sensors of "
+                   "tdoa-fdoa) in exactly the format `replay convert` reads.")
+@click.option("--format", "table_format", type=click.Choice(["csv", "parquet"]), default="csv", show_default=True,
+              help="File format of --table.")
+@click.option("-o", "--output", required=True, type=click.Path(path_type=Path),
+              help="The MCAP file to write (--foxglove) or the folder of the tables (--table).")
 @click.option("--runs", "runs_spec", metavar="LIST",
               help="Monte Carlo runs to export, e.g. 0,1,2 or 0-4 (default: the first 10).")
 @click.option("--data", "data_path", type=click.Path(dir_okay=False, path_type=Path),
@@ -1361,23 +1421,40 @@ def _recording_of_mcap(path: Path, scratch: Path) -> Path:
                    "outputs' provenance names, beside them, here or among the bundled data sets).")
 @click.option("--recover", is_flag=True, help="Accept truncated MCAP files.")
 @force_option
-def export_cmd(tracks, foxglove, output, runs_spec, data_path, recover, force):
-    """Export a replay's outputs for other plotting tools.
+def export_cmd(tracks, foxglove, table, table_format, output, runs_spec, data_path, recover, force):
+    """Export a replay's outputs for other plotting tools, or a data set's measurements as tables.
 
     --foxglove writes, per chosen run, one topic per tracker (/run_000/kalman: t, scan, x, y,
     vx, vy, sd_x, …, flags) and the truth (/run_000/truth), plus the per-scan metrics over all
     runs (/metrics/kalman), as JSON messages at the scan times (docs/export.md).
+
+    --table writes a data set's input channels (and the truth the tables carry) as CSV or
+    Parquet tables into a folder, in exactly the format `replay convert plots|peaks|tdoa-fdoa|
+    positions` reads: importing them gives the same arrays (docs/importers.md).
 
     \b
     Example:
       replay data/radar_tws_demo.mcap --out r/tracks.mcap
       replay export --foxglove r/tracks.mcap -o view.mcap
       replay export --foxglove r/tracks.mcap -o view.mcap --runs 0,1,2
+      replay export --table data/radar_tws_demo.mcap -o tables/ --format parquet
     """
     from pipeline.face.export_foxglove import export_foxglove
 
+    if foxglove and table:
+        raise click.UsageError("choose one format: --foxglove or --table")
+    if table:
+        from pipeline.face.cli_convert_tables import export_tables
+
+        if runs_spec or data_path:
+            raise click.UsageError("--runs and --data belong to --foxglove; --table exports every run")
+        export_tables(tracks, output, table_format, recover, force)
+        return
     if not foxglove:
-        raise click.UsageError("choose the format: --foxglove (JSON MCAP for Foxglove and PlotJuggler)")
+        raise click.UsageError("choose the format: --foxglove (JSON MCAP for Foxglove and PlotJuggler) or --table "
+                               "(a data set's measurements as CSV/Parquet tables)")
+    if output.is_dir():
+        raise InputError("is a folder; --foxglove writes one MCAP file", output)
     refuse_input_overwrite([tracks, data_path], [output])
     refuse_replacing_file(output, force)
     with progress.bar(0, f"exporting {tracks.name}") as bar, progress.timed("export"):
@@ -1403,6 +1480,8 @@ EXTENSION_MODULES: tuple[str, ...] = (
     "pipeline.face.cli_xcorr",
     "pipeline.face.cli_array",
     "pipeline.face.cli_convert_upgrade",
+    "pipeline.face.cli_convert_tables",
+    "pipeline.face.cli_convert_foreign",
     # one line per module: "pipeline.cli_<paper>",
 )
 

@@ -1,0 +1,175 @@
+"""``replay convert plots|peaks|tdoa-fdoa|positions``: tables of measurements (CSV or Parquet) →
+data sets, and ``replay export --table``'s writing of them the other way.
+
+Registered under the existing ``replay convert`` group (this module is listed in
+``pipeline.face.cli.EXTENSION_MODULES``; it adds no top-level command). ``plots-csv``, the
+earlier name of ``plots``, stays as an alias. The formats, the checks and the numbers are in
+:mod:`recorders.tables`; the help texts are written from its ``TABLE_FORMATS``.
+"""
+
+from __future__ import annotations
+
+import textwrap
+from pathlib import Path
+
+import click
+
+COMMANDS: list = []  # defined first: importing pipeline.face.cli below may re-enter this module
+
+HELP_WIDTH = 100
+ITEMS = {"radar-plots": "plots", "bearing-peaks": "peaks", "tdoa-fdoa": "pair measurements",
+         "colored-position": "positions"}
+TITLES = {"radar-plots": "Radar plots", "bearing-peaks": "Cross-correlation peaks",
+          "tdoa-fdoa": "TDOA/FDOA measurements", "colored-position": "Positions in coloured noise"}
+SAMPLES = {"radar-plots": ("radar_plots.csv", None), "bearing-peaks": ("bearing_peaks.csv", None),
+           "tdoa-fdoa": ("tdoa_fdoa.csv", "tdoa_fdoa_sensors.csv"), "colored-position": ("colored_positions.csv", None)}
+
+
+def _column_lines(columns, indent: str = "  ") -> list[str]:
+    """A columns table that fits HELP_WIDTH: name, unit, required, meaning (wrapped)."""
+    name_w = min(max(len(c.name) for c in columns), 34)
+    unit_w = max(len(c.unit) for c in columns)
+    lead = len(indent) + name_w + 2 + unit_w + 2 + 9
+    out = []
+    for c in columns:
+        meaning = textwrap.wrap(c.meaning, HELP_WIDTH - lead) or [""]
+        name = c.name if len(c.name) <= name_w else None
+        if name is None:  # a long name takes its own line
+            out.append(f"{indent}{c.name}")
+            name = ""
+        out.append(f"{indent}{name:<{name_w}}  {c.unit:<{unit_w}}  {'required' if c.required else 'optional':<9}"
+                   f"{meaning[0]}".rstrip())
+        out += [" " * lead + m for m in meaning[1:]]
+    return out
+
+
+def format_help(family: str, command: str) -> str:
+    """The --help text of a table converter, from the family's :data:`recorders.tables.TABLE_FORMATS` entry."""
+    from recorders.tables import TABLE_FORMATS, scenario_of
+
+    fmt = TABLE_FORMATS[family]
+    sample, sensors = SAMPLES[family]
+    lines = [f"{TITLES[family]} table (.csv or .parquet) → data set (MCAP), ready for `replay`.", "",
+             f"{fmt.summary[0].upper()}{fmt.summary[1:]}. The design values (sensor noise, the trackers' "
+             f"parameters) come from the bundled {scenario_of(family)} scenario; change them with --set "
+             f"(`replay scenarios {scenario_of(family)}` lists them).", ""]
+    for key, columns in fmt.tables.items():
+        title = "Columns" if key == "measurements" else "Columns of the sensors table (--sensors)"
+        lines += ["\b", f"{title} (unit; rad | ° means _rad or _deg):", *_column_lines(columns), ""]
+    lines += ["\b", *[wrapped for note in fmt.notes
+                      for wrapped in textwrap.wrap(note, HELP_WIDTH - 4, initial_indent="* ", subsequent_indent="  ")],
+              ""]
+    lines += ["Every table: runs numbered from 0 without gaps, each run's rows in time order, numbers only (no "
+              "text, NaN or Inf); an error names the file and the first bad row (rows counted from 1 after the "
+              "header). See docs/importers.md.", ""]
+    extra = f" --sensors data/samples/{sensors}" if sensors else ""
+    lines += ["\b", "Example:", f"  replay convert {command} data/samples/{sample}{extra} -o rec.mcap",
+              "  replay rec.mcap --no-rrd"]
+    return "\n".join(lines)
+
+
+class _TableCommand(click.Command):
+    """A converter whose long help is written from the table format only when asked for, so
+    that starting `replay` does not import polars and the stages."""
+
+    def __init__(self, *args, family: str, help_name: str, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.family, self.help_name = family, help_name
+
+    def format_help_text(self, ctx, formatter) -> None:
+        if self.help is None:
+            self.help = format_help(self.family, self.help_name)
+        super().format_help_text(ctx, formatter)
+
+
+def _convert_command(name: str, family: str, alias_of: str | None = None) -> click.Command:
+    params = [
+        click.Argument(["table_path"], type=click.Path(dir_okay=False, path_type=Path)),
+        click.Option(["-o", "--output"], required=True, type=click.Path(dir_okay=False, path_type=Path),
+                     help="The data set to write (never the input itself)."),
+    ]
+    if family == "tdoa-fdoa":  # the one family with a second table
+        params.append(click.Option(["--sensors", "sensors_path"], required=True,
+                                   type=click.Path(dir_okay=False, path_type=Path),
+                                   help="The sensors table (.csv or .parquet): positions and velocities per epoch."))
+    params += [
+        click.Option(["--set", "sets"], multiple=True, metavar="NAME=VALUE",
+                     help="A design value recorded with the data (a parameter of the bundled scenario)."),
+        click.Option(["--force"], is_flag=True, help="Replace the output file if it exists."),
+    ]
+
+    def callback(table_path, output, sets, force, sensors_path=None):
+        from pipeline.paths import refuse_input_overwrite, refuse_replacing_file
+        from recorders.scenarios import parse_assignments
+        from recorders.tables import convert_table
+
+        refuse_input_overwrite([table_path, sensors_path], [output])
+        refuse_replacing_file(output, force)
+        rep = convert_table(family, table_path, output, parse_assignments(sets), sensors_path)
+        click.echo(f"wrote {output}: {rep.messages} messages, {rep.runs} run(s) × {rep.scans} scan(s), "
+                   f"{rep.items} {ITEMS[family]}; {'with truth' if rep.truth else 'no truth'}")
+        for note in rep.notes:
+            click.echo(f"note: {note}")
+
+    short = (f"Alias of `{alias_of}` (its earlier name)." if alias_of
+             else f"{TITLES[family]} table (CSV or Parquet) → MCAP.")
+    return _TableCommand(name, callback=callback, params=params, short_help=short, family=family,
+                         help_name=alias_of or name)
+
+
+def export_tables(data: Path, out_dir: Path, fmt: str, recover: bool, force: bool) -> None:
+    """``replay export --table``: every family's input channels of ``data`` as tables in ``out_dir``,
+    written as a set (all files or none)."""
+    from pipeline.contract import read_dataset
+    from pipeline.errors import InputError
+    from pipeline.paths import OutputSet, refuse_input_overwrite, refuse_replacing_file
+    from recorders.tables import TABLE_FORMATS, exportable_families, table_file_names, tables_from_dataset, write_table
+
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError("is a file; --table writes its tables into a folder", out_dir)
+    if not data.exists():
+        raise InputError("no such file", data)
+    dataset = read_dataset(data, recover=recover)
+    families, skipped = exportable_families(dataset)
+    if not families:
+        raise InputError(f"no channels of a family with a table format ({', '.join(TABLE_FORMATS)}); channels "
+                         f"present: {', '.join(sorted(dataset.channels)) or 'none'}", data)
+    plan = []
+    for family in families:
+        names = table_file_names(family, fmt)
+        plan += [(out_dir / names[key], df) for key, df in tables_from_dataset(dataset, family).items()]
+    refuse_input_overwrite([data], [p for p, _ in plan])
+    for p, _ in plan:
+        refuse_replacing_file(p, force)
+    with OutputSet(out_dir) as outputs:
+        for p, df in plan:
+            write_table(df, outputs.path(p.name), fmt)
+    for p, df in plan:
+        click.echo(f"wrote {p}: {df.height} rows, columns {', '.join(df.columns)}")
+    for family in skipped:
+        click.echo(f"note: {family} has no table format (its recordings come in as WAV: replay convert array-wav)")
+    for family in families:
+        names = table_file_names(family, fmt)
+        sensors = f" --sensors {out_dir / names['sensors']}" if "sensors" in names else ""
+        click.echo(f"back: replay convert {TABLE_FORMATS[family].command} {out_dir / names['measurements']}{sensors} "
+                   "-o DATA.mcap")
+
+
+CONVERT_COMMANDS = {
+    "plots": ("radar-plots", None),
+    "plots-csv": ("radar-plots", "plots"),
+    "peaks": ("bearing-peaks", None),
+    "tdoa-fdoa": ("tdoa-fdoa", None),
+    "positions": ("colored-position", None),
+}
+
+
+def _register() -> None:
+    from pipeline.face import cli
+
+    for name, (family, alias_of) in CONVERT_COMMANDS.items():
+        if name not in cli.convert_group.commands:
+            cli.convert_group.add_command(_convert_command(name, family, alias_of))
+
+
+_register()
