@@ -170,9 +170,10 @@ def plot_tracks_xy(tracks_m: dict, path: str | Path, measured_m=None, truth_m=No
 
 
 def plot_positions_time(times_s, tracks_m: dict, path: str | Path, measured_m=None, truth_m=None,
-                        title: str = "") -> Path:
+                        title: str = "", model_probabilities: dict | None = None, model_names=()) -> Path:
     """One run's position per axis against time: one panel per axis, the measurements as grey
-    dots, the truth dashed, every tracker in its own style.
+    dots, the truth dashed, every tracker in its own style; below them, for every IMM, a panel of
+    its posterior model probabilities (what a recording without truth shows of the IMMs).
 
     Parameters
     ----------
@@ -180,11 +181,17 @@ def plot_positions_time(times_s, tracks_m: dict, path: str | Path, measured_m=No
     tracks_m : dict
         ``tracker -> (K, axes)`` positions.
     measured_m, truth_m : ndarray (K, axes), optional
+    model_probabilities : dict, optional
+        ``tracker -> (K, M)`` posterior model probabilities.
+    model_names : sequence of str
+        The M models' names.
     """
     t = np.asarray(times_s, float)
     axes_n = next(iter(tracks_m.values())).shape[-1] if tracks_m else 1
-    fig, axes = plt.subplots(axes_n, 1, figsize=(9, 2.8 * axes_n + 0.6), sharex=True, squeeze=False)
-    for a, ax in enumerate(axes[:, 0]):
+    probs = dict(model_probabilities or {})
+    rows = axes_n + len(probs)
+    fig, axes = plt.subplots(rows, 1, figsize=(9, 2.8 * axes_n + 1.6 * len(probs) + 0.6), sharex=True, squeeze=False)
+    for a, ax in enumerate(axes[:axes_n, 0]):
         if measured_m is not None:
             ax.plot(t, np.asarray(measured_m, float)[:, a], ".", color="0.6", ms=2.5, label="measurements", zorder=1)
         if truth_m is not None:
@@ -194,8 +201,18 @@ def plot_positions_time(times_s, tracks_m: dict, path: str | Path, measured_m=No
                     zorder=3, **series_style(i))
         ax.set_ylabel(f"position, axis {a} (m)" if axes_n > 1 else "position (m)")
         ax.grid(alpha=0.3)
-    axes[-1, 0].set_xlabel("time (s)")
     legend_outside(axes[0, 0])
+    for ax, (name, mu) in zip(axes[axes_n:, 0], probs.items()):
+        mu = np.asarray(mu, float)
+        for j in range(mu.shape[-1]):
+            label = model_names[j] if j < len(model_names) else f"model {j}"
+            ax.plot(t, mu[:, j], lw=1.0, ms=3.5, markevery=staggered_markers(len(t), j), label=label,
+                    **series_style(j))
+        ax.set_ylim(-0.02, 1.02)
+        ax.set_ylabel(f"{name}\nP(model)")
+        ax.grid(alpha=0.3)
+        legend_outside(ax)
+    axes[-1, 0].set_xlabel("time (s)")
     if title:
         fig.suptitle(title)
     return save_figure(fig, path)

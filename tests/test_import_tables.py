@@ -362,3 +362,14 @@ def test_help_and_docs_list_every_column():
                     assert name in text, (fmt.command, name)
                     assert f"`{name}`" in docs, (family, name)
         assert f"replay convert {fmt.command}" in docs
+
+
+@pytest.mark.parametrize("name", ["radar_plots.csv", "radar_plots.parquet"])
+def test_replaying_a_table_directly_says_how_to_convert_it(name):
+    from click.testing import CliRunner
+
+    from pipeline.face.cli import main
+
+    res = CliRunner().invoke(main, [str(SAMPLES / name), "--no-rrd"])
+    assert res.exit_code == 2 and "Traceback" not in res.output
+    assert res.output.count("\n") == 1 and "replay convert plots|peaks|tdoa-fdoa|positions FILE" in res.output

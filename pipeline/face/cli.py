@@ -643,6 +643,12 @@ def _refuse_replacing(previous: list[Path], where: str) -> None:
                      "them, or choose another --out")
 
 
+# recordings that `replay convert` turns into a data set, and how
+CONVERTED_SUFFIXES = {".csv": "replay convert plots|peaks|tdoa-fdoa|positions FILE -o DATA.mcap",
+                      ".parquet": "replay convert plots|peaks|tdoa-fdoa|positions FILE -o DATA.mcap",
+                      ".wav": "replay convert array-wav FILE -o DATA.mcap --spacing-m D --frequency-hz F"}
+
+
 @main.command("run")
 @click.argument("data", required=False, type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--trackers", help="Comma-separated subset, e.g. fixed,approximate (default: all that apply).")
@@ -687,6 +693,9 @@ def run_cmd(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, s
     if data is None:
         data = bundled_data_dir() / DEMO_NAME
         click.echo(f"no data set given: replaying the bundled demo {data}")
+    if data.suffix.lower() in CONVERTED_SUFFIXES and map_path is None:  # a recording, not yet a data set
+        raise InputError(f"a {data.suffix.lstrip('.').upper()} file is converted first: "
+                         f"{CONVERTED_SUFFIXES[data.suffix.lower()]} (see replay convert --help)", data)
     if spawn:  # no display: say so before the replay, not after it
         from pipeline.face.viewer import require_display
 

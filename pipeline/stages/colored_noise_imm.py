@@ -131,8 +131,8 @@ class ColoredNoiseImmStage(Stage):
 
     def figures(self, per_scan, out_dir, title: str = "", result: dict | None = None, dataset=None) -> list:
         """``report.png``: the RMSE per scan (with truth); ``positions.png``: run 0's position
-        per axis against time, measurements, truth and every filter (the report figure when the
-        data have no truth); and the thesis's figures."""
+        per axis against time, measurements, truth and every filter, and each IMM's model
+        probabilities (the report figure when the data have no truth); and the thesis's figures."""
         from pathlib import Path
 
         from evaluators.report_plots import plot_positions_time
@@ -142,10 +142,13 @@ class ColoredNoiseImmStage(Stage):
             z, times, state, _ = self.decode_inputs(dataset)
             positions = {name: np.asarray(out["state"], float)[0, :, 0::3] for name, out in result["tracks"].items()
                          if "state" in out and "flags" in out}
+            probabilities = {name: np.asarray(out["model_probabilities"], float)[0]
+                             for name, out in result["tracks"].items() if "model_probabilities" in out}
             name = "positions.png" if paths else "report.png"
             paths.append(plot_positions_time(times, positions, Path(out_dir) / name, z[0],
                                              None if state is None else state[0, :, 0::3],
-                                             title=f"{title}: run 0" if title else "run 0"))
+                                             title=f"{title}: run 0" if title else "run 0",
+                                             model_probabilities=probabilities, model_names=MODEL_NAMES))
         return paths + colored_eval.write_figures(per_scan, out_dir, title=title)
 
     # the RMSE, model-probability and AR tables repeat the scopes of the generic tables
