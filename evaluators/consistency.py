@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from evaluators.tracking_metrics import nanmean
+from pipeline.batched_linalg import whiten
 
 NORMAL_95 = 1.959963984540054  # the two-sided 95 % quantile of the standard normal
 
@@ -67,58 +68,26 @@ def whitened(error, covariance):
     # in blocks: the factors and temporaries stay a few MB at any number of runs
     for start in range(0, len(e_flat), WHITEN_BLOCK):
         part = slice(start, start + WHITEN_BLOCK)
-        out[part] = _whitened_block(e_flat[part], P_flat[part])
+        out[part] = whiten(e_flat[part], P_flat[part])
     return out.reshape(lead + (n,))
 
 
 WHITEN_BLOCK = 32768
 
 
-def _whitened_block(e, P):
-    ok = np.isfinite(e).all(axis=-1) & np.isfinite(P).all(axis=(-2, -1))
-    if ok.all():
-        try:
-            return forward_substitution(np.linalg.cholesky(P), e)
-        except np.linalg.LinAlgError:
-            pass
-    out = np.full(e.shape, np.nan)
-    if not ok.any():
-        return out
-    Pk, ek = P[ok], e[ok]
-    try:
-        out[ok] = forward_substitution(np.linalg.cholesky(Pk), ek)
-    except np.linalg.LinAlgError:
-        # some are not positive definite: factorise only those whose eigenvalues are all
-        # positive, leaving the others NaN
-        definite = np.linalg.eigvalsh(Pk)[:, 0] > 0
-        w = np.full(ek.shape, np.nan)
-        for idx in np.array_split(np.flatnonzero(definite), max(1, int(definite.sum()) // 4096)):
-            try:
-                w[idx] = forward_substitution(np.linalg.cholesky(Pk[idx]), ek[idx])
-            except np.linalg.LinAlgError:
-                for i in idx:  # rounding at the edge of definiteness: one by one
-                    try:
-                        w[i] = forward_substitution(np.linalg.cholesky(Pk[i]), ek[i])
-                    except np.linalg.LinAlgError:
-                        continue
-        out[ok] = w
-    return out
-
-
-def forward_substitution(lower, b):
-    """``x`` with ``lower @ x = b`` for a batch of lower-triangular ``(..., n, n)`` factors.
-
-    The triangular solve row by row, each row one vectorised operation over the whole batch:
-    for the small n of tracking states this is n array operations, where ``np.linalg.solve``
-    would LU-factorise every already-triangular matrix again (about 15× slower at n = 4 on
-    32,000 matrices) and ``scipy.linalg.solve_triangular`` loops over the batch in Python.
-    """
-    L = np.asarray(lower, float)
-    b = np.asarray(b, float)
-    x = np.empty(np.broadcast_shapes(L.shape[:-1], b.shape))
-    for i in range(L.shape[-1]):
-        x[..., i] = (b[..., i] - np.einsum("...j,...j->...", L[..., i, :i], x[..., :i])) / L[..., i, i]
-    return x
+def whitened_innovations(out: dict):
+    """``(w, nis)`` of a tracker's outputs: the whitened innovation ``L⁻¹ν`` (R, K, T, m) and the
+    NIS ``νᵀS⁻¹ν`` (R, K, T), a single-track family given one slot; None without ``innovation``
+    and ``innovation_covariance``. Computed once per replay and shared by the standard measures
+    and the track summary (``docs/evaluation.md``)."""
+    if "innovation" not in out or "innovation_covariance" not in out:
+        return None
+    nu = np.asarray(out["innovation"], float)
+    S = np.asarray(out["innovation_covariance"], float)
+    if nu.ndim == 3:  # no track axis
+        nu, S = nu[:, :, None], S[:, :, None]
+    w = whitened(nu, S)
+    return w, np.einsum("...i,...i->...", w, w)
 
 
 def normalised_squared(error, covariance):

@@ -25,7 +25,8 @@ import polars as pl
 
 from evaluators.assignment_metrics import assignment_metrics, scan_matches
 from evaluators.confidence import jackknife, mean_interval, rms_interval
-from evaluators.consistency import consistency_summary, innovation_whiteness, normalised_squared, whitened
+from evaluators.consistency import (consistency_summary, innovation_whiteness, normalised_squared,
+                                   whitened_innovations)
 from evaluators.set_distances import gospa
 from evaluators.tracking_metrics import nanmean
 from pipeline.vocabulary import DELETED, NO_TRACK
@@ -99,7 +100,8 @@ def _with_ci(name: str, metric: str, value, se, lo, hi, scope: str = "overall") 
             "ci_low": finite(lo), "ci_high": finite(hi)}
 
 
-def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: float = 0.95):
+def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: float = 0.95,
+                      innovations: dict | None = None):
     """Standard measures of every tracker.
 
     Parameters
@@ -111,6 +113,10 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
         True values of ``space.truth_components`` per target; NaN where a target is absent.
         Without truth only the innovation-based measures are computed.
     space : EvaluationSpace
+    prob : float
+        Level of every interval and bound.
+    innovations : dict, optional
+        ``name ->`` :func:`evaluators.consistency.whitened_innovations`, when already computed.
 
     Returns
     -------
@@ -132,12 +138,12 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
         state = np.where(absent[..., None], np.nan, state)
         cols = {"tracker": [name] * K, "scan": np.arange(K), "time_s": np.asarray(times, float)}
         # ---- innovation consistency (needs no truth)
-        if "innovation" in out and "innovation_covariance" in out:
+        given = (innovations or {}).get(name)
+        w_and_nis = given if given is not None else whitened_innovations(out)
+        if w_and_nis is not None:
             nu = _as_slots(out["innovation"], 1)
-            Sv = _as_slots(out["innovation_covariance"], 2)
+            w_nu, nis = w_and_nis                                   # (R, K, S, m), (R, K, S)
             m = nu.shape[-1]
-            w_nu = whitened(nu, Sv)                                 # (R, K, S, m)
-            nis = np.sum(w_nu * w_nu, axis=-1)                     # (R, K, S)
             nis_run = nanmean(nis, axis=2)                         # average over slots
             c = consistency_summary(nis_run, m, prob)
             cols.update(anis=c["per_scan"], anis_low=c["low"], anis_high=c["high"])

@@ -28,7 +28,7 @@ import numpy as np
 import polars as pl
 
 from evaluators.confidence import jackknife, mean_interval
-from evaluators.consistency import chi2_interval, whitened
+from evaluators.consistency import chi2_interval, whitened_innovations
 from pipeline.vocabulary import COASTED, DELETED, INITIALISING, NO_TRACK
 
 #: the per-run counts, in the order they are reported, and the event of :func:`track_life` each counts
@@ -131,7 +131,8 @@ def _iqr(values):
     return float(np.subtract(*np.percentile(values, [75, 25]))) if len(values) else np.nan
 
 
-def tracker_summary(name: str, times, out: dict, prob: float = 0.95, groups: int = 10) -> list[dict]:
+def tracker_summary(name: str, times, out: dict, prob: float = 0.95, groups: int = 10,
+                    innovations=None) -> list[dict]:
     """The track summary rows of one tracker's outputs (see :func:`track_summary`).
 
     Parameters
@@ -146,6 +147,8 @@ def tracker_summary(name: str, times, out: dict, prob: float = 0.95, groups: int
         Level of every interval.
     groups : int
         Groups of runs of the jackknife.
+    innovations : tuple, optional
+        :func:`evaluators.consistency.whitened_innovations` of ``out``, when already computed.
 
     Returns
     -------
@@ -174,7 +177,9 @@ def tracker_summary(name: str, times, out: dict, prob: float = 0.95, groups: int
             return np.nan, np.nan, np.nan, np.nan
 
         def of_runs(idx):
-            chosen = values[np.isin(run_of, idx)]
+            kept = np.zeros(R, bool)  # a mask over runs: one gather, not a set operation per group
+            kept[idx] = True
+            chosen = values[kept[run_of]]
             return statistic(chosen) if len(chosen) else np.nan
 
         return jackknife(of_runs, R, groups=groups, prob=prob)
@@ -184,15 +189,11 @@ def tracker_summary(name: str, times, out: dict, prob: float = 0.95, groups: int
     rows.append(_row(name, "track_lifetime_scans_iqr", _iqr(scans)))
     rows.append(_row(name, "track_lifetime_s", *over_runs(np.median, r_end, seconds)))
     rows.append(_row(name, "track_lifetime_s_iqr", _iqr(seconds)))
-    if "innovation" in out and "innovation_covariance" in out:
-        nu = np.asarray(out["innovation"], float)
-        Sv = np.asarray(out["innovation_covariance"], float)
-        if nu.ndim == 3:  # no track axis
-            nu, Sv = nu[:, :, None], Sv[:, :, None]
-        m = nu.shape[-1]
+    innovations = innovations if innovations is not None else whitened_innovations(out)
+    if innovations is not None:
+        w, nis = innovations                                              # (R, K, T, m), (R, K, T)
+        m = w.shape[-1]
         flags = _slots(out["flags"]).astype(np.int64)
-        w = whitened(nu, Sv)
-        nis = np.sum(w * w, axis=-1)                                      # (R, K, T)
         # an update is a scan with a track that used a measurement
         nis = np.where(life["held"] & ((flags & COASTED) == 0), nis, np.nan)
         mean, low, high, n = mean_nis_bounds(nis, m, prob)
@@ -208,7 +209,7 @@ def tracker_summary(name: str, times, out: dict, prob: float = 0.95, groups: int
     return rows
 
 
-def track_summary(times, tracks: dict, prob: float = 0.95) -> pl.DataFrame:
+def track_summary(times, tracks: dict, prob: float = 0.95, innovations: dict | None = None) -> pl.DataFrame:
     """The track summary of every tracker: long form ``tracker, metric, scope, value, se,
     ci_low, ci_high`` (scope ``overall``).
 
@@ -221,6 +222,8 @@ def track_summary(times, tracks: dict, prob: float = 0.95) -> pl.DataFrame:
         estimator's side outputs) are left out.
     prob : float
         Level of every interval.
+    innovations : dict, optional
+        ``name ->`` :func:`evaluators.consistency.whitened_innovations`, when already computed.
 
     Returns
     -------
@@ -237,5 +240,5 @@ def track_summary(times, tracks: dict, prob: float = 0.95) -> pl.DataFrame:
     rows = []
     for name, out in tracks.items():
         if "state" in out and "flags" in out:
-            rows += tracker_summary(name, times, out, prob)
+            rows += tracker_summary(name, times, out, prob, innovations=(innovations or {}).get(name))
     return pl.DataFrame(rows, schema=SCHEMA) if rows else pl.DataFrame(schema=SCHEMA)

@@ -30,8 +30,9 @@ RULES = {
     "evaluators": {"pipeline.cores", "pipeline.trackers", "pipeline.stages", "pipeline.face", "rerun", "click"},
     "pipeline/face": {"scipy"},
 }
-# the import-free vocabulary and the interface are what cores and trackers may use
-ALLOWED_EVERYWHERE = {"pipeline.vocabulary", "pipeline.errors", "pipeline.trackers.interface"}
+# the import-free vocabulary, the interface and the small-matrix linear algebra (numpy only) are what
+# cores, trackers and evaluators may use
+ALLOWED_EVERYWHERE = {"pipeline.vocabulary", "pipeline.errors", "pipeline.trackers.interface", "pipeline.batched_linalg"}
 
 
 def _imports(path: Path) -> list[tuple[int, str]]:

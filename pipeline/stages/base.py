@@ -365,6 +365,7 @@ class Stage:
         import polars as pl
 
         from evaluators.confidence import summary_intervals
+        from evaluators.consistency import whitened_innovations
         from evaluators.standard import evaluate_standard
         from evaluators.track_summary import track_summary
 
@@ -386,14 +387,16 @@ class Stage:
             per_scan, summary = summary_intervals(score, {"tracks": tracks, "reference": reference["runs"]}, n_runs,
                                                   groups=10)
         tracks = {n: o for n, o in result["tracks"].items() if "state" in o and "flags" in o}
+        # whitened once, read by the standard measures and the track summary
+        innovations = {n: whitened_innovations(o) for n, o in tracks.items()}
         # the track summary reads the flags and innovations alone: every family has it, truth or not
-        lives = track_summary(result["times"], tracks).with_columns(kind=pl.lit("standard"))
+        lives = track_summary(result["times"], tracks, innovations=innovations).with_columns(kind=pl.lit("standard"))
         space = self.standard_space(design, reference)
         if space is None:
             family = summary if "kind" in summary.columns else summary.with_columns(kind=pl.lit("family"))
             return per_scan, pl.concat([family, lives], how="diagonal_relaxed")
         truth = self.standard_truth(reference) if reference is not None else None
-        std_scan, std_summary = evaluate_standard(result["times"], tracks, truth, space)
+        std_scan, std_summary = evaluate_standard(result["times"], tracks, truth, space, innovations=innovations)
         if std_scan.height and per_scan.height and "scan" in per_scan.columns:
             extra = [c for c in std_scan.columns if c not in per_scan.columns or c in ("tracker", "scan")]
             per_scan = per_scan.join(std_scan.select(extra), on=["tracker", "scan"], how="left")
