@@ -45,6 +45,7 @@ import math
 import os
 import struct
 import tempfile
+import threading
 import zlib
 from collections.abc import Mapping as MappingABC
 from contextlib import contextmanager
@@ -61,6 +62,7 @@ from mcap.opcode import Opcode
 from mcap.reader import make_reader
 from mcap.records import Channel, Chunk, Footer, Message, Metadata, Schema
 from mcap.stream_reader import CRCValidationError, StreamReader
+import mcap.writer
 from mcap.writer import CompressionType, Writer
 
 from pipeline import __version__
@@ -664,6 +666,57 @@ def atomic_output(path: str | Path, mode: str = "wb"):
         raise
 
 
+# zstd level of the chunks of replay outputs: on tracker outputs level 1 compresses twice as fast
+# as the default level 3 for the same size (ratio 1.713 against 1.716 measured on radar outputs);
+# data sets, written once and read many times, keep the default
+OUTPUT_ZSTD_LEVEL = 1
+
+
+class _ZstdLevel(threading.local):
+    """The zstd level the chunks written by this thread get (None: the library's default), and
+    this thread's compressor for it (a compressor object is not shared between threads)."""
+
+    level: int | None = None
+    compressors: dict | None = None
+
+
+_ZSTD_LEVEL = _ZstdLevel()
+
+
+class _ZstdForMcapWriter:
+    """Stands in for the ``zstandard`` module inside ``mcap.writer``, which compresses each chunk
+    with ``zstandard.compress`` at the default level and has no option for another: a writer
+    chooses the level for its own thread (:func:`_zstd_level`); everything else is zstandard."""
+
+    def __getattr__(self, name):
+        return getattr(zstandard, name)
+
+    @staticmethod
+    def compress(data, *args, **kwargs):
+        level = _ZSTD_LEVEL.level
+        if level is None or args or kwargs:
+            return zstandard.compress(data, *args, **kwargs)
+        cache = _ZSTD_LEVEL.compressors
+        if cache is None:
+            cache = _ZSTD_LEVEL.compressors = {}
+        if level not in cache:
+            cache[level] = zstandard.ZstdCompressor(level=level)
+        return cache[level].compress(data)
+
+
+mcap.writer.zstandard = _ZstdForMcapWriter()
+
+
+@contextmanager
+def _zstd_level(level: int | None):
+    """Chunks finished by mcap's writer in this block are compressed at ``level``."""
+    previous, _ZSTD_LEVEL.level = _ZSTD_LEVEL.level, level
+    try:
+        yield
+    finally:
+        _ZSTD_LEVEL.level = previous
+
+
 class McapFrameWriter:
     """Writes frames on named channels; one chunk is flushed per scan block.
 
@@ -673,10 +726,11 @@ class McapFrameWriter:
     """
 
     def __init__(self, f, metadata: Mapping[str, Mapping[str, str]] | None = None,
-                 contract: str = CONTRACT_VERSION):
+                 contract: str = CONTRACT_VERSION, zstd_level: int | None = None):
         if contract not in _SCHEMA_DATA:
             raise ValueError(f"unknown contract {contract!r} (have: {', '.join(_SCHEMA_DATA)})")
         self.contract = contract
+        self.zstd_level = zstd_level  # None: zstd's default (data sets); OUTPUT_ZSTD_LEVEL for outputs
         self.messages = 0  # MCAP messages written so far
         # v2 also writes the data-section CRC (covering the metadata records, which sit outside
         # the chunks); v1 files were written without it.
@@ -722,7 +776,8 @@ class McapFrameWriter:
             raise InputError(f"{topic}: scan time {time_s!r} s is not a finite time within ±{TIME_LIMIT_S:g} s")
         cid = self.channel(topic)
         t_ns = int(round(time_s * 1e9))
-        self._w.add_message(cid, log_time=t_ns, data=data, publish_time=t_ns, sequence=self._seq[cid])
+        with _zstd_level(self.zstd_level):  # the message may close a chunk
+            self._w.add_message(cid, log_time=t_ns, data=data, publish_time=t_ns, sequence=self._seq[cid])
         self._seq[cid] += 1
         self.messages += 1
 
@@ -816,24 +871,27 @@ class McapFrameWriter:
     def flush(self):
         """Close the open chunk so a crash loses at most what came after it."""
         self._emit_all()
-        self._w.flush()
+        with _zstd_level(self.zstd_level):
+            self._w.flush()
 
     def finish(self):
         self._emit_all()
-        if self.contract != CONTRACT_V1 and self._layout:
-            self._w.flush()  # the layout record follows every chunk
-            self._w.add_metadata(METADATA_LAYOUT, {
-                topic: json.dumps({"runs": r, "scans": k, "frames": n}, sort_keys=True)
-                for topic, (r, k, n) in self._layout.items()})
-        self._w.finish()
+        with _zstd_level(self.zstd_level):
+            if self.contract != CONTRACT_V1 and self._layout:
+                self._w.flush()  # the layout record follows every chunk
+                self._w.add_metadata(METADATA_LAYOUT, {
+                    topic: json.dumps({"runs": r, "scans": k, "frames": n}, sort_keys=True)
+                    for topic, (r, k, n) in self._layout.items()})
+            self._w.finish()
 
 
 @contextmanager
 def write_dataset(path: str | Path, metadata: Mapping[str, Mapping[str, str]] | None = None,
-                  contract: str = CONTRACT_VERSION):
-    """Atomically write an MCAP file of frames: ``with write_dataset(p, meta) as w: w.write(...)``."""
+                  contract: str = CONTRACT_VERSION, zstd_level: int | None = None):
+    """Atomically write an MCAP file of frames: ``with write_dataset(p, meta) as w: w.write(...)``
+    (``zstd_level``: the chunks' compression level, None for zstd's default)."""
     with atomic_output(path) as f:
-        w = McapFrameWriter(f, metadata, contract)
+        w = McapFrameWriter(f, metadata, contract, zstd_level)
         yield w
         w.finish()
 

@@ -14,7 +14,7 @@ from pathlib import Path
 import polars as pl
 
 from pipeline import __version__
-from pipeline.contract import METADATA_PROVENANCE, Dataset, read_dataset, write_dataset
+from pipeline.contract import METADATA_PROVENANCE, OUTPUT_ZSTD_LEVEL, Dataset, read_dataset, write_dataset
 from pipeline.errors import InputError
 from pipeline.stages import applicable_stages, stage_for_outputs
 
@@ -156,7 +156,7 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
                                       "design": json.dumps(designs, sort_keys=True, default=str)}}
         if "replay.scenario" in ds.metadata:
             meta["replay.scenario"] = ds.metadata["replay.scenario"]
-        with write_dataset(out_path, meta) as w:
+        with write_dataset(out_path, meta, zstd_level=OUTPUT_ZSTD_LEVEL) as w:
             for stage in stages:
                 stage.write(w, results[stage.name])
         res.out_path = Path(out_path)
@@ -244,6 +244,22 @@ def evaluate_files(data_path, out_path=None, recover=False, tracker_specs=()) ->
     p, s = stage.measure(ds, result, design)
     return ReplayResult(ds, p.with_columns(pl.lit(stage.name).alias("stage")),
                         s.with_columns(pl.lit(stage.name).alias("stage")), {stage.name: result})
+
+
+def replay_of_files(data_path, out_path, recover: bool = False) -> ReplayResult:
+    """A finished replay rebuilt from its files, for drawing its figures: the data set, the
+    trackers' outputs and the per-scan table written beside them (``per_scan.parquet``; the
+    metrics are computed again only when it is missing). The summary is left empty."""
+    ds = read_dataset(data_path, recover=recover)
+    stage, result, provenance = _outputs_of(ds, out_path, recover)
+    design = _used_design(stage, ds, provenance)  # the figures see the design the replay used
+    table = Path(out_path).parent / "per_scan.parquet"
+    if table.is_file():
+        per_scan = pl.read_parquet(table)
+    else:
+        per_scan, _ = stage.measure(ds, result, design)
+        per_scan = per_scan.with_columns(pl.lit(stage.name).alias("stage"))
+    return ReplayResult(ds, per_scan, pl.DataFrame(), {stage.name: result})
 
 
 def _used_design(stage, ds, provenance) -> dict:
