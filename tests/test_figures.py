@@ -98,3 +98,46 @@ def test_every_figure_shows_every_tracker_labelled_and_its_data_inside_the_axes(
                 inside = (x[ok] >= x0) & (x[ok] <= x1) & (y[ok] >= y0) & (y[ok] <= y1)
                 # ellipses may be cut by a zoom frame; data series must lie inside the axes
                 assert inside.mean() >= (0.5 if "95 %" in label else 1.0), (demo, fig["name"], label, inside.mean())
+
+
+# --------------------------------------------------------------------------- when figures are drawn
+
+
+def _pngs(folder: Path) -> set:
+    return {p.name for p in folder.glob("*.png")}
+
+
+def test_figures_none_then_replay_plot_draws_the_same_figures(tmp_path):
+    """`--figures none` writes every output but the figures; `replay plot DATA TRACKS` draws,
+    from those files alone, the figures a replay draws itself."""
+    data = DATA / "radar_tws_demo.mcap"
+    runner = CliRunner()
+    drawn, bare = tmp_path / "drawn" / "tracks.mcap", tmp_path / "bare" / "tracks.mcap"
+    assert runner.invoke(main, [str(data), "--no-rrd", "-q", "--out", str(drawn), "--figures", "now"]).exit_code == 0
+    res = runner.invoke(main, [str(data), "--no-rrd", "-q", "--out", str(bare), "--figures", "none"])
+    assert res.exit_code == 0 and not _pngs(bare.parent) and "plots:" not in res.output
+    res = runner.invoke(main, ["plot", str(data), str(bare), "-q"])
+    assert res.exit_code == 0, res.output
+    assert _pngs(bare.parent) == _pngs(drawn.parent) and "report.png" in _pngs(bare.parent)
+    for name in _pngs(bare.parent):
+        assert imread(bare.parent / name).shape == imread(drawn.parent / name).shape
+
+
+def test_figures_in_the_background_appear_after_replay_returns(tmp_path):
+    """A terminal user does not wait for matplotlib: `--figures background` returns with the
+    outputs complete, and a process of its own writes the figures next to them."""
+    import subprocess
+    import sys
+    import time
+
+    data = DATA / "radar_tws_demo.mcap"
+    out = tmp_path / "o" / "tracks.mcap"
+    proc = subprocess.run([sys.executable, "-m", "pipeline.face.cli", str(data), "--no-rrd", "-q", "--out", str(out),
+                           "--figures", "background"], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert out.is_file() and (out.parent / "metrics.csv").is_file() and "drawn in the background" in proc.stdout
+    deadline = time.monotonic() + 90
+    while not {"report.png", "consistency.png"} <= _pngs(out.parent) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert {"report.png", "consistency.png"} <= _pngs(out.parent)
+    assert not list(out.parent.glob("*.tmp"))  # each figure appeared whole (written atomically)

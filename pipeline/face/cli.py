@@ -595,6 +595,17 @@ def _report_plot(res, out_dir: Path) -> list[Path]:
     return paths
 
 
+def _draw_figures_in_background(data: Path, tracks: Path, recover: bool) -> None:
+    """Start ``replay plot DATA TRACKS`` as a process of its own that outlives this one: it reads
+    the finished outputs (through the contract, like ``replay eval``) and writes each figure
+    atomically, so the user has the results without waiting for matplotlib."""
+    import subprocess
+
+    args = [sys.executable, "-m", "pipeline.face.cli", "plot", str(data), str(tracks), "--quiet"]
+    subprocess.Popen(args + (["--recover"] if recover else []), stdin=subprocess.DEVNULL,
+                     stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+
+
 def _echo_wrapped(text: str, indent: str = "", err: bool = False) -> None:
     """``text`` wrapped at :data:`TABLE_WIDTH` columns (paths are never broken)."""
     import textwrap
@@ -643,6 +654,8 @@ def _refuse_replacing(previous: list[Path], where: str) -> None:
                      "them, or choose another --out")
 
 
+FIGURE_MODES = ("auto", "now", "background", "none")
+
 # recordings that `replay convert` turns into a data set, and how
 CONVERTED_SUFFIXES = {".csv": "replay convert plots|peaks|tdoa-fdoa|positions FILE -o DATA.mcap",
                       ".parquet": "replay convert plots|peaks|tdoa-fdoa|positions FILE -o DATA.mcap",
@@ -668,9 +681,13 @@ CONVERTED_SUFFIXES = {".csv": "replay convert plots|peaks|tdoa-fdoa|positions FI
 @click.option("--map", "map_path", type=click.Path(dir_okay=False, path_type=Path),
               help="DATA is an MCAP recorded by another tool: convert it through this mapping file first "
                    "(see `replay convert mcap --help`); outputs are named after DATA.")
+@click.option("--figures", "figures_mode", type=click.Choice(FIGURE_MODES), default="auto", show_default=True,
+              help="When the report figures are drawn: auto (in the background when the output is a terminal, "
+                   "so the results do not wait for them; else before replay returns), now, background, or none. "
+                   "`replay plot DATA TRACKS` draws them later.")
 @tracker_option
 def run_cmd(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, sets, rerun_run, tracker_specs,
-            map_path=None):
+            map_path=None, figures_mode="auto"):
     """Replay a data set through every tracker that applies.
 
     A tracker given with --tracker runs beside the built-ins (its design values take --set too).
@@ -737,14 +754,21 @@ def run_cmd(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, s
             click.echo(f"recovered {res.dataset.recovered_messages} messages from complete chunks of {data}")
         _print_summary(_table_summary(res), f"metrics for {data.name} ({res.dataset.channel(next(iter(res.dataset.channels))).n_runs} runs)")
         _print_stage_reports(res)
+        if figures_mode == "auto":  # a converted foreign file lives only as long as this call
+            figures_mode = "background" if sys.stdout.isatty() and map_path is None else "now"
+        elif figures_mode == "background" and map_path is not None:
+            figures_mode = "now"
         with progress.timed("tables and plots"):
             tables = [outputs.final(p) for p in _export_tables(res, outputs.stage)]
-            plots = [outputs.final(p) for p in _report_plot(res, outputs.stage)]
+            plots = [outputs.final(p) for p in _report_plot(res, outputs.stage)] if figures_mode == "now" else []
     res.out_path = out_path
     res.rrd_path = rrd_path
     click.echo("")
     _list_outputs(out_dir, [("outputs", [res.out_path]), ("recording", [res.rrd_path] if res.rrd_path else []),
                             ("tables", tables), ("plots", plots)])
+    if figures_mode == "background":  # the outputs are complete: the figures follow on their own
+        _draw_figures_in_background(data, out_path, recover)
+        _echo_wrapped(f"plots:     drawn in the background into {out_dir} (at once: replay plot {data} {out_path})")
     if res.rrd_path:
         click.echo(f"view:      replay view {res.rrd_path}")
     t = res.timings
@@ -964,6 +988,29 @@ def eval_cmd(data, outputs, as_json, per_scan, export_dir, recover, tracker_spec
         click.echo("", err=as_json)
         _list_outputs(export_dir, [("tables", tables), ("plots", plots)], err=as_json)
     fail_on_tracker_errors([str(exc) for exc in getattr(res, "failures", [])])
+
+
+@main.command("plot")
+@click.argument("data", type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("outputs", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--recover", is_flag=True, help="Accept a truncated MCAP: keep its complete chunks.")
+def plot_cmd(data, outputs, recover):
+    """Draw a replay's figures (report.png and the family's own) next to its OUTPUTS.
+
+    `replay DATA` draws them itself, in the background when its output is a terminal; this
+    draws them again, or for a replay run with --figures none.
+
+    \b
+    Example:
+      replay plot radar.mcap replay-out/radar/tracks.mcap
+    """
+    from pipeline.replay import replay_of_files
+
+    refuse_input_overwrite([data, outputs], [outputs.parent / n for n in REPORT_FILES if n.endswith(".png")])
+    res = replay_of_files(data, outputs, recover=recover)
+    with progress.timed("plots"):
+        plots = _report_plot(res, outputs.parent)
+    _list_outputs(outputs.parent, [("plots", plots)])
 
 
 def _json_value(v):
