@@ -28,13 +28,15 @@ from pipeline.trackers.interface import Tracker, tracker_name
 ENTRY_POINT_GROUP = "trackreplay.trackers"
 
 # One line per paper: the module that holds its trackers exposes TRACKERS, a tuple of classes.
-BUILTIN_MODULES = (
-    "pipeline.trackers.radar_tws",
-    "pipeline.trackers.bearing_peaks",
-    "pipeline.trackers.array_bearing",
-    "pipeline.trackers.emitter",
-    "pipeline.trackers.colored_noise",
-)
+# the built-in trackers' modules by family: a replay imports only its family's numerics
+BUILTIN_FAMILY_MODULES = {
+    "radar-plots": "pipeline.trackers.radar_tws",
+    "bearing-peaks": "pipeline.trackers.bearing_peaks",
+    "array-snapshots": "pipeline.trackers.array_bearing",
+    "tdoa-fdoa": "pipeline.trackers.emitter",
+    "colored-position": "pipeline.trackers.colored_noise",
+}
+BUILTIN_MODULES = tuple(BUILTIN_FAMILY_MODULES.values())
 
 
 @dataclass(frozen=True)
@@ -120,9 +122,9 @@ def canonical_spec(spec: str) -> str:
     return spec
 
 
-def _builtin_entries() -> list[TrackerEntry]:
+def _builtin_entries(modules=BUILTIN_MODULES) -> list[TrackerEntry]:
     out = []
-    for module in BUILTIN_MODULES:
+    for module in modules:
         for cls in importlib.import_module(module).TRACKERS:
             out.append(TrackerEntry(tracker_name(cls), cls, "built-in", ""))
     return out
@@ -167,4 +169,11 @@ def available_trackers(specs=()) -> dict[str, TrackerEntry]:
 
 
 def trackers_of_family(family: str, specs=()) -> list[TrackerEntry]:
-    return [e for e in available_trackers(specs).values() if e.family == family]
+    """The trackers of ``family``. Without plugged trackers (``specs``) only that family's
+    built-in module is imported; with them every tracker is loaded, so that a name clash with
+    any other tracker is refused (:func:`available_trackers`)."""
+    if specs:
+        return [e for e in available_trackers(specs).values() if e.family == family]
+    module = BUILTIN_FAMILY_MODULES.get(family)
+    entries = _builtin_entries((module,) if module else ()) + _entry_point_entries()
+    return [e for e in entries if e.family == family]

@@ -49,11 +49,14 @@ def select_trackers(stages, names=None, specs=()) -> dict:
     InputError
         A name no applicable stage has, or a plugged tracker of a family the file does not hold.
     """
-    from pipeline.registry import available_trackers
+    from pipeline.registry import available_trackers, trackers_of_family
 
-    table = available_trackers(specs)
-    plugged = {name for name, e in table.items() if e.source in specs}
     families = {s.family for s in stages}
+    if specs:  # every tracker, so that a plugged one's name clash with any other is refused
+        table = available_trackers(specs)
+    else:  # only the families in the file: their numerics alone are imported
+        table = {e.name: e for family in sorted(families) for e in trackers_of_family(family)}
+    plugged = {name for name, e in table.items() if e.source in specs}
     for name in plugged:
         if table[name].family not in families:
             raise InputError(f"tracker {name!r} consumes {table[name].family} measurements; this file holds "

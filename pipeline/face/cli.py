@@ -120,7 +120,8 @@ def resolve_tracker_specs(specs) -> list[str]:
                              f"{', '.join(sorted(installed))}); give FILE.py:CLASS or MODULE:CLASS")
         if not entry.builtin:
             out.append(entry.spec)
-    available_trackers(out)
+    if out:  # the plugged trackers load, and no name clashes with another tracker
+        available_trackers(out)
     return out
 
 
@@ -477,9 +478,9 @@ def fit_width(text: str, width: int = TABLE_WIDTH) -> str:
 
 def _truthless_stages(res) -> list[str]:
     """The stages of ``res`` whose data hold no truth (a recording)."""
-    from pipeline.stages import STAGES
+    from pipeline.stages import stages_named
 
-    return [s.name for s in STAGES if s.name in res.results and not s.has_truth(res.dataset)]
+    return [s.name for s in stages_named(res.results) if not s.has_truth(res.dataset)]
 
 
 def _table_summary(res) -> pl.DataFrame:
@@ -538,23 +539,21 @@ def _print_stage_reports(res) -> None:
     """What the stages add after the generic summary that it does not show (each result is
     printed once: :meth:`pipeline.stages.base.Stage.replay_report`), fitted to TABLE_WIDTH.
     For data without truth, the track summary of every stage comes first."""
-    from pipeline.stages import STAGES
+    from pipeline.stages import stages_named
 
     truthless = _truthless_stages(res)
-    for stage in STAGES:
-        if stage.name in res.results:
-            text = stage.replay_report(res.summary, res.per_scan) or ""
-            if stage.name in truthless:
-                text += "\n\n" + _track_summary_block(res.summary, stage.name)
-            text += "\n\n" + (stage.track_listing(res.dataset, res.results[stage.name]) or "")
-            if text.strip():
-                click.echo("\n" + fit_width(text.strip("\n")))
+    for stage in stages_named(res.results):
+        text = stage.replay_report(res.summary, res.per_scan) or ""
+        if stage.name in truthless:
+            text += "\n\n" + _track_summary_block(res.summary, stage.name)
+        text += "\n\n" + (stage.track_listing(res.dataset, res.results[stage.name]) or "")
+        if text.strip():
+            click.echo("\n" + fit_width(text.strip("\n")))
 
 
 def _export_tables(res, out_dir: Path) -> list[Path]:
     from pipeline.contract import atomic_output
-
-    from pipeline.stages import STAGES
+    from pipeline.stages import stages_named
 
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
@@ -565,7 +564,7 @@ def _export_tables(res, out_dir: Path) -> list[Path]:
                 df.write_csv(f) if ext == "csv" else df.write_parquet(f)
             written.append(p)
     # the papers' own table layouts (printed only in part, where they add to the tables above)
-    layouts = [stage.report(res.summary, res.per_scan) or "" for stage in STAGES if stage.name in res.results]
+    layouts = [stage.report(res.summary, res.per_scan) or "" for stage in stages_named(res.results)]
     layouts = [text.strip("\n") for text in layouts if text.strip()]
     if layouts:
         with atomic_output(out_dir / "report.txt", "w") as f:
@@ -580,11 +579,11 @@ def _report_plot(res, out_dir: Path) -> list[Path]:
     import polars as pl
 
     from evaluators.report_plots import plot_consistency
-    from pipeline.stages import STAGES
+    from pipeline.stages import stages_named
 
     paths = []
     title = Path(res.dataset.path).name
-    present = [stage for stage in STAGES if stage.name in res.results]
+    present = stages_named(res.results)
     for stage in present:
         own = res.per_scan.filter(pl.col("stage") == stage.name) if "stage" in res.per_scan.columns else res.per_scan
         paths += stage.figures(own, out_dir, title=title, result=res.results[stage.name], dataset=res.dataset)

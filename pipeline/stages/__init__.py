@@ -1,38 +1,64 @@
 """Stage processors: each consumes the channels it understands and emits channels in the same
 data contract. ``replay`` discovers which stages apply from the channels a file holds.
 See :class:`pipeline.stages.base.Stage` for the interface.
+
+A stage's module (and the trackers and numerics it imports) is loaded only when a file needs it:
+which stage applies is known from its family's channels in :mod:`pipeline.vocabulary`, so a
+radar replay never imports the array or JPDA numerics (``docs/architecture.md``).
 """
 
 from __future__ import annotations
 
 import importlib
 
+from pipeline import vocabulary as vocab
+
+# (stage name, measurement family, "module:Class"); one line per stage
 STAGE_CLASSES = (
-    "pipeline.stages.radar_tws:RadarTwsStage",
-    "pipeline.stages.bearing_peaks:BearingPeaksStage",
-    "pipeline.stages.array_bearing:ArrayBearingStage",
-    "pipeline.stages.emitter_localisation:EmitterLocalisationStage",
-    "pipeline.stages.colored_noise_imm:ColoredNoiseImmStage",
-    # one line per stage: "pipeline.stages.module:ClassName",
+    ("radar-tws", "radar-plots", "pipeline.stages.radar_tws:RadarTwsStage"),
+    ("xcorr-peaks", "bearing-peaks", "pipeline.stages.bearing_peaks:BearingPeaksStage"),
+    ("array-bearing", "array-snapshots", "pipeline.stages.array_bearing:ArrayBearingStage"),
+    ("tdoa-fdoa", "tdoa-fdoa", "pipeline.stages.emitter_localisation:EmitterLocalisationStage"),
+    ("colored-noise-imm", "colored-position", "pipeline.stages.colored_noise_imm:ColoredNoiseImmStage"),
 )
 
-
-def _load(spec: str):
-    module, cls = spec.split(":")
-    return getattr(importlib.import_module(module), cls)()
+_LOADED: dict = {}
 
 
-STAGES = [_load(s) for s in STAGE_CLASSES]
+def stage_named(name: str):
+    """The stage called ``name``, its module imported on first use."""
+    if name not in _LOADED:
+        spec = next((s for n, _, s in STAGE_CLASSES if n == name), None)
+        if spec is None:
+            raise KeyError(f"no stage {name!r} (have: {', '.join(n for n, _, _ in STAGE_CLASSES)})")
+        module, cls = spec.split(":")
+        _LOADED[name] = getattr(importlib.import_module(module), cls)()
+    return _LOADED[name]
+
+
+def stages_named(names) -> list:
+    """The stages among ``names``, in the registry's order."""
+    names = set(names)
+    return [stage_named(n) for n, _, _ in STAGE_CLASSES if n in names]
 
 
 def applicable_stages(topics) -> list:
     """Stages whose input channels are all present."""
-    return [s for s in STAGES if s.applies(topics)]
+    topics = set(topics)
+    return [stage_named(n) for n, family, _ in STAGE_CLASSES if set(vocab.FAMILIES[family].inputs) <= topics]
 
 
 def stage_for_outputs(topics):
     """The stage that wrote a replay output file (from its output channels)."""
-    for s in STAGES:
-        if any(t.startswith(s.output_prefix) for t in topics):
-            return s
+    for name, family, _ in STAGE_CLASSES:
+        prefix = vocab.FAMILIES[family].output_prefix
+        if any(t.startswith(prefix) for t in topics):
+            return stage_named(name)
     return None
+
+
+def __getattr__(attribute: str):
+    # every stage, for listings (`replay trackers`, sweeps): loads them all
+    if attribute == "STAGES":
+        return [stage_named(n) for n, _, _ in STAGE_CLASSES]
+    raise AttributeError(f"module {__name__!r} has no attribute {attribute!r}")
