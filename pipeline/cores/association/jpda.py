@@ -6,7 +6,9 @@ Park, Ryu & Lee (1994), appendix eqs. A.1–A.7, with the JPDA of Fortmann, Bar-
 
 * motion: state ``[θ, θ̇]`` (rad, rad/s), continuous white-noise acceleration
   ``Q' = q [[T³/3, T²/2], [T²/2, T]]`` (eq. 8b), two-point start ``P(0|0) = [[σ², σ²/T],
-  [σ²/T, 2σ²/T²]]`` (eq. 8c with T = 1); predict/gain through :mod:`pipeline.cores.filters.kalman`;
+  [σ²/T, 2σ²/T²]]`` (eq. 8c with T = 1); the model from :mod:`pipeline.cores.filters.kalman`,
+  predict and gain written out for this two-state, one-measurement case (one run costs the
+  number of array operations per scan, not their arithmetic);
 * gating: a window of width V (``|ν| ≤ V/2``) around each predicted bearing, after the
   amplitude threshold; ``P_G = erf(V / (2√(2S)))``;
 * event likelihoods (eq. A.5) as per-pair *likelihood ratios* against clutter: a peak j
@@ -23,7 +25,8 @@ Park, Ryu & Lee (1994), appendix eqs. A.1–A.7, with the JPDA of Fortmann, Bar-
   solved independently (exact, since the joint-event sum factorises over clusters) and all
   clusters of the same size across runs go through one batched recursion; with at most
   ``JOINT_WITHOUT_CLUSTERING`` tracks one recursion over all of them gives the same β for less
-  bookkeeping, and peaks outside every gate are dropped first;
+  bookkeeping, and peaks outside every gate are dropped first; one or two tracks need neither
+  (:func:`pair_marginals`: the same marginals in closed form, a few array operations per scan);
 * clusters of more than ``max_cluster_tracks`` tracks (default 12, i.e. 4096 states per peak)
   are cut, in bearing order, into groups of at most that many tracks, each solved exactly but
   blind to the others (a peak may then be shared across a cut): approximate, and flagged with
@@ -43,7 +46,7 @@ import numpy as np
 from scipy.special import erf, ndtr
 
 from pipeline import vocabulary as vocab
-from pipeline.cores.filters.kalman import apply_gain, continuous_white_noise_model, kalman_gain, kf_predict
+from pipeline.cores.filters.kalman import apply_gain, continuous_white_noise_model
 from pipeline.cores.filters.kalman import two_point_start  # noqa: F401  (eq. 8c; importable from here as before)
 from pipeline.cores.association.track_management import ConfirmationRule, EndingRule, TrackLife
 
@@ -58,6 +61,7 @@ TOP_WEIGHTS = 3
 MATRIX_FORM_TRACKS = 6  # clusters up to this size use the transfer-matrix form (≤ 64×64)
 JOINT_WITHOUT_CLUSTERING = 4  # up to this many tracks the joint recursion beats clustering bookkeeping
 COMPRESS_PEAKS = 8  # with more peaks per scan, drop the ones outside every gate first
+CLOSED_FORM_TRACKS = 2  # up to this many tracks the scan loop uses pair_marginals (0: never)
 
 
 # --------------------------------------------------------------------------- design
@@ -252,6 +256,61 @@ def _adders(s: int) -> np.ndarray:
         A = np.flatnonzero(~_state_bits(s)[:, t])
         E[t, A, A | (1 << t)] = 1.0
     return E
+
+
+def pair_marginals(weights: np.ndarray) -> np.ndarray:
+    """Exact JPDA marginals (eq. A.6) of clusters of one or two tracks, in closed form.
+
+    With two tracks a joint event has both tracks missed, one on peak j and the other missed,
+    or the two on different peaks i ≠ j. Summing the other track's options for each choice of
+    track 1 gives ``β_j^1 ∝ r_1j (m_2 + Σ_{k≠j} r_2k)`` and ``β_0^1 ∝ m_1 (m_2 + Σ_k r_2k)``
+    (likewise for track 2), and the normaliser is the sum of track 1's numerators, which counts
+    every event once. Only sums and products of non-negative terms appear: the leave-one-out
+    sums come from one product with a 0/1 matrix rather than from ``Σ − r``, so a dominant
+    peak shared by both tracks costs no precision. One track's event weights are its own row.
+    The result equals :func:`association_marginals` for a few array operations, whatever the
+    number of peaks (Fortmann, Bar-Shalom & Scheffe 1983; ``docs/papers/bearing-peaks.md``).
+
+    Parameters
+    ----------
+    weights : ndarray (B, s, m + 1), s = 1 or 2
+        Per track the likelihood ratios of the m peaks (0 where not gated) and, last, the
+        miss weight ``1 − P_D P_G``. Overwritten (scaled).
+
+    Returns
+    -------
+    ndarray (B, s, m + 1)
+        ``β_j^t`` in the first m columns, ``β_0^t`` last. A batch element whose events all
+        weigh 0 gets β = 0 and β₀ = 1, as in :func:`association_marginals`.
+    """
+    B, s, n = weights.shape
+    # Scaling a track's row scales every event alike, so β is unchanged; with every factor
+    # ≤ 1 no product overflows. The tiny floor keeps an all-zero row at zero instead of 0/0.
+    weights /= np.maximum.reduce(weights, axis=2, keepdims=True, initial=_TINY)
+    if s == 1:
+        num = weights
+    else:
+        num = weights * (weights @ _others(n))[:, ::-1]
+    Z = num[:, 0].sum(axis=1)
+    if not (Z > 0).all():
+        ok = Z > 0
+        num = np.where(ok[:, None, None], num / np.where(ok, Z, 1.0)[:, None, None], 0.0)
+        num[..., -1] = np.where(ok[:, None], num[..., -1], 1.0)
+        return num
+    num /= Z[:, None, None]
+    return num
+
+
+_TINY = 1e-300
+
+
+@lru_cache(maxsize=None)
+def _others(n: int) -> np.ndarray:
+    """``(n, n)`` 0/1 matrix: column j < n − 1 sums every entry but j (the other track's
+    options when this track takes peak j), the last column sums all (this track missed)."""
+    J = 1.0 - np.eye(n)
+    J[-1, -1] = 1.0
+    return J
 
 
 def cluster_tracks(gated: np.ndarray) -> np.ndarray:
@@ -462,8 +521,14 @@ def track_bearing_peaks(scans: list[ScanPeaks], x0: np.ndarray, P0: np.ndarray, 
     K = len(scans)
     R, T, _ = x0.shape
     F, Q = continuous_white_noise_model(design.scan_period_s, design.q_rad2, 2)  # eq. 8b
-    H = np.array([[1.0, 0.0]])
-    Rm = (np.asarray(design.sigma_p_rad, float) ** 2)[..., None, None] * np.ones((R, T, 1, 1))
+    # F, Q, H = [1, 0] and σ_p² never change, and the state has two components, so the filter is
+    # written out for that case (the same algebra as pipeline.cores.filters.kalman, fewer array
+    # operations per scan, which is what one run costs): P is kept as its row-major 4-vector,
+    # F P Fᵀ is one product with F ⊗ F, S = p₀₀ + σ_p² and the gain is [p₀₀, p₀₁] / S.
+    FF = np.kron(F, F).T
+    Ft = F.T
+    Q4 = Q.ravel()
+    r_meas = np.broadcast_to(np.asarray(design.sigma_p_rad, float) ** 2, (R, T))
     out = {
         "state": np.full((R, K, T, 2), np.nan), "covariance": np.full((R, K, T, 2, 2), np.nan),
         "beta0": np.full((R, K, T), np.nan), "beta_top": np.full((R, K, T, TOP_WEIGHTS), np.nan),
@@ -483,6 +548,7 @@ def track_bearing_peaks(scans: list[ScanPeaks], x0: np.ndarray, P0: np.ndarray, 
     out["flags"][:, start_scan] = np.where(started, FLAG_INITIALISING, FLAG_NO_TRACK)
     out["state"][:, start_scan] = np.where(started[..., None], x, np.nan)
     out["covariance"][:, start_scan] = np.where(started[..., None, None], P, np.nan)
+    P4 = (0.5 * (P + np.swapaxes(P, -1, -2))).reshape(R, T, 4)
     if design.amplitude_tracking:
         strength = np.full((R, T), float(design.initial_strength))
         sigma_a = np.full((R, T), float(design.tracked_sigma_a))
@@ -491,55 +557,166 @@ def track_bearing_peaks(scans: list[ScanPeaks], x0: np.ndarray, P0: np.ndarray, 
         sigma_a = np.broadcast_to(np.asarray(design.sigma_a, float), (R, T)).copy()
     out["strength"][:, start_scan] = strength
     half_gate = design.gate_rad / 2
-    lam = design.clutter_density
+    threshold = design.amplitude_threshold
+    pd = design.detection_probability
+    # P_D N(ν; 0, S) / λ = (P_D / (λ √(2π))) · S^(−½) · exp(−ν²/2S), and P_G = erf((V / 2√2) · S^(−½))
+    ratio_scale = 1.0 / (design.clutter_density * np.sqrt(2.0 * np.pi))
+    gate_scale = design.gate_rad / (2.0 * np.sqrt(2.0))
     # the start's own measurements count towards M-of-N: scans 0 … start_scan
     life = TrackLife((R, T), design.confirmation, design.ending)
     life.start(started, hits=start_scan + 1, scans=start_scan + 1)
-    for k in range(start_scan + 1, K):
+    # no track starts inside the loop, so a life that cannot change now never will: skip its step
+    settled = life.settled
+    slots_started = None if started.all() else started[..., None]
+    # two tracks (or one) need no clustering and no recursion: closed-form marginals
+    pair = T <= min(CLOSED_FORM_TRACKS, 2) and (T == 1 or design.max_cluster_tracks >= 2)
+    n = max(K - start_scan - 1, 0)
+    # per-scan results, scan first so each store is one contiguous write; laid out after the loop
+    xs, Ps, gains = np.empty((n, R, T, 2)), np.empty((n, R, T, 4)), np.empty((n, R, T, 2))
+    centers, beta0s, nu_bars, Ss = (np.empty((n, R, T)) for _ in range(4))
+    n_gated_k = np.empty((n, R, T), np.int32)
+    strengths = np.empty((n, R, T)) if design.amplitude_tracking else None
+    splits = None if pair else np.zeros((n, R, T), bool)
+    if not settled:
+        alives, endings, tentatives = (np.empty((n, R, T), bool) for _ in range(3))
+    top = _TopWeights(R, T)
+    for i, k in enumerate(range(start_scan + 1, K)):
         sp = scans[k]
-        x, P = kf_predict(x, P, F, Q)
-        Kg, S = kalman_gain(P, H, Rm)
-        S1 = S[..., 0, 0]
-        nu = sp.bearing[:, None, :] - x[..., 0, None]  # (R, T, m)
-        usable = sp.valid & (sp.amplitude >= design.amplitude_threshold)
+        m = sp.bearing.shape[1]
+        x = x @ Ft
+        P4 = P4 @ FF
+        P4 += Q4
+        S = P4[..., 0] + r_meas
+        root_S = np.sqrt(S)
+        gain = P4[..., :2] / S[..., None]
+        center = x[..., 0]
+        nu = sp.bearing[:, None, :] - center[..., None]  # (R, T, m)
+        gated = np.abs(nu) <= half_gate
+        gated &= (sp.valid & (sp.amplitude >= threshold))[:, None, :]
         # an ended track keeps predicting (finite, harmless) but takes no peak and is not output
-        alive = life.alive
-        gated = usable[:, None, :] & (np.abs(nu) <= half_gate) & alive[..., None]
-        pd = np.full((R, T), design.detection_probability)
+        if not settled:
+            gated &= life.alive[..., None]
+        elif slots_started is not None:
+            gated &= slots_started
+        # likelihood ratios of the m peaks and, last, the miss weight 1 − P_D P_G of each track
+        weights = np.empty((R, T, m + 1))
+        ratio = weights[..., :m]
+        np.multiply(nu, nu, out=ratio)
+        ratio *= (-0.5 / S)[..., None]
+        np.exp(ratio, out=ratio)
         if strategy.amplitude:
-            amp_ratio, survive = amplitude_likelihood_ratio(sp.amplitude, strength, sigma_a,
-                                                            design.clutter_alpha, design.amplitude_threshold)
-            pd = pd * survive
-        ratio = position_likelihood_ratio(nu, S1, pd, lam)
-        if strategy.amplitude:
-            ratio = ratio * amp_ratio
-        miss = 1.0 - pd * window_gate_probability(S1, design.gate_rad)
-        beta, beta0, split = joint_association_probabilities(ratio, miss, gated, x[..., 0], design.max_cluster_tracks)
-        out["gate_center"][:, k] = x[..., 0]
-        x, P, nu_bar = pda_update(x, P, nu, beta, beta0, Kg, S)
+            amp_ratio, survive = amplitude_likelihood_ratio(sp.amplitude, strength, sigma_a, design.clutter_alpha,
+                                                            threshold)
+            pd_k = pd * survive
+            ratio *= amp_ratio
+            ratio *= (pd_k * ratio_scale / root_S)[..., None]
+        else:
+            pd_k = pd
+            ratio *= ((pd * ratio_scale) / root_S)[..., None]
+        np.copyto(ratio, 0.0, where=~gated)
+        miss = 1.0 - pd_k * erf(gate_scale / root_S)
+        if pair:
+            weights[..., m] = miss
+            marginals = pair_marginals(weights)
+            beta, beta0 = marginals[..., :m], marginals[..., m]
+        else:
+            beta, beta0, splits[i] = joint_association_probabilities(ratio, miss, gated, center,
+                                                                     design.max_cluster_tracks)
+        # PDA update (eq. A.7); ungated entries may hold padding, and their β is 0
+        nu = np.where(gated, nu, 0.0)
+        weighted = beta * nu
+        nu_bar = weighted.sum(axis=2)
+        weighted *= nu
+        spread = weighted.sum(axis=2) - nu_bar * nu_bar
+        x = x + gain * nu_bar[..., None]
+        w = spread - (1.0 - beta0) * S
+        P4 = P4 + w[..., None] * (gain[..., :, None] * gain[..., None, :]).reshape(R, T, 4)
         if design.amplitude_tracking:
             strength = update_strength(strength, sp.amplitude, gated)
+            strengths[i] = strength
         n_gated = gated.sum(axis=2)
-        coasted = n_gated == 0
-        tentative, ending = life.step(~coasted, x[..., 0])
-        out["state"][:, k], out["covariance"][:, k] = x, P
-        out["beta0"][:, k] = beta0
-        out["strength"][:, k] = strength
-        out["n_gated"][:, k] = n_gated
-        flags = coasted * FLAG_COASTED | split * FLAG_CLUSTER_SPLIT | tentative * FLAG_INITIALISING
-        out["innovation"][:, k, :, 0] = np.where(coasted, np.nan, nu_bar)
-        out["innovation_covariance"][:, k] = S
-        out["gain"][:, k] = Kg
-        gone = ~life.alive
-        if gone.any():  # ended at this scan (DELETED), before, or never started: no state, nothing associated
-            flags = np.where(ending, FLAG_NO_TRACK | FLAG_DELETED, np.where(gone, FLAG_NO_TRACK, flags))
-            for key in ("state", "covariance", "innovation", "innovation_covariance", "gain"):
-                out[key][:, k][gone] = np.nan
-        out["flags"][:, k] = flags
-        if beta.shape[2]:
-            top = np.argsort(-beta, axis=2, kind="stable")[..., :TOP_WEIGHTS]
-            w = np.take_along_axis(beta, top, axis=2)
-            n = top.shape[2]
-            out["beta_top"][:, k, :, :n] = np.where(w > 0, w, np.nan)
-            out["beta_index"][:, k, :, :n] = np.where(w > 0, top, -1)
+        if not settled:
+            tentatives[i], endings[i] = life.step(n_gated > 0, x[..., 0])
+            alives[i] = life.alive
+        xs[i], Ps[i], gains[i] = x, P4, gain
+        centers[i], beta0s[i], nu_bars[i], Ss[i], n_gated_k[i] = center, beta0, nu_bar, S, n_gated
+        top.add(beta)
+    if n == 0:
+        return out
+    after = slice(start_scan + 1, K)
+    coasted = n_gated_k == 0
+    flags = coasted * np.uint16(FLAG_COASTED)
+    if splits is not None:
+        flags |= splits * np.uint16(FLAG_CLUSTER_SPLIT)
+    if settled:
+        gone = np.broadcast_to(~life.alive, (n, R, T))
+    else:
+        flags |= tentatives * np.uint16(FLAG_INITIALISING)
+        gone = ~alives
+    # ended at this scan (DELETED), before, or never started: no state, nothing associated
+    if gone.any():
+        flags = np.where(gone, np.uint16(FLAG_NO_TRACK), flags)
+        if not settled:
+            flags = np.where(endings, np.uint16(FLAG_NO_TRACK | FLAG_DELETED), flags)
+        for a in (xs, Ps, gains, Ss):
+            a[gone] = np.nan
+        nu_bars[gone] = np.nan
+    nu_bars[coasted] = np.nan
+    # symmetric to rounding already; exactly so, as the general filter returns it
+    Ps = Ps.reshape(n, R, T, 2, 2)
+    Ps = 0.5 * (Ps + np.swapaxes(Ps, -1, -2))
+    out["flags"][:, after] = flags.swapaxes(0, 1)
+    out["state"][:, after] = xs.swapaxes(0, 1)
+    out["covariance"][:, after] = Ps.swapaxes(0, 1)
+    out["gain"][:, after, :, :, 0] = gains.swapaxes(0, 1)
+    out["innovation_covariance"][:, after, :, 0, 0] = Ss.swapaxes(0, 1)
+    out["innovation"][:, after, :, 0] = nu_bars.swapaxes(0, 1)
+    out["beta0"][:, after] = beta0s.swapaxes(0, 1)
+    out["gate_center"][:, after] = centers.swapaxes(0, 1)
+    out["n_gated"][:, after] = n_gated_k.swapaxes(0, 1)
+    out["strength"][:, after] = strength[:, None] if strengths is None else strengths.swapaxes(0, 1)
+    top.store(out["beta_top"][:, after], out["beta_index"][:, after])
     return out
+
+
+class _TopWeights:
+    """The ``TOP_WEIGHTS`` largest β of each track and scan and their peak indices.
+
+    Only the outputs need them, so the per-scan β are kept and sorted in blocks of many scans
+    (one sort per block instead of one per scan); a block is laid out padded to its widest scan
+    and sorted once it would exceed ``MEMORY_BUDGET_FLOATS``.
+    """
+
+    def __init__(self, R: int, T: int):
+        self.R, self.T = R, T
+        self.pending, self.width, self.done = [], 0, []
+
+    def add(self, beta: np.ndarray) -> None:
+        self.pending.append(beta)
+        self.width = max(self.width, beta.shape[2])
+        if len(self.pending) * self.R * self.T * self.width > MEMORY_BUDGET_FLOATS:
+            self._sort()
+
+    def _sort(self) -> None:
+        n, width = len(self.pending), self.width
+        block = np.zeros((n, self.R, self.T, max(width, 1)))
+        for j, beta in enumerate(self.pending):
+            block[j, ..., :beta.shape[2]] = beta
+        # stable: equal weights keep peak order; padding (0) sorts after every positive weight
+        index = np.argsort(-block, axis=3, kind="stable")[..., :TOP_WEIGHTS]
+        w = np.take_along_axis(block, index, axis=3)
+        # with fewer than TOP_WEIGHTS peaks in every scan of the block the last columns stay empty
+        index, w = index[..., :min(width, TOP_WEIGHTS)], w[..., :min(width, TOP_WEIGHTS)]
+        self.done.append((np.where(w > 0, w, np.nan), np.where(w > 0, index, -1)))
+        self.pending, self.width = [], 0
+
+    def store(self, top: np.ndarray, index: np.ndarray) -> None:
+        """Write into ``(R, scans, T, TOP_WEIGHTS)`` views of the outputs (NaN / −1 beyond)."""
+        if self.pending:
+            self._sort()
+        lo = 0
+        for w, ix in self.done:
+            hi = lo + w.shape[0]
+            top[:, lo:hi, :, :w.shape[3]] = w.swapaxes(0, 1)
+            index[:, lo:hi, :, :w.shape[3]] = ix.swapaxes(0, 1)
+            lo = hi

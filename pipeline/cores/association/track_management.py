@@ -139,6 +139,18 @@ class TrackLife:
         self.age = np.where(where, scans, self.age)
         self.coasting = np.where(where, 0, self.coasting)
 
+    @property
+    def settled(self) -> bool:
+        """Whether :meth:`step` can change nothing but the coasting count.
+
+        True when no track is tentative and the ending rule tests nothing (no field, no coasting
+        limit, no variance bound); it stays true until tracks :meth:`start`. A scan loop that
+        starts no tracks may then skip :meth:`step`: every slot stays as it is.
+        """
+        rule = self.ending
+        return (rule.field is None and rule.max_coasted_scans <= 0 and not np.isfinite(rule.max_position_variance)
+                and not self.tentative.any())
+
     def step(self, hit, position, position_variance=None):
         """One scan of the alive tracks after their update.
 
@@ -160,6 +172,9 @@ class TrackLife:
         hit = np.asarray(hit, bool)
         alive = self.alive
         self.coasting = coasting_run(self.coasting, ~hit)
+        if self.settled:  # nothing to confirm and no rule to test: no track ends
+            nothing = np.zeros(alive.shape, bool)
+            return nothing, nothing.copy()
         ending = alive & ended(position, self.coasting, self.ending, position_variance)
         if self.tentative.any():
             rule = self.confirmation
