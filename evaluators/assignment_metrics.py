@@ -56,7 +56,10 @@ def scan_matches(tracks, truths, gate: float, angular: bool = False):
     X, Y = np.asarray(truths, float), np.asarray(tracks, float)
     vx, vy = np.isfinite(X).all(axis=-1), np.isfinite(Y).all(axis=-1)
     d = pairwise_distance(np.where(vx[..., None], X, 0.0), np.where(vy[..., None], Y, 0.0), angular)
-    _, match = optimal_assignment(np.minimum(d, gate), vx, vy, unmatched=gate)
+    # squared capped distances: in one dimension (bearings) two tracks on the same side of two
+    # targets tie in the sum of distances, so the last bit of a state would pick the match;
+    # the sum of squares has no such tie
+    _, match = optimal_assignment(np.minimum(d, gate) ** 2, vx, vy, unmatched=gate ** 2)
     dist = np.where(match >= 0, np.take_along_axis(d, np.maximum(match, 0)[..., None], axis=-1)[..., 0], np.nan)
     ok = (match >= 0) & (dist < gate)
     return np.where(ok, match, -1), np.where(ok, dist, np.nan)
