@@ -1,64 +1,125 @@
-"""Cholesky factors and whitening of many small matrices at once, element by element.
+"""Linear algebra of many small matrices at once, entry by entry.
 
 Tracking states and measurements are small (n ≤ 10 or so) and come in stacks of millions: one per
-run, scan and track. LAPACK called per matrix spends most of its time on the call; here each
-entry of the factor is one vectorised operation over the whole stack, a few dozen operations in
-all, and a matrix that is missing or not positive definite simply comes out NaN. Numpy only, no
-I/O: the trackers' output checks (``pipeline.trackers.interface``) and the evaluators' NEES/NIS
-(``evaluators.consistency``) share it (``docs/evaluation.md``).
+run, scan, track or model. LAPACK called per matrix spends most of its time on the call (numpy's
+``linalg`` loops over the stack), and at a few runs the call overhead of each routine dominates
+instead. Here every entry of a factor is one vectorised operation over the whole stack, a few
+dozen operations in all whatever its size, and a matrix that is missing or not positive definite
+simply comes out NaN (no exception).
+
+Layout: a stack of ``r × c`` matrices is an array ``(*lead, r, c, N)`` with the stack last, so
+that an entry ``A[..., i, j, :]`` is a contiguous vector; constants broadcast as
+``(*lead, r, c, 1)``, vectors are ``(*lead, r, N)``. :func:`whiten` takes the stack first, as the
+trackers' outputs hold it. Numpy only, no I/O: the IMM cores (Kwon 1997, ch. IV.3; Blom &
+Bar-Shalom 1988), the trackers' output checks (``pipeline.trackers.interface``) and the
+evaluators' NEES/NIS (``evaluators.consistency``) share it (``docs/evaluation.md``,
+``docs/papers/colored-noise-imm.md``).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+_sum = np.add.reduce   # without ndarray.sum's Python wrapper: these arrays are small
 
-def cholesky_columns(P):
-    """The lower Cholesky factor of a stack of symmetric matrices, entry by entry.
 
-    Parameters
-    ----------
-    P : ndarray (N, n, n)
-        Only the lower triangle is read.
+def cholesky_lower(P: np.ndarray) -> np.ndarray:
+    """Lower Cholesky factor ``L`` (``P = L Lᵀ``) of a stack of symmetric positive definite
+    matrices ``(*lead, n, n, runs)``; only the lower triangle of ``P`` is read.
 
-    Returns
-    -------
-    L : list of list of ndarray (N,)
-        ``L[i][j]`` (j ≤ i) the factor's entries.
-    pivot : ndarray (N, n)
-        The squared diagonal before its square root (``L[i][i]²``): a matrix is positive definite
-        exactly where every pivot is > 0 (NaN where it is missing).
+    A matrix that is not positive definite gives NaN entries (no exception), as a square root of
+    a negative pivot does.
     """
-    n = P.shape[-1]
-    L = [[None] * n for _ in range(n)]
-    pivot = np.empty(P.shape[:1] + (n,))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        for i in range(n):
-            for j in range(i + 1):
-                acc = P[:, i, j].copy()
-                for k in range(j):
-                    acc -= L[i][k] * L[j][k]
-                if j < i:
-                    L[i][j] = acc / L[j][j]
-                else:
-                    pivot[:, i] = acc
-                    L[i][i] = np.sqrt(acc)
-    return L, pivot
+    n = P.shape[-2]
+    L = np.zeros_like(P)
+    for j in range(n):
+        # pivot: P_jj − Σ_k<j L_jk²; the column below it: (P_ij − Σ_k<j L_ik L_jk) / L_jj
+        if j == 0:
+            d = np.sqrt(P[..., 0, 0, :])
+            L[..., 0, 0, :] = d
+            if n > 1:
+                np.divide(P[..., 1:, 0, :], d[..., None, :], out=L[..., 1:, 0, :])
+            continue
+        Lj = L[..., j, :j, :]                                           # (*lead, j, runs)
+        d = np.sqrt(P[..., j, j, :] - _sum(Lj * Lj, -2))
+        L[..., j, j, :] = d
+        if j + 1 < n:
+            below = P[..., j + 1:, j, :] - _sum(L[..., j + 1:, :j, :] * Lj[..., None, :, :], -2)
+            np.divide(below, d[..., None, :], out=L[..., j + 1:, j, :])
+    return L
+
+
+def forward_substitute(L: np.ndarray, B: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """``L⁻¹ B`` for lower triangular ``L`` ``(*lead, n, n, runs)`` and ``B`` ``(*lead, n, k, runs)``
+    (row by row; ``L``'s upper triangle is not read). ``out`` may be ``B`` itself: row i is read
+    before it is written and only rows above it are read after."""
+    n = L.shape[-2]
+    X = np.empty(np.broadcast_shapes(B.shape, L.shape[:-3] + (n, B.shape[-2], L.shape[-1]))) if out is None else out
+    for i in range(n):
+        row = B[..., i, :, :]
+        if i:
+            row = row - _sum(L[..., i, :i, None, :] * X[..., :i, :, :], -3)
+        np.divide(row, L[..., i, i, None, :], out=X[..., i, :, :])
+    return X
+
+
+def back_substitute(U: np.ndarray, B: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """``U⁻¹ B`` for upper triangular ``U`` ``(*lead, n, n, runs)`` and ``B`` ``(*lead, n, k, runs)``
+    (row by row from the last; ``U``'s lower triangle is not read). ``out`` may be ``B`` itself."""
+    n = U.shape[-2]
+    X = np.empty(np.broadcast_shapes(B.shape, U.shape[:-3] + (n, B.shape[-2], U.shape[-1]))) if out is None else out
+    for i in range(n - 1, -1, -1):
+        row = B[..., i, :, :]
+        if i < n - 1:
+            row = row - _sum(U[..., i, i + 1:, None, :] * X[..., i + 1:, :, :], -3)
+        np.divide(row, U[..., i, i, None, :], out=X[..., i, :, :])
+    return X
+
+
+def householder_triangularise(A: np.ndarray, columns: int) -> np.ndarray:
+    """Triangularise the first ``columns`` columns of ``A`` ``(*lead, r, c, runs)`` in place by
+    Householder reflections (the ``R`` of a QR factorisation, as ``numpy.linalg.qr(mode="r")``
+    gives it up to the signs of its rows); returns ``A``.
+
+    Every column after the first ``columns`` is carried along by the same reflections. The
+    entries below the diagonal of the triangularised columns are left as they are (they are
+    zero in exact arithmetic, and no caller reads them). The reflection of a column ``a`` is
+    ``I − 2 v vᵀ / (vᵀ v)`` with ``v = a + s e₁``, ``s = sign(a₁) ‖a‖`` (the sign that avoids
+    cancellation), so the new diagonal is ``−s`` and ``vᵀ v / 2 = ‖a‖² + |a₁| ‖a‖``.
+    """
+    cols = A.shape[-2]
+    for j in range(columns):
+        a = A[..., j:, j, :]                                            # (*lead, rows, runs)
+        norm2 = _sum(a * a, -2)
+        a0 = A[..., j, j, :]
+        s = np.copysign(np.sqrt(norm2), a0)
+        half_vtv = norm2 + a0 * s
+        v = a.copy()
+        v[..., 0, :] += s
+        np.negative(s, out=a0)
+        if j + 1 < cols:
+            rest = A[..., j:, j + 1:, :]                                # (*lead, rows, c', runs)
+            proj = _sum(v[..., :, None, :] * rest, -3)                  # vᵀ rest: (*lead, c', runs)
+            proj /= half_vtv[..., None, :]
+            rest -= v[..., :, None, :] * proj[..., None, :, :]
+    return A
 
 
 def whiten(e, P):
-    """``w = L⁻¹ e`` with ``P = L Lᵀ`` for stacks ``e`` (N, n) and ``P`` (N, n, n), so that
-    ``eᵀ P⁻¹ e = ‖w‖²``; NaN rows where ``e`` or ``P`` is missing or ``P`` is not positive
-    definite."""
-    L, pivot = cholesky_columns(P)
-    n = e.shape[-1]
-    w = np.empty(e.shape)
+    """``w = L⁻¹ e`` with ``P = L Lᵀ`` for stacks ``e`` (N, n) and ``P`` (N, n, n), the stack
+    first, so that ``eᵀ P⁻¹ e = ‖w‖²``; NaN rows where ``e`` or ``P`` is missing or ``P`` is not
+    positive definite."""
     with np.errstate(invalid="ignore", divide="ignore"):
-        for i in range(n):
-            acc = e[:, i].copy()
-            for k in range(i):
-                acc -= L[i][k] * w[:, k]
-            w[:, i] = acc / L[i][i]
-    bad = ~(pivot > 0).all(axis=-1) | ~np.isfinite(w).all(axis=-1)
+        # one copy into the stack-last layout: every entry is then a contiguous vector
+        L = cholesky_lower(np.ascontiguousarray(np.moveaxis(P, 0, -1)))  # (n, n, N)
+        w = forward_substitute(L, np.ascontiguousarray(e.T)[:, None, :])[:, 0, :].T  # (N, n)
+    bad = ~positive_definite(L) | ~np.isfinite(w).all(axis=-1)
     w[bad] = np.nan
     return w
+
+
+def positive_definite(L):
+    """Where a factor of :func:`cholesky_lower` (``(*lead, n, n, N)``) exists: every pivot finite
+    and > 0 (a matrix that is not positive definite has a NaN or zero one)."""
+    d = np.diagonal(L, axis1=-3, axis2=-2)                              # (*lead, N, n)
+    return (d > 0).all(axis=-1) & np.isfinite(d).all(axis=-1)

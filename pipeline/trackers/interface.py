@@ -34,7 +34,7 @@ from typing import ClassVar
 import numpy as np
 
 from pipeline import vocabulary as vocab
-from pipeline.batched_linalg import cholesky_columns
+from pipeline.batched_linalg import cholesky_lower, positive_definite
 from pipeline.errors import InputError
 
 
@@ -393,8 +393,9 @@ def _check_covariance(cov, state, name, where) -> None:
         # factorisation, entry by entry (pipeline.batched_linalg), clears the common case; the
         # eigenvalues are computed only to name the offending entry
         tolerance = 1e-9 * scale
-        _, pivot = cholesky_columns(c + tolerance[:, None, None] * eye)
-        if (pivot > 0).all():
+        with np.errstate(invalid="ignore", divide="ignore"):
+            factor = cholesky_lower(np.ascontiguousarray(np.moveaxis(c + tolerance[:, None, None] * eye, 0, -1)))
+        if positive_definite(factor).all():
             continue
         lowest = np.linalg.eigvalsh(c)[..., 0]
         indefinite = lowest <= -tolerance

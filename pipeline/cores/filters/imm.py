@@ -3,25 +3,32 @@ state sizes (Blom & Bar-Shalom 1988; Kwon 1997 ch. IV.3).
 
 Kwon (1997), ch. IV.3 (thesis eqs. 4.3.1–4.3.4 mixing, 4.3.5–4.3.10 model-matched filtering,
 4.3.11–4.3.15 model probabilities, 4.3.16–4.3.17 combination); see
-``docs/papers/colored-noise-imm.md``. Every Monte Carlo run advances in one call per scan
-(leading run axis).
+``docs/papers/colored-noise-imm.md``. Every model of every Monte Carlo run advances in one pass
+per scan.
 
 Models are strategies over the same core:
 
 * a :class:`MotionModel` (Φ, Ψ, q, H, and where its states sit in the common state);
-* a filter kind: ``"kf"`` (:func:`pipeline.cores.filters.kalman.kf_predict` / :func:`~pipeline.cores.filters.kalman.kf_update`
-  and :func:`~pipeline.cores.filters.kalman.gaussian_log_likelihood`) or ``"srif"``
-  (:func:`pipeline.cores.filters.srif.srif_predict_update`, the one SRIF recursion: QR time and measurement
-  updates, likelihood from the residual and the triangular factors);
+* a filter kind: ``"kf"`` (:func:`~pipeline.cores.filters.kalman.stacked_kf_step`: the Kalman filter of
+  :mod:`pipeline.cores.filters.kalman` with the gain written through the whitened innovation) or
+  ``"srif"`` (:func:`~pipeline.cores.filters.srif.stacked_srif_step`: the SRIF recursion of :mod:`pipeline.cores.filters.srif`,
+  QR time and measurement updates, likelihood from the residual and the triangular factors);
 * the measurement of the whole IMM (:class:`MeasurementStream`): plain ``(z_k, H, R)`` or
   decorrelated ``(y_k, Ĥ, diag σ_η²)`` (:mod:`pipeline.cores.filters.decorrelation`; ``Ĥ`` per model, since it
   depends on Φ). All models of one IMM see the same measurement, so their likelihoods compare.
 
 The thesis's sets: IMM = plain + KF, MIMM_K = decorrelated + KF, PIMM = decorrelated + SRIF, each
 with one 2-state constant-velocity (CV) and two 3-state constant-acceleration (CA) models.
-Models with the same filter kind and state layout are stacked on a model axis and filtered in one
-batched call (the two CA models share one), and model probabilities are updated in logs, so a
-model whose likelihood underflows does not break the normalisation.
+All models of one filter kind are embedded in the common state and stacked on a model axis, with
+the runs on the last axis, and filtered by one batched step per scan; model probabilities are
+updated in logs, so a model whose likelihood underflows does not break the normalisation.
+
+Speed (``docs/benchmarks.md``, ``benchmarks/bench_imm.py``): a scan costs a fixed number of array
+operations over all models and runs. The constant matrices (Φ, Q, H, H Φ⁻¹, the SRIF's
+``[−Φ⁻¹Ψ | Φ⁻¹]``) are laid out once; the small factorisations are entry by entry
+(:mod:`pipeline.batched_linalg`) instead of one LAPACK call per matrix; the mixing
+is one product with the constant transition matrix for all runs, reusing the terms of the
+previous scan's combination.
 
 Mixing rule for unequal state sizes
 -----------------------------------
@@ -31,10 +38,12 @@ copied, components it lacks are filled with a fixed mean and variance, uncorrela
 rest. For the CV model that is a zero acceleration whose variance is the CV model's own
 white-acceleration variance q_CV (``fill_cov``): the acceleration the CV model assumes, as a
 random variable. Mixed initial conditions are computed in the common state (4.3.1–4.3.2) and each
-model takes the sub-vector/sub-matrix of its own components. This is exactly what an equal-size
-IMM does with the CV model written as a 3-state model whose acceleration row and column of Φ are
-zero and whose process noise puts q_CV on the acceleration (FilterPy's ``IMMEstimator`` with that
-embedding gives the same numbers: ``benchmarks/bench_imm.py`` prints the difference).
+model filters only its own components. This is exactly what an equal-size IMM does with the CV
+model written as a 3-state model whose acceleration row and column of Φ are zero and whose process
+noise puts q_CV on the acceleration (FilterPy's ``IMMEstimator`` with that embedding gives the same
+numbers: ``benchmarks/bench_imm.py`` prints the difference), and it is how the Kalman models run
+here; the SRIF models, which need Φ⁻¹, carry the missing components as a decoupled state instead
+(see :class:`_Stack`).
 """
 
 from __future__ import annotations
@@ -43,12 +52,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.cores.filters.decorrelation import (decorrelated_measurement_matrix, inverse_transition_rows, pseudo_measurements,
-                                    transition_inverse_check)
+from pipeline.cores.filters.decorrelation import inverse_transition_rows, pseudo_measurements, transition_inverse_check
+from pipeline.cores.filters.kalman import kinematic_transition, piecewise_white_noise_gain, stacked_kf_step
+from pipeline.cores.filters.srif import information_factor, stacked_srif_step
 from pipeline.errors import InputError, require_finite
-from pipeline.cores.filters.kalman import (gaussian_log_likelihood, kf_predict, kf_update, kinematic_transition,
-                             piecewise_white_noise_gain)
-from pipeline.cores.filters.srif import information_factor, srif_from_moments, srif_moments, srif_predict_update
 
 FILTER_KINDS = ("kf", "srif")
 
@@ -234,9 +241,6 @@ class MeasurementStream:
             raise InputError("decorrelated measurement variance σ_η² must be > 0")
         self.noise_variance = var
         self.y = pseudo_measurements(self.z, self.alpha)
-        eye = np.eye(m)
-        self.R_meas = var[..., :, None] * eye
-        self.Rv_meas = eye / np.sqrt(var)[..., :, None]
 
     @property
     def runs(self) -> int:
@@ -246,71 +250,156 @@ class MeasurementStream:
     def scans(self) -> int:
         return self.z.shape[1]
 
-    def at(self, k: int):
-        """``(y, R_meas, R_v, alpha)`` at scan ``k ≥ 1``, each with a model axis of length 1 after
-        the run axis where it varies per run (alpha is None for the plain measurement)."""
-        if not self.decorrelate:
-            return self.y[:, k, None], self.R, self.Rv, None
-        return self.y[:, k, None], self.R_meas[:, k, None], self.Rv_meas[:, k, None], self.alpha[:, k, None]
+    def runs_last(self) -> "_RunsLast":
+        """The stream laid out scan by scan with the runs last, as the IMM core reads it."""
+        return _RunsLast(self)
 
 
-# --------------------------------------------------------------------------- model groups
+class _RunsLast:
+    """A :class:`MeasurementStream` per scan, runs last: ``y`` (m, runs), ``ᾱ`` (m, runs) or None,
+    the measurement covariance (m, m, 1 or runs) and, for SRIF models, its information factor
+    (m, m, 1 or runs) and ``log|R_ν|`` (scalar or runs). The per-scan covariances of a
+    decorrelated stream are formed scan by scan from ``σ_η²`` (a few small operations) rather than
+    held for the whole record."""
+
+    def __init__(self, stream: MeasurementStream):
+        self.y = np.ascontiguousarray(stream.y.transpose(1, 2, 0))
+        self.m = self.y.shape[1]
+        if not stream.decorrelate:
+            self.alpha = None
+            self.R_meas = stream.R[:, :, None]
+            self.Rv = stream.Rv[:, :, None]
+            self.log_det_Rv = float(np.log(np.abs(np.diag(stream.Rv))).sum())
+            return
+        self.alpha = np.ascontiguousarray(stream.alpha.transpose(1, 2, 0))
+        self.var = np.ascontiguousarray(stream.noise_variance.transpose(1, 2, 0))     # (scans, m, runs)
+        self.eye = np.eye(self.m)[:, :, None]
+
+    def at(self, k: int, information: bool = False):
+        if self.alpha is None:
+            return self.y[k], None, self.R_meas, self.Rv, self.log_det_Rv
+        var = self.var[k]
+        R_meas = var[None] if self.m == 1 else var[:, None] * self.eye        # diag σ_η²
+        if not information:
+            return self.y[k], self.alpha[k], R_meas, None, None
+        sd = np.sqrt(var)
+        Rv = (1.0 / sd)[None] if self.m == 1 else self.eye / sd[:, None]     # its information factor
+        return self.y[k], self.alpha[k], R_meas, Rv, -_sum(np.log(sd), 0)
 
 
-class _Group:
-    """Models with the same filter kind and state layout, stacked on a model axis so that one
-    batched call filters all of them (the thesis's two CA models share one call)."""
+# --------------------------------------------------------------------------- model stacks
+#
+# Every model of one IMM runs in the common state with the runs on the last axis: per-model
+# estimates X (M, N, runs), covariances PP (M, N, N, runs). Models of one filter kind are stacked
+# on the model axis and advance in one batched step, with every constant (Φ, Q, H, H Φ⁻¹, the
+# SRIF's [−Φ⁻¹Ψ | Φ⁻¹]) laid out once as (models, ..., 1) so that it broadcasts over the runs.
+# The small factorisations are entry by entry (pipeline.batched_linalg): a few
+# dozen array operations per scan whatever the number of runs, instead of one LAPACK call per
+# matrix.
 
-    def __init__(self, members: list[int], filters: list[ModelFilter]):
+
+def _fill_parts(mod: MotionModel, N: int):
+    """The model's own index, its missing components, and its fill (checked uncorrelated with
+    its own components, as the mixing rule states)."""
+    idx = mod.index
+    missing = np.setdiff1d(np.arange(N), idx)
+    fill_cov = np.asarray(mod.fill_cov, dtype=float)
+    fill_mean = np.asarray(mod.fill_mean, dtype=float)
+    if np.any(fill_cov[np.ix_(idx, np.arange(N))] != 0) or np.any(fill_mean[idx] != 0):
+        raise InputError(f"model {mod.name!r}: the fill must be zero on the model's own components "
+                         "(the components it lacks are uncorrelated with the rest)")
+    return idx, missing, fill_mean, fill_cov
+
+
+class _Stack:
+    """Models of one filter kind, embedded in the common state and stacked on a model axis."""
+
+    def __init__(self, members: list[int], filters: list[ModelFilter], N: int, m: int):
         self.members = np.asarray(members)
         fs = [filters[i] for i in members]
-        mods = [f.model for f in fs]
         self.kind = fs[0].kind
-        self.model = mods[0]
-        self.identity = self.model.identity_embedding
-        self.index = self.model.index
-        stack = lambda name: np.stack([getattr(m, name) for m in mods])  # noqa: E731
-        self.F, self.Q, self.G, self.H_Phi_inv = (stack(a) for a in ("F", "Q", "G", "H_Phi_inv"))
-        self.H = self.model.H
-        self.fill_mean, self.fill_cov = stack("fill_mean"), stack("fill_cov")
-        if self.kind == "srif":
-            self.Rw = np.stack([f.Rw for f in fs])
+        G = len(fs)
+        self.H = np.zeros((G, m, N, 1))
+        self.H_Phi_inv = np.zeros((G, m, N, 1))
+        self.fill_mean = np.zeros((G, N, 1))
+        self.fill_cov = np.zeros((G, N, N, 1))
+        for g, f in enumerate(fs):
+            idx, _, fm, fc = _fill_parts(f.model, N)
+            self.H[g][:, idx, 0] = f.model.H
+            self.H_Phi_inv[g][:, idx, 0] = f.model.H_Phi_inv
+            self.fill_mean[g, :, 0] = fm
+            self.fill_cov[g, :, :, 0] = fc
+        self.has_fill = bool(np.any(self.fill_mean != 0))
+        getattr(self, f"_init_{self.kind}")(fs, N)
 
     def measurement_matrix(self, alpha):
-        return self.H if alpha is None else decorrelated_measurement_matrix(self.H, self.H_Phi_inv, alpha)
+        """``H`` (plain) or ``Ĥ = H − Ā H Φ⁻¹`` (eq. 3.1.3) per model and run: (G, m, N, 1 or runs)."""
+        return self.H if alpha is None else self.H - alpha[None, :, None, :] * self.H_Phi_inv
+
+    # --- Kalman models: the embedding is exact with Φ's rows and columns of the missing
+    # components zero and Q carrying their fill: the prediction then holds the fill, uncorrelated,
+    # and the update leaves it alone (its gain rows are zero because its column of H is).
+
+    def _init_kf(self, fs, N):
+        G = len(fs)
+        self.F = np.zeros((G, N, N))
+        self.Q = self.fill_cov.copy()
+        for g, f in enumerate(fs):
+            own = np.ix_(f.model.index, f.model.index)
+            self.F[g][own] = f.model.F
+            self.Q[g][own + (0,)] = f.model.Q
+
+    # --- SRIF models: the missing components are made a decoupled state (Φ = I, no noise, no
+    # measurement, unit variance) that every orthogonal transformation leaves exactly as it is;
+    # afterwards they take their fill back. Process noises of different sizes are padded with
+    # decoupled unit-information rows.
+
+    def _init_srif(self, fs, N):
+        G = len(fs)
+        p = max(f.model.G.shape[1] for f in fs)
+        self.p = p
+        self.mask = np.zeros((G, N, N, 1))
+        self.vmask = np.zeros((G, N, 1))
+        self.dummy = np.zeros((G, N, N, 1))
+        self.C = np.zeros((G, N, p + N, 1))          # [−Φ⁻¹Ψ | Φ⁻¹] of the decoupled embedding
+        self.Rw = np.zeros((G, p, p, 1))
+        for g, f in enumerate(fs):
+            mod = f.model
+            idx, missing, _, _ = _fill_parts(mod, N)
+            self.mask[g][np.ix_(idx, idx)] = 1.0
+            self.vmask[g, idx] = 1.0
+            self.dummy[g, missing, missing] = 1.0
+            # Φ⁻¹Ψ and Φ⁻¹ once per model: the model's exact inverse when it knows it (Φ(−T) of a
+            # kinematic model), else one solve with Φ (validated non-singular by MotionModel)
+            if mod.F_inv is not None:
+                Phi_inv = mod.F_inv
+                Phi_inv_Psi = mod.F_inv @ mod.G
+            else:
+                sol = np.linalg.solve(mod.F, np.concatenate([mod.G, np.eye(mod.n)], axis=1))
+                Phi_inv_Psi, Phi_inv = sol[:, :mod.G.shape[1]], sol[:, mod.G.shape[1]:]
+            pg = mod.G.shape[1]
+            self.C[g][np.ix_(idx, np.arange(pg), [0])] = -Phi_inv_Psi[:, :, None]
+            self.C[g][np.ix_(idx, p + idx, [0])] = Phi_inv[:, :, None]
+            self.C[g, missing, p + missing] = 1.0
+            self.Rw[g, :pg, :pg, 0] = f.Rw
+            self.Rw[g, pg:, pg:, 0] = np.eye(p - pg)
+        self.decoupled = bool(self.dummy.any())
+        # log|Φ| − log|R_w| of the embedding, for |R⁻| in the likelihood
+        self.log_det_Phi_over_Rw = np.array([np.linalg.slogdet(f.model.F)[1] - np.log(np.abs(np.diag(f.Rw))).sum()
+                                             for f in fs])[:, None]
 
 
-def _group_models(filters: list[ModelFilter]) -> list[_Group]:
-    keys: dict = {}
+_sum = np.add.reduce   # ndarray.sum's Python wrapper costs more than the sum of a few small arrays
+
+
+def _stack_models(filters: list[ModelFilter], N: int, m: int) -> list[_Stack]:
+    kinds: dict = {}
     for i, f in enumerate(filters):
-        m = f.model
-        key = (f.kind, m.n, tuple(m.index), m.H.tobytes(), m.G.shape)
-        keys.setdefault(key, []).append(i)
-    return [_Group(members, filters) for members in keys.values()]
+        kinds.setdefault(f.kind, []).append(i)
+    return [_Stack(members, filters, N, m) for members in kinds.values()]
 
 
 # --------------------------------------------------------------------------- filter steps
-
-
-def kf_step(g: _Group, x, P, y, H, R_meas, Rv):
-    """Model-matched Kalman step (thesis eqs. 4.1.1–4.1.5) plus ``log Λ``, the NIS, the
-    innovation ``ν`` and its covariance ``S``."""
-    x, P = kf_predict(x, P, g.F, g.Q)
-    x, P, nu, S, _ = kf_update(x, P, y, H, R_meas)
-    ll, nis, _ = gaussian_log_likelihood(nu, S, return_parts=True)
-    return x, P, ll, nis, nu, S
-
-
-def srif_step(g: _Group, x, P, y, H, R_meas, Rv):
-    """Model-matched SRIF step (4.3.5–4.3.13) from the mixed moments (4.3.6–4.3.7): the one SRIF
-    recursion (:func:`pipeline.cores.filters.srif.srif_predict_update`) between the moment conversions."""
-    R, z = srif_from_moments(x, P)
-    R, z, e, ll = srif_predict_update(R, z, g.F, g.G, g.Rw, H, y, Rv)
-    x, P = srif_moments(R, z)
-    return x, P, ll, e * e, None, None  # the QR gives ‖e‖, not the innovation itself
-
-
-STEPS = {"kf": kf_step, "srif": srif_step}
 
 
 # --------------------------------------------------------------------------- the core
@@ -334,18 +423,45 @@ def check_transition(transition, n_models: int) -> np.ndarray:
     return p
 
 
-def _weighted_moments(w, X, PP):
-    """``Σ_i w_ij [P_i + (x_i − x̄_j)(x_i − x̄_j)ᵀ]`` and ``x̄_j = Σ_i w_ij x_i`` for every j.
+def _combine(mu, X, PP, E):
+    """Combination (4.3.16–4.3.17), runs last: ``x = Σ_j μ_j x_j`` and
+    ``P = Σ_j μ_j [P_j + (x_j − x)(x_j − x)ᵀ]``.
 
-    ``w`` (runs, M, J), ``X`` (runs, M, N), ``PP`` (runs, M, N, N) → (runs, J, N), (runs, J, N, N).
+    ``mu`` (M, runs), ``X`` (M, N, runs), ``PP`` (M, N, N, runs). ``E`` (M, N + N², runs) receives
+    ``[x_j − x, P_j + (x_j − x)(x_j − x)ᵀ]``, which is what the next scan's mixing needs.
+    Returns ``x`` (N, runs) and ``P`` (N, N, runs).
     """
-    runs, M, N = X.shape
-    xbar = np.swapaxes(w, 1, 2) @ X                                  # (runs, J, N)
-    D = X[:, None, :, :] - xbar[:, :, None, :]                        # (runs, J, M, N)
-    wt = np.swapaxes(w, 1, 2)[..., None]                              # (runs, J, M, 1)
-    spread = np.swapaxes(D * wt, -1, -2) @ D                          # (runs, J, N, N)
-    Pbar = (np.swapaxes(w, 1, 2) @ PP.reshape(runs, M, N * N)).reshape(runs, -1, N, N)
-    return xbar, Pbar + spread
+    M, N, R = X.shape
+    x = _sum(mu[:, None] * X, 0)
+    D = E[:, :N]
+    T = E[:, N:].reshape(M, N, N, R)
+    np.subtract(X, x, out=D)
+    np.multiply(D[:, :, None], D[:, None], out=T)
+    T += PP
+    return x, _sum(mu[:, None, None] * T, 0)
+
+
+def _mix(p, mu, c, E, tiny):
+    """Mixing (4.3.1–4.3.4), runs last, from the previous combination's ``c = x`` and
+    ``E = [x_i − c, P_i + (x_i − c)(x_i − c)ᵀ]`` (:func:`_combine`).
+
+    With ``μ_{i|j} = p_ij μ_i / c̄_j`` and ``d_j = Σ_i μ_{i|j} (x_i − c)``: ``x̄_j = c + d_j`` and
+    ``P̄_j = Σ_i μ_{i|j} [P_i + (x_i − c)(x_i − c)ᵀ] − d_j d_jᵀ``, which equals
+    ``Σ_i μ_{i|j} [P_i + (x_i − x̄_j)(x_i − x̄_j)ᵀ]`` because the weights sum to one. Centred on
+    the combined estimate the terms are of the size of the models' spread, so nothing cancels
+    beyond it, and the sum over i is one product with the constant ``pᵀ`` for every run.
+
+    Returns ``x̄`` (M, N, runs), ``P̄`` (M, N, N, runs) and ``c̄`` floored at ``tiny`` (M, runs).
+    """
+    M, K, R = E.shape
+    N = c.shape[0]
+    cbar = np.maximum(p.T @ mu, tiny)                             # 4.3.3: c̄_j = Σ_i p_ij μ_i
+    Z = np.matmul(p.T, (E * mu[:, None]).reshape(M, K * R)).reshape(M, K, R)
+    Z /= cbar[:, None]
+    d = Z[:, :N]
+    P0 = Z[:, N:].reshape(M, N, N, R)
+    P0 -= d[:, :, None] * d[:, None]
+    return c + d, P0, cbar
 
 
 def imm_filter(filters: list[ModelFilter], transition, x0, P0, stream: MeasurementStream,
@@ -376,6 +492,13 @@ def imm_filter(filters: list[ModelFilter], transition, x0, P0, stream: Measureme
         A single Kalman model (``M = 1``, kind ``"kf"``) also returns ``innovation``
         (runs, scans, m) and ``innovation_covariance`` (runs, scans, m, m), NaN up to scan
         ``start − 1``: of ``y_k`` (and ``Ĥ``) for a decorrelated stream.
+
+    Notes
+    -----
+    All models and runs advance together, one pass per scan, with the runs on the last axis
+    (see :mod:`pipeline.batched_linalg`); the mixing (4.3.1–4.3.4), the model
+    probabilities in logs (4.3.14–4.3.15) and the combination (4.3.16–4.3.17) are each a handful
+    of array operations over all models and runs.
     """
     M = len(filters)
     if M == 0:
@@ -390,69 +513,73 @@ def imm_filter(filters: list[ModelFilter], transition, x0, P0, stream: Measureme
     mu = np.full(M, 1.0 / M) if mu0 is None else np.asarray(mu0, dtype=float)
     if mu.shape != (M,) or np.any(mu < 0) or abs(mu.sum() - 1.0) > 1e-9:
         raise InputError("initial model probabilities must be M values ≥ 0 summing to 1")
-    groups = _group_models(filters)
-    mu = np.broadcast_to(mu, (runs, M)).copy()
-    x = np.broadcast_to(np.asarray(x0, dtype=float), (runs, N)).copy()
-    P = np.broadcast_to(np.asarray(P0, dtype=float), (runs, N, N)).copy()
-    X = np.repeat(x[:, None], M, axis=1)          # (runs, M, N) per-model estimates, common state
-    PP = np.repeat(P[:, None], M, axis=1)         # (runs, M, N, N)
+    m_meas = stream.z.shape[-1]
+    stacks = _stack_models(filters, N, m_meas)
+    one_stack = len(stacks) == 1
+    x = np.broadcast_to(np.asarray(x0, dtype=float), (runs, N))
+    P = np.broadcast_to(np.asarray(P0, dtype=float), (runs, N, N))
     out = {"state": np.full((runs, scans, N), np.nan), "covariance": np.full((runs, scans, N, N), np.nan),
            "model_probabilities": np.full((runs, scans, M), np.nan),
            "log_likelihood": np.full((runs, scans, M), np.nan), "nis": np.full((runs, scans, M), np.nan)}
     first = max(start - 1, 0)
     out["state"][:, first], out["covariance"][:, first], out["model_probabilities"][:, first] = x, P, mu
     single = M == 1
-    m_meas = stream.z.shape[-1]
-    if single and filters[0].kind == "kf":
+    innovations = single and filters[0].kind == "kf"
+    if innovations:
         out["innovation"] = np.full((runs, scans, m_meas), np.nan)
         out["innovation_covariance"] = np.full((runs, scans, m_meas, m_meas), np.nan)
+    # runs last from here on
+    mu = np.repeat(mu[:, None], runs, axis=1)                        # (M, runs)
+    x = np.ascontiguousarray(x.T)                                    # (N, runs)
+    P = np.ascontiguousarray(P.transpose(1, 2, 0))                   # (N, N, runs)
+    X = np.repeat(x[None], M, axis=0)                                # (M, N, runs)
+    PP = np.repeat(P[None], M, axis=0)
+    E = np.zeros((M, N + N * N, runs))                               # [x_i − x, P_i + (x_i − x)(…)ᵀ]
+    E[:, N:] = PP.reshape(M, N * N, runs)
+    meas = stream.runs_last()
+    information = any(st.kind == "srif" for st in stacks)
     tiny = np.finfo(float).tiny
-    # index grids that read and write a group's own components of the common state in one step
-    for g in groups:
-        J, idx = g.members, g.index
-        g.read_x = (slice(None), J[:, None], idx[None, :])
-        g.read_P = (slice(None), J[:, None, None], idx[None, :, None], idx[None, None, :])
+    ll = np.empty((M, runs))
+    nis = np.empty((M, runs))
+    views = (out["state"].transpose(1, 2, 0), out["covariance"].transpose(1, 2, 3, 0),
+             out["model_probabilities"].transpose(1, 2, 0), out["log_likelihood"].transpose(1, 2, 0),
+             out["nis"].transpose(1, 2, 0))
     for k in range(start, scans):
-        y, R_meas, Rv, alpha = stream.at(k)
-        ll = out["log_likelihood"][:, k]              # views: the groups write their columns in place
-        nis = out["nis"][:, k]
+        y, alpha, R_meas, Rv, log_det_Rv = meas.at(k, information)
         if single:
-            X0, P0m, cbar = X, PP, np.ones((runs, 1))
+            X0, P0m = X, PP
         else:
-            # 4.3.3–4.3.4: c̄_j = Σ_i p_ij μ_i, μ_{i|j} = p_ij μ_i / c̄_j
-            w = p * mu[:, :, None]
-            cbar = w.sum(axis=1)
-            w /= np.maximum(cbar, tiny)[:, None, :]
-            X0, P0m = _weighted_moments(w, X, PP)                     # 4.3.1–4.3.2, common state
-        for g in groups:
-            J = g.members
-            if g.identity:
-                xj, Pj = X0[:, J], P0m[:, J]
+            X0, P0m, cbar = _mix(p, mu, x, E, tiny)                   # 4.3.1–4.3.4, common state
+        for st in stacks:
+            J = st.members
+            xs, Ps = (X0, P0m) if one_stack else (X0[J], P0m[J])
+            H = st.measurement_matrix(alpha)
+            if st.kind == "kf":
+                xs, Ps, llj, nisj, nu, S = stacked_kf_step(st.F, st.Q, st.fill_mean if st.has_fill else None, xs, Ps, y, H, R_meas)
+                if innovations:
+                    out["innovation"][:, k] = nu[0].T
+                    out["innovation_covariance"][:, k] = S[0].transpose(2, 0, 1)
             else:
-                xj, Pj = X0[g.read_x], P0m[g.read_P]
-            H = g.measurement_matrix(alpha)
-            xj, Pj, ll[:, J], nis[:, J], nu, S = STEPS[g.kind](g, xj, Pj, y, H, R_meas, Rv)
-            if single and nu is not None:
-                out["innovation"][:, k], out["innovation_covariance"][:, k] = nu[:, 0], S[:, 0]
-            if g.identity:
-                X[:, J], PP[:, J] = xj, Pj
+                xs, Ps, llj, nisj = stacked_srif_step(st, xs, Ps, y, H, Rv, log_det_Rv)
+            if one_stack:
+                X, PP = xs, Ps
+                ll, nis = llj, nisj
             else:
-                if k == start:   # the components the model lacks take their fixed fill once and keep it
-                    X[:, J], PP[:, J] = g.fill_mean, g.fill_cov
-                X[g.read_x], PP[g.read_P] = xj, Pj
-        # 4.3.14–4.3.15 in logs (a far-off model's likelihood underflows otherwise); the floor keeps
-        # every reachable model's c̄ positive
-        logw = np.log(np.maximum(cbar, tiny)) + ll
-        logw -= logw.max(axis=1, keepdims=True)
-        mu = np.exp(logw)
-        mu /= mu.sum(axis=1, keepdims=True)
-        np.maximum(mu, tiny, out=mu)
+                X[J], PP[J], ll[J], nis[J] = xs, Ps, llj, nisj
         if single:
-            x, P = X[:, 0], PP[:, 0]
+            mu = np.ones((1, runs))
+            x, P = X[0], PP[0]
         else:
-            xs, Ps = _weighted_moments(mu[:, :, None], X, PP)          # 4.3.16–4.3.17
-            x, P = xs[:, 0], Ps[:, 0]
-        out["state"][:, k], out["covariance"][:, k], out["model_probabilities"][:, k] = x, P, mu
+            # 4.3.14–4.3.15 in logs (a far-off model's likelihood underflows otherwise); the floor
+            # keeps every reachable model's c̄ positive
+            logw = np.log(cbar)
+            logw += ll
+            logw -= logw.max(axis=0)
+            mu = np.exp(logw)
+            mu /= _sum(mu, 0)
+            np.maximum(mu, tiny, out=mu)
+            x, P = _combine(mu, X, PP, E)                              # 4.3.16–4.3.17
+        views[0][k], views[1][k], views[2][k], views[3][k], views[4][k] = x, P, mu, ll, nis
     return out
 
 

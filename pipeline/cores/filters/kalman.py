@@ -11,6 +11,11 @@ from math import factorial
 
 import numpy as np
 
+from pipeline.batched_linalg import cholesky_lower, forward_substitute
+
+LOG_2PI = float(np.log(2.0 * np.pi))
+_sum = np.add.reduce   # ndarray.sum's Python wrapper costs more than the sum of a few small arrays
+
 
 def kf_predict(x: np.ndarray, P: np.ndarray, F: np.ndarray, Q: np.ndarray):
     """Time update ``x⁻ = F x``, ``P⁻ = F P Fᵀ + Q``.
@@ -453,3 +458,57 @@ def cv_floor_components(c, live, floor: float = PIVOT_FLOOR, repair: float = REP
     out = c.copy()
     out[(slice(None),) + where] = matrix_to_components(0.5 * (P + np.swapaxes(P, -1, -2)))
     return out, floored
+
+
+# --------------------------------------------------------------------------- stacks, runs last
+
+
+def stacked_kf_step(F, Q, fill_mean, x, P, y, H, R_meas):
+    """The Kalman filter on a stack of models with the runs on the last axis (Kwon 1997, eqs.
+    4.1.1–4.1.5, 4.3.5–4.3.10): the IMM's model-matched step (:mod:`pipeline.cores.filters.imm`).
+
+    ``F`` (G, N, N) and ``Q`` (G, N, N, 1) are the models' transition and process noise,
+    ``fill_mean`` (G, N, 1) or None a constant added to the prediction (see the IMM's fill).
+
+    ``x`` (G, N, runs), ``P`` (G, N, N, runs), ``y`` (m, runs), ``H`` (G, m, N, 1 or runs),
+    ``R_meas`` (m, m, 1 or runs). The update is written through the whitened gain: with
+    ``S = L Lᵀ``, ``W = L⁻¹ H P⁻`` and ``e = L⁻¹ ν``, ``x = x⁻ + Wᵀ e``, ``P = P⁻ − Wᵀ W``
+    (``= P⁻ − K S Kᵀ``, exactly symmetric), ``νᵀ S⁻¹ ν = ‖e‖²`` and ``log|S| = 2 Σ log L_ii``:
+    one factorisation gives the gain, the NIS and the likelihood.
+
+    Returns
+    -------
+    x, P, log Λ (G, runs), NIS (G, runs), ν (G, m, runs), S (G, m, m, runs)
+    """
+    G, N, R = x.shape
+    m = y.shape[0]
+    xp = np.matmul(F, x)                                   # one (N × N)(N × runs) product per model
+    if fill_mean is not None:
+        xp += fill_mean
+    # Φ P Φᵀ as two products over the stacked runs: (Φ P) then Φ (Φ P)ᵀ
+    FP = np.matmul(F, P.reshape(G, N, N * R)).reshape(G, N, N, R)
+    Pp = np.matmul(F, FP.transpose(0, 2, 1, 3).reshape(G, N, N * R)).reshape(G, N, N, R)
+    Pp += Q
+    Pp += Pp.transpose(0, 2, 1, 3)                            # numpy buffers the overlapping operand
+    Pp *= 0.5
+    HP = _sum(H[:, :, :, None, :] * Pp[:, None], 2)       # (G, m, N, runs)
+    S = _sum(HP[:, :, None] * H[:, None], 3) + R_meas      # (G, m, m, runs)
+    nu = y - _sum(H * xp[:, None], 2)                      # (G, m, runs)
+    if m == 1:
+        d = np.sqrt(S[:, 0, 0])                                 # (G, runs)
+        W = HP[:, 0] / d[:, None]
+        e = nu[:, 0] / d
+        x_post = xp + W * e[:, None]
+        P_post = Pp - W[:, :, None] * W[:, None]
+        nis = e * e
+        log_det = np.log(S[:, 0, 0])
+    else:
+        L = cholesky_lower(S)
+        We = forward_substitute(L, np.concatenate([HP, nu[:, :, None]], axis=2))
+        W, e = We[:, :, :N], We[:, :, N]
+        x_post = xp + _sum(W * e[:, :, None], 1)
+        P_post = Pp - _sum(W[:, :, :, None] * W[:, :, None], 1)
+        nis = _sum(e * e, 1)
+        log_det = 2.0 * _sum(np.log(np.diagonal(L, axis1=1, axis2=2)), -1)
+    ll = -0.5 * (nis + log_det + m * LOG_2PI)
+    return x_post, P_post, ll, nis, nu, S

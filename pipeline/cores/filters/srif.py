@@ -14,9 +14,11 @@ Kwon (1997), ch. IV.2–IV.3, the square-root information filter (thesis eqs. 4.
   eq. 4.3.12 without the square, which is ``√|S|``; the tests check the squared form against
   the Kalman filter's ``S``.
 
-The recursion is written once, :func:`srif_predict_update` (time update, measurement update,
-likelihood); :func:`srif_filter` carries ``(R, z)`` through a record with it and the IMM's SRIF
-models (:mod:`pipeline.cores.filters.imm`) call it from their mixed moments.
+The recursion has two forms in this one module: :func:`srif_predict_update` (time update and
+measurement update as two QRs, the runs first; :func:`srif_filter` carries ``(R, z)`` through a
+record with it) and :func:`stacked_srif_step` (both updates as one Householder triangularisation,
+every model and run at once with the runs last, entry by entry: what the IMM's SRIF models
+(:mod:`pipeline.cores.filters.imm`) run from their mixed moments). The tests check they agree.
 
 No covariance is formed and no matrix is inverted inside the recursion: symmetry and positive
 definiteness of ``P = R⁻¹ R⁻ᵀ`` hold by construction, which is what keeps the SRIF usable in
@@ -34,6 +36,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline.batched_linalg import back_substitute, cholesky_lower, forward_substitute, householder_triangularise
 from pipeline.cores.filters.decorrelation import transition_inverse_check
 from pipeline.errors import InputError
 
@@ -279,3 +282,72 @@ def srif_filter(x0, P0, Phi, Psi, q, H, y, meas_cov, start: int = 1):
         out["log_likelihood"][:, k] = ll
         out["residual_norm"][:, k] = e
     return out
+
+
+_sum = np.add.reduce   # ndarray.sum's Python wrapper costs more than the sum of a few small arrays
+
+
+def stacked_srif_step(st, x, P, y, H, Rv, log_det_Rv):
+    """The SRIF recursion on a stack of models with the runs on the last axis, from the mixed
+    moments (Kwon 1997, 4.3.5–4.3.13 from 4.3.6–4.3.7): the IMM's model-matched SRIF step. It
+    is :func:`srif_predict_update` with the two QRs done as one triangularisation (below); the
+    tests check the two agree. ``st`` carries the stack's constants as the IMM lays them out
+    (``p``, ``Rw``, ``C`` = ``[−Φ⁻¹Ψ | Φ⁻¹]``, the masks of a decoupled component, ``fill_*``,
+    ``log_det_Phi_over_Rw``; :class:`pipeline.cores.filters.imm.ModelFilter`).
+
+    From ``P = L Lᵀ`` the information square root is ``R = L⁻¹`` and ``z = L⁻¹ x``, so the time
+    update's rows ``[−R Φ⁻¹ Ψ, R Φ⁻¹, z]`` are one forward substitution with ``L`` on the
+    constant ``[−Φ⁻¹Ψ | Φ⁻¹]`` and ``x``. The measurement rows ``[0, R_ν Ĥ, R_ν y]`` are stacked
+    under them and the whole array is triangularised by one sequence of Householder reflections
+    (4.2.18 and 4.2.21 at once). That is the same factorisation as the two QRs in turn: the
+    reflections of the noise columns leave the measurement rows alone (their entries there are
+    zero), and after them the rows of ``[R⁻, z⁻]`` and of the measurement are what the second QR
+    would triangularise; the triangular factor is unique up to the signs of its rows. So rows
+    ``p…`` hold ``[R, z]`` and the row below them the residual ``e``.
+
+    Likelihood (4.3.11–4.3.13): ``|S| = (|R| / (|R⁻| |R_ν|))²`` with ``|R⁻|`` from the
+    determinant of the time-update array, ``|R_w| / (|L| |Φ|)``, divided by the product of the
+    first ``p`` diagonal entries of the result. Moments from one back substitution with
+    ``[I | z]`` (4.2.7, 4.2.22). Signs of rows are left as the reflections give them: the moments,
+    ``‖e‖`` and ``|R|`` do not depend on them.
+
+    ``Rv`` (m, m, 1 or runs) is the measurement noise's information factor and ``log_det_Rv``
+    ``log|R_ν|`` (scalar or runs).
+
+    Returns
+    -------
+    x, P, log Λ (G, runs), ‖e‖² (G, runs)
+    """
+    G, N, R = x.shape
+    m = y.shape[0]
+    p = st.p
+    L = cholesky_lower(P * st.mask + st.dummy)
+    A = np.zeros((G, p + N + m, p + N + 1, R))
+    A[:, :p, :p] = st.Rw
+    B = A[:, p:p + N]
+    B[:, :, :p + N] = st.C
+    B[:, :, -1] = x * st.vmask
+    forward_substitute(L, B, out=B)
+    if m == 1:
+        A[:, p + N, p:p + N] = Rv[0, 0] * H[:, 0]
+        A[:, p + N, -1] = Rv[0, 0] * y[0]
+    else:
+        A[:, p + N:, p:p + N] = _sum((Rv[None, :, :, None] * H[:, None]), 2)
+        A[:, p + N:, -1] = _sum(Rv * y[None], 1)
+    householder_triangularise(A, p + N)
+    e2 = _sum(A[:, p + N:, -1] ** 2, 1)
+    log_det_T = _sum(np.log(np.abs(np.diagonal(A[:, :p + N, :p + N], axis1=1, axis2=2))), -1)
+    log_det_L = _sum(np.log(np.diagonal(L, axis1=1, axis2=2)), -1)
+    log_det_S = 2.0 * (log_det_T + log_det_L + st.log_det_Phi_over_Rw - log_det_Rv)
+    ll = -0.5 * (e2 + log_det_S + m * LOG_2PI)
+    rhs = np.empty((G, N, N + 1, R))
+    rhs[:, :, :N] = np.eye(N)[:, :, None]
+    rhs[:, :, N] = A[:, p:p + N, -1]
+    sol = back_substitute(A[:, p:p + N, p:p + N], rhs, out=rhs)
+    Sinv = sol[:, :, :N]                                       # R⁻¹: P = R⁻¹ R⁻ᵀ
+    P_post = _sum(Sinv[:, :, None] * Sinv[:, None], 3)
+    x_post = sol[:, :, N]
+    if st.decoupled:
+        x_post = x_post * st.vmask + st.fill_mean
+        P_post = P_post * st.mask + st.fill_cov
+    return x_post, P_post, ll, e2
