@@ -12,12 +12,18 @@ What it measures
    kernels' operand shapes). The timing lives here, not in the trackers: a replay reports FLOPs
    (``innovation_flops_*`` outputs), never wall-clock times.
 2. **MUSIC (spectrum + peaks), ours vs pyroomacoustics.** The same snapshot blocks (M = 15,
-   30 snapshots, 5 sources at 10 dB, λ/2 spacing) go through ``pipeline.cores.array.music`` and through
+   30 snapshots, 5 sources at 10 dB, λ/2 spacing) go through ``pipeline.cores.array.music.music``
+   (called as shipped: its angle table is kept per grid) and through
    ``pyroomacoustics.doa.MUSIC.locate_sources`` on the same angle grid (pyroomacoustics' azimuth
-   φ from the array axis is 90° − θ); one narrowband bin carries the snapshots. Printed: time per
-   call of each (pyroomacoustics as shipped, whose mode vectors are computed on every call, and
-   with them precomputed), ours for one block and batched over scans × runs, the speed-ups
-   (target ≥ 3×), and how often both pick the same grid peaks.
+   φ from the array axis is 90° − θ; one narrowband STFT bin carries the snapshots), on two grids
+   over θ ∈ [−90°, 90°]: 361 points (0.5°; the size of pyroomacoustics' own default grid, 360
+   points at 1° round its circle) and 1,801 points (0.1°). Both sides compute the covariance, the
+   EVD, the spectrum on every grid point and the 5 largest peaks (ours also refines them).
+   Printed per grid, in µs per block as median [min–max] over ``--music-repeats`` (≥ 5) passes
+   over ``--trials`` blocks: pyroomacoustics as shipped (mode vectors computed on every call)
+   and with them precomputed, ours one block per call and batched over all blocks; then the
+   four speed-ups, paired per pass, with PASS/MISS against the ≥ 3× target, and how often both
+   pick the same grid peaks.
 3. **Full Monte Carlo from MCAP to table.** ``replay simulate array-crossing --runs 100
    --snr-db 0,5,10`` is written to a temporary file (time shown separately), then
    ``replay eval`` of it (read, MUSIC start-up, PAST, both trackers, evaluation and the Table 1
@@ -30,8 +36,10 @@ What it measures
    tracks behind two targets moving at ≈ 1°/s with PAST's subspace and with the per-scan EVD.
 
 Kernel times are the best of ``--repeats`` calls (other processes only ever add time); the
-MUSIC comparison uses medians for both libraries alike. The machine's load average is printed:
-other processes on a shared machine inflate every figure.
+MUSIC comparison prints medians with their spread for both libraries alike, its four contenders
+timed in a rotating order within each pass. The machine's load average is printed: other
+processes on a shared machine inflate every figure (and OpenBLAS's threaded products in the
+batched MUSIC call most of all when another process holds a core).
 
 How to run
 ----------
@@ -39,6 +47,7 @@ From the repository root, with the package installed (``pip install -e .[peers]`
 
     python benchmarks/bench_array.py                 # everything
     python benchmarks/bench_array.py --skip-mc       # kernels only
+    python benchmarks/bench_array.py --music-only    # the MUSIC comparison only
 """
 
 from __future__ import annotations
@@ -56,7 +65,7 @@ import numpy as np
 from pipeline.cores.array.angular_innovation import INNOVATIONS
 from pipeline.cores.array.flop_counts import ANALYTIC, counted_flops
 from pipeline.cores.array.linear_array import steering_vectors
-from pipeline.cores.array.music import angle_grid, lag_exponentials, music, pick_peaks
+from pipeline.cores.array.music import angle_grid, music, pick_peaks
 
 
 def time_innovation(strategy: str, n_sensors: int, n_targets: int, batch: int = 1, repeats: int = 200,
@@ -110,7 +119,26 @@ def innovation_table(M: int, batch: int, repeats: int) -> None:
               f"counted proposed {counted_flops('proposed', M, N)} / Ryu {counted_flops('ryu', M, N)}")
 
 
-def music_vs_pyroomacoustics(trials: int, repeats: int) -> None:
+MUSIC_TARGET = 3.0
+
+
+def spread(samples, scale: float = 1.0, fmt: str = "{:.1f}") -> str:
+    """``median [min–max]`` of the repeats, each value times ``scale``."""
+    a = np.asarray(samples, float) * scale
+    return f"{fmt.format(np.median(a))} [{fmt.format(a.min())}–{fmt.format(a.max())}]"
+
+
+def music_vs_pyroomacoustics(trials: int, repeats: int, grid_sizes=(361, 1801)) -> None:
+    """Ours (one block per call and batched) against pyroomacoustics' MUSIC, as shipped and with
+    its mode vectors precomputed, on the same snapshot blocks and the same angle grid.
+
+    Both sides do the same work per block: sample covariance, Hermitian EVD, the pseudo-spectrum
+    on every grid point for N = 5 known sources, and the N largest local maxima (ours also
+    refines each by a parabola; pyroomacoustics stops at the grid point). pyroomacoustics gets
+    the block as one STFT bin of its (M, nfft/2 + 1, Ns) input. Each repeat times one pass over
+    all ``trials`` blocks for each of the four, in a rotating order, so that load on a shared
+    machine falls on all four alike; the speed-ups are per repeat (same pass, paired).
+    """
     section("MUSIC spectrum + peaks: ours vs pyroomacoustics (M = 15, Ns = 30, 5 sources, 10 dB)")
     try:
         import pyroomacoustics as pra
@@ -122,61 +150,74 @@ def music_vs_pyroomacoustics(trials: int, repeats: int) -> None:
     fs, nfft, k_bin, c = 16000, 256, 32, 343.0
     f = k_bin * fs / nfft
     d = 0.5 * c / f  # λ/2 at the bin frequency
-    grid = angle_grid(np.deg2rad(0.1))
     theta = np.deg2rad([-30.0, -12.0, 5.0, 25.0, 45.0])
     rng = np.random.default_rng(1)
     A = steering_vectors(theta, M, 0.5)
     S = (rng.standard_normal((trials, N, Ns)) + 1j * rng.standard_normal((trials, N, Ns))) * np.sqrt(5.0)
     X = A @ S + (rng.standard_normal((trials, M, Ns)) + 1j * rng.standard_normal((trials, M, Ns))) * np.sqrt(0.5)
     L = np.stack([np.arange(M) * d, np.zeros(M)])
-    azimuth = np.pi / 2 - grid[::-1]  # φ = 90° − θ, ascending
-    doa = pra.doa.MUSIC(L, fs, nfft, c=c, num_src=N, mode="far", azimuth=azimuth)
     stft = np.zeros((M, nfft // 2 + 1, Ns), complex)
+    print(f"{trials} blocks per pass, {repeats} passes; times per block in µs, median [min–max] over the passes")
+    verdicts = []
+    for G in grid_sizes:
+        grid = angle_grid(np.pi / (G - 1))  # θ ∈ [−90°, 90°], both ends: 361 → 0.5°, 1801 → 0.1°
+        assert grid.size == G
+        azimuth = np.pi / 2 - grid[::-1]  # pyroomacoustics' azimuth φ from the array axis, ascending
+        shipped = pra.doa.MUSIC(L, fs, nfft, c=c, num_src=N, mode="far", azimuth=azimuth)
+        pre = pra.doa.MUSIC(L, fs, nfft, c=c, num_src=N, mode="far", azimuth=azimuth)
+        pre.mode_vec = ModeVector(L, fs, nfft, c, pre.grid, mode="far", precompute=True)
 
-    def pra_call(x):
-        stft[:, k_bin, :] = x
-        doa.locate_sources(stft, num_src=N, freq_bins=[k_bin])
-        return np.sort(np.pi / 2 - doa.azimuth_recon)
+        def pra_pass(doa):
+            for x in X:
+                stft[:, k_bin, :] = x
+                doa.locate_sources(stft, num_src=N, freq_bins=[k_bin])
 
-    lags = lag_exponentials(grid, M, 0.5)
+        def ours_pass():
+            for x in X:
+                music(x, 0.5, grid, N)
 
-    def ours(x):
-        return music(x, 0.5, grid, N, lag_table=lags)[0]
-
-    def median_time(fn, items, reps):
-        samples = []
-        for r in range(reps):
-            x = items[r % len(items)]
-            t0 = time.perf_counter()
-            fn(x)
-            samples.append(time.perf_counter() - t0)
-        return float(np.median(samples))
-
-    pra_default = median_time(pra_call, X, repeats)
-    doa.mode_vec = ModeVector(L, fs, nfft, c, doa.grid, mode="far", precompute=True)
-    pra_pre = median_time(pra_call, X, repeats)
-    ours_single = median_time(ours, X, repeats)
-    batch = X.reshape(-1, 2, M, Ns) if trials % 2 == 0 else X[:, None]
-    t0 = time.perf_counter()
-    for _ in range(3):
-        ours(batch)
-    ours_batched = (time.perf_counter() - t0) / 3 / trials
-    # same snapshots, same grid: do both pick the same grid peaks?
-    same, worst = 0, 0.0
-    for x in X[:200]:
-        p = pra_call(x)
-        o = music(x, 0.5, grid, N, lag_table=lags)
-        coarse = pick_peaks(o[2], grid, N, refine=False)
-        same += np.allclose(coarse, p, atol=1e-9)
-        worst = max(worst, float(np.max(np.abs(o[0] - theta))))
-    print(f"pyroomacoustics (as shipped)        {pra_default * 1e6:9.1f} µs per call")
-    print(f"pyroomacoustics (mode vectors pre.) {pra_pre * 1e6:9.1f} µs per call")
-    print(f"ours, one block per call            {ours_single * 1e6:9.1f} µs per call   speed-up {pra_default / ours_single:5.1f}× "
-          f"(vs precomputed {pra_pre / ours_single:4.1f}×)")
-    print(f"ours, batched {trials} blocks         {ours_batched * 1e6:9.1f} µs per block   speed-up {pra_default / ours_batched:5.1f}× "
-          f"(vs precomputed {pra_pre / ours_batched:4.1f}×)   target ≥ 3×")
-    print(f"same grid peaks as pyroomacoustics in {same} of {len(X[:200])} blocks; our refined peaks within "
-          f"{np.rad2deg(worst):.3f}° of the truth")
+        contenders = {
+            "pyroomacoustics as shipped": lambda: pra_pass(shipped),
+            "pyroomacoustics, mode vectors precomputed": lambda: pra_pass(pre),
+            "ours, one block per call": ours_pass,
+            f"ours, batched ({trials} blocks per call)": lambda: music(X, 0.5, grid, N),
+        }
+        names = list(contenders)
+        for fn in contenders.values():  # warm-up: caches, lazy imports, the angle table
+            fn()
+        times = {name: [] for name in names}
+        for r in range(repeats):
+            for name in names[r % 4:] + names[: r % 4]:
+                t0 = time.perf_counter()
+                contenders[name]()
+                times[name].append((time.perf_counter() - t0) / trials)
+        t = {name: np.array(v) for name, v in times.items()}
+        # same snapshots, same grid: do both pick the same grid peaks?
+        same, worst = 0, 0.0
+        for x in X[:200]:
+            stft[:, k_bin, :] = x
+            pre.locate_sources(stft, num_src=N, freq_bins=[k_bin])
+            p = np.sort(np.pi / 2 - pre.azimuth_recon)
+            o = music(x, 0.5, grid, N)
+            same += np.allclose(pick_peaks(o[2], grid, N, refine=False), p, atol=1e-9)
+            worst = max(worst, float(np.max(np.abs(o[0] - theta))))
+        step = np.rad2deg(grid[1] - grid[0])
+        print(f"\n{G} grid points ({step:g}° over ±90°):")
+        for name in names:
+            print(f"  {name:<44} {spread(t[name], 1e6):>24} µs per block")
+        for ours in names[2:]:
+            for peer in names[:2]:
+                ratio = t[peer] / t[ours]
+                verdict = "PASS" if np.median(ratio) >= MUSIC_TARGET else "MISS"
+                verdicts.append((G, ours, peer, verdict))
+                print(f"  speed-up {ours.split(',')[1].strip():<32} vs {peer:<42} "
+                      f"{spread(ratio, fmt='{:.2f}'):>20}×  {verdict} (target ≥ {MUSIC_TARGET:g}×)")
+        print(f"  same grid peaks as pyroomacoustics in {same} of {len(X[:200])} blocks; our refined peaks within "
+              f"{np.rad2deg(worst):.3f}° of the truth")
+    misses = [v for v in verdicts if v[3] == "MISS"]
+    print(f"\nMUSIC ≥ {MUSIC_TARGET:g}× pyroomacoustics on {' and '.join(map(str, grid_sizes))} points, "
+          f"one block and batched, against both forms: "
+          + ("PASS" if not misses else "MISS (" + "; ".join(f"{g}: {o} vs {p}" for g, o, p, _ in misses) + ")"))
 
 
 def full_monte_carlo(runs: int) -> None:
@@ -259,13 +300,22 @@ def main():
     ap.add_argument("--repeats", type=int, default=300)
     ap.add_argument("--batch", type=int, default=300, help="runs per vectorised innovation call")
     ap.add_argument("--trials", type=int, default=600, help="snapshot blocks for the MUSIC comparison")
+    ap.add_argument("--music-repeats", type=int, default=9,
+                    help="passes over the blocks per MUSIC contender (at least 5; median [min–max] printed)")
+    ap.add_argument("--music-grids", default="361,1801",
+                    help="grid sizes over θ ∈ [−90°, 90°] for the MUSIC comparison (181 is 1°)")
+    ap.add_argument("--music-only", action="store_true", help="only the MUSIC comparison")
     ap.add_argument("--runs", type=int, default=100, help="Monte Carlo runs per SNR")
     ap.add_argument("--skip-mc", action="store_true")
     ap.add_argument("--sensitivity", action="store_true", help="also the crossing-rate study (≈ 3 × the MC time)")
     args = ap.parse_args()
     print(f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores; numpy {np.__version__}")
+    grids = tuple(int(g) for g in args.music_grids.split(","))
+    if args.music_only:
+        music_vs_pyroomacoustics(args.trials, max(5, args.music_repeats), grids)
+        return
     innovation_table(15, args.batch, args.repeats)
-    music_vs_pyroomacoustics(args.trials, args.repeats)
+    music_vs_pyroomacoustics(args.trials, max(5, args.music_repeats), grids)
     if not args.skip_mc:
         full_monte_carlo(args.runs)
     if args.sensitivity:

@@ -103,3 +103,122 @@ def test_fewer_peaks_than_asked_are_nan():
     spec = np.array([[0.0, 1.0, 0.0, 0.0, 0.0]])
     out = pick_peaks(spec, np.linspace(-1, 1, 5), 3)
     assert out.shape == (1, 3) and np.isfinite(out[0, 0]) and np.all(np.isnan(out[0, 1:]))
+
+
+def _trace_form_spectrum(vectors, n, grid, spacing):
+    """The previous form of the spectrum, kept as the reference: c_l by ``np.trace`` per lag, then
+    ``tr C + 2 [Re c, −Im c] · [cos; sin]``, one block at a time."""
+    from pipeline.cores.array.music import lag_exponentials
+
+    m = vectors.shape[-1]
+    E = lag_exponentials(grid, m, spacing)
+    out = []
+    for V in vectors.reshape(-1, m, m):
+        signal_side = n <= m // 2
+        basis = V[:, m - n:] if signal_side else V[:, : m - n]
+        C = basis @ np.conj(basis.T)
+        c = np.array([np.trace(C, offset=lag) for lag in range(1, m)])
+        quad = np.trace(C).real + 2.0 * (np.concatenate([c.real, -c.imag]) @ E)
+        out.append(1.0 / np.maximum(M - quad if signal_side else quad, 1e-15 * m))
+    return np.array(out).reshape(vectors.shape[:-2] + (len(grid),))
+
+
+def test_two_product_spectrum_equals_the_trace_form():
+    """C's real view × the fixed coefficient map × [1; cos; sin] (cached table, passed table, one
+    block, a batch of 40 — split into row blocks for BLAS at both grids —, mixed counts) against the
+    per-lag trace form, to 1e-10 relative at 10 and 20 dB (the difference is rounding in
+    ‖E_nᴴa‖² = M − ‖E_sᴴa‖², relative size ≈ ε M P at a peak P)."""
+    from pipeline.cores.array.music import lag_exponentials
+
+    rng = np.random.default_rng(16)
+    theta = np.deg2rad([-30.0, -12.0, 5.0, 25.0, 45.0])
+    for snr in (10.0, 20.0):
+        _, vectors = eigen_decomposition(sample_covariance(snapshots(rng, theta, snr, 40)))
+        for grid in (angle_grid(np.pi / 360), angle_grid(np.pi / 1800)):
+            lags = lag_exponentials(grid, M, 0.5)
+            for n in (1, 5, 7, 8, 9, 14):  # both sides of M // 2
+                ref = _trace_form_spectrum(vectors, n, grid, 0.5)
+                for got in (music_spectrum(vectors, n, grid, 0.5), music_spectrum(vectors, n, grid, 0.5, lags),
+                            music_spectrum(vectors[3], n, grid, 0.5)[None],
+                            music_spectrum(vectors.reshape(4, 10, M, M), np.full((4, 10), n), grid, 0.5)):
+                    got = got.reshape(ref.shape[0] if got.shape[0] > 1 else 1, -1)
+                    want = ref if got.shape[0] > 1 else ref[3:4]
+                    rel = np.abs(got - want) / want
+                    if n < 14:
+                        assert np.max(rel) < 1e-10
+                    # any count: within the rounding of ‖E_nᴴa‖² itself, ε M P (n = 14 has peaks of 10⁷)
+                    assert np.all(rel <= 1e-12 + 4 * np.finfo(float).eps * M * want)
+        mixed = rng.integers(1, M, 40)
+        got = music_spectrum(vectors, mixed, angle_grid(np.pi / 360), 0.5)
+        for b in range(40):
+            want = _trace_form_spectrum(vectors[b], int(mixed[b]), angle_grid(np.pi / 360), 0.5)
+            assert np.max(np.abs(got[b] - want) / want) < 1e-10
+
+
+def test_cached_angle_table_follows_the_grid():
+    """The table kept per (M, d/λ, grid) is never reused for another grid of the same size, nor for
+    the same array changed in place."""
+    rng = np.random.default_rng(17)
+    _, vectors = eigen_decomposition(sample_covariance(snapshots(rng, np.deg2rad([-10.0, 20.0]), 10.0, 2)))
+    grid = angle_grid(np.deg2rad(1.0))
+    first = music_spectrum(vectors, 2, grid, 0.5)
+    shifted = grid * 0.5
+    assert np.allclose(music_spectrum(vectors, 2, shifted, 0.5), _trace_form_spectrum(vectors, 2, shifted, 0.5),
+                       rtol=1e-10)
+    grid *= 0.5  # in place
+    assert np.allclose(music_spectrum(vectors, 2, grid, 0.5), _trace_form_spectrum(vectors, 2, shifted, 0.5),
+                       rtol=1e-10)
+    assert np.allclose(music_spectrum(vectors, 2, grid, 0.25), _trace_form_spectrum(vectors, 2, grid, 0.25),
+                       rtol=1e-10)
+    assert np.array_equal(music_spectrum(vectors, 2, angle_grid(np.deg2rad(1.0)), 0.5), first)
+    from pipeline.cores.array import music as module
+
+    for step in np.linspace(0.5, 1.5, 40):  # many grids and spacings: the kept tables stay bounded
+        music_spectrum(vectors, 2, angle_grid(np.deg2rad(step)), 0.5)
+        music_spectrum(vectors, 2, np.linspace(-1, 1, 91) * step, step / 2)
+    assert len(module._TABLES) <= module._TABLES_KEYS
+    assert all(len(entries) <= module._TABLES_PER_KEY for entries in module._TABLES.values())
+
+
+def test_one_spectrum_peaks_equal_the_batched_form_bit_for_bit():
+    """pick_peaks of one spectrum (Python floats) and of a batch (arrays): the same bits, also for
+    ties, plateaus, zeros, infinities and fewer peaks than asked."""
+    rng = np.random.default_rng(18)
+    _, vectors = eigen_decomposition(sample_covariance(snapshots(rng, np.deg2rad([-30.0, -12.0, 5.0, 25.0, 45.0]),
+                                                                 10.0, 50)))
+    grid = angle_grid(np.pi / 360)
+    spectra = list(music_spectrum(vectors, 5, grid, 0.5))
+    x = np.linspace(-1, 1, 9)
+    spectra_small = [np.array([0.0, 1.0, 0.0, 2.0, 2.0, 0.0, 1.0, 0.5, 0.0]),  # zeros around, a plateau
+                     np.array([1.0, 3.0, 1.0, 3.0, 1.0, 3.0, 1.0, 0.0, 1.0]),  # ties
+                     np.array([1.0, np.inf, 1.0, 2.0, 1.0, 0.0, -1.0, 5.0, 1.0]),  # an infinite peak
+                     np.array([1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0])]  # none inside
+    for batch, g in ((np.array(spectra), grid), (np.array(spectra_small), x)):
+        for n in (1, 3, 5, 8):
+            for refine in (True, False):
+                together = pick_peaks(batch, g, n, refine)
+                per_row = pick_peaks(batch, g, np.full(len(batch), n), refine)
+                assert np.array_equal(together, per_row, equal_nan=True)
+                for b, s in enumerate(batch):
+                    assert np.array_equal(pick_peaks(s, g, n, refine), together[b], equal_nan=True)
+                    assert np.array_equal(pick_peaks(s[None], g, n, refine)[0], together[b], equal_nan=True)
+
+
+def test_one_block_equals_its_row_of_a_batch():
+    """music() on one block (SciPy's LAPACK zheevd, np.dot, the float peak path) and on a batch
+    (numpy's eigh, matmul, the array path): the same counts, eigenvalues, spectra and peaks to rounding."""
+    rng = np.random.default_rng(19)
+    X = snapshots(rng, np.deg2rad([-30.0, -12.0, 5.0, 25.0, 45.0]), 10.0, 20)
+    for n in (5, None):
+        angles, counts, spec, values = music(X, 0.5, GRID, n)
+        for b in range(len(X)):
+            a1, c1, s1, v1 = music(X[b], 0.5, GRID, n)
+            assert c1.shape == () and c1 == counts[b]
+            assert np.allclose(v1, values[b], rtol=1e-12, atol=1e-12)
+            assert np.allclose(s1, spec[b], rtol=1e-9)
+            assert np.allclose(a1, angles[b], rtol=0, atol=1e-9, equal_nan=True)
+    values, vectors = eigen_decomposition(sample_covariance(X[0]))
+    ref_values, ref_vectors = np.linalg.eigh(sample_covariance(X[0]))
+    assert np.allclose(values, ref_values, rtol=1e-12)
+    assert np.allclose(vectors @ np.diag(values) @ np.conj(vectors.T), sample_covariance(X[0]), atol=1e-12)
+    assert np.allclose(np.abs(np.sum(np.conj(vectors) * ref_vectors, axis=0)), 1.0, atol=1e-9)

@@ -12,14 +12,24 @@ Everything is batched over leading axes (scans × runs in one call):
   ``AIC(k) = −2 Ns (M−k) log(g_k / a_k) + 2 k (2M − k)`` with g_k, a_k the geometric and
   arithmetic means of the M − k smallest eigenvalues; the estimate is the minimising k;
 * :func:`music_spectrum` ``P(θ) = 1 / ‖E_nᴴ a(θ)‖²`` on an angle grid, evaluated as the
-  trigonometric polynomial the quadratic form is for a uniform linear array (M − 1 products per
-  grid point), from whichever of the signal and noise bases is smaller;
+  trigonometric polynomial the quadratic form is for a uniform linear array, from whichever of
+  the signal and noise bases is smaller: two real matrix products for all grid points (2M − 1
+  coefficients from C = E Eᴴ, then a cos/sin table kept per (M, d/λ, grid));
 * :func:`pick_peaks`: the N largest local maxima per spectrum, refined by a parabola through
   the three grid points around each (sub-grid accuracy; fitted to the smooth null spectrum
   1/P), returned in ascending angle order.
+
+Speed (``benchmarks/bench_array.py``): a single block per call costs little more than its
+eigen-decomposition (about 22 of some 50 µs at M = 15), so the one-block path avoids per-call
+array overhead: ``np.dot`` for the 2-D products, SciPy's LAPACK wrapper for the EVD, and the
+few peaks ranked and refined with Python floats (the same bits as the batched array form).
 """
 
 from __future__ import annotations
+
+import math
+import threading
+from collections import OrderedDict
 
 import numpy as np
 
@@ -28,11 +38,32 @@ import numpy as np
 def sample_covariance(snapshots: np.ndarray) -> np.ndarray:
     """``R = X Xᴴ / Ns`` for snapshots ``(..., M, Ns)``; returns ``(..., M, M)``."""
     X = np.asarray(snapshots)
-    return np.einsum("...ms,...ns->...mn", X, np.conj(X)) / X.shape[-1]
+    R = np.dot(X, np.conj(X.T)) if X.ndim == 2 else np.matmul(X, np.conj(np.swapaxes(X, -1, -2)))
+    if not np.issubdtype(R.dtype, np.inexact):
+        return R / X.shape[-1]
+    R /= X.shape[-1]
+    return R
+
+
+_ZHEEVD = []  # scipy's LAPACK zheevd, imported on first use
 
 
 def eigen_decomposition(cov: np.ndarray):
-    """Hermitian EVD, eigenvalues ascending: ``(values (..., M), vectors (..., M, M))``."""
+    """Hermitian EVD, eigenvalues ascending: ``(values (..., M), vectors (..., M, M))``.
+
+    ``numpy.linalg.eigh`` (LAPACK zheevd on the lower triangle). One complex matrix, a block
+    per call, goes to the same LAPACK routine through SciPy's thinner wrapper (about 4 µs less
+    of the 25 µs at M = 15; the same routine, triangle and results); a failure falls back to
+    numpy, which raises as it always did.
+    """
+    if isinstance(cov, np.ndarray) and cov.ndim == 2 and cov.dtype == np.complex128 and cov.shape[0] == cov.shape[1]:
+        if not _ZHEEVD:
+            from scipy.linalg.lapack import zheevd
+
+            _ZHEEVD.append(zheevd)
+        values, vectors, info = _ZHEEVD[0](cov, compute_v=1, lower=1)
+        if info == 0:
+            return values, vectors
     return np.linalg.eigh(cov)
 
 
@@ -119,6 +150,127 @@ def lag_exponentials(grid: np.ndarray, n_sensors: int, spacing_wavelengths: floa
     return np.concatenate([np.cos(phase), np.sin(phase)])
 
 
+def _is_scalar(value) -> bool:
+    """An int or a 0-d array (cheaper than ``np.ndim(value) == 0`` on the per-block path)."""
+    return isinstance(value, (int, np.integer)) or getattr(value, "ndim", None) == 0
+
+
+_TABLES: OrderedDict = OrderedDict()  # (M, d/λ, G) → [(grid bytes, [1; cos; sin] table), …], newest last
+_TABLES_KEYS, _TABLES_PER_KEY = 16, 2  # at most 32 tables (≈ 0.4 MB each at M = 15, G = 1801)
+_TABLES_LOCK = threading.Lock()
+
+
+def _cached_polynomial_table(grid: np.ndarray, n_sensors: int, spacing_wavelengths: float) -> np.ndarray:
+    """``[1; cos(κ l sin θ); sin(κ l sin θ)]``, ``(2M − 1, G)``: :func:`lag_exponentials` under a
+    row of ones (the constant term), kept per (M, d/λ, grid), the least recently used dropped
+    first. The grid is compared byte by byte, so a changed grid never reuses a stale table."""
+    g = np.ascontiguousarray(grid, dtype=float)
+    key = (int(n_sensors), float(spacing_wavelengths), g.shape)
+    raw = g.tobytes()
+    with _TABLES_LOCK:
+        entries = _TABLES.get(key)
+        if entries is not None:
+            _TABLES.move_to_end(key)
+            for kept, table in entries:
+                if kept == raw:
+                    return table
+    table = np.concatenate([np.ones((1, g.shape[-1])), lag_exponentials(g, n_sensors, spacing_wavelengths)])
+    table.flags.writeable = False
+    with _TABLES_LOCK:
+        entries = _TABLES.setdefault(key, [])
+        _TABLES.move_to_end(key)
+        entries.append((raw, table))
+        del entries[:-_TABLES_PER_KEY]
+        while len(_TABLES) > _TABLES_KEYS:
+            _TABLES.popitem(last=False)
+    return table
+
+
+_LAG_SUMS: dict = {}  # (M, signal side) → real (2M², 2M − 1) map from C's real view to the coefficients
+
+
+def _lag_sum_map(n_sensors: int, signal_side: bool) -> np.ndarray:
+    """The trigonometric coefficients of ``‖E_nᴴ a(θ)‖²`` from ``C = E Eᴴ`` as one real product.
+
+    With ``C.view(float)`` flattened to ``[Re C₀₀, Im C₀₀, Re C₀₁, …]`` (2M² values), the product
+    with this map gives ``[tr C, 2 Re c₁ … 2 Re c_{M−1}, −2 Im c₁ … −2 Im c_{M−1}]``, where
+    ``c_l = Σ_i C[i, i + l]`` (the l-th superdiagonal's sum, what ``np.trace(C, offset=l)`` is):
+    the coefficients, on ``[1; cos; sin]``, of ``aᴴ(θ) C a(θ)`` for Hermitian C. For the signal
+    side (C = E_s E_sᴴ, ‖E_nᴴa‖² = M − aᴴCa) the map is negated; the caller adds M to the first.
+    """
+    key = (int(n_sensors), bool(signal_side))
+    W = _LAG_SUMS.get(key)
+    if W is None:
+        M = key[0]
+        W = np.zeros((M, M, 2, 2 * M - 1))
+        i = np.arange(M)
+        W[i, i, 0, 0] = 1.0
+        for lag in range(1, M):
+            r = np.arange(M - lag)
+            W[r, r + lag, 0, lag] = 2.0
+            W[r, r + lag, 1, M - 1 + lag] = -2.0
+        W = W.reshape(2 * M * M, 2 * M - 1)
+        W = np.asfortranarray(-W if signal_side else W)  # column-major: one block's vector × map is faster
+        W.flags.writeable = False
+        _LAG_SUMS[key] = W
+    return W
+
+
+_BLAS_CALL_SIZE = 1 << 18  # multiply-adds per product call: OpenBLAS runs smaller GEMMs on one thread
+
+
+def _rows_product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a (R, K) @ b (K, N)`` in blocks of rows, each at most about 2¹⁸ multiply-adds.
+
+    OpenBLAS splits larger products over threads; when another process holds a core (a shared
+    machine, or the process pool of a sweep) the split call waits for a time slice and a batch
+    of blocks took 2–3 times longer than one thread needs (``benchmarks/bench_array.py``). Every
+    row is the same dot product either way: the result is the one-call product to rounding.
+    """
+    rows = a.shape[0]
+    step = max(1, _BLAS_CALL_SIZE // max(1, a.shape[1] * b.shape[1]))
+    if rows <= step:
+        return a @ b
+    out = np.empty((rows, b.shape[1]), dtype=np.result_type(a, b))
+    for start in range(0, rows, step):
+        np.matmul(a[start:start + step], b, out=out[start:start + step])
+    return out
+
+
+def _null_spectrum(basis: np.ndarray, signal_side: bool, table: np.ndarray, with_ones: bool) -> np.ndarray:
+    """``‖E_nᴴ a(θ)‖²``, ``(..., G)``, from ``basis (..., M, r)`` (E_s or E_n): two real products.
+
+    ``table`` is ``[1; cos; sin]`` when ``with_ones`` (the cached form), else the bare
+    :func:`lag_exponentials` a caller passed (the constant term is then added separately).
+    """
+    M = basis.shape[-2]
+    if basis.ndim == 2:  # one block: np.dot costs less than matmul here, and no batch to split
+        C = np.dot(basis, np.conj(basis.T))
+        if C.dtype != np.complex128:
+            C = C.astype(complex)
+        coef = C.view(float).reshape(2 * M * M) @ _lag_sum_map(M, signal_side)  # (2M − 1,)
+        if signal_side:  # ‖E_nᴴa‖² = M − ‖E_sᴴa‖²
+            coef[0] += M
+        if with_ones:
+            return coef @ table
+        out = coef[1:] @ table
+        out += coef[0]
+        return out
+    lead = basis.shape[:-2]
+    C = np.matmul(basis, np.conj(np.swapaxes(basis, -1, -2)))
+    if C.dtype != np.complex128 or not C.flags.c_contiguous:
+        C = np.ascontiguousarray(C, dtype=complex)
+    coef = _rows_product(C.view(float).reshape(-1, 2 * M * M), _lag_sum_map(M, signal_side))  # (B, 2M − 1)
+    if signal_side:
+        coef[:, 0] += M
+    if with_ones:
+        out = _rows_product(coef, table)
+    else:
+        out = _rows_product(coef[:, 1:], table)
+        out += coef[:, :1]
+    return out.reshape(lead + (table.shape[-1],))
+
+
 def music_spectrum(eigenvectors: np.ndarray, n_sources, grid: np.ndarray, spacing_wavelengths: float,
                    lag_table: np.ndarray | None = None) -> np.ndarray:
     """MUSIC pseudo-spectrum ``1 / ‖E_nᴴ a(θ)‖²`` on ``grid`` (batched).
@@ -126,8 +278,10 @@ def music_spectrum(eigenvectors: np.ndarray, n_sources, grid: np.ndarray, spacin
     For a uniform linear array ``aᴴ(θ) C a(θ) = Σ_l c_l exp(j κ l sin θ)`` with c_l the sum of
     the l-th diagonal of C: the quadratic form is a trigonometric polynomial of 2M − 1 terms.
     With ``C = E Eᴴ`` for the smaller of the signal and noise bases (‖E_nᴴa‖² = M − ‖E_sᴴa‖²)
-    the whole spectrum costs M − 1 complex products per grid point instead of M·N (the same
-    number to rounding; tests/test_array_music.py checks it against the definition).
+    the whole spectrum is two real matrix products: C's real view times a fixed 0/±1/±2 map
+    gives the 2M − 1 coefficients, and those times the table ``[1; cos; sin]`` give every grid
+    point (the table is kept per (M, d/λ, grid) when ``lag_table`` is not passed). The same
+    number to rounding; tests/test_array_music.py checks it against the definition.
 
     Parameters
     ----------
@@ -147,26 +301,78 @@ def music_spectrum(eigenvectors: np.ndarray, n_sources, grid: np.ndarray, spacin
     """
     V = np.asarray(eigenvectors)
     M = V.shape[-1]
-    E = lag_exponentials(grid, M, spacing_wavelengths) if lag_table is None else lag_table
-    n = np.broadcast_to(np.asarray(n_sources, dtype=np.int64), V.shape[:-2])
+    if lag_table is None:
+        table, with_ones = _cached_polynomial_table(grid, M, spacing_wavelengths), True
+    else:
+        table, with_ones = np.asarray(lag_table, float), False
     lead = V.shape[:-2]
-    Vf = V.reshape((-1, M, M))
-    nf = n.reshape(-1)
-    out = np.empty((Vf.shape[0], E.shape[-1]))
-    for k in np.unique(nf):  # one product per distinct signal dimension (usually one)
-        sel = nf == k
+    if _is_scalar(n_sources):  # one signal dimension for the whole batch, leading axes kept
+        k = int(n_sources)
         signal_side = k <= M // 2
-        basis = Vf[sel][..., M - k:] if signal_side else Vf[sel][..., : M - k]
-        C = basis @ np.conj(np.swapaxes(basis, -1, -2))
-        c = np.stack([np.trace(C, offset=l, axis1=-2, axis2=-1) for l in range(1, M)], axis=-1)  # (B, M − 1)
-        quad = np.trace(C, axis1=-2, axis2=-1).real[:, None] + 2.0 * (np.concatenate([c.real, -c.imag], axis=-1) @ E)
-        denom = M - quad if signal_side else quad
-        out[sel] = 1.0 / np.maximum(denom, 1e-15 * M)
-    return out.reshape(lead + (E.shape[-1],))
+        out = _null_spectrum(V[..., M - k:] if signal_side else V[..., : M - k], signal_side, table, with_ones)
+    else:
+        Vf = V.reshape((-1, M, M))
+        nf = np.broadcast_to(np.asarray(n_sources, dtype=np.int64), lead).reshape(-1)
+        out = np.empty((Vf.shape[0], table.shape[-1]))
+        for k in np.unique(nf).tolist():  # one product per distinct signal dimension (usually one)
+            sel = nf == k
+            signal_side = k <= M // 2
+            basis = Vf[sel][..., M - k:] if signal_side else Vf[sel][..., : M - k]
+            out[sel] = _null_spectrum(basis, signal_side, table, with_ones)
+        out = out.reshape(lead + (table.shape[-1],))
+    np.maximum(out, 1e-15 * M, out=out)
+    np.divide(1.0, out, out=out)
+    return out
+
+
+_AROUND = np.array([-1, 0, 1])
+
+
+def _peaks_of_one(s: np.ndarray, grid: np.ndarray, width: int, refine: bool) -> list:
+    """The ``width`` best peaks of one spectrum ``s (G,)`` as Python floats, ascending.
+
+    A few peaks: Python floats cost less than a dozen array operations on a handful of values.
+    The arithmetic is the array form's in :func:`pick_peaks` (the same IEEE operations in the
+    same order, so the same bits; tests/test_array_music.py checks it).
+    """
+    centre = s[1:-1]
+    idx = np.flatnonzero((centre > s[:-2]) & (centre >= s[2:]))
+    # best first, the first of equal values first (a stable ranking, as the batched form's)
+    best = sorted(zip((-s[idx + 1]).tolist(), idx.tolist()))[:width]
+    best = [i + 1 for v, i in best if v > -math.inf]  # an infinite value takes its rank, not a place
+    if not best:
+        return []
+    idx = np.array(best)
+    angles = grid[idx].tolist()
+    if refine:
+        g0, g1 = grid[:2].tolist()
+        step = g1 - g0
+        for j, (pl, pm, pr) in enumerate(s[idx[:, None] + _AROUND].tolist()):
+            if pl and pm and pr:
+                left, mid, right = 1.0 / pl, 1.0 / pm, 1.0 / pr
+            else:  # an array gives ±inf for 1/0 where a float raises
+                left, mid, right = (1.0 / v if v else math.copysign(math.inf, v) for v in (pl, pm, pr))
+            curv = left - 2 * mid + right
+            shift = 0.5 * (left - right) / curv if curv > 0 else 0.0
+            if shift - shift != 0.0:  # ±inf or NaN: no shift
+                shift = 0.0
+            elif shift > 0.5:
+                shift = 0.5
+            elif shift < -0.5:
+                shift = -0.5
+            angles[j] += shift * step
+    if all(map(math.isfinite, angles)):
+        angles.sort()
+    else:
+        angles = np.sort(angles).tolist()  # NaN last, as the array form sorts
+    return angles
 
 
 def pick_peaks(spectrum: np.ndarray, grid: np.ndarray, n_peaks, refine: bool = True) -> np.ndarray:
     """The ``n_peaks`` largest local maxima per spectrum, ascending in angle.
+
+    A local maximum is a grid point above its left neighbour and not below its right one (the
+    two ends are never peaks); only these few points are ranked, per spectrum, by value.
 
     Parameters
     ----------
@@ -187,35 +393,43 @@ def pick_peaks(spectrum: np.ndarray, grid: np.ndarray, n_peaks, refine: bool = T
     S = np.asarray(spectrum, float)
     lead = S.shape[:-1]
     flat = S.reshape(-1, S.shape[-1])
-    n = np.broadcast_to(np.asarray(n_peaks, dtype=np.int64), lead).reshape(-1)
-    width = int(n.max()) if n.size else 0
-    out = np.full((flat.shape[0], width), np.nan)
-    if width == 0:
-        return out.reshape(lead + (0,))
-    interior = (flat[:, 1:-1] > flat[:, :-2]) & (flat[:, 1:-1] >= flat[:, 2:])
-    score = np.where(interior, flat[:, 1:-1], -np.inf)
-    if width < score.shape[1]:
-        top = np.argpartition(-score, width - 1, axis=1)[:, :width]  # the best `width`, unordered
+    B = flat.shape[0]
+    if _is_scalar(n_peaks):
+        n = None
+        width = max(int(n_peaks), 0) if B else 0
     else:
-        top = np.broadcast_to(np.arange(score.shape[1]), score.shape)
-    value = np.take_along_axis(score, top, axis=1)
-    best_first = np.argsort(-value, axis=1)  # order the few kept peaks, so the first n are the n best
-    top, value = np.take_along_axis(top, best_first, axis=1), np.take_along_axis(value, best_first, axis=1)
-    idx = top + 1
+        n = np.broadcast_to(np.asarray(n_peaks, dtype=np.int64), lead).reshape(-1)
+        width = int(n.max()) if n.size else 0
+    if width == 0:
+        return np.full(lead + (0,), np.nan)
+    grid = np.asarray(grid)
+    if B == 1:  # one spectrum (a block per call)
+        angles = _peaks_of_one(flat[0], grid, width if n is None else max(int(n[0]), 0), refine)
+        return np.array(angles + [np.nan] * (width - len(angles))).reshape(lead + (width,))
+    centre = flat[:, 1:-1]
+    interior = (centre > flat[:, :-2]) & (centre >= flat[:, 2:])
+    rows, idx = np.nonzero(interior)
+    idx += 1
+    value = flat[rows, idx]
+    order = np.lexsort((-value, rows))  # by spectrum, then best first
+    first = np.searchsorted(rows[order], rows[order])  # where each spectrum's run starts
+    rank = np.empty_like(order)
+    rank[order] = np.arange(order.size) - first
+    keep = (rank < (width if n is None else n[rows])) & np.isfinite(value)
+    rows, idx, rank = rows[keep], idx[keep], rank[keep]
     angle = grid[idx]
     if refine:
         # the parabola goes through the null spectrum 1/P = ‖E_nᴴa‖², which is smooth and
         # locally quadratic at a source; P itself is a sharp 1/x² peak a parabola fits badly
-        rows = np.arange(flat.shape[0])[:, None]
         with np.errstate(invalid="ignore", divide="ignore"):
             left, mid, right = (1.0 / flat[rows, idx + d] for d in (-1, 0, 1))
             curv = left - 2 * mid + right
             shift = np.where(curv > 0, 0.5 * (left - right) / curv, 0.0)
         shift = np.where(np.isfinite(shift), shift, 0.0)
         angle = angle + np.clip(shift, -0.5, 0.5) * (grid[1] - grid[0])
-    keep = np.isfinite(value) & (np.arange(width)[None, :] < n[:, None])
-    angle = np.where(keep, angle, np.nan)
-    out = np.sort(angle, axis=1)  # NaN last
+    out = np.full((B, width), np.nan)
+    out[rows, rank] = angle
+    out.sort(axis=1)  # NaN last
     return out.reshape(lead + (width,))
 
 
@@ -240,6 +454,11 @@ def music(snapshots: np.ndarray, spacing_wavelengths: float, grid: np.ndarray, n
     values, vectors = eigen_decomposition(sample_covariance(X))
     if n_sources is None:
         counts = source_count(values, X.shape[-1], criterion, max_sources)
+    elif _is_scalar(n_sources):  # one count for every block: no per-block arrays on the way
+        k = int(n_sources)
+        counts = np.full(X.shape[:-2], k, dtype=np.int64)
+        spec = music_spectrum(vectors, max(k, 1), grid, spacing_wavelengths, lag_table)
+        return pick_peaks(spec, grid, k), counts, spec, values
     else:
         counts = np.broadcast_to(np.asarray(n_sources, dtype=np.int64), X.shape[:-2]).copy()
     spec = music_spectrum(vectors, np.maximum(counts, 1), grid, spacing_wavelengths, lag_table)
