@@ -14,7 +14,7 @@ What it measures
    and white-acceleration ``Q`` (design σ_v, scan period T), the same two-point start (state at
    scan 1 = ``[z1, (z1 − z0)/T]``, covariance from R0 and R1) and updates from scan 2 on.
    Prints the largest state difference between the two, the time per run-step of each, the
-   speed-up (target ≥ 50×), and the time of all four strategies run back to back.
+   speed-up (target ≥ 80×), and the time of all four strategies run back to back.
 3. **MCAP I/O.** Throughput of ``recorders.simulated.record`` (simulate + write; write alone
    is shown too) and of ``pipeline.contract.read_dataset``, in MB/s of file on disk (zstd
    chunks, 1 MB = 10⁶ bytes) and messages/s.
@@ -63,7 +63,7 @@ from recorders.simulated import record, write_simulated
 from timing import time_repeats as timed  # noqa: E402
 
 RERUN_SHARE_TARGET = 0.10
-SPEEDUP_TARGET = 50.0
+SPEEDUP_TARGET = 80.0  # batched Kalman filter at 500 runs against FilterPy per run
 MB = 1e6
 
 
@@ -257,7 +257,7 @@ def main(argv=None) -> int:
              "PASS" if agree else "FAIL"),
             ("2 filter", "ours 'kalman' per run-step", f"{per_ours:.3f} µs", "", ""),
             ("2 filter", "FilterPy per run-step", f"{per_fp:.3f} µs", "", ""),
-            ("2 filter", "speed-up", f"{speedup:.1f} ×", "≥ 50 ×", "PASS" if ok else "MISS"),
+            ("2 filter", "speed-up", f"{speedup:.1f} ×", f"≥ {SPEEDUP_TARGET:.0f} ×", "PASS" if ok else "MISS"),
             ("2 filter", "all four strategies", f"{four_s * 1e3:.0f} ms", "", ""),
         ]
 
