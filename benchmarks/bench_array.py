@@ -66,6 +66,7 @@ from pipeline.cores.array.angular_innovation import INNOVATIONS
 from pipeline.cores.array.flop_counts import ANALYTIC, counted_flops
 from pipeline.cores.array.linear_array import steering_vectors
 from pipeline.cores.array.music import angle_grid, music, pick_peaks
+from timing import spread  # noqa: E402  (benchmarks/ is on sys.path when run as a script)
 
 
 def time_innovation(strategy: str, n_sensors: int, n_targets: int, batch: int = 1, repeats: int = 200,
@@ -120,12 +121,6 @@ def innovation_table(M: int, batch: int, repeats: int) -> None:
 
 
 MUSIC_TARGET = 3.0
-
-
-def spread(samples, scale: float = 1.0, fmt: str = "{:.1f}") -> str:
-    """``median [min–max]`` of the repeats, each value times ``scale``."""
-    a = np.asarray(samples, float) * scale
-    return f"{fmt.format(np.median(a))} [{fmt.format(a.min())}–{fmt.format(a.max())}]"
 
 
 def music_vs_pyroomacoustics(trials: int, repeats: int, grid_sizes=(361, 1801)) -> None:
@@ -204,14 +199,14 @@ def music_vs_pyroomacoustics(trials: int, repeats: int, grid_sizes=(361, 1801)) 
         step = np.rad2deg(grid[1] - grid[0])
         print(f"\n{G} grid points ({step:g}° over ±90°):")
         for name in names:
-            print(f"  {name:<44} {spread(t[name], 1e6):>24} µs per block")
+            print(f"  {name:<44} {spread(t[name], 1e6, 1):>24} µs per block")
         for ours in names[2:]:
             for peer in names[:2]:
                 ratio = t[peer] / t[ours]
                 verdict = "PASS" if np.median(ratio) >= MUSIC_TARGET else "MISS"
                 verdicts.append((G, ours, peer, verdict))
                 print(f"  speed-up {ours.split(',')[1].strip():<32} vs {peer:<42} "
-                      f"{spread(ratio, fmt='{:.2f}'):>20}×  {verdict} (target ≥ {MUSIC_TARGET:g}×)")
+                      f"{spread(ratio, 1.0, 2):>20}×  {verdict} (target ≥ {MUSIC_TARGET:g}×)")
         print(f"  same grid peaks as pyroomacoustics in {same} of {len(X[:200])} blocks; our refined peaks within "
               f"{np.rad2deg(worst):.3f}° of the truth")
     misses = [v for v in verdicts if v[3] == "MISS"]

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import re
-import statistics
 import subprocess
 import sys
 import tempfile
@@ -33,13 +32,9 @@ sys.path.insert(0, str(ROOT))
 from pipeline.replay import replay  # noqa: E402
 from recorders.scenarios import load_scenario  # noqa: E402
 from recorders.simulated import record  # noqa: E402
+from timing import spread  # noqa: E402  (benchmarks/ is on sys.path when run as a script)
 
 CLI = [sys.executable, "-c", "from pipeline.face.cli import main; main()"]
-
-
-def spread(values, unit: str = "s", scale: float = 1.0, digits: int = 3) -> str:
-    v = [scale * x for x in values]
-    return f"{statistics.median(v):.{digits}f} {unit} ({min(v):.{digits}f}–{max(v):.{digits}f})"
 
 
 def cli_replay(path: Path, out: Path) -> tuple[float, float]:
@@ -67,14 +62,14 @@ def main() -> None:
             cli = [cli_replay(path, Path(tmp) / f"out-{scenario}") for _ in range(args.repeats)]
             walls, evals = [c[0] for c in cli], [c[1] for c in cli]
             shares = [e / w for w, e in zip(walls, evals)]
-            print(f"{label:22s} {'replay':12s} {spread(evals):>22s} {spread(walls):>22s} "
-                  f"{spread(shares, '%', 100, 1):>22s}")
+            print(f"{label:22s} {'replay':12s} {spread(evals, unit='s'):>22s} {spread(walls, unit='s'):>22s} "
+                  f"{spread(shares, 100, 1, '%'):>22s}")
             replay(path)  # warm: imports and first-call costs
             rows = [replay(path).timings for _ in range(args.repeats)]
             evals, totals = [r["evaluate_s"] for r in rows], [r["total_s"] for r in rows]
             shares = [e / t for e, t in zip(evals, totals)]
-            print(f"{'':22s} {'compute':12s} {spread(evals):>22s} {spread(totals):>22s} "
-                  f"{spread(shares, '%', 100, 1):>22s}")
+            print(f"{'':22s} {'compute':12s} {spread(evals, unit='s'):>22s} {spread(totals, unit='s'):>22s} "
+                  f"{spread(shares, 100, 1, '%'):>22s}")
 
 
 if __name__ == "__main__":

@@ -62,18 +62,10 @@ from pipeline.trackers.interface import ColoredPositions
 from recorders.colored_noise import simulate
 from recorders.scenarios import load_scenario
 
-from timing import time_repeats  # noqa: E402
+from timing import time_repeats, time_spread as fmt  # noqa: E402
 
 BATCH_TARGET = 60.0     # issue 15: "IMM ≥ 60× FilterPy" on the batched Monte Carlo
 SINGLE_TARGET = 1.0     # issue 15: ours on one run no slower than FilterPy on that run
-
-
-def fmt(times) -> str:
-    """``median [min–max]`` in s or ms."""
-    med, lo, hi = statistics.median(times), min(times), max(times)
-    if med >= 1.0:
-        return f"{med:.3f} [{lo:.3f}–{hi:.3f}] s"
-    return f"{med * 1e3:.1f} [{lo * 1e3:.1f}–{hi * 1e3:.1f}] ms"
 
 
 def verdict(ratio: float, target: float) -> str:

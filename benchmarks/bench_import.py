@@ -53,7 +53,7 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from timing import time_repeats
+from timing import print_table, time_repeats, time_spread as fmt
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "scripts"))
@@ -194,13 +194,6 @@ def json_mcap(path: Path, size_mb: float) -> int:
 # --------------------------------------------------------------------------- timing
 
 
-def fmt(times: list[float]) -> str:
-    med, lo, hi = statistics.median(times), min(times), max(times)
-    unit, k = ("s", 1.0) if med >= 1 else ("ms", 1e3)
-    digits = 2 if unit == "s" else 1
-    return f"{med * k:.{digits}f} [{lo * k:.{digits}f}–{hi * k:.{digits}f}] {unit}"
-
-
 def rate(count: float, times: list[float]) -> str:
     r = count / statistics.median(times)
     return f"{r / 1e6:.2f} M/s" if r >= 1e6 else f"{r / 1e3:.1f} k/s"
@@ -303,12 +296,8 @@ def main() -> int:
                           f"{mb / statistics.median(ftimes):.1f}"))
     table.append(("MCAP read path: read_dataset", f"radar-tws, {runs:,} runs", f"{ds_mb:.1f}", f"{frames:,} frames",
                   fmt(read_times), rate(frames, read_times), f"{ds_mb / statistics.median(read_times):.1f}"))
-    widths = [max(len(str(c)) for c in col) for col in zip(head, *table)]
     print()
-    print("  ".join(h.ljust(w) for h, w in zip(head, widths)))
-    print("  ".join("-" * w for w in widths))
-    for row in table:
-        print("  ".join(str(c).ljust(w) for c, w in zip(row, widths)))
+    print_table(head, table)
     return 0
 
 

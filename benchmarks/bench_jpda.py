@@ -39,7 +39,7 @@ from pipeline.cores.association.jpda import STRATEGIES, scans_from_padded, track
 from pipeline.trackers.bearing_peaks import core_design, design_from  # noqa: E402
 from recorders.scenarios import load_scenario  # noqa: E402
 from recorders.xcorr_peaks import simulate  # noqa: E402
-from timing import time_repeats  # noqa: E402
+from timing import spread, time_repeats  # noqa: E402
 
 SPEEDUP_TARGET = 30.0  # issue 15: "JPDA ≥ 30× Stone Soup" per scan, one run
 
@@ -63,12 +63,6 @@ def crossing_workload(runs=1, seed=4):
 def time_ours(scans, x0, P0, design, repeats):
     """(median seconds, every time, outputs) of ``repeats`` whole runs of our JPDA."""
     return time_repeats(lambda: track_bearing_peaks(scans, x0, P0, design, STRATEGIES["jpda"], 0), repeats)
-
-
-def spread(times, scale, digits=4):
-    """``median [min–max]`` of ``times`` × ``scale``."""
-    t = np.asarray(times) * scale
-    return f"{np.median(t):.{digits}f} [{t.min():.{digits}f}–{t.max():.{digits}f}]"
 
 
 class Timeout(Exception):
@@ -180,11 +174,11 @@ def section_1(design, scans, x0, P0, bearings, repeats):
     print(f"   scans {K}, mean gated peaks per track per scan {gated:.2f}; ms per scan, median [min–max] "
           f"over {len(ours)} runs (ours) and {repeats} (Stone Soup)")
     print(f"   {'filter':<28} {'ms / scan':>26} {'our speed-up':>13}")
-    print(f"   {'ours (jpda, numpy)':<28} {spread(ours, 1e3):>26} {'':>13}")
+    print(f"   {'ours (jpda, numpy)':<28} {spread(ours, 1e3, 4):>26} {'':>13}")
     speedups = {}
     for name, secs in ss.items():
         speedups[name] = float(np.median(secs)) / med_ours
-        print(f"   {'Stone Soup ' + name:<28} {spread(secs, 1e3):>26} {speedups[name]:>12.1f}×")
+        print(f"   {'Stone Soup ' + name:<28} {spread(secs, 1e3, 4):>26} {speedups[name]:>12.1f}×")
     # Agreement: with gating off on both sides (every peak a candidate, P_G = 1) the two
     # implementations compute the same JPDA, so their tracks must agree to rounding error.
     wide = replace(design, gate_rad=np.pi, clutter_per_gate=design.clutter_per_gate * np.pi / design.gate_rad)
@@ -201,7 +195,7 @@ def section_1(design, scans, x0, P0, bearings, repeats):
     design100 = replace(design100, sigma_p_rad=design.sigma_p_rad)
     _, t100, _ = time_ours(scans100, x0_100, P0_100, design100, repeats)
     per_scan = np.asarray(t100) / (K - 1)
-    print(f"   ours, 100 runs in one pass: {spread(per_scan, 1e3)} ms per scan = "
+    print(f"   ours, 100 runs in one pass: {spread(per_scan, 1e3, 4)} ms per scan = "
           f"{spread(per_scan, 1e6 / 100, 2)} µs per run-scan")
 
 

@@ -49,6 +49,7 @@ import zstandard
 
 from pipeline.contract import CONTRACT_V1, decode_frame, read_dataset, rewrite_dataset
 from pipeline.errors import InputError
+from timing import print_table, time_spread  # benchmarks/ is on sys.path when run as a script
 
 SETS = [  # (label, scenario, runs)
     ("radar-tws 1,000 runs", "radar-tws", 1000),
@@ -119,12 +120,7 @@ def repeat(fn, n: int) -> list[float]:
 
 
 def fmt(times: list[float] | None) -> str:
-    if not times:
-        return "-"
-    med, lo, hi = statistics.median(times), min(times), max(times)
-    unit, k = ("s", 1.0) if med >= 1 else ("ms", 1e3)
-    digits = 2 if unit == "s" else (1 if med * k >= 10 else 2)
-    return f"{med * k:.{digits}f} [{lo * k:.{digits}f}–{hi * k:.{digits}f}] {unit}"
+    return time_spread(times) if times else "-"
 
 
 def measure(path: Path, repeats: int, before: bool) -> dict:
@@ -201,12 +197,8 @@ def main() -> int:
                       fmt(r1["arrays"]), fmt(r1["zstd"])))
         table.append(("", "v2", f"{r2['mb']:.1f}", str(r2["chunks"]), "-", fmt(r2["read"]), fmt(r2["arrays"]),
                       fmt(r2["zstd"])))
-    widths = [max(len(str(c)) for c in col) for col in zip(head, *table)]
     print()
-    print("  ".join(h.ljust(w) for h, w in zip(head, widths)))
-    print("  ".join("-" * w for w in widths))
-    for row in table:
-        print("  ".join(str(c).ljust(w) for c, w in zip(row, widths)))
+    print_table(head, table)
     print()
     print("speed-up of v2 (medians):")
     for label, r1, r2 in rows:

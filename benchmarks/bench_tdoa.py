@@ -72,7 +72,7 @@ def scenario(**overrides):
     return sc.params, resolve(sc.params)
 
 
-from timing import time_repeats, timed as median_time  # noqa: E402
+from timing import spread, time_repeats, timed as median_time  # noqa: E402
 
 
 # --------------------------------------------------------------------------- CEP planes
@@ -170,12 +170,6 @@ BATCH_TARGET = 30.0   # × scipy per run, batched (issue 15)
 SINGLE_TARGET = 1.0   # × scipy on one run
 
 
-def spread(times, scale=1e6, digits=1):
-    """``median [min–max]`` of ``times`` × ``scale``."""
-    t = np.asarray(times) * scale
-    return f"{np.median(t):.{digits}f} [{t.min():.{digits}f}–{t.max():.{digits}f}]"
-
-
 def bench_gn(runs, peer_runs, repeats, tolerance, single_runs):
     print(f"\n2. Gauss-Newton vs scipy.optimize.least_squares (lm) per run; µs, median [min–max] "
           f"over {repeats} repeats")
@@ -203,8 +197,8 @@ def bench_gn(runs, peer_runs, repeats, tolerance, single_runs):
     batch_speedup = np.median(t_sp) / np.median(t_gn)
     label = "" if peer_runs == runs else f" (timed on {peer_runs} of the runs)"
     print(f"   a. {runs} runs × 10 iterations in one call, time per run:")
-    print(f"      ours (batched)              {spread(t_gn):>24} µs")
-    print(f"      scipy least_squares loop    {spread(t_sp):>24} µs{label}")
+    print(f"      ours (batched)              {spread(t_gn, 1e6, 1):>24} µs")
+    print(f"      scipy least_squares loop    {spread(t_sp, 1e6, 1):>24} µs{label}")
     print(f"      speed-up {batch_speedup:.1f}× (target ≥ {BATCH_TARGET:.0f}×): "
           f"{'PASS' if batch_speedup >= BATCH_TARGET else 'MISS'}")
     print(f"      largest difference between the two: {diff.max():.2e} standard deviations "
@@ -229,10 +223,10 @@ def bench_gn(runs, peer_runs, repeats, tolerance, single_runs):
     single_speedup = np.median(t_sp1) / np.median(t_one)
     fixed_speedup = np.median(t_sp1) / np.median(t_one10)
     print(f"   b. one run per call (runs 0–{k - 1} in turn), time per call:")
-    print(f"      ours, tracker defaults      {spread(t_one):>24} µs  ({np.mean(steps):.1f} steps on average, "
+    print(f"      ours, tracker defaults      {spread(t_one, 1e6, 1):>24} µs  ({np.mean(steps):.1f} steps on average, "
           f"stops below 1e-6 σ)")
-    print(f"      ours, 10 steps (no stop)    {spread(t_one10):>24} µs")
-    print(f"      scipy least_squares         {spread(t_sp1):>24} µs")
+    print(f"      ours, 10 steps (no stop)    {spread(t_one10, 1e6, 1):>24} µs")
+    print(f"      scipy least_squares         {spread(t_sp1, 1e6, 1):>24} µs")
     print(f"      speed-up {single_speedup:.2f}× (target ≥ {SINGLE_TARGET:.0f}×): "
           f"{'PASS' if single_speedup >= SINGLE_TARGET else 'MISS'};  with 10 steps forced {fixed_speedup:.2f}×")
     print(f"      largest difference between the two: {diff1.max():.2e} standard deviations "
@@ -291,7 +285,7 @@ def main(argv=None) -> int:
         for name, (ours, peer_t, ratio), target in rows:
             verdict = "" if target is None else ("PASS" if ratio >= target else "MISS")
             tgt = "-" if target is None else f"≥ {target:g}×"
-            print(f"  {name:<46}{spread(ours):>26}{spread(peer_t):>26}{ratio:>8.2f}×{tgt:>9}  {verdict}")
+            print(f"  {name:<46}{spread(ours, 1e6, 1):>26}{spread(peer_t, 1e6, 1):>26}{ratio:>8.2f}×{tgt:>9}  {verdict}")
     return 0 if gn is None or gn["diff"] <= args.tolerance else 1
 
 

@@ -56,3 +56,28 @@ def radar_small(tmp_path_factory) -> Path:
 @pytest.fixture(scope="session")
 def demo_mcap() -> Path:
     return REPO / "data" / "radar_tws_demo.mcap"
+
+
+def _strip_truth(src: Path, dst: Path) -> None:
+    """``src`` with its truth channels left out (a recording as a sensor would give it)."""
+    from pipeline.contract import McapFrameWriter, iter_frames
+
+    meta: dict = {}
+    with open(dst, "wb") as f:
+        writer, previous = None, None
+        for topic, run, scan, t, arrays, n in iter_frames(src, False, meta):
+            if "truth" in topic:
+                continue
+            if writer is None:
+                writer = McapFrameWriter(f, meta["metadata"])
+            if previous is not None and scan != previous:
+                writer.flush()
+            previous = scan
+            writer.write(topic, run, scan, t, arrays, run_count=n)
+        writer.finish()
+
+
+@pytest.fixture
+def without_truth():
+    """``without_truth(src, dst)`` writes ``src`` without its truth channels."""
+    return _strip_truth

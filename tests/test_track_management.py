@@ -12,7 +12,7 @@ import pytest
 from click.testing import CliRunner
 
 from pipeline import vocabulary as vocab
-from pipeline.contract import McapFrameWriter, iter_frames, read_dataset
+from pipeline.contract import read_dataset
 from pipeline.cores.association.jpda import STRATEGIES, BearingTrackerDesign, ScanPeaks, track_bearing_peaks
 from pipeline.cores.association.track_management import EndingRule, coasting_run, ended
 from pipeline.face.cli import main
@@ -73,23 +73,6 @@ def test_a_track_coasting_max_coasted_scans_in_a_row_ends():
 # --------------------------------------------------------------------------- without truth
 
 
-def without_truth(src: Path, dst: Path) -> None:
-    """``src`` with its truth channels left out (a recording as a sensor would give it)."""
-    meta: dict = {}
-    with open(dst, "wb") as f:
-        writer, previous = None, None
-        for topic, run, scan, t, arrays, n in iter_frames(src, False, meta):
-            if "truth" in topic:
-                continue
-            if writer is None:
-                writer = McapFrameWriter(f, meta["metadata"])
-            if previous is not None and scan != previous:
-                writer.flush()
-            previous = scan
-            writer.write(topic, run, scan, t, arrays, run_count=n)
-        writer.finish()
-
-
 SCENARIOS = {"radar-tws": ["--set", "n_scans=20"], "xcorr-crossing": ["--set", "crossing_angle_deg=20"],
              "array-crossing": ["--set", "n_scans=12"], "tdoa-fdoa": [],
              "colored-imm": ["--set", "n_samples=200", "--set", "manoeuvre_first_sample=60",
@@ -97,7 +80,7 @@ SCENARIOS = {"radar-tws": ["--set", "n_scans=20"], "xcorr-crossing": ["--set", "
 
 
 @pytest.mark.parametrize("scenario", sorted(SCENARIOS))
-def test_every_family_replays_a_data_set_without_its_truth(tmp_path, scenario):
+def test_every_family_replays_a_data_set_without_its_truth(tmp_path, scenario, without_truth):
     runner = CliRunner()
     full, bare = tmp_path / "full.mcap", tmp_path / "bare.mcap"
     res = runner.invoke(main, ["simulate", scenario, "--runs", "4", "--seed", "3", "-o", str(full), *SCENARIOS[scenario]])
@@ -188,7 +171,6 @@ def _radar_plots(K, have):
     """One target at (10 km, 0) moving at (−50, 20) m/s, noise-free plots where ``have`` (R, K)."""
     t = np.arange(K, dtype=float)
     x, y = 10_000.0 - 50.0 * t, 20.0 * t
-    R = have.shape[0]
     rng = np.where(have, np.hypot(x, y)[None, :], np.nan)[..., None]
     brg = np.where(have, np.arctan2(y, x)[None, :], np.nan)[..., None]
     return rng, brg, have.astype(np.int64), t
@@ -309,7 +291,7 @@ FOUND = {  # scenario, overrides, runs, the window after start-up (scans)
 
 
 @pytest.mark.parametrize("scenario", sorted(FOUND))
-def test_tracks_started_from_measurements_find_the_targets(tmp_path, scenario):
+def test_tracks_started_from_measurements_find_the_targets(tmp_path, scenario, without_truth):
     """Truth stripped, default scenario: the confirmed tracks match the targets in ≥ 95 % of runs."""
     from recorders.scenarios import load_scenario
     from recorders.simulated import record
@@ -322,7 +304,7 @@ def test_tracks_started_from_measurements_find_the_targets(tmp_path, scenario):
         assert ok.mean() >= 0.95, (name, ok.mean())
 
 
-def test_peak_tracks_started_from_one_peak_are_found_as_often_as_truth_started_ones(tmp_path):
+def test_peak_tracks_started_from_one_peak_are_found_as_often_as_truth_started_ones(tmp_path, without_truth):
     """The default crossing (strong and weak target in clutter): even started at the truth, the
     weak track is pulled off by clutter in some runs before the crossing, so ≥ 95 % is not a
     property of the tracker. What the start must do is find the targets as often as the truth

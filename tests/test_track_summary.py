@@ -5,7 +5,6 @@ the summary, one line per tracker, for every family, and no error metric."""
 
 from __future__ import annotations
 
-from pathlib import Path
 
 import numpy as np
 import polars as pl
@@ -14,7 +13,7 @@ from click.testing import CliRunner
 
 from evaluators.track_summary import METRICS, mean_nis_bounds, track_life, track_summary
 from pipeline import vocabulary as vocab
-from pipeline.contract import McapFrameWriter, iter_frames, read_dataset
+from pipeline.contract import read_dataset
 from pipeline.face.cli import main
 
 N, I, C, D = vocab.NO_TRACK, vocab.INITIALISING, vocab.COASTED, vocab.DELETED
@@ -162,23 +161,6 @@ def test_mean_nis_bounds_are_the_chi2_interval_of_n_times_m_dof():
 # --------------------------------------------------------------------------- replay without truth
 
 
-def _without_truth(src: Path, dst: Path) -> None:
-    """``src`` with its truth channels left out (a recording as a sensor would give it)."""
-    meta: dict = {}
-    with open(dst, "wb") as f:
-        writer, previous = None, None
-        for topic, run, scan, t, arrays, n in iter_frames(src, False, meta):
-            if "truth" in topic:
-                continue
-            if writer is None:
-                writer = McapFrameWriter(f, meta["metadata"])
-            if previous is not None and scan != previous:
-                writer.flush()
-            previous = scan
-            writer.write(topic, run, scan, t, arrays, run_count=n)
-        writer.finish()
-
-
 SCENARIOS = {"radar-tws": ("radar-tws", ["--set", "n_scans=20"]),
              "xcorr-crossing": ("xcorr-peaks", ["--set", "crossing_angle_deg=20"]),
              "array-crossing": ("array-bearing", ["--set", "n_scans=12"]),
@@ -189,13 +171,13 @@ ERROR_METRICS = ("rmse", "ospa", "gospa", "nees", "mota", "idf1", "crlb", "pcrb"
 
 
 @pytest.mark.parametrize("scenario", sorted(SCENARIOS))
-def test_replay_without_truth_prints_the_track_summary_of_every_tracker_and_no_error(tmp_path, scenario):
+def test_replay_without_truth_prints_the_track_summary_of_every_tracker_and_no_error(tmp_path, scenario, without_truth):
     stage, options = SCENARIOS[scenario]
     runner = CliRunner()
     full, bare = tmp_path / "full.mcap", tmp_path / "bare.mcap"
     res = runner.invoke(main, ["simulate", scenario, "--runs", "4", "--seed", "5", "-o", str(full), *options])
     assert res.exit_code == 0, res.output
-    _without_truth(full, bare)
+    without_truth(full, bare)
     assert not any("truth" in t for t in read_dataset(bare).channels)
     out = tmp_path / "o" / "tracks.mcap"
     res = runner.invoke(main, [str(bare), "--out", str(out), "--no-rrd", "-q"])
@@ -218,7 +200,7 @@ def test_replay_without_truth_prints_the_track_summary_of_every_tracker_and_no_e
     assert "tracks_started_per_run" not in res.output
 
 
-def test_with_truth_the_summary_rows_are_standard_measures_and_eval_prints_the_block_without_truth(tmp_path):
+def test_with_truth_the_summary_rows_are_standard_measures_and_eval_prints_the_block_without_truth(tmp_path, without_truth):
     runner = CliRunner()
     full, bare = tmp_path / "full.mcap", tmp_path / "bare.mcap"
     assert runner.invoke(main, ["simulate", "radar-tws", "--runs", "4", "--seed", "2", "-o", str(full),
@@ -228,7 +210,7 @@ def test_with_truth_the_summary_rows_are_standard_measures_and_eval_prints_the_b
     standard = res.output[res.output.index("[standard measures]"):]
     assert "tracks_started_per_run" in standard and "mean_nis_inside" in standard
     assert "track summary of" not in res.output
-    _without_truth(full, bare)
+    without_truth(full, bare)
     out = tmp_path / "b" / "tracks.mcap"
     assert runner.invoke(main, [str(bare), "--out", str(out), "--no-rrd", "-q"]).exit_code == 0
     res = runner.invoke(main, ["eval", str(bare), str(out)])
