@@ -28,7 +28,7 @@ import numpy as np
 import polars as pl
 
 from evaluators.confidence import jackknife, mean_interval
-from evaluators.consistency import chi2_interval, whitened_innovations
+from evaluators.consistency import average_bounds, whitened_innovations
 from pipeline.vocabulary import COASTED, DELETED, INITIALISING, NO_TRACK
 
 #: the per-run counts, in the order they are reported, and the event of :func:`track_life` each counts
@@ -117,8 +117,8 @@ def mean_nis_bounds(nis, dim: int, prob: float = 0.95):
     n = int(np.count_nonzero(ok))
     if n == 0:
         return np.nan, np.nan, np.nan, 0
-    lo, hi = chi2_interval(n * dim, prob)
-    return float(v[ok].mean()), float(lo) / n, float(hi) / n, n
+    lo, hi = average_bounds(dim, n, prob)   # the ANIS bounds over one pooled count
+    return float(v[ok].mean()), float(lo), float(hi), n
 
 
 def _row(name: str, metric: str, value, se=np.nan, lo=np.nan, hi=np.nan) -> dict:

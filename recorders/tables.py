@@ -232,10 +232,10 @@ def _check_family(family: str) -> TableFormat:
 
 def scenario_of(family: str) -> str:
     """The bundled scenario whose parameters are the design defaults of ``family``'s stage."""
-    from pipeline.stages import STAGES
+    from pipeline.stages import STAGE_CLASSES, stage_named
 
     _check_family(family)
-    return next(s.scenario for s in STAGES if s.family == family)
+    return next(stage_named(name).scenario for name, fam, _ in STAGE_CLASSES if fam == family)
 
 
 # --------------------------------------------------------------------------- reading files
