@@ -46,7 +46,7 @@ import numpy as np
 from scipy.special import erf, ndtr
 
 from pipeline import vocabulary as vocab
-from pipeline.cores.filters.kalman import apply_gain, continuous_white_noise_model
+from pipeline.cores.filters.kalman import continuous_white_noise_model
 from pipeline.cores.filters.kalman import two_point_start  # noqa: F401  (eq. 8c; importable from here as before)
 from pipeline.cores.association.track_management import ConfirmationRule, EndingRule, TrackLife
 
@@ -432,31 +432,39 @@ def _clustered_marginals(r, miss, gated, predicted_bearing, max_cluster_tracks, 
 # --------------------------------------------------------------------------- state update
 
 
-def pda_update(x, P, innovation, beta, beta0, K, S):
-    """PDA combination of the per-peak updates (eq. A.7).
+def pda_update(x, P4, gain, S, innovation, gated, beta, beta0):
+    """PDA combination of the per-peak updates (eq. A.7) for the two-component bearing state.
 
-    ``x⁺ = x + K ν̄`` with ``ν̄ = Σ β_j ν_j``; ``P⁺ = P − (1 − β₀) K S Kᵀ + K (Σ β_j ν_j² − ν̄²) Kᵀ``.
+    ``x⁺ = x + K ν̄`` with ``ν̄ = Σ β_j ν_j``; ``P⁺ = P − (1 − β₀) K S Kᵀ + K (Σ β_j ν_j² − ν̄²) Kᵀ``
+    (the Kalman gain ``K = P⁻Hᵀ/S`` with ``H = [1, 0]``).
 
     Parameters
     ----------
-    x : (…, 2), P : (…, 2, 2), innovation : (…, m), beta : (…, m), beta0 : (…,),
-    K : (…, 2, 1) gain, S : (…, 1, 1) innovation variance.
+    x : (…, 2)
+    P4 : (…, 4)
+        The predicted covariance, row-major (the loop keeps it so: ``F P Fᵀ`` is one product).
+    gain : (…, 2), S : (…,)
+        Kalman gain and innovation variance.
+    innovation : (…, m), gated : (…, m) bool
+        Per-peak innovations (ungated entries may hold padding; their β is 0).
+    beta : (…, m), beta0 : (…,)
 
     Returns
     -------
     x_post : (…, 2)
-    P_post : (…, 2, 2)
+    P4_post : (…, 4)
     nu_bar : (…,)
         The combined innovation ν̄ (0 when no peak has weight).
     """
-    nu = np.where(beta > 0, innovation, 0.0)
-    nu_bar = np.sum(beta * nu, axis=-1)
-    spread = np.sum(beta * nu * nu, axis=-1) - nu_bar**2
-    x_post, _ = apply_gain(x, P, K, nu_bar[..., None], None, None)
-    KKt = K @ np.swapaxes(K, -1, -2)
-    w = (spread - (1.0 - beta0) * S[..., 0, 0])[..., None, None]
-    P_post = P + w * KKt
-    return x_post, 0.5 * (P_post + np.swapaxes(P_post, -1, -2)), nu_bar
+    nu = np.where(gated, innovation, 0.0)
+    weighted = beta * nu
+    nu_bar = weighted.sum(axis=-1)
+    weighted *= nu
+    spread = weighted.sum(axis=-1) - nu_bar * nu_bar
+    x_post = x + gain * nu_bar[..., None]
+    w = spread - (1.0 - beta0) * S
+    P4_post = P4 + w[..., None] * (gain[..., :, None] * gain[..., None, :]).reshape(P4.shape)
+    return x_post, P4_post, nu_bar
 
 
 def update_strength(strength: np.ndarray, amplitude: np.ndarray, gated: np.ndarray) -> np.ndarray:
@@ -559,9 +567,6 @@ def track_bearing_peaks(scans: list[ScanPeaks], x0: np.ndarray, P0: np.ndarray, 
     half_gate = design.gate_rad / 2
     threshold = design.amplitude_threshold
     pd = design.detection_probability
-    # P_D N(ν; 0, S) / λ = (P_D / (λ √(2π))) · S^(−½) · exp(−ν²/2S), and P_G = erf((V / 2√2) · S^(−½))
-    ratio_scale = 1.0 / (design.clutter_density * np.sqrt(2.0 * np.pi))
-    gate_scale = design.gate_rad / (2.0 * np.sqrt(2.0))
     # the start's own measurements count towards M-of-N: scans 0 … start_scan
     life = TrackLife((R, T), design.confirmation, design.ending)
     life.start(started, hits=start_scan + 1, scans=start_scan + 1)
@@ -587,7 +592,6 @@ def track_bearing_peaks(scans: list[ScanPeaks], x0: np.ndarray, P0: np.ndarray, 
         P4 = P4 @ FF
         P4 += Q4
         S = P4[..., 0] + r_meas
-        root_S = np.sqrt(S)
         gain = P4[..., :2] / S[..., None]
         center = x[..., 0]
         nu = sp.bearing[:, None, :] - center[..., None]  # (R, T, m)
@@ -599,22 +603,18 @@ def track_bearing_peaks(scans: list[ScanPeaks], x0: np.ndarray, P0: np.ndarray, 
         elif slots_started is not None:
             gated &= slots_started
         # likelihood ratios of the m peaks and, last, the miss weight 1 − P_D P_G of each track
-        weights = np.empty((R, T, m + 1))
-        ratio = weights[..., :m]
-        np.multiply(nu, nu, out=ratio)
-        ratio *= (-0.5 / S)[..., None]
-        np.exp(ratio, out=ratio)
+        pd_k = pd
         if strategy.amplitude:
             amp_ratio, survive = amplitude_likelihood_ratio(sp.amplitude, strength, sigma_a, design.clutter_alpha,
                                                             threshold)
             pd_k = pd * survive
+        weights = np.empty((R, T, m + 1))
+        ratio = weights[..., :m]
+        ratio[...] = position_likelihood_ratio(nu, S, pd_k, design.clutter_density)
+        if strategy.amplitude:
             ratio *= amp_ratio
-            ratio *= (pd_k * ratio_scale / root_S)[..., None]
-        else:
-            pd_k = pd
-            ratio *= ((pd * ratio_scale) / root_S)[..., None]
         np.copyto(ratio, 0.0, where=~gated)
-        miss = 1.0 - pd_k * erf(gate_scale / root_S)
+        miss = 1.0 - pd_k * window_gate_probability(S, design.gate_rad)
         if pair:
             weights[..., m] = miss
             marginals = pair_marginals(weights)
@@ -622,15 +622,7 @@ def track_bearing_peaks(scans: list[ScanPeaks], x0: np.ndarray, P0: np.ndarray, 
         else:
             beta, beta0, splits[i] = joint_association_probabilities(ratio, miss, gated, center,
                                                                      design.max_cluster_tracks)
-        # PDA update (eq. A.7); ungated entries may hold padding, and their β is 0
-        nu = np.where(gated, nu, 0.0)
-        weighted = beta * nu
-        nu_bar = weighted.sum(axis=2)
-        weighted *= nu
-        spread = weighted.sum(axis=2) - nu_bar * nu_bar
-        x = x + gain * nu_bar[..., None]
-        w = spread - (1.0 - beta0) * S
-        P4 = P4 + w[..., None] * (gain[..., :, None] * gain[..., None, :]).reshape(R, T, 4)
+        x, P4, nu_bar = pda_update(x, P4, gain, S, nu, gated, beta, beta0)  # eq. A.7
         if design.amplitude_tracking:
             strength = update_strength(strength, sp.amplitude, gated)
             strengths[i] = strength
