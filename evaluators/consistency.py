@@ -62,14 +62,20 @@ def whitened(error, covariance):
     P = np.asarray(covariance, float)
     lead = np.broadcast_shapes(e.shape[:-1], P.shape[:-2])
     n = e.shape[-1]
-    e_flat = np.broadcast_to(e, lead + (n,)).reshape(-1, n)
-    P_flat = np.broadcast_to(P, lead + (n, n)).reshape(-1, n, n)
-    out = np.empty(e_flat.shape)
-    # in blocks: the factors and temporaries stay a few MB at any number of runs
-    for start in range(0, len(e_flat), WHITEN_BLOCK):
-        part = slice(start, start + WHITEN_BLOCK)
-        out[part] = whiten(e_flat[part], P_flat[part])
-    return out.reshape(lead + (n,))
+    if not lead:
+        return whiten(e.reshape(1, n), P.reshape(1, n, n))[0]
+    e, P = np.broadcast_to(e, lead + (n,)), np.broadcast_to(P, lead + (n, n))
+    out = np.empty(lead + (n,))
+    # in blocks of whole runs: the factors and temporaries stay a few MB at any number of runs,
+    # and an output that is a strided view (a tracker's transposed buffer) is copied a block at
+    # a time, never whole
+    per_run = int(np.prod(lead[1:], dtype=np.int64))
+    runs = max(1, WHITEN_BLOCK // max(per_run, 1))
+    for start in range(0, lead[0], runs):
+        part = slice(start, start + runs)
+        block = out[part]
+        block[...] = whiten(e[part].reshape(-1, n), P[part].reshape(-1, n, n)).reshape(block.shape)
+    return out
 
 
 WHITEN_BLOCK = 32768

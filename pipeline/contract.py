@@ -867,6 +867,8 @@ class McapFrameWriter:
                 self.write(topic, 0, k, times[k], {n: a[:, k] for n, a in arrays.items()}, run_count=n_runs)
             else:
                 self.write_batch(topic, k, times[k], {n: a[:, k] for n, a in arrays.items()})
+        if topic in self._blocks:  # the grid is complete: its last scan's views must not keep the arrays alive
+            self._emit(topic)
 
     def flush(self):
         """Close the open chunk so a crash loses at most what came after it."""

@@ -11,6 +11,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 import polars as pl
 
 from pipeline import __version__
@@ -87,8 +88,15 @@ def _canonical(specs):
 
 
 def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, design_overrides=None,
-           rerun_run: int = 0, dataset: Dataset | None = None, progress=None, tracker_specs=()) -> ReplayResult:
+           rerun_run: int = 0, dataset: Dataset | None = None, progress=None, tracker_specs=(),
+           keep_runs: int | None = None) -> ReplayResult:
     """Replay every applicable stage over a data set.
+
+    Trackers are taken one at a time: each is filtered, its outputs written (on a thread of
+    their own, while the same outputs are scored) and scored, before the next one starts, so
+    that the memory a replay needs grows with one tracker's outputs, not with all of them
+    (``docs/benchmarks.md``). A stage whose scores compare its trackers with one another
+    (:attr:`pipeline.stages.base.Stage.scores_trackers_apart` false) is scored in one piece.
 
     Parameters
     ----------
@@ -110,6 +118,11 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
         Called with 1 after each of the four phases (filter, evaluate, write, rerun).
     tracker_specs : sequence of str
         Plugged trackers (``file.py:Class`` or ``module:Class``) to run beside the built-ins.
+    keep_runs : int, optional
+        Keep only the first ``keep_runs`` runs of each tracker's outputs in the result once they
+        are written and scored (what the per-run views and figures read); None keeps them all.
+        A stage whose views read every run (:attr:`~pipeline.stages.base.Stage.views_read_all_runs`)
+        keeps them all regardless.
 
     Raises
     ------
@@ -120,51 +133,61 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
     step = progress or (lambda n: None)
     t0 = time.perf_counter()
     ds = dataset if dataset is not None else read_dataset(path, recover=recover)
-    timings = {"read_s": time.perf_counter() - t0}
+    timings = {"read_s": time.perf_counter() - t0, "filter_s": 0.0, "evaluate_s": 0.0}
     stages = applicable_stages(ds.channels)
     if not stages:
         have = ", ".join(sorted(ds.channels)) or "none"
         raise InputError(f"no stage applies to the channels in this file ({have})", ds.path)
-    results, per_scan, summary, designs, failures = {}, [], [], {}, []
     chosen = select_trackers(stages, trackers, tracker_specs)
-    t1 = time.perf_counter()
+    designs = {}
     for stage in stages:
-        legacy = _legacy(stage)
-        design = stage.design(ds, design_overrides) if legacy else stage.design(ds, design_overrides, chosen[stage.name])
+        design = (stage.design(ds, design_overrides) if _legacy(stage)
+                  else stage.design(ds, design_overrides, chosen[stage.name]))
         # later calls of stage.design(ds) (Rerun logging, figures) see the values this run used
         ds.cache[("design", stage.name)] = design
-        result = stage.run(ds, chosen[stage.name], design)
-        failures += result.pop("errors", [])
-        if not result["tracks"]:
-            raise failures[0] if failures else InputError(f"no tracker ran on {stage.name}", ds.path)
-        results[stage.name] = result
         designs[stage.name] = design
-    timings["filter_s"] = time.perf_counter() - t1
-    step(1)
-    t2 = time.perf_counter()
-    for stage in stages:
-        p, s = stage.measure(ds, results[stage.name], designs[stage.name])
-        per_scan.append(p.with_columns(pl.lit(stage.name).alias("stage")))
-        summary.append(s.with_columns(pl.lit(stage.name).alias("stage")))
-    timings["evaluate_s"] = time.perf_counter() - t2
-    step(1)
+    results, per_scan, summary, failures = {}, [], [], []
+    with _OutputWriter(out_path, lambda n_runs: _provenance(ds, n_runs, stages, designs, tracker_specs)) as writer:
+        for stage in stages:
+            design = designs[stage.name]
+            tables = []
+            t1 = time.perf_counter()
+            times, units = stage.run_units(ds, chosen[stage.name], design)
+            result = results[stage.name] = {"times": times, "tracks": {}}
+            extras = {}
+            for own, unit, errors in units:
+                failures += errors
+                timings["filter_s"] += time.perf_counter() - t1
+                if own:
+                    # the outputs are written while they are scored; the stage's extras, scored
+                    # with every unit, are written once, after the trackers
+                    writer.write(stage, {"times": times, "tracks": {name: unit[name] for name in own}})
+                    t2 = time.perf_counter()
+                    p, s = stage.measure(ds, {"times": times, "tracks": unit}, design)
+                    tables.append((own, p, s))
+                    timings["evaluate_s"] += time.perf_counter() - t2
+                    writer.wait()
+                    keep = None if stage.views_read_all_runs else keep_runs
+                    result["tracks"].update({name: _first_runs(unit[name], keep) for name in own})
+                    extras = {name: out for name, out in unit.items() if name not in own}
+                t1 = time.perf_counter()
+            if extras:
+                writer.write(stage, {"times": times, "tracks": extras})
+                writer.wait()
+                keep = None if stage.views_read_all_runs else keep_runs
+                result["tracks"].update({name: _first_runs(out, keep) for name, out in extras.items()})
+            if not result["tracks"]:
+                raise failures[0] if failures else InputError(f"no tracker ran on {stage.name}", ds.path)
+            p, s = _joined_tables(tables)
+            per_scan.append(p.with_columns(pl.lit(stage.name).alias("stage")))
+            summary.append(s.with_columns(pl.lit(stage.name).alias("stage")))
+    timings["write_s"] = writer.seconds
+    for _ in range(3):  # filter, evaluate and write ran together, tracker by tracker
+        step(1)
     res = ReplayResult(ds, pl.concat(per_scan, how="diagonal"), pl.concat(summary, how="diagonal"), results,
                        timings=timings)
     if out_path is not None:
-        t3 = time.perf_counter()
-        meta = {METADATA_PROVENANCE: {"input": Path(ds.path).name, "input_sha256": dataset_identity(ds),
-                                      "runs": str(_n_runs(results)), "package_version": __version__,
-                                      "stages": ",".join(s.name for s in stages),
-                                      "tracker_specs": json.dumps(list(_canonical(tracker_specs))),
-                                      "design": json.dumps(designs, sort_keys=True, default=str)}}
-        if "replay.scenario" in ds.metadata:
-            meta["replay.scenario"] = ds.metadata["replay.scenario"]
-        with write_dataset(out_path, meta, zstd_level=OUTPUT_ZSTD_LEVEL) as w:
-            for stage in stages:
-                stage.write(w, results[stage.name])
         res.out_path = Path(out_path)
-        timings["write_s"] = time.perf_counter() - t3
-    step(1)
     if rrd_path is not None:
         from pipeline.face.rerun_views import views_for
         from pipeline.face.timeline import recording
@@ -182,6 +205,116 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
     timings["total_s"] = time.perf_counter() - t0
     res.failures = failures
     return res
+
+
+def _first_runs(outputs: dict, keep: int | None) -> dict:
+    """``outputs`` cut (copied) to their first ``keep`` runs, so the rest can be freed."""
+    if keep is None:
+        return outputs
+    return {k: np.array(a[:keep]) if isinstance(a, np.ndarray) and a.ndim else a for k, a in outputs.items()}
+
+
+def _joined_tables(tables):
+    """One stage's ``(per_scan, summary)`` from the tables of its scoring units.
+
+    Each unit's tables hold its own trackers' rows and the rows of the stage's extras (its own
+    estimators, scored beside every unit, identically); the extras' rows are taken once, from
+    the first unit. Summary rows are ordered metric by metric as the first unit lists them,
+    trackers in the order they ran within a metric; per-scan rows tracker by tracker.
+    """
+    def mine(df, names, keep):
+        if "tracker" not in df.columns:
+            return df if keep else df.clear()
+        inside = pl.col("tracker").is_in(names)
+        return df.filter(inside if keep else ~inside)
+
+    first_names, first_scan, first_summary = tables[0]
+    per_scan = pl.concat([mine(p, names, True) for names, p, _ in tables] + [mine(first_scan, first_names, False)],
+                         how="diagonal_relaxed")
+    columns = list(first_scan.columns) + [c for c in per_scan.columns if c not in first_scan.columns]
+    summary = pl.concat([mine(s, names, True) for names, _, s in tables] + [mine(first_summary, first_names, False)],
+                        how="diagonal_relaxed")
+    if len(tables) > 1 and summary.height and {"tracker", "metric"} <= set(summary.columns):
+        key = [c for c in ("kind", "metric", "scope") if c in summary.columns]
+        order = (pl.concat([first_summary.select(key), summary.select(key)], how="diagonal_relaxed")
+                 .unique(maintain_order=True).with_row_index("_key"))
+        trackers = pl.DataFrame({"tracker": list(dict.fromkeys(summary["tracker"].to_list()))}).with_row_index("_who")
+        summary = (summary.join(order, on=key, how="left", nulls_equal=True).join(trackers, on="tracker", how="left",
+                                                                               nulls_equal=True)
+                   .sort(["_key", "_who"], maintain_order=True).drop("_key", "_who"))
+    return per_scan.select(columns), summary
+
+
+def _provenance(ds, n_runs, stages, designs, tracker_specs) -> dict:
+    """The outputs' metadata: what they were made from and how."""
+    meta = {METADATA_PROVENANCE: {"input": Path(ds.path).name, "input_sha256": dataset_identity(ds),
+                                  "runs": str(n_runs), "package_version": __version__,
+                                  "stages": ",".join(s.name for s in stages),
+                                  "tracker_specs": json.dumps(list(_canonical(tracker_specs))),
+                                  "design": json.dumps(designs, sort_keys=True, default=str)}}
+    if "replay.scenario" in ds.metadata:
+        meta["replay.scenario"] = ds.metadata["replay.scenario"]
+    return meta
+
+
+class _OutputWriter:
+    """The outputs MCAP, written one scoring unit at a time on a thread of its own.
+
+    zstd compresses without holding the GIL, so the chunks of one tracker's outputs are
+    compressed while the main thread scores them; :meth:`wait` joins before the outputs are
+    released. The file is opened on the first write (its provenance records the run count)
+    and appears complete or not at all (:func:`pipeline.contract.write_dataset`). Without a
+    path nothing is written.
+    """
+
+    def __init__(self, path, metadata_for_runs):
+        self.path, self._metadata_for_runs = path, metadata_for_runs
+        self._context = self._writer = self._pool = self._pending = None
+        self.seconds = 0.0
+
+    def __enter__(self):
+        return self
+
+    def write(self, stage, unit: dict) -> None:
+        if self.path is None:
+            return
+        self.wait()
+        if self._writer is None:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self._context = write_dataset(self.path, self._metadata_for_runs(_n_runs({stage.name: unit})),
+                                          zstd_level=OUTPUT_ZSTD_LEVEL)
+            self._writer = self._context.__enter__()
+            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="replay-write")
+
+        def job():
+            t = time.perf_counter()
+            stage.write(self._writer, unit)
+            self.seconds += time.perf_counter() - t
+
+        self._pending = self._pool.submit(job)
+
+    def wait(self) -> None:
+        """Until the last write is done (its error, if any, raised here)."""
+        pending, self._pending = self._pending, None
+        if pending is not None:
+            pending.result()
+
+    def __exit__(self, kind, exc, tb):
+        try:
+            if exc is None:
+                self.wait()
+            elif self._pending is not None:  # let the thread stop before the file is discarded
+                self._pending.exception()
+        finally:
+            if self._pool is not None:
+                self._pool.shutdown()
+            if self._context is not None:
+                if exc is None:
+                    self._context.__exit__(None, None, None)
+                else:
+                    self._context.__exit__(kind, exc, tb)
+        return False
 
 
 def dataset_identity(ds) -> str:

@@ -160,6 +160,26 @@ def test_large_sets_use_the_hungarian_algorithm_and_agree():
         assert r["gospa"][i] == pytest.approx(np.sqrt(d[rows, cols].sum()), rel=1e-12)
 
 
+@pytest.mark.parametrize("size", range(1, BRUTE_FORCE_MAX + 1))
+def test_small_sets_find_the_permutation_every_permutation_sum_finds(size, monkeypatch):
+    # independent route: every permutation's costs gathered and summed, the first of the
+    # smallest sums in itertools' order; ties (rounded and repeated costs) must go the same way,
+    # and problems split over several blocks must not interact
+    from evaluators import set_distances
+
+    monkeypatch.setattr(set_distances, "BRUTE_FORCE_BLOCK", 1000)
+    rng = np.random.default_rng(size)
+    costs = rng.random((2500, size, size))
+    costs[:800] = np.round(costs[:800] * 3) / 7
+    costs[800:1600] = np.where(rng.random((800, size, size)) < 0.5, 0.3, costs[800:1600])
+    perms = np.array(list(itertools.permutations(range(size))))
+    sums = costs[:, np.arange(size)[None, :], perms].sum(axis=-1)
+    first = np.argmin(sums, axis=1)
+    total, best = set_distances._every_permutation(costs)
+    np.testing.assert_array_equal(total, sums[np.arange(len(costs)), first])
+    np.testing.assert_array_equal(best, perms[first])
+
+
 sets = st.lists(st.tuples(st.floats(-10, 10), st.floats(-10, 10)), max_size=4)
 
 

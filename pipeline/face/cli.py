@@ -746,7 +746,8 @@ def run_cmd(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, s
         staged_rrd = outputs.path(rrd_path.name) if rrd_inside else rrd_path
         with progress.Phases(f"replaying {data.name}", ("filter", "evaluate", "write", "rerun")) as phases:
             res = replay(data, wanted, outputs.path(out_path.name), staged_rrd, design_overrides=parse_assignments(sets),
-                         rerun_run=rerun_run, dataset=dataset, progress=phases.step, tracker_specs=specs)
+                         rerun_run=rerun_run, dataset=dataset, progress=phases.step, tracker_specs=specs,
+                         keep_runs=rerun_run + 1)  # the views, figures and listing read runs 0 … rerun_run
         res.timings["read_s"] = t_read
         res.timings["total_s"] += t_read
         if res.dataset.recovered_messages is not None:

@@ -37,6 +37,15 @@ def _recorded_value(key: str, raw, default):
     return value
 
 
+#: a replay scores and releases trackers' outputs once they hold this many bytes (see
+#: :meth:`Stage.run_units`): the memory it needs is bounded by about one tracker's outputs
+SCORING_UNIT_BYTES = 64 << 20
+
+
+def _nbytes(tracks: dict) -> int:
+    return sum(np.asarray(a).nbytes for out in tracks.values() for a in out.values())
+
+
 class Stage:
     """Base class of stage processors: one per measurement family.
 
@@ -170,24 +179,69 @@ class Stage:
             raise TrackerError(f"tracker {entry.name!r}: constructing it raised {type(exc).__name__}: {exc}",
                                entry.source) from None
 
+    #: whether each tracker's scores depend on its own outputs alone (with the stage's extras), so
+    #: that a replay may score the trackers one at a time; False scores them all in one piece
+    scores_trackers_apart = True
+    #: whether the face (Rerun views, figures) reads every Monte Carlo run of the outputs, not
+    #: only the run it shows (see ``keep_runs`` of :func:`pipeline.replay.replay`)
+    views_read_all_runs = False
+
     def run(self, dataset, entries, design: dict) -> dict:
         """Decode once, call every tracker, collect outputs and tracker failures.
 
         Returns ``{"times", "tracks": {name: outputs}, "errors": [TrackerError, ...]}``: a
         tracker that fails is reported and left out, the others' outputs are kept.
         """
-        measurements = self.decode(dataset, design)
+        times, units = self.run_units(dataset, entries, design)
         tracks, errors = {}, []
-        for entry in entries:
-            try:
-                # a plugged tracker that fails to construct is reported like one that fails to run
-                tracker = self.build(entry, design)
-                tracks[entry.name] = call_tracker(tracker, measurements, None if entry.builtin else entry.source)
-            except TrackerError as exc:
-                errors.append(exc)
-        if tracks:
-            tracks.update(self.extras(measurements, design))
-        return {"times": np.asarray(measurements.times_s, dtype=float), "tracks": tracks, "errors": errors}
+        extras = {}
+        for own, unit, failed in units:
+            errors += failed
+            tracks.update({name: unit[name] for name in own})
+            extras = {name: out for name, out in unit.items() if name not in own} or extras
+        tracks.update(extras)
+        return {"times": times, "tracks": tracks, "errors": errors}
+
+    def run_units(self, dataset, entries, design: dict):
+        """Decode once; then the trackers' outputs in scoring units, computed as they are read.
+
+        Returns
+        -------
+        times : ndarray
+            Scan times.
+        units : iterator of (list of str, dict, list)
+            Per unit: the names of its trackers, their outputs together with the stage's extras
+            (:meth:`extras`, computed once, after the first tracker that ran; every unit's scores
+            need them), and the :class:`TrackerError` of trackers that failed. A unit closes
+            once its outputs reach :data:`SCORING_UNIT_BYTES` (on many runs: one tracker per
+            unit; on a few, all in one, which spares the scoring's fixed cost per call); a stage
+            that is not :attr:`scores_trackers_apart` has one unit.
+        """
+        measurements = self.decode(dataset, design)
+        times = np.asarray(measurements.times_s, dtype=float)
+
+        def call(entry):
+            # a plugged tracker that fails to construct is reported like one that fails to run
+            tracker = self.build(entry, design)
+            return call_tracker(tracker, measurements, None if entry.builtin else entry.source)
+
+        def units():
+            extras, tracks, errors = None, {}, []
+            for entry in entries:
+                try:
+                    tracks[entry.name] = call(entry)
+                except TrackerError as exc:
+                    errors.append(exc)
+                if tracks and self.scores_trackers_apart and _nbytes(tracks) >= SCORING_UNIT_BYTES:
+                    extras = self.extras(measurements, design) if extras is None else extras
+                    yield list(tracks), {**tracks, **extras}, errors
+                    tracks, errors = {}, []
+            if tracks and extras is None:
+                extras = self.extras(measurements, design)
+            if tracks or errors:
+                yield list(tracks), ({**tracks, **extras} if tracks else {}), errors
+
+        return times, units()
 
     def extras(self, measurements, design: dict) -> dict:
         """Outputs of the stage's own estimators that are not trackers (written beside them)."""
@@ -346,6 +400,17 @@ class Stage:
         """``(per_scan, summary)`` from :meth:`reference` and the trackers' outputs."""
         raise NotImplementedError
 
+    def cached_reference(self, dataset, design: dict) -> dict:
+        """:meth:`reference`, computed once per data set and design (a replay scores its
+        trackers one at a time, each against the same reference)."""
+        import json
+
+        key = json.dumps(design, sort_keys=True, default=str)
+        cached = dataset.cache.get(("reference", self.name))
+        if cached is None or cached[0] != key:
+            cached = dataset.cache[("reference", self.name)] = (key, self.reference(dataset, design))
+        return cached[1]
+
     def standard_space(self, design: dict, reference: dict | None = None):
         """The :class:`evaluators.standard.EvaluationSpace` of the family (its shape may depend
         on the data set's :meth:`reference`), or None: no standard measures."""
@@ -370,7 +435,7 @@ class Stage:
         from evaluators.track_summary import track_summary
 
         try:
-            reference = self.reference(dataset, design)
+            reference = self.cached_reference(dataset, design)
         except NotImplementedError:
             per_scan, summary = self.evaluate(dataset, result, design)
             summary = summary.with_columns(*(pl.lit(None, pl.Float64).alias(c) for c in ("se", "ci_low", "ci_high")))

@@ -125,6 +125,8 @@ class EmitterLocalisationStage(Stage):
     scenario = "tdoa-fdoa"
     # what the stage itself uses: the start the decoder checks for, and the unknowns of the bound
     design_keys = ("initial_guess", "stationary_emitter")
+    # the figures scatter every run's fix and the Rerun views show the convergence over runs
+    views_read_all_runs = True
 
     # ------------------------------------------------------------------ inputs
 

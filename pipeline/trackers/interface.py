@@ -365,18 +365,21 @@ def _check_covariance(cov, state, name, where) -> None:
     if cov.shape != state.shape + (n,):
         raise TrackerError(f"tracker {name!r}: covariance has shape {cov.shape}, expected {state.shape + (n,)}", where)
     live_all = np.isfinite(state).all(axis=-1)
-    live_flat, cov_flat = live_all.reshape(-1), cov.reshape(-1, n, n)
     eye = np.eye(n)
 
     def fail(index: int, problem: str):
         """``index``: the offending matrix in the flattened (runs, scans[, slots]) order."""
-        bad = np.zeros(live_flat.shape, bool)
+        bad = np.zeros(live_all.size, bool)
         bad[index] = True
         raise TrackerError(f"tracker {name!r}: {_first(bad.reshape(live_all.shape))}: {problem}", where)
 
-    for start in range(0, live_flat.size, COVARIANCE_CHECK_BLOCK):
-        live = live_flat[start:start + COVARIANCE_CHECK_BLOCK]
-        block = cov_flat[start:start + COVARIANCE_CHECK_BLOCK]
+    # blocks of whole runs: an output that is a strided view is copied a block at a time
+    per_run = int(np.prod(live_all.shape[1:], dtype=np.int64))
+    runs = max(1, COVARIANCE_CHECK_BLOCK // max(per_run, 1))
+    for first_run in range(0, live_all.shape[0], runs):
+        start = first_run * per_run
+        live = live_all[first_run:first_run + runs].reshape(-1)
+        block = cov[first_run:first_run + runs].reshape(-1, n, n)
         everything = live.all()
         c = block if everything else block[live]
         if not len(c):

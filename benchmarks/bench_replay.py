@@ -1,0 +1,113 @@
+"""Whole replays as a user runs them: wall time and peak memory of ``replay FILE``.
+
+What it measures
+----------------
+Data sets are simulated with ``replay simulate`` (seed 7) into a work folder (not timed): by
+default radar-tws with 10 and 10,000 runs, colored-imm with 10 and 500 runs and
+array-crossing with 10 and 1,000 runs. Each is replayed ``--repeats`` times (default 5) in a
+fresh process, ``python -m pipeline.face.cli FILE --out … --force --figures none`` (figures are
+drawn after the result, in a process of their own, when ``replay`` runs on a terminal), with
+``--no-rrd`` from 100 runs up. The wall time is the child's, from ``time.perf_counter`` around
+it; the peak memory is the child's own maximum resident set, from ``os.wait4``.
+
+With ``--before TREE`` (a checkout of an earlier commit, e.g. a ``git worktree``) every replay
+also runs with ``PYTHONPATH=TREE``, interleaved with this tree's, so that both see the same load.
+
+The table gives medians with min–max over the repeats and says PASS/MISS against the speed
+issue's targets (docs/benchmarks.md).
+
+How to run
+----------
+From the repository root, with the package installed (``pip install -e .``)::
+
+    python benchmarks/bench_replay.py                        # every set, 5 repeats
+    python benchmarks/bench_replay.py --sets radar-10000 --repeats 3
+    git worktree add /tmp/before HEAD~3 && python benchmarks/bench_replay.py --before /tmp/before
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from timing import print_table, spread  # benchmarks/ is on sys.path when run as a script
+
+SETS = {  # name: (scenario, runs, target wall s, target peak MB; None: no target)
+    "radar-10": ("radar-tws", 10, 0.6, None),
+    "colored-10": ("colored-imm", 10, 0.6, None),
+    "array-10": ("array-crossing", 10, 0.6, None),
+    "radar-10000": ("radar-tws", 10000, 5.0, 500.0),
+    "colored-500": ("colored-imm", 500, 35.0 / 3, 1650.0 / 3),
+    "array-1000": ("array-crossing", 1000, 14.0 / 3, 2100.0 / 3),
+}
+
+
+def simulate(scenario: str, runs: int, out: Path) -> None:
+    subprocess.run([sys.executable, "-m", "pipeline.face.cli", "simulate", scenario, "--runs", str(runs), "--seed",
+                    "7", "-o", str(out)], check=True, capture_output=True)
+
+
+def replay_once(data: Path, out: Path, tree: str | None, recording: bool) -> tuple[float, float]:
+    """(wall seconds, peak resident MB) of one ``replay`` in a fresh process."""
+    args = [sys.executable, "-m", "pipeline.face.cli", "-q", str(data), "--out", str(out / "tracks.mcap"), "--force",
+            "--figures", "none"]
+    if not recording:
+        args.append("--no-rrd")
+    env = dict(os.environ, PYTHONPATH=tree) if tree else None
+    t0 = time.perf_counter()
+    child = subprocess.Popen(args, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    _, status, usage = os.wait4(child.pid, 0)
+    wall = time.perf_counter() - t0
+    child.returncode = os.waitstatus_to_exitcode(status)
+    if child.returncode:
+        raise SystemExit(f"replay {data.name} failed: {child.stderr.read().decode()[-400:]}")
+    return wall, usage.ru_maxrss / 1024  # kB on Linux
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--sets", default=",".join(SETS), help=f"comma-separated, of {', '.join(SETS)}")
+    ap.add_argument("--before", help="a checkout of an earlier commit to replay with, interleaved")
+    ap.add_argument("--keep", help="work folder to keep (default: a temporary one)")
+    args = ap.parse_args()
+    chosen = [s.strip() for s in args.sets.split(",") if s.strip()]
+    unknown = [s for s in chosen if s not in SETS]
+    if unknown:
+        ap.error(f"unknown set(s) {', '.join(unknown)}")
+    trees = {"before": str(Path(args.before).resolve())} if args.before else {}
+    trees["after"] = None
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(args.keep or tmp)
+        work.mkdir(parents=True, exist_ok=True)
+        rows = []
+        for name in chosen:
+            scenario, runs, target_s, target_mb = SETS[name]
+            data = work / f"{scenario}-{runs}.mcap"
+            if not data.exists():
+                simulate(scenario, runs, data)
+            walls = {k: [] for k in trees}
+            peaks = {k: [] for k in trees}
+            for _ in range(args.repeats):
+                for label, tree in trees.items():
+                    wall, peak = replay_once(data, work / f"out-{label}-{name}", tree, runs < 100)
+                    walls[label].append(wall)
+                    peaks[label].append(peak)
+            for label in trees:
+                wall_ok = sorted(walls[label])[len(walls[label]) // 2] < target_s
+                mem_ok = target_mb is None or sorted(peaks[label])[len(peaks[label]) // 2] < target_mb
+                target = f"< {target_s:.3g} s" + (f", < {target_mb:.0f} MB" if target_mb else "")
+                rows.append([f"{name} ({runs} runs)", label, spread(walls[label], 1.0, 2, "s"),
+                             spread(peaks[label], 1.0, 0, "MB"), target,
+                             "PASS" if wall_ok and mem_ok else "MISS"])
+        print(f"replay wall time and peak memory, median [min–max] of {args.repeats}, fresh process each")
+        print_table(["data set", "tree", "wall", "peak memory", "target", ""], rows)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,111 @@
+"""A replay takes its trackers one at a time (filter, write while scoring, score, release):
+the tables and outputs must be those of scoring every tracker at once, and the result keeps
+only the runs its views read when asked to."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+import pytest
+from polars.testing import assert_frame_equal
+
+from pipeline.contract import read_dataset
+from pipeline.replay import replay, select_trackers
+from pipeline.stages import applicable_stages
+
+DATA_DIR = Path(__file__).resolve().parents[1] / "data"
+BUNDLED = sorted(p.name for p in DATA_DIR.glob("*.mcap"))
+
+
+def _all_at_once(path):
+    """The tables of the path before streaming: every tracker run, then all scored together."""
+    ds = read_dataset(path)
+    stages = applicable_stages(ds.channels)
+    chosen = select_trackers(stages)
+    per_scan, summary, results = [], [], {}
+    for stage in stages:
+        design = stage.design(ds, None, chosen[stage.name])
+        ds.cache[("design", stage.name)] = design
+        result = stage.run(ds, chosen[stage.name], design)
+        result.pop("errors")
+        p, s = stage.measure(ds, result, design)
+        per_scan.append(p.with_columns(pl.lit(stage.name).alias("stage")))
+        summary.append(s.with_columns(pl.lit(stage.name).alias("stage")))
+        results[stage.name] = result
+    return pl.concat(per_scan, how="diagonal"), pl.concat(summary, how="diagonal"), results
+
+
+def _sorted(df):
+    key = [c for c in ("stage", "tracker", "kind", "metric", "scope", "scan") if c in df.columns]
+    return df.sort(key).select(sorted(df.columns))
+
+
+@pytest.mark.parametrize("name", BUNDLED)
+def test_one_tracker_at_a_time_scores_and_writes_what_all_at_once_does(name, tmp_path, monkeypatch):
+    from pipeline.stages import base
+
+    per_scan, summary, results = _all_at_once(DATA_DIR / name)
+    monkeypatch.setattr(base, "SCORING_UNIT_BYTES", 0)  # every tracker a unit of its own, as on many runs
+    res = replay(DATA_DIR / name, out_path=tmp_path / "tracks.mcap")
+    # the same rows and values, to the bit (only their order may differ)
+    assert_frame_equal(_sorted(res.per_scan), _sorted(per_scan), check_exact=True)
+    assert_frame_equal(_sorted(res.summary), _sorted(summary), check_exact=True)
+    # the file holds every tracker's and extra's outputs, exactly
+    out = read_dataset(tmp_path / "tracks.mcap")
+    for stage_name, result in results.items():
+        stage = next(s for s in applicable_stages(read_dataset(DATA_DIR / name).channels) if s.name == stage_name)
+        written = stage.outputs_from_dataset(out)["tracks"]
+        assert list(written) == list(result["tracks"])  # trackers in the order they ran, extras last
+        for tracker, outputs in result["tracks"].items():
+            for key, value in outputs.items():
+                np.testing.assert_array_equal(np.asarray(written[tracker][key], float), np.asarray(value, float),
+                                              err_msg=f"{tracker} {key}")
+
+
+def test_small_outputs_are_scored_in_one_unit_and_large_ones_apart(monkeypatch):
+    from pipeline.stages import base, stage_named
+
+    stage = stage_named("radar-tws")
+    ds = read_dataset(DATA_DIR / "radar_tws_demo.mcap")
+    entries = select_trackers([stage])[stage.name]
+    design = stage.design(ds, None, entries)
+    _, units = stage.run_units(ds, entries, design)
+    assert [own for own, _, _ in units] == [[e.name for e in entries]]
+    monkeypatch.setattr(base, "SCORING_UNIT_BYTES", 1)
+    _, units = stage.run_units(ds, entries, design)
+    assert [own for own, _, _ in units] == [[e.name] for e in entries]
+
+
+def test_kept_runs_are_the_first_runs_of_the_full_outputs():
+    path = DATA_DIR / "radar_tws_demo.mcap"
+    full = replay(path)
+    kept = replay(path, keep_runs=2)
+    assert_frame_equal(kept.summary, full.summary)
+    for tracker, outputs in full.results["radar-tws"]["tracks"].items():
+        for key, value in outputs.items():
+            short = kept.results["radar-tws"]["tracks"][tracker][key]
+            assert short.shape == (2,) + value.shape[1:]
+            np.testing.assert_array_equal(short, value[:2])
+
+
+def test_a_stage_whose_views_read_every_run_keeps_them_all():
+    path = DATA_DIR / "tdoa_fdoa_demo.mcap"
+    full = replay(path)
+    kept = replay(path, keep_runs=1)
+    for tracker, outputs in full.results["tdoa-fdoa"]["tracks"].items():
+        for key, value in outputs.items():
+            np.testing.assert_array_equal(kept.results["tdoa-fdoa"]["tracks"][tracker][key], value)
+
+
+def test_a_failing_write_leaves_no_output_and_raises(tmp_path, monkeypatch):
+    from pipeline.stages.base import Stage
+
+    def broken(self, writer, result):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(Stage, "write", broken)
+    with pytest.raises(OSError, match="disk full"):
+        replay(DATA_DIR / "radar_tws_demo.mcap", out_path=tmp_path / "tracks.mcap")
+    assert list(tmp_path.iterdir()) == []
