@@ -156,7 +156,8 @@ def _ar_tables(times, ar: dict, truth_alpha, R: float, beta: float):
     # grouped by each run's history as one opaque value (np.unique over rows costs 4 ms per
     # scoring), then ordered by the histories' values, as np.unique over rows would order them
     history = np.ascontiguousarray(truth_alpha[:, :, 0])
-    _, first, inverse = np.unique(history.view(np.dtype((np.void, history.strides[0]))).ravel(),
+    # (the row's bytes from its shape: a C-contiguous array of one run may carry any stride there)
+    _, first, inverse = np.unique(history.view(np.dtype((np.void, history.shape[1] * history.itemsize))).ravel(),
                                   return_index=True, return_inverse=True)
     order = np.lexsort(history[first].T[::-1])
     groups = [np.flatnonzero(inverse.ravel() == g) for g in order]

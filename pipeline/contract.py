@@ -286,6 +286,7 @@ class ChannelData:
     arrays: Mapping[str, list[np.ndarray]]
     topic: str = "channel"
     path: str | None = None
+    _order: bool | None = field(default=None, repr=False, compare=False)
 
     @property
     def n_runs(self) -> int:
@@ -378,10 +379,26 @@ class ChannelData:
         inner = values.shape[1:]
         dtype = np.result_type(column.dtype, np.float64) if column.dtype.kind in "iub" else column.dtype
         shape = (self.n_runs, self.n_scans, *inner)
+        if dtype == values.dtype and self._scan_major():
+            # every frame present, scan by scan and run by run within a scan (as the writer puts
+            # them): the values already are the grid, scan axis first; a read-only view of them
+            # spares a copy of the largest arrays (array snapshots)
+            view = values.reshape(self.n_scans, self.n_runs, *inner).swapaxes(0, 1)
+            view.flags.writeable = False
+            return view
         self._guard_size(name, shape, dtype, values.nbytes)
         out = np.full(shape, np.nan, dtype=dtype)
         out[self.run, self.scan] = values
         return out
+
+    def _scan_major(self) -> bool:
+        """Whether the frames are every (run, scan) once, in scan-major order."""
+        if self._order is None:
+            R, K = self.n_runs, self.n_scans
+            n = len(self.run)
+            self._order = bool(n == R * K and np.array_equal(self.scan, np.repeat(np.arange(K), R))
+                               and np.array_equal(self.run, np.tile(np.arange(R), K)))
+        return self._order
 
     def _grid_items(self, name: str, items: list) -> np.ndarray:
         if not items:

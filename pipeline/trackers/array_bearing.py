@@ -67,6 +67,7 @@ from pipeline.errors import InputError
 from pipeline.trackers.interface import ArraySnapshots, Param, Tracker
 
 STARTUP_SCANS = 2
+FRONT_END_BLOCK_RUNS = 64  # runs per block of the subspace sequence (memory, not results)
 SUBSPACES = ("past", "batch")
 CRITERIA = ("mdl", "aic")
 
@@ -215,17 +216,25 @@ def front_end(snapshots: np.ndarray, design: SubspaceTrackerDesign) -> FrontEnd:
     """Steps 1–2 for every run: start-up, then PAST (or batch EVD) per group of equal N."""
     if design.subspace not in SUBSPACES:
         raise ValueError(f"unknown subspace tracker {design.subspace!r} (have: {', '.join(SUBSPACES)})")
-    X = np.asarray(snapshots).astype(complex, copy=False)
+    X = np.asarray(snapshots)
     B, K, M = X.shape[:3]
-    init = start_up(X, design)
+    init = start_up(X[:, :STARTUP_SCANS].astype(complex, copy=False), design)
     sub_err = np.full((B, K), np.nan)
     groups = []
     for n in np.unique(init.n_tracks):
         if n == 0:
             continue
         sel = np.flatnonzero(init.n_tracks == n)
-        past, batch = subspace_sequence(X[sel], int(n), design)
-        sub_err[sel] = largest_principal_angle(past, batch)
+        past = np.empty((len(sel), K, M, int(n)), dtype=complex)
+        batch = np.empty_like(past)
+        # a block of runs at a time, in double precision: the covariances, eigenvectors and PAST
+        # temporaries stay a few tens of MB at any number of runs (every run is its own problem,
+        # so the blocks give the same numbers as one batch)
+        for first in range(0, len(sel), FRONT_END_BLOCK_RUNS):
+            rows = sel[first:first + FRONT_END_BLOCK_RUNS]
+            part = slice(first, first + len(rows))
+            past[part], batch[part] = subspace_sequence(X[rows].astype(complex, copy=False), int(n), design)
+            sub_err[rows] = largest_principal_angle(past[part], batch[part])
         groups.append((sel, int(n), past if design.subspace == "past" else batch))
     return FrontEnd(init, groups, sub_err, M)
 

@@ -41,7 +41,9 @@ def batch_signal_subspace(snapshots: np.ndarray, n_sources: int):
     values : ndarray, shape (..., N)
     """
     values, vectors = eigen_decomposition(sample_covariance(snapshots))
-    return vectors[..., ::-1][..., :n_sources], values[..., ::-1][..., :n_sources]
+    # copies of the leading columns, so that the full eigenvector stacks are freed
+    return (np.ascontiguousarray(vectors[..., ::-1][..., :n_sources]),
+            np.ascontiguousarray(values[..., ::-1][..., :n_sources]))
 
 
 def initial_state(basis: np.ndarray, values: np.ndarray, forgetting: float):
