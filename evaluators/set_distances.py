@@ -21,7 +21,7 @@ from itertools import permutations
 import numpy as np
 
 BRUTE_FORCE_MAX = 6  # 6! = 720 permutations per scan, evaluated together
-BRUTE_FORCE_BLOCK = 8192  # assignment problems per block: (block, 720) sums, a few tens of MB
+BRUTE_FORCE_BLOCK_SUMS = 1 << 17  # permutation sums per block of problems: 1 MiB, in the cache
 
 
 @lru_cache(maxsize=None)
@@ -56,21 +56,24 @@ def _every_permutation(full: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     every permutation that extends it (1,956 additions per problem at size 6 instead of
     4,320) and each total is ``((c₀ + c₁) + c₂) + …`` in row order, bit for bit the sum of
     the permutation's costs; among equal totals the first permutation in lexicographic order
-    wins. Problems go through in blocks of :data:`BRUTE_FORCE_BLOCK`, so that the
-    ``(block, size!)`` sums stay small whatever the number of scans and runs.
+    wins. Problems go through in blocks of :data:`BRUTE_FORCE_BLOCK_SUMS` sums (182 problems
+    at size 6), problems last, so that every gather along the tree copies whole rows and the
+    sums stay in the cache whatever the number of scans and runs.
     """
     size = full.shape[-1]
     levels, perms = _prefix_tree(size), _perms(size)
     total = np.empty(full.shape[0])
     best = np.empty(full.shape[0], dtype=np.intp)
-    for start in range(0, full.shape[0], BRUTE_FORCE_BLOCK):
-        block = full[start:start + BRUTE_FORCE_BLOCK]
-        sums = block[:, 0, levels[0][1]]
+    step = max(1, BRUTE_FORCE_BLOCK_SUMS // len(perms))
+    for start in range(0, full.shape[0], step):
+        block = np.ascontiguousarray(full[start:start + step].transpose(1, 2, 0))  # (size, size, b)
+        sums = block[0, levels[0][1]]
         for row, (parent, column) in enumerate(levels[1:], start=1):
-            sums = sums[:, parent] + block[:, row, column]
-        choice = np.argmin(sums, axis=1)
-        best[start:start + len(block)] = choice
-        total[start:start + len(block)] = sums[np.arange(len(block)), choice]
+            sums = sums[parent] + block[row, column]
+        choice = np.argmin(sums, axis=0)
+        part = slice(start, start + block.shape[-1])
+        best[part] = choice
+        total[part] = sums[choice, np.arange(block.shape[-1])]
     return total, perms[best]
 
 

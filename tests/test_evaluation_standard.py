@@ -4,6 +4,7 @@ Monte Carlo intervals, each against an independent computation or a property tha
 from __future__ import annotations
 
 import itertools
+import math
 
 import numpy as np
 import pytest
@@ -167,7 +168,7 @@ def test_small_sets_find_the_permutation_every_permutation_sum_finds(size, monke
     # and problems split over several blocks must not interact
     from evaluators import set_distances
 
-    monkeypatch.setattr(set_distances, "BRUTE_FORCE_BLOCK", 1000)
+    monkeypatch.setattr(set_distances, "BRUTE_FORCE_BLOCK_SUMS", 1000 * math.factorial(size))
     rng = np.random.default_rng(size)
     costs = rng.random((2500, size, size))
     costs[:800] = np.round(costs[:800] * 3) / 7
