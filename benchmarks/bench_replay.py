@@ -60,7 +60,9 @@ def replay_once(data: Path, out: Path, tree: str | None, recording: bool) -> tup
         args.append("--no-rrd")
     env = dict(os.environ, PYTHONPATH=tree) if tree else None
     t0 = time.perf_counter()
-    child = subprocess.Popen(args, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    # run from the data's folder: ``python -m`` puts the working directory first on sys.path,
+    # which from the repository root would shadow the --before tree
+    child = subprocess.Popen(args, env=env, cwd=data.parent, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     _, status, usage = os.wait4(child.pid, 0)
     wall = time.perf_counter() - t0
     child.returncode = os.waitstatus_to_exitcode(status)

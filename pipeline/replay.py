@@ -18,6 +18,7 @@ from pipeline import __version__
 from pipeline.contract import METADATA_PROVENANCE, OUTPUT_ZSTD_LEVEL, Dataset, read_dataset, write_dataset
 from pipeline.errors import InputError
 from pipeline.stages import applicable_stages, stage_for_outputs
+from pipeline.stages import base as stage_base
 
 
 @dataclass
@@ -258,7 +259,7 @@ def _provenance(ds, n_runs, stages, designs, tracker_specs) -> dict:
 
 
 class _OutputWriter:
-    """The outputs MCAP, written one scoring unit at a time on a thread of its own.
+    """The outputs MCAP, written one scoring unit at a time, a large one on a thread of its own.
 
     zstd compresses without holding the GIL, so the chunks of one tracker's outputs are
     compressed while the main thread scores them; :meth:`wait` joins before the outputs are
@@ -276,22 +277,29 @@ class _OutputWriter:
         return self
 
     def write(self, stage, unit: dict) -> None:
+        """Write ``unit`` (``{"times", "tracks"}``): on the thread when its outputs are large,
+        where compression is most of the work; small ones (many short messages, whose Python
+        work would hold the GIL the scoring needs) at once."""
         if self.path is None:
             return
         self.wait()
         if self._writer is None:
-            from concurrent.futures import ThreadPoolExecutor
-
             self._context = write_dataset(self.path, self._metadata_for_runs(_n_runs({stage.name: unit})),
                                           zstd_level=OUTPUT_ZSTD_LEVEL)
             self._writer = self._context.__enter__()
-            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="replay-write")
 
         def job():
             t = time.perf_counter()
             stage.write(self._writer, unit)
             self.seconds += time.perf_counter() - t
 
+        if stage_base.outputs_nbytes(unit["tracks"]) < stage_base.SCORING_UNIT_BYTES:
+            job()
+            return
+        if self._pool is None:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="replay-write")
         self._pending = self._pool.submit(job)
 
     def wait(self) -> None:

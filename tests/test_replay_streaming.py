@@ -99,8 +99,13 @@ def test_a_stage_whose_views_read_every_run_keeps_them_all():
             np.testing.assert_array_equal(kept.results["tdoa-fdoa"]["tracks"][tracker][key], value)
 
 
-def test_a_failing_write_leaves_no_output_and_raises(tmp_path, monkeypatch):
+@pytest.mark.parametrize("on_thread", [False, True])
+def test_a_failing_write_leaves_no_output_and_raises(tmp_path, monkeypatch, on_thread):
+    from pipeline.stages import base
     from pipeline.stages.base import Stage
+
+    if on_thread:  # every unit large enough to be written on the writer thread
+        monkeypatch.setattr(base, "SCORING_UNIT_BYTES", 0)
 
     def broken(self, writer, result):
         raise OSError("disk full")

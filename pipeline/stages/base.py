@@ -42,7 +42,8 @@ def _recorded_value(key: str, raw, default):
 SCORING_UNIT_BYTES = 64 << 20
 
 
-def _nbytes(tracks: dict) -> int:
+def outputs_nbytes(tracks: dict) -> int:
+    """Bytes of the arrays of ``{tracker: outputs}``."""
     return sum(np.asarray(a).nbytes for out in tracks.values() for a in out.values())
 
 
@@ -232,7 +233,7 @@ class Stage:
                     tracks[entry.name] = call(entry)
                 except TrackerError as exc:
                     errors.append(exc)
-                if tracks and self.scores_trackers_apart and _nbytes(tracks) >= SCORING_UNIT_BYTES:
+                if tracks and self.scores_trackers_apart and outputs_nbytes(tracks) >= SCORING_UNIT_BYTES:
                     extras = self.extras(measurements, design) if extras is None else extras
                     yield list(tracks), {**tracks, **extras}, errors
                     tracks, errors = {}, []
