@@ -116,7 +116,9 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
     dataset : Dataset, optional
         An already decoded data set (skips reading ``path``).
     progress : callable, optional
-        Called with 1 after each of the four phases (filter, evaluate, write, rerun).
+        ``progress(1)`` after the Rerun recording, and ``progress(1, seconds)`` for each of
+        filter, evaluate and write (which run interleaved, tracker by tracker) with its time
+        (:meth:`pipeline.face.progress.Phases.step`).
     tracker_specs : sequence of str
         Plugged trackers (``file.py:Class`` or ``module:Class``) to run beside the built-ins.
     keep_runs : int, optional
@@ -131,7 +133,7 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
         Bad input; also, after every output is written, a plugged or built-in tracker that
         failed (its message names the tracker, the run and the scan).
     """
-    step = progress or (lambda n: None)
+    step = progress or (lambda n, seconds=None: None)
     t0 = time.perf_counter()
     ds = dataset if dataset is not None else read_dataset(path, recover=recover)
     timings = {"read_s": time.perf_counter() - t0, "filter_s": 0.0, "evaluate_s": 0.0}
@@ -183,8 +185,8 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
             per_scan.append(p.with_columns(pl.lit(stage.name).alias("stage")))
             summary.append(s.with_columns(pl.lit(stage.name).alias("stage")))
     timings["write_s"] = writer.seconds
-    for _ in range(3):  # filter, evaluate and write ran together, tracker by tracker
-        step(1)
+    for phase in ("filter_s", "evaluate_s", "write_s"):  # they ran interleaved, tracker by tracker
+        step(1, timings[phase])
     res = ReplayResult(ds, pl.concat(per_scan, how="diagonal"), pl.concat(summary, how="diagonal"), results,
                        timings=timings)
     if out_path is not None:
@@ -230,6 +232,8 @@ def _joined_tables(tables):
         return df.filter(inside if keep else ~inside)
 
     first_names, first_scan, first_summary = tables[0]
+    if len(tables) == 1:  # every tracker in one unit: its tables are the stage's
+        return first_scan, first_summary
     per_scan = pl.concat([mine(p, names, True) for names, p, _ in tables] + [mine(first_scan, first_names, False)],
                          how="diagonal_relaxed")
     columns = list(first_scan.columns) + [c for c in per_scan.columns if c not in first_scan.columns]

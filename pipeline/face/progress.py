@@ -224,13 +224,17 @@ class Phases:
         name = self.phases[self.i] if self.i < len(self.phases) else "done"
         return f"{self.label}: {name}"
 
-    def step(self, n: int = 1) -> None:
+    def step(self, n: int = 1, seconds: float | None = None) -> None:
+        """Close ``n`` phases; ``seconds``: the closed phase's own time, when phases ran
+        interleaved (e.g. a replay's filter, evaluate and write, tracker by tracker) and the
+        time since the last step is not it."""
         for _ in range(n):
             now = time.perf_counter()
             if self.i < len(self.phases):
                 name = self.phases[self.i]
                 if verbose():
-                    self._bar.echo(f"timing: {name} {now - self._t:.2f} s", err=True)
+                    took = now - self._t if seconds is None else seconds
+                    self._bar.echo(f"timing: {name} {took:.2f} s", err=True)
                 self.i += 1
             self._t = now
             self._bar.advance(1, self._text())
