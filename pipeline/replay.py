@@ -35,13 +35,6 @@ class ReplayResult:
     failures: list = field(default_factory=list)  # TrackerErrors of trackers left out
 
 
-def _legacy(stage) -> bool:
-    # a stage not yet on the tracker interface runs its own strategies by name
-    from pipeline.stages.base import Stage
-
-    return type(stage).decode is Stage.decode
-
-
 def select_trackers(stages, names=None, specs=()) -> dict:
     """Stage name → the tracker entries to run: every built-in and plugged (``specs``) tracker
     of the stage's family, or the ones ``names`` selects.
@@ -65,19 +58,14 @@ def select_trackers(stages, names=None, specs=()) -> dict:
                              f"{', '.join(sorted(families))}")
     chosen = {}
     for stage in stages:
-        if _legacy(stage):
-            pool = [e for e in stage.trackers if not names or e in names]
-        else:
-            # the --tracker ones always; by default the built-ins too; installed (entry-point) ones by name
-            pool = [e for e in table.values() if e.family == stage.family and
-                    (e.name in plugged or (e.name in names if names else e.builtin))]
-        chosen[stage.name] = pool
+        # the --tracker ones always; by default the built-ins too; installed (entry-point) ones by name
+        chosen[stage.name] = [e for e in table.values() if e.family == stage.family and
+                              (e.name in plugged or (e.name in names if names else e.builtin))]
     if names:
-        have = {(e if isinstance(e, str) else e.name) for pool in chosen.values() for e in pool}
+        have = {e.name for pool in chosen.values() for e in pool}
         unknown = [n for n in names if n not in have]
         if unknown:
-            known = sorted({(e if isinstance(e, str) else e.name) for s in stages for e in
-                            (s.trackers if _legacy(s) else [x for x in table.values() if x.family == s.family])})
+            known = sorted({x.name for s in stages for x in table.values() if x.family == s.family})
             raise InputError(f"unknown tracker(s) {', '.join(unknown)} for this file (have: {', '.join(known)})")
     return chosen
 
@@ -144,8 +132,7 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
     chosen = select_trackers(stages, trackers, tracker_specs)
     designs = {}
     for stage in stages:
-        design = (stage.design(ds, design_overrides) if _legacy(stage)
-                  else stage.design(ds, design_overrides, chosen[stage.name]))
+        design = stage.design(ds, design_overrides, chosen[stage.name])
         # later calls of stage.design(ds) (Rerun logging, figures) see the values this run used
         ds.cache[("design", stage.name)] = design
         designs[stage.name] = design

@@ -1297,18 +1297,12 @@ def tracker_listing(specs=()) -> list[dict]:
     ``from`` says which (``"tracker"`` or ``"scenario <name>"``), and ``default`` stays None when
     neither has one (the value must then come from the data set or ``--set``).
     """
-    from pipeline import vocabulary as vocab
     from pipeline.registry import available_trackers
-    from pipeline.replay import _legacy
     from pipeline.stages import STAGES
-
-    def family_of(stage) -> str:  # a stage not yet on the tracker interface names no family
-        return stage.family or next((f.name for f in vocab.FAMILIES.values()
-                                     if tuple(f.inputs) == tuple(stage.input_topics)), f"(stage {stage.name})")
 
     stages = {}
     for s in STAGES:
-        stages.setdefault(family_of(s), s)
+        stages.setdefault(s.family, s)
     rows = []
     for e in available_trackers(specs).values():
         stage = stages.get(e.family)
@@ -1329,13 +1323,6 @@ def tracker_listing(specs=()) -> list[dict]:
             params.append({"name": p.name, "default": default, "unit": p.unit, "from": origin, "doc": p.doc})
         rows.append({"name": e.name, "family": e.family, "form": e.cls.form, "source": e.source,
                      "spec": e.spec, "stage": stage.name if stage is not None else None, "params": params})
-    listed = {r["name"] for r in rows}
-    for s in STAGES:  # stages not yet on the tracker interface: their trackers by name
-        if _legacy(s):
-            for name in s.trackers:
-                if name not in listed:
-                    rows.append({"name": name, "family": family_of(s), "form": "-", "source": f"built-in (stage {s.name})",
-                                 "spec": "", "stage": s.name, "params": []})
     return rows
 
 
