@@ -38,12 +38,13 @@ import numpy as np
 
 from pipeline.errors import InputError, check_all, require_finite_params
 from pipeline.cores.localisation.tdoa_fdoa_model import all_pairs, measurement_model
+from pipeline.vocabulary import CHANNELS
 from recorders.simulated import SimulatedData
 
-MEASUREMENTS_TOPIC = "/emitter/measurements"
-SENSORS_TOPIC = "/emitter/sensors"
-PRIOR_TOPIC = "/emitter/prior"
-TRUTH_TOPIC = "/emitter/truth"
+MEASUREMENTS_TOPIC = CHANNELS["emitter_measurements"]
+SENSORS_TOPIC = CHANNELS["emitter_sensors"]
+PRIOR_TOPIC = CHANNELS["emitter_prior"]
+TRUTH_TOPIC = CHANNELS["emitter_truth"]
 
 GEOMETRIES = {
     "line": (((-3000.0, 0.0), (0.0, 0.0), (3000.0, 0.0)), ((300.0, 0.0),) * 3),

@@ -41,10 +41,11 @@ from scipy.special import ndtr, ndtri
 
 from pipeline.errors import InputError, check_all, require_finite_params
 from pipeline.trackers.peak_roles import track_roles
+from pipeline.vocabulary import CHANNELS
 from recorders.simulated import SimulatedData
 
-PEAKS_TOPIC = "/xcorr/peaks"
-TRUTH_TOPIC = "/xcorr/truth"
+PEAKS_TOPIC = CHANNELS["xcorr_peaks"]
+TRUTH_TOPIC = CHANNELS["xcorr_truth"]
 ORIGIN_CLUTTER = -1
 ROLES = ("strong", "weak")
 GEOMETRIES = ("crossing", "maneuver")
