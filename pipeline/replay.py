@@ -104,8 +104,9 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
     dataset : Dataset, optional
         An already decoded data set (skips reading ``path``).
     progress : callable, optional
-        ``progress(1)`` after the Rerun recording, and ``progress(1, seconds)`` for each of
-        filter, evaluate and write (which run interleaved, tracker by tracker) with its time
+        ``progress(1)`` after the Rerun recording, and ``progress(1, seconds, note)`` for each of
+        filter, evaluate and write (which run interleaved, tracker by tracker) with its time and
+        a note saying when writing ran beside the scoring
         (:meth:`pipeline.face.progress.Phases.step`).
     tracker_specs : sequence of str
         Plugged trackers (``file.py:Class`` or ``module:Class``) to run beside the built-ins.
@@ -121,7 +122,7 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
         Bad input; also, after every output is written, a plugged or built-in tracker that
         failed (its message names the tracker, the run and the scan).
     """
-    step = progress or (lambda n, seconds=None: None)
+    step = progress or (lambda n, seconds=None, note=None: None)
     t0 = time.perf_counter()
     ds = dataset if dataset is not None else read_dataset(path, recover=recover)
     timings = {"read_s": time.perf_counter() - t0, "filter_s": 0.0, "evaluate_s": 0.0}
@@ -172,8 +173,9 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
             per_scan.append(p.with_columns(pl.lit(stage.name).alias("stage")))
             summary.append(s.with_columns(pl.lit(stage.name).alias("stage")))
     timings["write_s"] = writer.seconds
+    timings["write_beside_s"] = writer.seconds_beside  # of write_s, on the thread while evaluate ran
     for phase in ("filter_s", "evaluate_s", "write_s"):  # they ran interleaved, tracker by tracker
-        step(1, timings[phase])
+        step(1, timings[phase], "beside evaluate" if phase == "write_s" and writer.seconds_beside else None)
     res = ReplayResult(ds, pl.concat(per_scan, how="diagonal"), pl.concat(summary, how="diagonal"), results,
                        timings=timings)
     if out_path is not None:
@@ -262,7 +264,8 @@ class _OutputWriter:
     def __init__(self, path, metadata_for_runs):
         self.path, self._metadata_for_runs = path, metadata_for_runs
         self._context = self._writer = self._pool = self._pending = None
-        self.seconds = 0.0
+        self.seconds = 0.0  # writing, in all
+        self.seconds_beside = 0.0  # of which on the thread, beside the scoring
 
     def __enter__(self):
         return self
@@ -279,12 +282,16 @@ class _OutputWriter:
                                           zstd_level=OUTPUT_ZSTD_LEVEL)
             self._writer = self._context.__enter__()
 
+        beside = stage_base.outputs_nbytes(unit["tracks"]) >= stage_base.SCORING_UNIT_BYTES
+
         def job():
             t = time.perf_counter()
             stage.write(self._writer, unit)
             self.seconds += time.perf_counter() - t
+            if beside:
+                self.seconds_beside += time.perf_counter() - t
 
-        if stage_base.outputs_nbytes(unit["tracks"]) < stage_base.SCORING_UNIT_BYTES:
+        if not beside:
             job()
             return
         if self._pool is None:

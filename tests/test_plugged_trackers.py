@@ -96,6 +96,16 @@ class BadShape(Tracker):
         return {"state": np.zeros((3, 4)), "flags": np.zeros(3, np.uint16)}
 
 
+class ShortState(Tracker):
+    name = "short_state"
+    family = "radar-plots"
+
+    def track(self, plots):  # [x, y, vx] where the family's state is [x, y, vx, vy]
+        R, K = plots.counts.shape
+        return {"state": np.zeros((R, K, 3)), "covariance": np.tile(np.eye(3), (R, K, 1, 1)),
+                "flags": np.zeros((R, K), np.uint16)}
+
+
 class NanState(Tracker):
     name = "nan_state"
     family = "radar-plots"
@@ -255,7 +265,8 @@ def test_run_form_equals_batch_form(radar_small, plugged):
     ("Boom", "boom", "run 0: raised RuntimeError: kaput"),
     ("BadShape", "bad_shape", "output 'state' has shape (3, 4), expected (30 runs, 64 scans, ...)"),
     ("NanState", "nan_state", "NaN state without the NO_TRACK or NOT_ESTIMATED flag"),
-], ids=["raises", "bad-shape", "nan-state"])
+    ("ShortState", "short_state", "state has 3 components, the family's state has 4"),
+], ids=["raises", "bad-shape", "nan-state", "short-state"])
 def test_failing_tracker_gives_one_line_and_the_others_are_written(runner, radar_small, plugged, cls, name, fragment):
     res = runner.invoke(main, [str(radar_small), "--tracker", f"plugged.py:{cls}", "--no-rrd", "--out", "o/t.mcap"])
     assert_one_error_line(res, f"tracker {name!r}", f"plugged.py:{cls}", fragment)

@@ -768,13 +768,15 @@ def run_cmd(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, s
                             ("tables", tables), ("plots", plots)])
     if figures_mode == "background":  # the outputs are complete: the figures follow on their own
         _draw_figures_in_background(data, out_path, recover)
-        _echo_wrapped(f"plots:     drawn in the background into {out_dir} (at once: replay plot {data} {out_path})")
+        again = f"replay plot {data} {out_path}" + (" --recover" if recover else "")
+        _echo_wrapped(f"plots:     drawn in the background into {out_dir} (at once: {again})")
     if res.rrd_path:
         click.echo(f"view:      replay view {res.rrd_path}")
     t = res.timings
     click.echo(f"time:      {t['total_s']:.2f} s" + (
         f" (read {t['read_s']:.2f}, filter {t['filter_s']:.2f}, evaluate {t['evaluate_s']:.2f}, "
-        f"write {t.get('write_s', 0):.2f}, rerun {t.get('rerun_s', 0):.2f})" if progress.verbose() else ""))
+        f"write {t.get('write_s', 0):.2f}{' beside evaluate' if t.get('write_beside_s') else ''}, "
+        f"rerun {t.get('rerun_s', 0):.2f})" if progress.verbose() else ""))
     fail_on_tracker_errors([str(exc) for exc in res.failures])
     if spawn and res.rrd_path:
         from pipeline.face.viewer import open_viewer

@@ -224,17 +224,18 @@ class Phases:
         name = self.phases[self.i] if self.i < len(self.phases) else "done"
         return f"{self.label}: {name}"
 
-    def step(self, n: int = 1, seconds: float | None = None) -> None:
+    def step(self, n: int = 1, seconds: float | None = None, note: str | None = None) -> None:
         """Close ``n`` phases; ``seconds``: the closed phase's own time, when phases ran
         interleaved (e.g. a replay's filter, evaluate and write, tracker by tracker) and the
-        time since the last step is not it."""
+        time since the last step is not it; ``note`` follows the time (e.g. that it overlapped
+        another phase)."""
         for _ in range(n):
             now = time.perf_counter()
             if self.i < len(self.phases):
                 name = self.phases[self.i]
                 if verbose():
                     took = now - self._t if seconds is None else seconds
-                    self._bar.echo(f"timing: {name} {took:.2f} s", err=True)
+                    self._bar.echo(f"timing: {name} {took:.2f} s" + (f" ({note})" if note else ""), err=True)
                 self.i += 1
             self._t = now
             self._bar.advance(1, self._text())

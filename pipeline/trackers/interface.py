@@ -142,6 +142,10 @@ class Measurements:
     def n_scans(self) -> int:
         return int(len(self.times_s))
 
+    #: components of the state a tracker of the family returns (its ``state``'s last axis);
+    #: the family's evaluators index them (``pipeline.vocabulary.FAMILIES``)
+    state_size = None
+
 
 @dataclass
 class RadarPlots(Measurements):
@@ -157,6 +161,7 @@ class RadarPlots(Measurements):
     counts: np.ndarray = _per_run()
     times_s: np.ndarray = None
     truth_state: np.ndarray | None = _per_run(None)
+    state_size = 4  # [x, y, vx, vy]
 
 
 @dataclass
@@ -178,6 +183,7 @@ class BearingPeaks(Measurements):
     n_targets: int = 0
     truth_bearing_rad: np.ndarray | None = _per_run(None)
     truth_rate_radps: np.ndarray | None = _per_run(None)
+    state_size = 2  # [bearing, bearing rate] per track slot
 
 
 @dataclass
@@ -191,6 +197,7 @@ class ArraySnapshots(Measurements):
     times_s: np.ndarray = None
     spacing_wavelengths: float = 0.5
     truth_angle_rad: np.ndarray | None = _per_run(None)
+    state_size = 2  # [bearing, bearing rate] per track slot
 
 
 @dataclass
@@ -210,6 +217,7 @@ class TdoaFdoa(Measurements):
     times_s: np.ndarray = None
     pairs: np.ndarray = None
     prior_state: np.ndarray | None = _per_run(None)
+    state_size = 4  # [x, y, vx, vy]
 
 
 @dataclass
@@ -220,6 +228,10 @@ class ColoredPositions(Measurements):
     position_m: np.ndarray = _per_run()
     times_s: np.ndarray = None
     truth_state: np.ndarray | None = _per_run(None)
+
+    @property
+    def state_size(self) -> int:
+        return 3 * int(self.position_m.shape[-1])  # [p, v, a] per axis
 
 
 MEASUREMENTS = {"radar-plots": RadarPlots, "bearing-peaks": BearingPeaks, "array-snapshots": ArraySnapshots,
@@ -299,7 +311,7 @@ def call_tracker(tracker: Tracker, measurements, source: str | None = None) -> d
         if not isinstance(outputs, dict):
             raise TrackerError(f"tracker {name!r}: track returned {type(outputs).__name__}, expected a dict of "
                                "arrays", where)
-    return validate_outputs(outputs, R, measurements.n_scans, name, where)
+    return validate_outputs(outputs, R, measurements.n_scans, name, where, measurements.state_size)
 
 
 def _first(mask) -> str:
@@ -308,7 +320,8 @@ def _first(mask) -> str:
     return text + (f" slot {idx[2]}" if len(idx) > 2 else "")
 
 
-def validate_outputs(outputs: dict, n_runs: int, n_scans: int, name: str, where: str | None = None) -> dict:
+def validate_outputs(outputs: dict, n_runs: int, n_scans: int, name: str, where: str | None = None,
+                     state_size: int | None = None) -> dict:
     """Check a tracker's outputs against the vocabulary; return them with flags as uint16.
 
     Checks: the required names; every array ``(runs, scans, ...)`` and numeric; ``flags``
@@ -334,6 +347,9 @@ def validate_outputs(outputs: dict, n_runs: int, n_scans: int, name: str, where:
     if state.ndim < 3 or state.dtype.kind not in "f":
         raise TrackerError(f"tracker {name!r}: state has shape {state.shape} and dtype {state.dtype}, expected "
                            "floats (runs, scans, [slots,] n)", where)
+    if state_size is not None and state.shape[-1] != state_size:
+        raise TrackerError(f"tracker {name!r}: state has {state.shape[-1]} components, the family's state has "
+                           f"{state_size} (see `replay trackers` and docs/trackers.md)", where)
     flags = out["flags"]
     if flags.dtype.kind not in "iub" or flags.shape != state.shape[:-1]:
         raise TrackerError(f"tracker {name!r}: flags have shape {flags.shape} and dtype {flags.dtype}, expected "
