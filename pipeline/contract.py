@@ -1521,8 +1521,7 @@ def read_dataset(path: str | Path, topics: Iterable[str] | None = None, recover:
             collected.add(topic, contract, payload)
         problem = source.problem()
         if problem is not None and not recover:
-            raise InputError(f"{problem}; {source.messages} message(s) in intact chunks are recoverable with "
-                             "--recover", path)
+            raise InputError(_unreadable(problem, source.messages), path)
         channels = collected.channels(source.channel_ids)
         if source.layout is not None and problem is None:
             for topic, ch in channels.items():
@@ -1673,8 +1672,14 @@ def iter_frames(path: str | Path, recover: bool = False, meta: dict | None = Non
     meta["contracts"] = dict(source.contracts)
     meta["problem"] = source.problem()
     if meta["problem"] is not None and not recover:
-        raise InputError(f"{meta['problem']}; {source.messages} message(s) in intact chunks are recoverable with "
-                         "--recover", path)
+        raise InputError(_unreadable(meta["problem"], source.messages), path)
+
+
+def _unreadable(problem: str, messages: int) -> str:
+    """The message for a damaged file: what --recover would keep, or that it would keep nothing."""
+    if messages == 0:
+        return f"{problem}; no complete chunk survives, so --recover has nothing to keep"
+    return f"{problem}; {messages} message(s) in intact chunks are recoverable with --recover"
 
 
 @dataclass

@@ -431,3 +431,26 @@ def test_on_a_pseudo_terminal_bars_go_to_stderr_and_json_stays_pure(tmp_path, ra
     assert done.returncode == 0
     json.loads(done.stdout)
     assert terminal.strip() == ""
+
+
+def test_run_options_may_come_before_the_data_file(runner, radar, tmp_path):
+    data, _ = radar
+    res = invoke(runner, "--no-rrd", "--rerun-run", 3, data, "--out", tmp_path / "o" / "tracks.mcap", "--figures",
+                 "none")
+    assert res.exit_code == 0, res.output
+    assert (tmp_path / "o" / "tracks.mcap").is_file() and not (tmp_path / "o" / "tracks.rrd").exists()
+
+
+def test_a_rerun_run_past_the_last_run_is_said_and_the_last_run_shown(runner, radar, tmp_path):
+    data, _ = radar
+    res = invoke(runner, data, "--rerun-run", 99, "--out", tmp_path / "o" / "tracks.mcap", "--figures", "none")
+    assert res.exit_code == 0, res.output
+    assert "--rerun-run 99: radar.mcap holds runs 0–11; the Rerun views show run 11" in res.output
+
+
+def test_a_file_with_no_complete_chunk_does_not_suggest_recover(runner, radar, tmp_path):
+    data, _ = radar
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data.read_bytes()[:100])
+    res = invoke(runner, cut)
+    assert res.exit_code == 2 and "no complete chunk survives, so --recover has nothing to keep" in res.output

@@ -160,7 +160,15 @@ class ReplayGroup(click.Group):
                 hint = f" (did you mean '{close[0]}'?)" if close else ""
                 raise click.UsageError(f"no such command or file {args[i]!r}{hint}; see `replay --help`")
             args = [*args[:i], "run", *args[i:]]
+        elif args[i].split("=")[0] in self._run_options():
+            # `replay --rerun-run 5 data.mcap`: options of run before the data file mean run too
+            args = [*args[:i], "run", *args[i:]]
         return super().parse_args(ctx, args)
+
+    def _run_options(self) -> set:
+        run = self.commands.get("run")
+        names = {o for p in (run.params if run is not None else ()) for o in getattr(p, "opts", ())}
+        return {n for n in names if n.startswith("-")} - {"-h", "--help", "-q", "--quiet", "-v", "--verbose"}
 
     def invoke(self, ctx):
         try:
@@ -739,6 +747,11 @@ def run_cmd(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, s
     dataset = read_dataset(data, recover=recover)  # bad files fail here, before any progress output
     t_read = time.perf_counter() - t_read
     progress.timing("read", t_read)
+    n_runs = max((ch.n_runs for ch in dataset.channels.values()), default=0)
+    if n_runs and rerun_run >= n_runs:  # the views show the last run; say so rather than pick it silently
+        _echo_wrapped(f"--rerun-run {rerun_run}: {data.name} holds runs 0–{n_runs - 1}; the Rerun views show run "
+                      f"{n_runs - 1}")
+        rerun_run = n_runs - 1
     # every output is staged and moved into place at the end: a crash or a kill leaves the
     # previous set untouched, never a mix (a recording elsewhere than the folder is one atomic file)
     rrd_inside = rrd_path is not None and rrd_path.parent.resolve() == out_dir.resolve()
