@@ -338,6 +338,12 @@ def _column_groups(widths: list[int], first: int, width: int, headers=None) -> l
     return groups + [current] if current else groups
 
 
+def _metrics_title(data: Path, dataset) -> str:
+    """``metrics for NAME (R runs)``, the same for ``replay`` and ``replay eval``."""
+    runs = max((ch.n_runs for ch in dataset.channels.values()), default=0)
+    return f"metrics for {Path(data).name} ({runs} runs)"
+
+
 def _print_summary(summary: pl.DataFrame, title: str) -> None:
     """One table per scope (and one for the standard measures): metrics down, trackers across;
     a table wider than TABLE_WIDTH is split into several with the metric column repeated, and
@@ -765,7 +771,7 @@ def run_cmd(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, s
         res.timings["total_s"] += t_read
         if res.dataset.recovered_messages is not None:
             click.echo(f"recovered {res.dataset.recovered_messages} messages from complete chunks of {data}")
-        _print_summary(_table_summary(res), f"metrics for {data.name} ({res.dataset.channel(next(iter(res.dataset.channels))).n_runs} runs)")
+        _print_summary(_table_summary(res), _metrics_title(data, res.dataset))
         _print_stage_reports(res)
         if figures_mode == "auto":  # a converted foreign file lives only as long as this call
             figures_mode = "background" if sys.stdout.isatty() and map_path is None else "now"
@@ -993,7 +999,7 @@ def eval_cmd(data, outputs, as_json, per_scan, export_dir, recover, tracker_spec
             records += long.select("tracker", "metric", "scope", "value", "stage").to_dicts()
         click.echo(json.dumps([{k: _json_value(v) for k, v in r.items()} for r in records]))
     else:
-        _print_summary(_table_summary(res), f"metrics for {data.name}")
+        _print_summary(_table_summary(res), _metrics_title(data, res.dataset))
         _print_stage_reports(res)
     if export_dir:
         with progress.timed("export"):
