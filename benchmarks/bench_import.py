@@ -78,25 +78,27 @@ def _rows_for(size_mb: float, bytes_per_row: float) -> int:
     return max(1000, int(size_mb * 1e6 / bytes_per_row))
 
 
+def _scan_rows(n_rows: int, entries: int, period_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """``run`` and ``time_s`` of 100 runs × K scans × ``entries`` rows per scan (about ``n_rows``)."""
+    runs = 100
+    scans = max(3, n_rows // (runs * entries))
+    shape = (runs, scans, entries)
+    run = np.broadcast_to(np.arange(runs)[:, None, None], shape).ravel()
+    t = np.broadcast_to((np.arange(scans) * period_s)[None, :, None], shape).ravel()
+    return run, t
+
+
 def radar_table(n_rows: int, seed: int = 0) -> pl.DataFrame:
     """100 runs × K scans × 20 plots of radar-plots rows."""
-    runs, w = 100, RETURNS_PER_SCAN
-    scans = max(3, n_rows // (runs * w))
+    run, t = _scan_rows(n_rows, RETURNS_PER_SCAN, 5.0)
     rng = np.random.default_rng(seed)
-    shape = (runs, scans, w)
-    run = np.broadcast_to(np.arange(runs)[:, None, None], shape).ravel()
-    t = np.broadcast_to((np.arange(scans) * 5.0)[None, :, None], shape).ravel()
     return pl.DataFrame({"run": run, "time_s": t, "range_m": rng.uniform(1e3, 2e4, run.size),
                          "bearing_rad": rng.uniform(-np.pi, np.pi, run.size)})
 
 
 def peaks_table(n_rows: int, seed: int = 1) -> pl.DataFrame:
-    runs, w = 100, 8
-    scans = max(3, n_rows // (runs * w))
+    run, t = _scan_rows(n_rows, 8, 0.1)
     rng = np.random.default_rng(seed)
-    shape = (runs, scans, w)
-    run = np.broadcast_to(np.arange(runs)[:, None, None], shape).ravel()
-    t = np.broadcast_to((np.arange(scans) * 0.1)[None, :, None], shape).ravel()
     return pl.DataFrame({"run": run, "time_s": t, "bearing_rad": rng.uniform(1.3, 1.8, run.size),
                          "amplitude": rng.uniform(0, 5, run.size)})
 

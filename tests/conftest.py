@@ -81,3 +81,31 @@ def _strip_truth(src: Path, dst: Path) -> None:
 def without_truth():
     """``without_truth(src, dst)`` writes ``src`` without its truth channels."""
     return _strip_truth
+
+
+def _replay_without_truth(folder: Path, scenario: str, seed: int, options=()):
+    """Simulate ``scenario`` (4 runs), strip its truth and replay it through the command line as a
+    recording would be; returns the command's result and the outputs path (it must succeed)."""
+    from click.testing import CliRunner
+
+    from pipeline.contract import read_dataset
+    from pipeline.face.cli import main
+
+    runner = CliRunner()
+    full, bare = folder / "full.mcap", folder / "bare.mcap"
+    res = runner.invoke(main, ["simulate", scenario, "--runs", "4", "--seed", str(seed), "-o", str(full), *options])
+    assert res.exit_code == 0, res.output
+    _strip_truth(full, bare)
+    assert not any("truth" in t for t in read_dataset(bare).channels)
+    out = folder / "o" / "tracks.mcap"
+    res = runner.invoke(main, [str(bare), "--out", str(out), "--no-rrd", "-q"])
+    assert res.exit_code == 0, res.output
+    assert "Traceback" not in res.output
+    return res, out
+
+
+@pytest.fixture
+def replay_without_truth(tmp_path):
+    """``replay_without_truth(scenario, seed, options)`` → ``(result, tracks.mcap)`` of replaying a
+    simulated data set with its truth left out."""
+    return lambda scenario, seed, options=(): _replay_without_truth(tmp_path, scenario, seed, options)

@@ -9,13 +9,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
 from pipeline import vocabulary as vocab
 from pipeline.contract import read_dataset
 from pipeline.cores.association.jpda import STRATEGIES, BearingTrackerDesign, ScanPeaks, track_bearing_peaks
 from pipeline.cores.association.track_management import EndingRule, coasting_run, ended
-from pipeline.face.cli import main
 
 DEG = np.pi / 180
 
@@ -80,17 +78,9 @@ SCENARIOS = {"radar-tws": ["--set", "n_scans=20"], "xcorr-crossing": ["--set", "
 
 
 @pytest.mark.parametrize("scenario", sorted(SCENARIOS))
-def test_every_family_replays_a_data_set_without_its_truth(tmp_path, scenario, without_truth):
-    runner = CliRunner()
-    full, bare = tmp_path / "full.mcap", tmp_path / "bare.mcap"
-    res = runner.invoke(main, ["simulate", scenario, "--runs", "4", "--seed", "3", "-o", str(full), *SCENARIOS[scenario]])
-    assert res.exit_code == 0, res.output
-    without_truth(full, bare)
-    assert not any("truth" in t for t in read_dataset(bare).channels)
-    out = tmp_path / "o" / "tracks.mcap"
-    res = runner.invoke(main, [str(bare), "--out", str(out), "--no-rrd", "-q"])
-    assert res.exit_code == 0, res.output
-    assert "Traceback" not in res.output and "rmse" not in res.output.lower()  # no error it cannot compute
+def test_every_family_replays_a_data_set_without_its_truth(scenario, replay_without_truth):
+    res, out = replay_without_truth(scenario, 3, SCENARIOS[scenario])
+    assert "rmse" not in res.output.lower()  # no error it cannot compute
     assert out.is_file() and (out.parent / "report.png").is_file()
     if scenario in ("xcorr-crossing", "array-crossing"):  # bearings, the one thing to show without truth
         assert "run 0 without truth: track positions (deg) per scan" in res.output

@@ -13,7 +13,6 @@ from click.testing import CliRunner
 
 from evaluators.track_summary import METRICS, mean_nis_bounds, track_life, track_summary
 from pipeline import vocabulary as vocab
-from pipeline.contract import read_dataset
 from pipeline.face.cli import main
 
 N, I, C, D = vocab.NO_TRACK, vocab.INITIALISING, vocab.COASTED, vocab.DELETED
@@ -171,18 +170,9 @@ ERROR_METRICS = ("rmse", "ospa", "gospa", "nees", "mota", "idf1", "crlb", "pcrb"
 
 
 @pytest.mark.parametrize("scenario", sorted(SCENARIOS))
-def test_replay_without_truth_prints_the_track_summary_of_every_tracker_and_no_error(tmp_path, scenario, without_truth):
+def test_replay_without_truth_prints_the_track_summary_of_every_tracker_and_no_error(scenario, replay_without_truth):
     stage, options = SCENARIOS[scenario]
-    runner = CliRunner()
-    full, bare = tmp_path / "full.mcap", tmp_path / "bare.mcap"
-    res = runner.invoke(main, ["simulate", scenario, "--runs", "4", "--seed", "5", "-o", str(full), *options])
-    assert res.exit_code == 0, res.output
-    without_truth(full, bare)
-    assert not any("truth" in t for t in read_dataset(bare).channels)
-    out = tmp_path / "o" / "tracks.mcap"
-    res = runner.invoke(main, [str(bare), "--out", str(out), "--no-rrd", "-q"])
-    assert res.exit_code == 0, res.output
-    assert "Traceback" not in res.output
+    res, out = replay_without_truth(scenario, 5, options)
     assert not [m for m in ERROR_METRICS if m in res.output.lower()]
     metrics = pl.read_csv(out.parent / "metrics.csv")
     part = metrics.filter((pl.col("stage") == stage) & pl.col("metric").is_in(list(METRICS)))
