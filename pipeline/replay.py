@@ -81,11 +81,11 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
            keep_runs: int | None = None) -> ReplayResult:
     """Replay every applicable stage over a data set.
 
-    Trackers are taken one at a time: each is filtered, its outputs written (on a thread of
-    their own, while the same outputs are scored) and scored, before the next one starts, so
-    that the memory a replay needs grows with one tracker's outputs, not with all of them
-    (``docs/benchmarks.md``). A stage whose scores compare its trackers with one another
-    (:attr:`pipeline.stages.base.Stage.scores_trackers_apart` false) is scored in one piece.
+    Trackers go through in scoring units (:meth:`pipeline.stages.base.Stage.run_units`): once
+    the outputs gathered reach 64 MiB they are written (a large unit on a thread of its own,
+    while the same outputs are scored), scored and released before the next tracker runs, so
+    that on many runs the memory a replay needs grows with one tracker's outputs, not with all
+    of them (``docs/architecture.md``, ``docs/benchmarks.md``).
 
     Parameters
     ----------

@@ -180,9 +180,6 @@ class Stage:
             raise TrackerError(f"tracker {entry.name!r}: constructing it raised {type(exc).__name__}: {exc}",
                                entry.source) from None
 
-    #: whether each tracker's scores depend on its own outputs alone (with the stage's extras), so
-    #: that a replay may score the trackers one at a time; False scores them all in one piece
-    scores_trackers_apart = True
     #: whether the face (Rerun views, figures) reads every Monte Carlo run of the outputs, not
     #: only the run it shows (see ``keep_runs`` of :func:`pipeline.replay.replay`)
     views_read_all_runs = False
@@ -215,8 +212,9 @@ class Stage:
             (:meth:`extras`, computed once, after the first tracker that ran; every unit's scores
             need them), and the :class:`TrackerError` of trackers that failed. A unit closes
             once its outputs reach :data:`SCORING_UNIT_BYTES` (on many runs: one tracker per
-            unit; on a few, all in one, which spares the scoring's fixed cost per call); a stage
-            that is not :attr:`scores_trackers_apart` has one unit.
+            unit; on a few, all in one, which spares the scoring's fixed cost per call). Every
+            family's scores of a tracker read its own outputs and the extras alone, so the
+            units' tables are those of scoring all at once (``tests/test_replay_streaming.py``).
         """
         measurements = self.decode(dataset, design)
         times = np.asarray(measurements.times_s, dtype=float)
@@ -233,7 +231,7 @@ class Stage:
                     tracks[entry.name] = call(entry)
                 except TrackerError as exc:
                     errors.append(exc)
-                if tracks and self.scores_trackers_apart and outputs_nbytes(tracks) >= SCORING_UNIT_BYTES:
+                if tracks and outputs_nbytes(tracks) >= SCORING_UNIT_BYTES:
                     extras = self.extras(measurements, design) if extras is None else extras
                     yield list(tracks), {**tracks, **extras}, errors
                     tracks, errors = {}, []
