@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from pipeline import vocabulary as vocab
-from pipeline.cores.filters.ar1_estimation import (bias_corrected_alpha, estimate_ar1, scan_flags, transient_samples,
+from pipeline.cores.filters.ar1_estimation import (all_pole_filter, bias_corrected_alpha, estimate_ar1, scan_flags, transient_samples,
                                                    white_noise_variance)
 from pipeline.cores.filters.decorrelation import decorrelated_measurement_matrix, inverse_transition_rows, pseudo_measurements
 from pipeline.errors import InputError
@@ -14,6 +14,19 @@ from recorders.colored_noise import simulate
 from recorders.scenarios import load_scenario
 
 ALPHAS = (0.8, 0.4, 0.0, -0.4, -0.8)
+
+
+@pytest.mark.parametrize("gain, poles", [(1.0, (1.0,)), (0.01, (1.0, -0.99)), (1.0, (1.0, -1.8, 0.81)),
+                                         (0.3, (1.0, 0.5, -0.2, 0.1))])
+def test_all_pole_filter_is_lfilter_to_the_bit(gain, poles):
+    """The estimator's recursions equal scipy's direct form bit for bit, zeros and long runs
+    included (the estimator's inputs start with exact zeros before the burn-in)."""
+    from scipy.signal import lfilter
+
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=(7, 1500, 2)) * rng.choice([0.0, 1e-3, 1.0, 1e6], size=(7, 1500, 2))
+    x[:, :90] = 0.0
+    np.testing.assert_array_equal(all_pole_filter(gain, poles, x), lfilter([gain], list(poles), x, axis=1))
 
 
 @pytest.fixture(scope="module")

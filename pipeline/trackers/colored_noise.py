@@ -30,7 +30,7 @@ Flags (``pipeline.vocabulary.FLAGS``, decorrelating trackers only): the AR estim
 ``CLAMPED`` (discriminant clamped), ``LIMITED`` (|α̂| limited), ``FLOORED`` (``σ_η²`` floored),
 bit-or over the axes, and ``NOT_WARM`` while the estimator has not settled (the filter then
 uses the plain measurement). Each decorrelating tracker runs the estimator itself (three
-``lfilter`` calls, well under the filters' cost); :func:`ar1_outputs` gives its arrays for the
+all-pole filters, well under the filters' cost); :func:`ar1_outputs` gives its arrays for the
 stage's ``ar_estimator`` output.
 
 Outputs: ``state``, ``covariance``, ``flags``; ``model_probabilities`` (IMMs, models in the
