@@ -16,6 +16,11 @@ also runs with ``PYTHONPATH=TREE``, interleaved with this tree's, so that both s
 The table gives medians with min–max over the repeats and says PASS/MISS against the speed
 issue's targets (docs/benchmarks.md).
 
+A second table, the **import floor**, times fresh processes that only import what every replay
+needs before it can print a table (numpy, polars, scipy.special for the χ² and t quantiles,
+mcap, zstandard, protobuf, click) and, beside it, the same plus the Rerun SDK that writes the
+``.rrd``: no 10-run replay can be faster than these. ``--floor-only`` prints just that table.
+
 How to run
 ----------
 From the repository root, with the package installed (``pip install -e .``)::
@@ -71,13 +76,46 @@ def replay_once(data: Path, out: Path, tree: str | None, recording: bool) -> tup
     return wall, usage.ru_maxrss / 1024  # kB on Linux
 
 
+FLOOR_IMPORTS = {  # what a replay cannot start without, and the Rerun SDK its recording needs
+    "numpy, polars, scipy.special, mcap, zstandard, protobuf, click":
+        "import numpy, polars, scipy.special, mcap.reader, mcap.writer, zstandard, google.protobuf, click",
+    "the same + rerun, rerun.blueprint (the .rrd)":
+        "import numpy, polars, scipy.special, mcap.reader, mcap.writer, zstandard, google.protobuf, click, "
+        "rerun, rerun.blueprint",
+    "python alone": "pass",
+}
+
+
+def import_floor(repeats: int) -> list[list[str]]:
+    """Rows (imports, wall median [min–max], peak memory) of fresh processes that only import."""
+    walls = {k: [] for k in FLOOR_IMPORTS}
+    peaks = {k: [] for k in FLOOR_IMPORTS}
+    for _ in range(repeats):  # interleaved, so that every row sees the same load
+        for label, code in FLOOR_IMPORTS.items():
+            t0 = time.perf_counter()
+            child = subprocess.Popen([sys.executable, "-c", code])
+            _, status, usage = os.wait4(child.pid, 0)
+            walls[label].append(time.perf_counter() - t0)
+            peaks[label].append(usage.ru_maxrss / 1024)
+            if os.waitstatus_to_exitcode(status):
+                raise SystemExit(f"import floor: {code!r} failed")
+    return [[label, spread(walls[label], 1.0, 2, "s"), spread(peaks[label], 1.0, 0, "MB")] for label in FLOOR_IMPORTS]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--sets", default=",".join(SETS), help=f"comma-separated, of {', '.join(SETS)}")
     ap.add_argument("--before", help="a checkout of an earlier commit to replay with, interleaved")
     ap.add_argument("--keep", help="work folder to keep (default: a temporary one)")
+    ap.add_argument("--floor-only", action="store_true", help="print only the import floor")
     args = ap.parse_args()
+    floor = import_floor(args.repeats)
+    print(f"import floor: fresh processes that only import, median [min–max] of {args.repeats}")
+    print_table(["imports", "wall", "peak memory"], floor)
+    print()
+    if args.floor_only:
+        return
     chosen = [s.strip() for s in args.sets.split(",") if s.strip()]
     unknown = [s for s in chosen if s not in SETS]
     if unknown:
