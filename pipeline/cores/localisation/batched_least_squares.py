@@ -16,20 +16,28 @@ units already make large, so instead:
 Two forms of step 3. :func:`householder_qr` loops over the q ≤ 4 columns, each step
 vectorised over the stack (the CRLB path, :func:`information_covariance`).
 :func:`solve_augmented` (the Gauss-Newton path, :func:`scaled_least_squares`) keeps the stack
-axis last and hands the augmented matrices [A | b] to LAPACK's stacked ``geqrf`` through
-:func:`numpy.linalg.qr` in one call: a Gauss-Newton iteration on a single run then costs a few
-dozen array calls instead of a few hundred, and on 500 runs the LAPACK loop over matrices is
-still no slower than the column loop (≈ 250 µs against ≈ 300 µs per 500 augmented 6 × 5
-matrices on the reference machine; ≈ 5 µs against ≈ 80 µs for one).
+axis last and hands the augmented matrices [A | b] to LAPACK's stacked ``geqrf`` (the ufunc
+behind :func:`numpy.linalg.qr`, called on the stack's own memory: :func:`_qr_in_place`) in one
+call: a Gauss-Newton iteration on a single run then costs a few dozen array calls instead of a
+few hundred, and on 500 runs the LAPACK loop over matrices is still no slower than the column
+loop (≈ 250 µs against ≈ 300 µs per 500 augmented 6 × 5 matrices on the reference machine;
+≈ 5 µs against ≈ 80 µs for one). For a stack of one, :func:`_factor_one` and its neighbours do
+the same arithmetic on Python floats around the same LAPACK call (the Gauss-Newton one-run path).
 
 The inverse of R (needed for a covariance, never for a step) is again a back-substitution.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
+
+try:  # the stacked LAPACK ``geqrf`` behind numpy.linalg.qr(mode="raw"), called without its wrapper
+    from numpy.linalg import _umath_linalg
+except ImportError:  # pragma: no cover - a numpy that moved it: the public call below is used
+    _umath_linalg = None
 
 #: Columns whose norm is below this fraction of the largest column are treated as zero
 #: (the geometry gives no information on that unknown, e.g. an emitter on the sensors' line).
@@ -161,18 +169,58 @@ class LeastSquaresSolution:
 
 
 _DIAGONAL = np.arange(16)  # index of the diagonal of the triangular factors (q ≤ 16), built once
-_DIAGONALS = {q: (_DIAGONAL[:q], _DIAGONAL[:q]) for q in range(17)}
 _IDENTITY = {q: np.eye(q)[:, :, None] for q in range(17)}  # (q, q, 1): broadcast along a stack
+
+
+def _qr_public(M: np.ndarray) -> None:
+    """:func:`_qr_in_place` through the public :func:`numpy.linalg.qr` (a copy there and back)."""
+    M[...] = np.linalg.qr(M.transpose(2, 0, 1), mode="raw")[0].transpose(2, 1, 0)
+
+
+def _qr_gufunc(M: np.ndarray) -> None:
+    """:func:`_qr_in_place` by numpy's stacked ``geqrf`` ufunc on M's own memory.
+
+    ``numpy.linalg.qr`` copies its argument, calls this ufunc, which overwrites the matrices it
+    is given with their factored form, and transposes the copy back; the copy in, the copy
+    out and the wrapper's checks cost as much as the factorisation itself on a few hundred
+    6 × 5 matrices, and several times its cost on one. Called on a view of M, the ufunc
+    writes the factors straight into M. The LAPACK call and its inputs are the same, so the
+    bits are too (checked at import against the public call, see :func:`_qr_self_check`).
+    """
+    _umath_linalg.qr_r_raw(M.transpose(2, 0, 1), signature="d->d")
+
+
+def _qr_self_check() -> bool:
+    """Whether :func:`_qr_gufunc` factors in place exactly as :func:`_qr_public` does (a private
+    numpy function could change: if it does, the public call is used)."""
+    if _umath_linalg is None:
+        return False
+    try:
+        probe = np.random.default_rng(0).standard_normal((6, 5, 3))
+        ours, public = probe.copy(), probe.copy()
+        _qr_gufunc(ours)
+        _qr_public(public)
+        return bool(np.array_equal(ours, public))
+    except Exception:  # pragma: no cover - any failure of the private call: use the public one
+        return False
+
+
+#: Householder QR of every matrix of a stack (m, n, B), stack axis last, overwriting it with
+#: LAPACK's ``geqrf`` output: R on and above the diagonal of rows k < n, the Householder vectors
+#: below it (the transpose of ``numpy.linalg.qr(..., mode="raw")[0]`` of the stack in front).
+_qr_in_place = _qr_gufunc if _qr_self_check() else _qr_public
 
 
 def _factor(M: np.ndarray, zero_rtol: float, rank_rtol: float):
     """Column scaling, QR and rank test of :func:`solve_augmented`.
 
     Returns the factor ``Rt`` (q, q + 1, B: R in the upper triangle, Q₁ᵀb in the last
-    column, rows k and columns j with the stack last), ``scale`` (q, B), the rank-deficiency
-    mask (B,), whether any member is deficient, and ‖b‖² (B,).
+    column, rows k and columns j with the stack last; a view of M, which is overwritten by the
+    factorisation), ``scale`` (q, B), the rank-deficiency mask (B,), whether any member is
+    deficient, and ‖b‖² (B,).
     """
-    q = M.shape[1] - 1
+    m, n, B = M.shape
+    q = n - 1
     A = M[:, :q]
     # sums of squares of every column, b's included (‖b‖² is the cost): the reduction runs over
     # the leading axis, so it adds the rows in order whatever B is (a run's answer must not
@@ -184,11 +232,11 @@ def _factor(M: np.ndarray, zero_rtol: float, rank_rtol: float):
     used = norms > zero_rtol * np.maximum.reduce(norms, axis=0)
     scale = np.where(used, norms, 1.0)
     A /= scale
-    # raw mode hands back the factored (B, m, q + 1) matrices transposed: swap to rows k,
-    # columns j, stack last
-    Rt = np.ascontiguousarray(np.linalg.qr(M.transpose(2, 0, 1), mode="raw")[0][:, :, :q].transpose(2, 1, 0))
-    # a zero column counts as a zero on the diagonal (M is finite, so R is)
-    d = np.abs(Rt[_DIAGONALS[q]]) * used
+    _qr_in_place(M)
+    Rt = M[:q]  # rows k < q of the factored stack, contiguous
+    # a zero column counts as a zero on the diagonal (M is finite, so R is). R_kk is row
+    # k (q + 2) of M flattened to (m (q + 1), B): a strided slice, no gather
+    d = np.abs(M.reshape(m * n, B)[:q * (q + 2):q + 2]) * used
     bad = np.minimum.reduce(d, axis=0) <= rank_rtol * np.maximum.reduce(d, axis=0)
     return Rt, scale, bad, bool(np.logical_or.reduce(bad)), squares[q]
 
@@ -210,6 +258,85 @@ def _step(Rt: np.ndarray, scale: np.ndarray, bad: np.ndarray, bad_any: bool):
     return x, np.sqrt(np.add.reduce(Qtb * Qtb, axis=0))
 
 
+# ---------------------------------------------------------------- one stack member
+#
+# The same arithmetic as _factor, _step and _covariance_rows for a stack of one (B = 1), with
+# the q ≤ 4 numbers after the QR handled as Python floats: on one member each numpy call costs
+# its fixed overhead (≈ 0.5 µs) for one or four numbers, and these three functions make some
+# forty of them per Gauss-Newton iteration. The column norms stay one numpy reduction and the
+# QR the same LAPACK call; every other operation is the IEEE operation numpy applies
+# elementwise (+, −, ×, ÷, √, min, max, comparisons), in the same order (numpy's reductions of
+# the batched path add the rows one after the other, see _factor), so the results are those of
+# the batched path to the last bit (tests/test_tdoa_speed_paths.py checks it); sums are
+# written out left to right (the builtin ``sum`` compensates from Python 3.12 on). No explicit
+# inverse either: R⁻¹ (for the covariance) is again a back-substitution.
+
+
+def _factor_one(M: np.ndarray, zero_rtol: float, rank_rtol: float):
+    """:func:`_factor` for M (m, q + 1, 1): the factor's rows ``R`` (q lists of q + 1 floats:
+    R in the upper triangle, Q₁ᵀb last), ``scale`` (q floats), whether R is rank deficient,
+    and ‖b‖² (float)."""
+    m, n, _ = M.shape
+    q = n - 1
+    squares = np.add.reduce(M * M, axis=0).ravel().tolist()
+    norms = [math.sqrt(s) for s in squares[:q]]
+    limit = zero_rtol * max(norms)  # M is finite, so no NaN: max is numpy's maximum.reduce
+    used = [v > limit for v in norms]
+    scale = [v if u else 1.0 for v, u in zip(norms, used)]
+    A = M[:, :q, 0]
+    A /= np.array(scale)
+    _qr_in_place(M)
+    R = M[:q, :, 0].tolist()
+    # |R_kk| × used: × 1.0 leaves |R_kk|, × 0.0 gives +0.0 (R is finite)
+    d = [abs(R[k][k]) if used[k] else 0.0 for k in range(q)]
+    return R, scale, min(d) <= rank_rtol * max(d), squares[q]
+
+
+def _back_substitute_one(R: list, x: list) -> list:
+    """:func:`_back_substitute_rows` for one member: solve R x = y in place (x holds y)."""
+    i = len(x) - 1
+    x[i] /= R[i][i]
+    while i:
+        xi = x[i]
+        for k in range(i):
+            x[k] -= R[k][i] * xi
+        i -= 1
+        x[i] /= R[i][i]
+    return x
+
+
+def _step_one(R: list, scale: list):
+    """:func:`_step` for one full-rank member: x = R⁻¹ Q₁ᵀb / scale (q floats) and ‖Q₁ᵀb‖."""
+    q = len(scale)
+    Qtb = [row[q] for row in R]
+    x = _back_substitute_one(R, list(Qtb))
+    total = Qtb[0] * Qtb[0]
+    for v in Qtb[1:]:
+        total += v * v
+    return [v / s for v, s in zip(x, scale)], math.sqrt(total)
+
+
+def _covariance_one(R: list, scale: list) -> list:
+    """:func:`_covariance_rows` for one full-rank member: D⁻¹ R⁻¹ R⁻ᵀ D⁻¹ as q lists of q.
+
+    R⁻¹ column by column (back-substitution of each column of the identity, as the batched
+    path does for all of them at once), its rows divided by the column scales, then
+    Σ_k (D⁻¹R⁻¹)_ak (D⁻¹R⁻¹)_bk added in k order.
+    """
+    q = len(scale)
+    cols = [_back_substitute_one(R, [1.0 if i == k else 0.0 for i in range(q)]) for k in range(q)]
+    rows = [[col[i] / s for col in cols] for i, s in enumerate(scale)]  # rows of D⁻¹ R⁻¹
+    cov = [[0.0] * q for _ in range(q)]
+    for a, ra in enumerate(rows):
+        for b in range(a, q):  # the (b, a) sum multiplies the same pairs: the same bits
+            rb = rows[b]
+            total = ra[0] * rb[0]
+            for k in range(1, q):
+                total += ra[k] * rb[k]
+            cov[a][b] = cov[b][a] = total
+    return cov
+
+
 def solve_augmented(M: np.ndarray, zero_rtol: float = ZERO_COLUMN_RTOL,
                     rank_rtol: float = RANK_RTOL) -> LeastSquaresSolution:
     """min ‖A x − b‖ for a stack given as augmented matrices [A | b], stack axis last.
@@ -220,8 +347,8 @@ def solve_augmented(M: np.ndarray, zero_rtol: float = ZERO_COLUMN_RTOL,
 
     * the stack axis is last, so every elementwise step (column norms, scaling, rank test,
       back-substitution) runs over long contiguous rows rather than tiny trailing axes;
-    * LAPACK's ``geqrf`` (through the stacked :func:`numpy.linalg.qr`, ``mode="raw"``) reduces
-      [A/scale | b] in one call: R is the leading q × q triangle and Q₁ᵀb the top of the last
+    * LAPACK's ``geqrf`` (the stacked ufunc of :func:`numpy.linalg.qr`, ``mode="raw"``, on M
+      itself: :func:`_qr_in_place`) reduces [A/scale | b] in one call: R is the leading q × q triangle and Q₁ᵀb the top of the last
       column, so Qᵀ is never formed nor applied separately;
     * R y = Q₁ᵀb by back-substitution over the whole stack; rank-deficient members get the
       identity there (no 0/0) and NaN in ``x``.
@@ -233,8 +360,8 @@ def solve_augmented(M: np.ndarray, zero_rtol: float = ZERO_COLUMN_RTOL,
     Parameters
     ----------
     M : ndarray (m, q + 1, B), m ≥ q, finite
-        Whitened design matrices with the whitened right-hand side as the last column. The
-        first q columns are divided by their norms in place.
+        Whitened design matrices with the whitened right-hand side as the last column;
+        overwritten (by the column-scaled matrices' QR factorisation).
     zero_rtol, rank_rtol : float
         As :data:`ZERO_COLUMN_RTOL` and :data:`RANK_RTOL`.
 

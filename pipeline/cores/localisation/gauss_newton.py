@@ -20,13 +20,15 @@ the model.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 
-from pipeline.cores.localisation.batched_least_squares import (RANK_RTOL, ZERO_COLUMN_RTOL, _covariance_rows, _factor,
-                                                               _step)
+from pipeline.cores.localisation.batched_least_squares import (RANK_RTOL, ZERO_COLUMN_RTOL, _covariance_one,
+                                                               _covariance_rows, _factor, _factor_one, _step,
+                                                               _step_one)
 # the status bits are those of the one flag table (uint16), re-exported for the callers of this core
 from pipeline.vocabulary import CONVERGED, DIVERGED, FLAG_DTYPE, INVALID_START, NOT_CONVERGED, RANK_DEFICIENT
 
@@ -129,7 +131,9 @@ def gauss_newton(model: Callable, theta0: np.ndarray, measured: np.ndarray, sigm
     back-substitution over the stack
     (:func:`pipeline.cores.localisation.batched_least_squares.solve_augmented`), and the flags
     are touched only in iterations where some run stops. A run's answer does not depend on
-    the other runs of the batch, to the last bit.
+    the other runs of the batch, to the last bit. A call with one run takes a shorter path
+    (:func:`_one_run`: the same arithmetic in fewer array calls) unless one of its steps is
+    irregular.
 
     Parameters
     ----------
@@ -163,6 +167,11 @@ def gauss_newton(model: Callable, theta0: np.ndarray, measured: np.ndarray, sigm
     B, p = theta.shape
     free, measured, sigma, measured_t, sigma_t = _prepare(theta, measured, sigma, free)
     batch = batch or {}
+    if B == 1 and iterations >= 1:  # one run: the same steps with fewer array calls, if it is regular
+        with np.errstate(all="ignore"):
+            one = _one_run(model, theta, measured_t, sigma_t, free, iterations, step_tolerance, batch, diverged)
+        if one is not None:
+            return one
     flags = np.zeros(B, FLAG_DTYPE)
     start_ok = _all(np.isfinite(theta if free is None else theta[:, free]), axis=1)
     active = start_ok.copy()
@@ -258,6 +267,70 @@ def gauss_newton(model: Callable, theta0: np.ndarray, measured: np.ndarray, sigm
     if np.logical_or.reduce(final_rank_bad):
         flags[final_rank_bad & ((flags & DIVERGED) == 0) & start_ok] |= RANK_DEFICIENT
     return GaussNewtonResult(theta, iterates, steps, step_sigma, cost, cov, flags)
+
+
+def _one_run(model, theta, measured_t, sigma_t, free, iterations, step_tolerance, batch, diverged):
+    """:func:`gauss_newton` on one run whose every step is regular; None otherwise.
+
+    Recorded data usually is one run, for which the batched loop's array calls on one or four
+    numbers cost more than the model. This is the same iteration: the model, the whitened
+    system and the QR are the batched path's own calls; the column scaling's thresholds, the
+    rank test, the back-substitution, the step and its length, the convergence test and the
+    covariance are the same IEEE operations on Python floats
+    (:func:`pipeline.cores.localisation.batched_least_squares._factor_one` and its
+    neighbours). A run that meets anything the batched loop treats apart (an invalid start, a
+    non-finite model, a rank-deficient or non-finite step, a divergence, a singular final
+    Jacobian) returns None: the caller then runs the batched loop from the start, which
+    is deterministic, so the result is the same either way (tests/test_tdoa_speed_paths.py).
+    Called under ``np.errstate(all="ignore")``.
+    """
+    p = theta.shape[1]
+    current = theta[0].tolist()
+    unknown = list(range(p)) if free is None else free.tolist()
+    if not all(math.isfinite(current[f]) for f in unknown):
+        return None
+    path = [current]
+    th = theta
+    norm = math.nan
+    converged = False
+    for _ in range(iterations):
+        M, finite = _whitened_system(model, th, measured_t, sigma_t, free, batch)
+        if finite is not None:
+            return None
+        R, scale, bad, _ = _factor_one(M, ZERO_COLUMN_RTOL, RANK_RTOL)
+        if bad:
+            return None
+        x, norm = _step_one(R, scale)
+        new = list(current)
+        for k, f in enumerate(unknown):
+            new[f] += x[k]
+        if not all(math.isfinite(v) for v in new):
+            return None
+        th = np.array([new])
+        if diverged is not None and np.logical_or.reduce(np.asarray(diverged(th, **batch), bool), axis=None):
+            return None
+        current = new
+        path.append(new)
+        if norm < step_tolerance:
+            converged = True
+            break
+    # the final statistics (:func:`_final_statistics`) at the estimate
+    M, finite = _whitened_system(model, th, measured_t, sigma_t, free, batch)
+    if finite is not None:
+        return None
+    R, scale, bad, cost = _factor_one(M, ZERO_COLUMN_RTOL, RANK_RTOL)
+    if bad:
+        return None
+    cov_free = np.array([_covariance_one(R, scale)])
+    if free is None:
+        cov = cov_free
+    else:
+        cov = np.full((1, p, p), np.nan)
+        cov[:, free[:, None], free[None, :]] = cov_free
+    steps = len(path) - 1
+    path += [current] * (iterations - steps)  # a run that stopped early repeats its estimate
+    return GaussNewtonResult(th, np.array([path]), np.array([steps], np.int64), np.array([norm]), np.array([cost]),
+                             cov, np.array([CONVERGED if converged else NOT_CONVERGED], FLAG_DTYPE))
 
 
 def final_statistics(model, theta, measured, sigma, free, batch):
