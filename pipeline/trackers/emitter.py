@@ -116,9 +116,15 @@ class _GaussNewtonEstimator(Tracker):
             theta0[:, 2:] = 0.0
         limit = self.divergence_range_m
 
+        # every kind's rows are one run of consecutive rows of g: taken as a slice, a view (the
+        # model is called at every iteration; a gather would copy g and H each time)
+        take = slice(int(rows[0]), int(rows[-1]) + 1)
+        if not np.array_equal(rows, np.arange(take.start, take.stop)):
+            take = rows
+
         def model(theta, sensor_pos, sensor_vel, carrier_hz):
             g, H = measurement_model(theta, sensor_pos, sensor_vel, pairs, carrier_hz)
-            return g[:, rows], H[:, rows]
+            return g[:, take], H[:, take]
 
         def diverged(theta, sensor_pos, sensor_vel, carrier_hz):
             centre = sensor_pos.mean(axis=1)
