@@ -60,14 +60,15 @@ from pipeline import vocabulary as vocab
 from pipeline.cores.array.angular_innovation import INNOVATIONS
 from pipeline.cores.array.flop_counts import ANALYTIC, counted_flops
 from pipeline.cores.array.music import angle_grid, eigen_decomposition, music_spectrum, pick_peaks, sample_covariance, source_count
-from pipeline.cores.array.past_subspace import batch_signal_subspace, initial_state, largest_principal_angle, past_update
+from pipeline.cores.array.past_subspace import batch_signal_subspace, initial_state, largest_principal_angle, past_scans
 from pipeline.cores.association.track_management import EndingRule, TrackLife
 from pipeline.cores.filters.kalman import apply_gain, continuous_white_noise_model, kalman_gain, kf_predict, two_point_start
 from pipeline.errors import InputError
 from pipeline.trackers.interface import ArraySnapshots, Param, Tracker
 
 STARTUP_SCANS = 2
-FRONT_END_BLOCK_RUNS = 64  # runs per block of the subspace sequence (memory, not results)
+FRONT_END_BLOCK_RUNS = 64  # runs per block of the batch EVD (memory, not results)
+PAST_BLOCK_RUNS = 256  # runs per PAST pass: fewer calls per run, arrays still in the L2 cache (speed, not results)
 SUBSPACES = ("past", "batch")
 CRITERIA = ("mdl", "aic")
 
@@ -146,11 +147,15 @@ class StartUp:
     source_counts: np.ndarray  # (B, 2) estimated counts at scans 0 and 1
 
 
-def start_up(snapshots: np.ndarray, design: SubspaceTrackerDesign) -> StartUp:
-    """Step 1: source count and angles from MUSIC at k = −1 and k = 0 (scans 0, 1)."""
+def start_up(snapshots: np.ndarray, design: SubspaceTrackerDesign, evd=None) -> StartUp:
+    """Step 1: source count and angles from MUSIC at k = −1 and k = 0 (scans 0, 1).
+
+    ``evd``: the ``(values, vectors)`` of those scans' sample covariances when the caller has
+    them already (:func:`front_end` shares them with the subspaces of scans 0 and 1).
+    """
     grid = angle_grid(design.grid_step_rad)
     first = snapshots[:, :STARTUP_SCANS]
-    values, vectors = eigen_decomposition(sample_covariance(first))
+    values, vectors = eigen_decomposition(sample_covariance(first)) if evd is None else evd
     counts = source_count(values, snapshots.shape[-1], design.source_count, snapshots.shape[-2] - 1)
     n = counts[:, 1] if design.n_sources == 0 else np.full(snapshots.shape[0], design.n_sources)
     n2 = np.stack([n, n], axis=1)
@@ -180,27 +185,6 @@ def start_up(snapshots: np.ndarray, design: SubspaceTrackerDesign) -> StartUp:
 # --------------------------------------------------------------------------- step 2: subspace
 
 
-def subspace_sequence(snapshots: np.ndarray, n: int, design: SubspaceTrackerDesign):
-    """PAST and batch-EVD subspaces of every scan for runs sharing the signal dimension ``n``.
-
-    Returns
-    -------
-    past : ndarray, complex, shape (B, K, M, n)
-        PAST's W at the end of each scan (scan 0: the EVD it starts from).
-    batch : ndarray, complex, shape (B, K, M, n)
-        Leading eigenvectors of each scan's sample covariance.
-    """
-    B, K, M, _ = snapshots.shape
-    batch, values = batch_signal_subspace(snapshots, n)
-    past = np.empty_like(batch)
-    W, P = initial_state(batch[:, 0], values[:, 0], design.forgetting)
-    past[:, 0] = W
-    for k in range(1, K):
-        W, P = past_update(W, P, snapshots[:, k], design.forgetting)
-        past[:, k] = W
-    return past, batch
-
-
 @dataclass
 class FrontEnd:
     """What both innovation strategies share: the start-up and, per group of runs with the same
@@ -212,30 +196,98 @@ class FrontEnd:
     n_sensors: int
 
 
+def _runs(X: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """``X[rows]``, as a view when the rows are consecutive (the usual case: one N for all runs),
+    so that nothing is copied before the per-scan conversions."""
+    if rows.size and rows[-1] - rows[0] == rows.size - 1:
+        return X[rows[0]:rows[-1] + 1]
+    return X[rows]
+
+
+def _leading(values: np.ndarray, vectors: np.ndarray, n: int):
+    """The ``n`` leading eigenpairs, largest first, as copies (the full stacks can be freed)."""
+    return (np.ascontiguousarray(vectors[..., ::-1][..., :n]), np.ascontiguousarray(values[..., ::-1][..., :n]))
+
+
+class _Evd(threading.Thread):
+    """Leading ``n`` eigenvectors of the sample covariance of every tracked scan (scan ≥ 2) of
+    some runs, ``(runs, K − 2, M, n)``, computed in a thread of its own.
+
+    In double precision, :data:`FRONT_END_BLOCK_RUNS` runs at a time: the covariances and full
+    eigenvector stacks stay a few tens of MB at any number of runs (every run is its own
+    problem, so the blocks give the same numbers as one batch). An exception is kept and
+    raised by :meth:`result`.
+    """
+
+    def __init__(self, X: np.ndarray, rows: np.ndarray, n: int):
+        super().__init__(daemon=True)
+        self.X, self.rows, self.n = X, rows, n
+        self.vectors, self.error = None, None
+
+    def run(self) -> None:
+        try:
+            rows, K, M = self.rows, self.X.shape[1], self.X.shape[2]
+            vectors = np.empty((len(rows), K - STARTUP_SCANS, M, self.n), dtype=complex)
+            for first in range(0, len(rows), FRONT_END_BLOCK_RUNS):
+                block = _runs(self.X, rows[first:first + FRONT_END_BLOCK_RUNS])[:, STARTUP_SCANS:]
+                vectors[first:first + len(block)] = batch_signal_subspace(block.astype(complex), self.n)[0]
+            self.vectors = vectors
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller's thread
+            self.error = exc
+
+    def result(self) -> np.ndarray:
+        if self.error is not None:
+            raise self.error
+        return self.vectors
+
+
 def front_end(snapshots: np.ndarray, design: SubspaceTrackerDesign) -> FrontEnd:
-    """Steps 1–2 for every run: start-up, then PAST (or batch EVD) per group of equal N."""
+    """Steps 1–2 for every run: start-up, then PAST (or batch EVD) per group of equal N.
+
+    Each scan's sample covariance is decomposed once: scans 0 and 1 serve both the start-up
+    and the subspaces; PAST runs from scan 0's EVD over a block of runs at a time while the
+    batch EVD of the block's other scans is computed beside it (:class:`_Evd`); the latter is
+    kept only where the filters use it (``subspace="batch"``) and otherwise reduced to the
+    subspace error block by block.
+    """
     if design.subspace not in SUBSPACES:
         raise ValueError(f"unknown subspace tracker {design.subspace!r} (have: {', '.join(SUBSPACES)})")
     X = np.asarray(snapshots)
     B, K, M = X.shape[:3]
-    init = start_up(X[:, :STARTUP_SCANS].astype(complex, copy=False), design)
+    head = X[:, :STARTUP_SCANS].astype(complex, copy=False)
+    head_values, head_vectors = eigen_decomposition(sample_covariance(head))
+    init = start_up(head, design, (head_values, head_vectors))
     sub_err = np.full((B, K), np.nan)
     groups = []
     for n in np.unique(init.n_tracks):
         if n == 0:
             continue
+        n = int(n)
         sel = np.flatnonzero(init.n_tracks == n)
-        past = np.empty((len(sel), K, M, int(n)), dtype=complex)
-        batch = np.empty_like(past)
-        # a block of runs at a time, in double precision: the covariances, eigenvectors and PAST
-        # temporaries stay a few tens of MB at any number of runs (every run is its own problem,
-        # so the blocks give the same numbers as one batch)
-        for first in range(0, len(sel), FRONT_END_BLOCK_RUNS):
-            rows = sel[first:first + FRONT_END_BLOCK_RUNS]
+        head_batch, head_lam = _leading(head_values[sel], head_vectors[sel], n)
+        past = np.empty((len(sel), K, M, n), dtype=complex)
+        batch = np.empty_like(past) if design.subspace == "batch" else None
+        past[:, 0], P = initial_state(head_batch[:, 0], head_lam[:, 0], design.forgetting)
+        if batch is not None:
+            batch[:, :STARTUP_SCANS] = head_batch
+        for first in range(0, len(sel), PAST_BLOCK_RUNS):
+            rows = sel[first:first + PAST_BLOCK_RUNS]
             part = slice(first, first + len(rows))
-            past[part], batch[part] = subspace_sequence(X[rows].astype(complex, copy=False), int(n), design)
-            sub_err[rows] = largest_principal_angle(past[part], batch[part])
-        groups.append((sel, int(n), past if design.subspace == "past" else batch))
+            # the batch EVD of the block's tracked scans does not depend on PAST: it runs in a
+            # second thread (LAPACK releases the GIL) while this one runs PAST over the block
+            evd = _Evd(X, rows, n)
+            evd.start()
+            try:
+                past[part, 1:], _ = past_scans(past[part, 0], P[part], _runs(X, rows)[:, 1:], design.forgetting)
+            finally:
+                evd.join()
+            vectors = evd.result()
+            sub_err[rows, STARTUP_SCANS:] = largest_principal_angle(past[part, STARTUP_SCANS:], vectors,
+                                                                    b_orthonormal=True)
+            if batch is not None:
+                batch[part, STARTUP_SCANS:] = vectors
+        sub_err[sel, :STARTUP_SCANS] = largest_principal_angle(past[:, :STARTUP_SCANS], head_batch, b_orthonormal=True)
+        groups.append((sel, n, past if batch is None else batch))
     return FrontEnd(init, groups, sub_err, M)
 
 

@@ -76,23 +76,78 @@ def past_update(W: np.ndarray, P: np.ndarray, snapshots: np.ndarray, forgetting:
     W, P : ndarray
         State after the last snapshot (new arrays; the inputs are not modified).
     """
+    X = np.asarray(snapshots)
+    Ws, P = past_scans(W, P, X[:, None], forgetting)
+    return Ws[:, 0], P
+
+
+def past_scans(W: np.ndarray, P: np.ndarray, snapshots: np.ndarray, forgetting: float):
+    """Run PAST over consecutive scans of snapshots, keeping W at the end of every scan.
+
+    The same recursion as :func:`past_update` over the scans' snapshots in time order (one call
+    instead of one per scan: the state stays in its working layout between scans).
+
+    Parameters
+    ----------
+    W : ndarray, complex, shape (B, M, N)
+    P : ndarray, complex, shape (B, N, N)
+    snapshots : ndarray, complex, shape (B, K, M, Ns)
+        K scans of Ns snapshots per run; read one scan at a time (a complex64 array, or a view
+        into a larger one, is converted scan by scan, never as a whole).
+    forgetting : float
+        β.
+
+    Returns
+    -------
+    W : ndarray, complex, shape (B, K, M, N)
+        The state after the last snapshot of each scan.
+    P : ndarray, complex, shape (B, N, N)
+        After the last snapshot.
+    """
     beta = float(forgetting)
     inv_beta = 1.0 / beta
+    B, K, M, Ns = snapshots.shape
     # runs-last layout: every step is a few contiguous element-wise passes over all runs
-    # (faster than batched matmuls of 15 × 5 matrices)
-    W = np.ascontiguousarray(np.moveaxis(np.asarray(W, dtype=complex), 0, -1))  # (M, N, B)
+    # (faster than batched matmuls of 15 × 5 matrices), written into preallocated buffers. The
+    # conjugate of W is what is kept: Wᴴx and the rank-one update then need no conjugate of the
+    # M × N array (conjugation is exact, so the numbers are those of the plain recursion)
+    Wc = np.ascontiguousarray(np.conj(np.moveaxis(np.asarray(W, dtype=complex), 0, -1)))  # (M, N, B)
     P = np.ascontiguousarray(np.moveaxis(np.asarray(P, dtype=complex), 0, -1))  # (N, N, B)
-    X = np.ascontiguousarray(np.moveaxis(np.asarray(snapshots).astype(complex, copy=False), -1, 0))  # (Ns, B, M)
-    for x in X:
-        x = x.T  # (M, B)
-        y = np.sum(W.conj() * x[:, None, :], axis=0)  # Wᴴx, (N, B)
-        h = np.sum(P * y[None, :, :], axis=1)  # P y
-        g = h / (beta + np.sum(y.real * h.real + y.imag * h.imag, axis=0))  # yᴴh is real (P Hermitian)
-        P = (P - g[:, None, :] * h.conj()[None, :, :]) * inv_beta
-        P = 0.5 * (P + P.conj().transpose(1, 0, 2))  # Tri{·}: the Hermitian part
-        e = x - np.sum(W * y[None, :, :], axis=1)
-        W = W + e[:, None, :] * g.conj()[None, :, :]
-    return np.moveaxis(W, -1, 0), np.moveaxis(P, -1, 0)
+    N = Wc.shape[1]
+    big, small, pair = np.empty_like(Wc), np.empty_like(P), np.empty_like(P)
+    y, h, g, conj_n = (np.empty((N, B), complex) for _ in range(4))
+    e, conj_x = np.empty((M, B), complex), np.empty((M, B), complex)
+    real_a, real_b, den = np.empty((N, B)), np.empty((N, B)), np.empty(B)
+    out = np.empty((B, K, M, N), complex)
+    for k in range(K):
+        X = np.ascontiguousarray(np.asarray(snapshots[:, k]).transpose(2, 1, 0), dtype=complex)  # (Ns, M, B)
+        for x in X:
+            np.multiply(Wc, x[:, None, :], out=big)
+            np.sum(big, axis=0, out=y)  # y = Wᴴx
+            np.multiply(P, y[None, :, :], out=small)
+            np.sum(small, axis=1, out=h)  # h = P y
+            np.multiply(y.real, h.real, out=real_a)  # yᴴh is real (P Hermitian)
+            np.multiply(y.imag, h.imag, out=real_b)
+            real_a += real_b
+            np.sum(real_a, axis=0, out=den)
+            den += beta
+            np.divide(h, den, out=g)  # g = h / (β + yᴴh)
+            np.conjugate(h, out=conj_n)
+            np.multiply(g[:, None, :], conj_n[None, :, :], out=small)
+            P -= small
+            P *= inv_beta  # P ← (P − g hᴴ) / β
+            np.conjugate(P.transpose(1, 0, 2), out=pair)
+            P += pair
+            P *= 0.5  # Tri{·}: the Hermitian part
+            np.conjugate(y, out=conj_n)
+            np.multiply(Wc, conj_n[None, :, :], out=big)
+            np.sum(big, axis=1, out=e)
+            np.conjugate(x, out=conj_x)
+            np.subtract(conj_x, e, out=e)  # conj(e), e = x − W y
+            np.multiply(e[:, None, :], g[None, :, :], out=big)
+            Wc += big  # conj(W ← W + e gᴴ)
+        np.conjugate(Wc.transpose(2, 0, 1), out=out[:, k])
+    return out, np.ascontiguousarray(np.moveaxis(P, -1, 0))
 
 
 def orthonormal_basis(W: np.ndarray) -> np.ndarray:
@@ -115,6 +170,31 @@ def principal_angles(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     return np.arctan2(sin, cos)
 
 
-def largest_principal_angle(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """The subspace error used in the reports: the largest principal angle (rad)."""
-    return principal_angles(A, B)[..., -1]
+def largest_principal_angle(A: np.ndarray, B: np.ndarray, b_orthonormal: bool = False) -> np.ndarray:
+    """The subspace error used in the reports: the largest principal angle (rad), batched.
+
+    The last of :func:`principal_angles` for two subspaces of equal dimension, without the two
+    singular value decompositions: its sine is the largest singular value of
+    ``(I − Q_A Q_Aᴴ) Q_B``, the square root of the largest eigenvalue of that residual's
+    N × N Gram matrix (accurate relative to itself, so small angles keep their digits), and its
+    cosine ``√(1 − sin²)``. Above 45° the cosine is the better-conditioned of the two, so there
+    it is the smallest singular value of ``Q_Aᴴ Q_B`` as in :func:`principal_angles` (for
+    those elements only).
+
+    Parameters
+    ----------
+    A, B : ndarray, complex, shape (..., M, N)
+    b_orthonormal : bool
+        B's columns are orthonormal already (e.g. eigenvectors): no QR of B.
+    """
+    qa = orthonormal_basis(A)
+    qb = np.asarray(B) if b_orthonormal else orthonormal_basis(B)
+    cross = np.conj(np.swapaxes(qa, -1, -2)) @ qb
+    resid = qb - qa @ cross
+    sin2 = np.clip(np.linalg.eigvalsh(np.conj(np.swapaxes(resid, -1, -2)) @ resid)[..., -1], 0.0, 1.0)
+    cos = np.sqrt(1.0 - sin2)
+    wide = sin2 > 0.5
+    if np.any(wide):
+        cos = np.where(wide, 0.0, cos)  # a new array (also for a single pair)
+        cos[wide] = np.linalg.svd(cross[wide], compute_uv=False)[..., -1]
+    return np.arctan2(np.sqrt(sin2), cos)
