@@ -118,18 +118,32 @@ def test_one_run_path_flags_and_padding():
     assert not (fixed.flags[0] & DIVERGED)
 
 
-def test_qr_in_place_equals_numpy_qr():
+def test_householder_equals_lapack_qr_to_rounding_and_the_one_member_form_to_the_bit():
     rng = np.random.default_rng(5)
-    for m, n, b in ((6, 5, 1), (6, 5, 300), (12, 5, 7), (4, 3, 2)):
-        M = rng.standard_normal((m, n, b)) * 10.0 ** rng.uniform(-6, 6, (1, n, b))
-        ref = np.linalg.qr(M.transpose(2, 0, 1), mode="raw")[0].transpose(2, 1, 0)
+    for m, n, b in ((6, 5, 1), (6, 5, 300), (12, 5, 7), (4, 3, 2), (30, 5, 3)):
+        M = rng.standard_normal((m, n, b)) * 10.0 ** rng.uniform(-3, 3, (1, n, b))
+        M[:, :n - 1] /= np.sqrt(np.add.reduce(M[:, :n - 1] ** 2, axis=0))  # unit columns, as _factor gives
+        ref = M.copy()
+        bls._qr_lapack(ref)
         ours = M.copy()
-        bls._qr_in_place(ours)
-        assert np.array_equal(ours, ref)
-        public = M.copy()
-        bls._qr_public(public)
-        assert np.array_equal(public, ref)
-    assert bls._qr_in_place is bls._qr_gufunc  # this numpy: the in-place call is the one used
+        bls._householder_in_place(ours)
+        q = n - 1
+        R_ref, R = np.triu(ref[:q].transpose(2, 0, 1)), np.triu(ours[:q].transpose(2, 0, 1))
+        # R and Q₁ᵀb are unique up to the sign of each row
+        sign = np.sign(R_ref[:, np.arange(q), np.arange(q)] * R[:, np.arange(q), np.arange(q)])
+        np.testing.assert_allclose(R * sign[:, :, None], R_ref, rtol=0, atol=1e-13 * np.abs(R_ref).max())
+        for r in range(b):  # one member alone, and as Python floats: the same bits
+            alone = M[:, :, r:r + 1].copy()
+            bls._householder_in_place(alone)
+            cols = M[:, :, r].T.tolist()
+            bls._householder_columns(cols)
+            for k in range(q):
+                assert np.array_equal(alone[k, k:, 0], ours[k, k:, r])
+                assert [c[k] for c in cols[k:]] == ours[k, k:, r].tolist()
+    zero = np.zeros((6, 5, 2))
+    zero[:, 1, 1] = 1.0  # a zero column before a non-zero one
+    bls._householder_in_place(zero)
+    assert np.isfinite(zero).all()
 
 
 @pytest.mark.parametrize("seed", range(20))
@@ -142,7 +156,7 @@ def test_one_member_helpers_equal_the_stacked_ones(seed):
     x, norm = bls._step(Rt, scale, bad, bad_any)
     cov = bls._covariance_rows(Rt, scale, bad, bad_any)
     for r in range(B):
-        R1, scale1, bad1, cost1 = bls._factor_one(M[:, :, r:r + 1].copy(), bls.ZERO_COLUMN_RTOL, bls.RANK_RTOL)
+        R1, scale1, bad1, cost1 = bls._factor_one(M[:, :, r].T.tolist(), bls.ZERO_COLUMN_RTOL, bls.RANK_RTOL)
         assert bad1 == bad[r] and cost1 == cost[r] and scale1 == scale[:, r].tolist()
         assert R1 == [row[:, r].tolist() for row in Rt]
         if bad1:

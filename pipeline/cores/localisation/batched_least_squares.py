@@ -13,16 +13,17 @@ units already make large, so instead:
 4. R y = Qᵀb is solved by back-substitution (:func:`back_substitute`); the step in the
    original units is y / scale.
 
-Two forms of step 3. :func:`householder_qr` loops over the q ≤ 4 columns, each step
+Three forms of step 3. :func:`householder_qr` loops over the q ≤ 4 columns, each step
 vectorised over the stack (the CRLB path, :func:`information_covariance`).
-:func:`solve_augmented` (the Gauss-Newton path, :func:`scaled_least_squares`) keeps the stack
-axis last and hands the augmented matrices [A | b] to LAPACK's stacked ``geqrf`` (the ufunc
-behind :func:`numpy.linalg.qr`, called on the stack's own memory: :func:`_qr_in_place`) in one
-call: a Gauss-Newton iteration on a single run then costs a few dozen array calls instead of a
-few hundred, and on 500 runs the LAPACK loop over matrices is still no slower than the column
-loop (≈ 250 µs against ≈ 300 µs per 500 augmented 6 × 5 matrices on the reference machine;
-≈ 5 µs against ≈ 80 µs for one). For a stack of one, :func:`_factor_one` and its neighbours do
-the same arithmetic on Python floats around the same LAPACK call (the Gauss-Newton one-run path).
+:func:`solve_augmented` (:func:`scaled_least_squares`, the coarse grid start) keeps the stack
+axis last and hands the augmented matrices [A | b] to LAPACK's stacked ``geqrf`` through
+:func:`numpy.linalg.qr` in one call, so that R is the leading triangle and Q₁ᵀb the top of the
+last column. The Gauss-Newton iteration (:func:`_factor`) reduces the same augmented stack with
+:func:`_householder_in_place`: the same reflections written over the stack axis, ≈ 17 array
+operations per column whatever the stack's size, which on 500 augmented 6 × 5 matrices takes
+≈ 120 µs against ≈ 260 µs for LAPACK's loop over the matrices (≈ 0.5 µs of call and copy
+overhead each). One Gauss-Newton run does the same arithmetic on Python floats
+(:func:`_factor_one` and its neighbours, the one-run path), to the same bits.
 
 The inverse of R (needed for a covariance, never for a step) is again a back-substitution.
 """
@@ -33,11 +34,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-
-try:  # the stacked LAPACK ``geqrf`` behind numpy.linalg.qr(mode="raw"), called without its wrapper
-    from numpy.linalg import _umath_linalg
-except ImportError:  # pragma: no cover - a numpy that moved it: the public call below is used
-    _umath_linalg = None
 
 #: Columns whose norm is below this fraction of the largest column are treated as zero
 #: (the geometry gives no information on that unknown, e.g. an emitter on the sensors' line).
@@ -172,47 +168,82 @@ _DIAGONAL = np.arange(16)  # index of the diagonal of the triangular factors (q 
 _IDENTITY = {q: np.eye(q)[:, :, None] for q in range(17)}  # (q, q, 1): broadcast along a stack
 
 
-def _qr_public(M: np.ndarray) -> None:
-    """:func:`_qr_in_place` through the public :func:`numpy.linalg.qr` (a copy there and back)."""
+def _qr_lapack(M: np.ndarray) -> None:
+    """Householder QR of every matrix of a stack M (m, n, B), stack axis last, in place, by
+    LAPACK's ``geqrf`` through :func:`numpy.linalg.qr` (``mode="raw"``): R on and above the
+    diagonal of rows k < n, the Householder vectors below it (:func:`solve_augmented`)."""
     M[...] = np.linalg.qr(M.transpose(2, 0, 1), mode="raw")[0].transpose(2, 1, 0)
 
 
-def _qr_gufunc(M: np.ndarray) -> None:
-    """:func:`_qr_in_place` by numpy's stacked ``geqrf`` ufunc on M's own memory.
+def _householder_in_place(M: np.ndarray) -> None:
+    """Householder QR of every matrix of a stack M (m, n, B), stack axis last, in place, one
+    column at a time with every operation over the whole stack (the Gauss-Newton path).
 
-    ``numpy.linalg.qr`` copies its argument, calls this ufunc, which overwrites the matrices it
-    is given with their factored form, and transposes the copy back; the copy in, the copy
-    out and the wrapper's checks cost as much as the factorisation itself on a few hundred
-    6 × 5 matrices, and several times its cost on one. Called on a view of M, the ufunc
-    writes the factors straight into M. The LAPACK call and its inputs are the same, so the
-    bits are too (checked at import against the public call, see :func:`_qr_self_check`).
+    Columns 0 … n − 2 are reduced and the last one (the right-hand side b) is carried along:
+    afterwards rows k < n − 1 hold R on and above the diagonal and Q₁ᵀb in the last column
+    (below the diagonal is left whatever it became). Column k's reflection maps
+    x = M[k:, k] to β e₁ with β = −sign(x₀)‖x‖ and v = x − β e₁, applied as
+    C ← C − v (vᵀC)/(vᵀv/2) with vᵀv/2 = ‖x‖(‖x‖ + |x₀|) and vᵀC = xᵀC − β C₀; ‖x‖² and xᵀC
+    are one product and one reduction over the rows.
+
+    LAPACK's stacked ``geqrf`` does the same reflections matrix by matrix, at ≈ 0.5 µs of
+    call and copy overhead per 6 × 5 matrix; over the stack axis the whole factorisation is
+    ≈ 17 array operations per column, ≈ 120 µs against ≈ 260 µs for 500 matrices. The
+    reductions run over the leading (row) axis with the n − k ≥ 2 columns inside it, so the
+    rows are added in order whatever B is: a member's factor does not depend on the rest of
+    the stack, and :func:`_householder_columns` (one member, Python floats) gives the same
+    bits. A zero column (vᵀv = 0) leaves the others unchanged.
     """
-    _umath_linalg.qr_r_raw(M.transpose(2, 0, 1), signature="d->d")
+    n = M.shape[1]
+    for k in range(n - 1):
+        X = M[k:, k:]                                   # column k and the columns right of it
+        x = X[:, 0]
+        S = np.add.reduce(x[:, None] * X, axis=0)       # [‖x‖², xᵀC]
+        alpha = X[0, 0]
+        nrm = np.sqrt(S[0])
+        beta = np.copysign(nrm, alpha)
+        np.negative(beta, out=beta)
+        half = nrm * (nrm + np.abs(alpha))              # vᵀv / 2
+        v0 = alpha - beta
+        w = S[1:]
+        w -= beta * X[0, 1:]                            # vᵀC
+        w /= np.where(half > 0, half, 1.0)
+        X[0, 1:] -= v0 * w
+        X[1:, 1:] -= x[1:, None] * w
+        X[0, 0] = beta
 
 
-def _qr_self_check() -> bool:
-    """Whether :func:`_qr_gufunc` factors in place exactly as :func:`_qr_public` does (a private
-    numpy function could change: if it does, the public call is used)."""
-    if _umath_linalg is None:
-        return False
-    try:
-        probe = np.random.default_rng(0).standard_normal((6, 5, 3))
-        ours, public = probe.copy(), probe.copy()
-        _qr_gufunc(ours)
-        _qr_public(public)
-        return bool(np.array_equal(ours, public))
-    except Exception:  # pragma: no cover - any failure of the private call: use the public one
-        return False
+def _householder_columns(cols: list) -> None:
+    """:func:`_householder_in_place` for one matrix given as its n columns (lists of m floats),
+    in place: the same IEEE operations in the same order (sums written out left to right, as
+    numpy adds the rows there; the builtin ``sum`` compensates from Python 3.12 on)."""
+    n, m = len(cols), len(cols[0])
+    for k in range(n - 1):
+        x = cols[k][k:]
+        S = []
+        for c in cols[k:]:
+            total = x[0] * c[k]
+            for i in range(1, m - k):
+                total += x[i] * c[k + i]
+            S.append(total)
+        alpha = x[0]
+        nrm = math.sqrt(S[0])
+        beta = -math.copysign(nrm, alpha)
+        half = nrm * (nrm + abs(alpha))
+        v0 = alpha - beta
+        div = half if half > 0 else 1.0
+        for j in range(1, n - k):
+            c = cols[k + j]
+            wj = (S[j] - beta * c[k]) / div
+            c[k] -= v0 * wj
+            for i in range(1, m - k):
+                c[k + i] -= x[i] * wj
+        cols[k][k] = beta
 
 
-#: Householder QR of every matrix of a stack (m, n, B), stack axis last, overwriting it with
-#: LAPACK's ``geqrf`` output: R on and above the diagonal of rows k < n, the Householder vectors
-#: below it (the transpose of ``numpy.linalg.qr(..., mode="raw")[0]`` of the stack in front).
-_qr_in_place = _qr_gufunc if _qr_self_check() else _qr_public
-
-
-def _factor(M: np.ndarray, zero_rtol: float, rank_rtol: float):
-    """Column scaling, QR and rank test of :func:`solve_augmented`.
+def _factor(M: np.ndarray, zero_rtol: float, rank_rtol: float, qr=_householder_in_place):
+    """Column scaling, QR (``qr``: :func:`_householder_in_place` or :func:`_qr_lapack`) and rank
+    test of :func:`solve_augmented` and of the Gauss-Newton iteration.
 
     Returns the factor ``Rt`` (q, q + 1, B: R in the upper triangle, Q₁ᵀb in the last
     column, rows k and columns j with the stack last; a view of M, which is overwritten by the
@@ -232,7 +263,7 @@ def _factor(M: np.ndarray, zero_rtol: float, rank_rtol: float):
     used = norms > zero_rtol * np.maximum.reduce(norms, axis=0)
     scale = np.where(used, norms, 1.0)
     A /= scale
-    _qr_in_place(M)
+    qr(M)
     Rt = M[:q]  # rows k < q of the factored stack, contiguous
     # a zero column counts as a zero on the diagonal (M is finite, so R is). R_kk is row
     # k (q + 2) of M flattened to (m (q + 1), B): a strided slice, no gather
@@ -260,33 +291,42 @@ def _step(Rt: np.ndarray, scale: np.ndarray, bad: np.ndarray, bad_any: bool):
 
 # ---------------------------------------------------------------- one stack member
 #
-# The same arithmetic as _factor, _step and _covariance_rows for a stack of one (B = 1), with
-# the q ≤ 4 numbers after the QR handled as Python floats: on one member each numpy call costs
-# its fixed overhead (≈ 0.5 µs) for one or four numbers, and these three functions make some
-# forty of them per Gauss-Newton iteration. The column norms stay one numpy reduction and the
-# QR the same LAPACK call; every other operation is the IEEE operation numpy applies
-# elementwise (+, −, ×, ÷, √, min, max, comparisons), in the same order (numpy's reductions of
+# The same arithmetic as _factor (with _householder_in_place), _step and _covariance_rows for
+# a stack of one (B = 1), on Python floats: on one member each numpy call costs its fixed
+# overhead (≈ 0.5 µs) for one to thirty numbers, and these functions make some hundred of them
+# per Gauss-Newton iteration. Every operation is the IEEE operation numpy applies elementwise
+# (+, −, ×, ÷, √, copysign, min, max, comparisons), in the same order (numpy's reductions of
 # the batched path add the rows one after the other, see _factor), so the results are those of
 # the batched path to the last bit (tests/test_tdoa_speed_paths.py checks it); sums are
 # written out left to right (the builtin ``sum`` compensates from Python 3.12 on). No explicit
 # inverse either: R⁻¹ (for the covariance) is again a back-substitution.
 
 
-def _factor_one(M: np.ndarray, zero_rtol: float, rank_rtol: float):
-    """:func:`_factor` for M (m, q + 1, 1): the factor's rows ``R`` (q lists of q + 1 floats:
-    R in the upper triangle, Q₁ᵀb last), ``scale`` (q floats), whether R is rank deficient,
-    and ‖b‖² (float)."""
-    m, n, _ = M.shape
+def _factor_one(cols: list, zero_rtol: float, rank_rtol: float):
+    """:func:`_factor` for one member given as the n = q + 1 columns of [A | b] (lists of m
+    floats, overwritten): the factor's rows ``R`` (q lists of q + 1 floats: R in the upper
+    triangle, Q₁ᵀb last), ``scale`` (q floats), whether R is rank deficient, and ‖b‖²; None
+    if a column's sum of squares is not finite (a non-finite entry, or an overflow: the
+    batched path treats those)."""
+    n = len(cols)
     q = n - 1
-    squares = np.add.reduce(M * M, axis=0).ravel().tolist()
-    norms = [math.sqrt(s) for s in squares[:q]]
-    limit = zero_rtol * max(norms)  # M is finite, so no NaN: max is numpy's maximum.reduce
+    squares = []
+    for c in cols:
+        total = c[0] * c[0]
+        for v in c[1:]:
+            total += v * v
+        squares.append(total)
+    if not all(math.isfinite(v) for v in squares):
+        return None
+    norms = [math.sqrt(v) for v in squares[:q]]
+    limit = zero_rtol * max(norms)
     used = [v > limit for v in norms]
     scale = [v if u else 1.0 for v, u in zip(norms, used)]
-    A = M[:, :q, 0]
-    A /= np.array(scale)
-    _qr_in_place(M)
-    R = M[:q, :, 0].tolist()
+    for j in range(q):
+        s = scale[j]
+        cols[j] = [v / s for v in cols[j]]
+    _householder_columns(cols)
+    R = [[c[k] for c in cols] for k in range(q)]
     # |R_kk| × used: × 1.0 leaves |R_kk|, × 0.0 gives +0.0 (R is finite)
     d = [abs(R[k][k]) if used[k] else 0.0 for k in range(q)]
     return R, scale, min(d) <= rank_rtol * max(d), squares[q]
@@ -342,13 +382,13 @@ def solve_augmented(M: np.ndarray, zero_rtol: float = ZERO_COLUMN_RTOL,
     """min ‖A x − b‖ for a stack given as augmented matrices [A | b], stack axis last.
 
     The whitened, column-scaled Householder QR of the module, in as few array calls as
-    possible, because a single Gauss-Newton run pays every call's fixed cost at each iteration
-    (``docs/papers/tdoa-fdoa.md``, "Speed"):
+    possible (``docs/papers/tdoa-fdoa.md``, "Speed"; the Gauss-Newton iteration uses the same
+    steps with :func:`_householder_in_place` in place of LAPACK):
 
     * the stack axis is last, so every elementwise step (column norms, scaling, rank test,
       back-substitution) runs over long contiguous rows rather than tiny trailing axes;
-    * LAPACK's ``geqrf`` (the stacked ufunc of :func:`numpy.linalg.qr`, ``mode="raw"``, on M
-      itself: :func:`_qr_in_place`) reduces [A/scale | b] in one call: R is the leading q × q triangle and Q₁ᵀb the top of the last
+    * LAPACK's ``geqrf`` (through the stacked :func:`numpy.linalg.qr`, ``mode="raw"``) reduces
+      [A/scale | b] in one call: R is the leading q × q triangle and Q₁ᵀb the top of the last
       column, so Qᵀ is never formed nor applied separately;
     * R y = Q₁ᵀb by back-substitution over the whole stack; rank-deficient members get the
       identity there (no 0/0) and NaN in ``x``.
@@ -372,7 +412,7 @@ def solve_augmented(M: np.ndarray, zero_rtol: float = ZERO_COLUMN_RTOL,
     m, n, _ = M.shape
     if m < n - 1:
         raise ValueError(f"least squares needs m ≥ q, got {m} × {n - 1}")
-    Rt, scale, bad, bad_any, _ = _factor(M, zero_rtol, rank_rtol)
+    Rt, scale, bad, bad_any, _ = _factor(M, zero_rtol, rank_rtol, qr=_qr_lapack)
     x, norm = _step(Rt, scale, bad, bad_any)
     return LeastSquaresSolution(x.T, norm, bad, np.triu(Rt[:, :-1].transpose(2, 0, 1)), scale.T)
 

@@ -127,10 +127,10 @@ def gauss_newton(model: Callable, theta0: np.ndarray, measured: np.ndarray, sigm
     Each iteration costs a few dozen array calls whatever the number of runs, so that one run
     (recorded data usually is one) is not dominated by fixed per-call costs: the active runs'
     inputs are gathered again only when some run stops, the whitened system is built in place
-    as one augmented array with the run axis last and solved by one stacked LAPACK QR and a
-    back-substitution over the stack
-    (:func:`pipeline.cores.localisation.batched_least_squares.solve_augmented`), and the flags
-    are touched only in iterations where some run stops. A run's answer does not depend on
+    as one augmented array with the run axis last and solved by a Householder QR and a
+    back-substitution, each written over the whole stack
+    (:func:`pipeline.cores.localisation.batched_least_squares._householder_in_place`), and the
+    flags are touched only in iterations where some run stops. A run's answer does not depend on
     the other runs of the batch, to the last bit. A call with one run takes a shorter path
     (:func:`_one_run`: the same arithmetic in fewer array calls) unless one of its steps is
     irregular.
@@ -272,11 +272,11 @@ def gauss_newton(model: Callable, theta0: np.ndarray, measured: np.ndarray, sigm
 def _one_run(model, theta, measured_t, sigma_t, free, iterations, step_tolerance, batch, diverged):
     """:func:`gauss_newton` on one run whose every step is regular; None otherwise.
 
-    Recorded data usually is one run, for which the batched loop's array calls on one or four
-    numbers cost more than the model. This is the same iteration: the model, the whitened
-    system and the QR are the batched path's own calls; the column scaling's thresholds, the
+    Recorded data usually is one run, for which the batched loop's array calls on one to
+    thirty numbers cost more than the model. This is the same iteration: the model is called
+    as in the batched loop, and the whitening, the column scaling, the Householder QR, the
     rank test, the back-substitution, the step and its length, the convergence test and the
-    covariance are the same IEEE operations on Python floats
+    covariance are the same IEEE operations in the same order on Python floats
     (:func:`pipeline.cores.localisation.batched_least_squares._factor_one` and its
     neighbours). A run that meets anything the batched loop treats apart (an invalid start, a
     non-finite model, a rank-deficient or non-finite step, a divergence, a singular final
@@ -289,17 +289,25 @@ def _one_run(model, theta, measured_t, sigma_t, free, iterations, step_tolerance
     unknown = list(range(p)) if free is None else free.tolist()
     if not all(math.isfinite(current[f]) for f in unknown):
         return None
+    measured_1, sigma_1 = measured_t[:, 0].tolist(), sigma_t[:, 0].tolist()
+
+    def factor(th):
+        # [A | r] of _whitened_system as columns of Python floats, then _factor's arithmetic
+        g, H = model(th, **batch)
+        g, H = g[0].tolist(), H[0].tolist()
+        cols = [[row[f] / s for row, s in zip(H, sigma_1)] for f in unknown]
+        cols.append([(u - gi) / s for u, gi, s in zip(measured_1, g, sigma_1)])
+        return _factor_one(cols, ZERO_COLUMN_RTOL, RANK_RTOL)  # None if not finite
+
     path = [current]
     th = theta
     norm = math.nan
     converged = False
     for _ in range(iterations):
-        M, finite = _whitened_system(model, th, measured_t, sigma_t, free, batch)
-        if finite is not None:
+        factored = factor(th)
+        if factored is None or factored[2]:  # not finite, or rank deficient
             return None
-        R, scale, bad, _ = _factor_one(M, ZERO_COLUMN_RTOL, RANK_RTOL)
-        if bad:
-            return None
+        R, scale, _, _ = factored
         x, norm = _step_one(R, scale)
         new = list(current)
         for k, f in enumerate(unknown):
@@ -315,12 +323,10 @@ def _one_run(model, theta, measured_t, sigma_t, free, iterations, step_tolerance
             converged = True
             break
     # the final statistics (:func:`_final_statistics`) at the estimate
-    M, finite = _whitened_system(model, th, measured_t, sigma_t, free, batch)
-    if finite is not None:
+    factored = factor(th)
+    if factored is None or factored[2]:
         return None
-    R, scale, bad, cost = _factor_one(M, ZERO_COLUMN_RTOL, RANK_RTOL)
-    if bad:
-        return None
+    R, scale, _, cost = factored
     cov_free = np.array([_covariance_one(R, scale)])
     if free is None:
         cov = cov_free
