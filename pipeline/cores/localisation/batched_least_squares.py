@@ -316,7 +316,7 @@ def _factor_one(cols: list, zero_rtol: float, rank_rtol: float):
         for v in c[1:]:
             total += v * v
         squares.append(total)
-    if not all(math.isfinite(v) for v in squares):
+    if not all(map(math.isfinite, squares)):
         return None
     norms = [math.sqrt(v) for v in squares[:q]]
     limit = zero_rtol * max(norms)

@@ -287,7 +287,7 @@ def _one_run(model, theta, measured_t, sigma_t, free, iterations, step_tolerance
     p = theta.shape[1]
     current = theta[0].tolist()
     unknown = list(range(p)) if free is None else free.tolist()
-    if not all(math.isfinite(current[f]) for f in unknown):
+    if not all(map(math.isfinite, [current[f] for f in unknown])):
         return None
     measured_1, sigma_1 = measured_t[:, 0].tolist(), sigma_t[:, 0].tolist()
 
@@ -312,7 +312,7 @@ def _one_run(model, theta, measured_t, sigma_t, free, iterations, step_tolerance
         new = list(current)
         for k, f in enumerate(unknown):
             new[f] += x[k]
-        if not all(math.isfinite(v) for v in new):
+        if not all(map(math.isfinite, new)):
             return None
         th = np.array([new])
         if diverged is not None and np.logical_or.reduce(np.asarray(diverged(th, **batch), bool), axis=None):
