@@ -137,9 +137,15 @@ def test_householder_equals_lapack_qr_to_rounding_and_the_one_member_form_to_the
             bls._householder_in_place(alone)
             cols = M[:, :, r].T.tolist()
             bls._householder_columns(cols)
+            unrolled = M[:, :, r].T.tolist()
+            bls._householder_unrolled(m, n)(unrolled)
             for k in range(q):
                 assert np.array_equal(alone[k, k:, 0], ours[k, k:, r])
                 assert [c[k] for c in cols[k:]] == ours[k, k:, r].tolist()
+                assert [c[k] for c in unrolled[k:]] == ours[k, k:, r].tolist()
+    assert bls._householder_unrolled(6, 5) is bls._householder_unrolled(6, 5)  # built once per shape
+    with pytest.raises(ValueError, match="m ≥ q"):  # fewer equations than unknowns: refused, not solved
+        bls._factor_one([[1.0, 2.0]] * 4, bls.ZERO_COLUMN_RTOL, bls.RANK_RTOL)
     zero = np.zeros((6, 5, 2))
     zero[:, 1, 1] = 1.0  # a zero column before a non-zero one
     bls._householder_in_place(zero)
