@@ -98,20 +98,23 @@ def follow_events(est: np.ndarray, truth: np.ndarray, assoc: np.ndarray, gate_ra
     swapped : ndarray of bool, shape (runs, scans, Nt)
     lost : ndarray of bool, shape (runs, scans, N)
     """
-    runs, K, nt = est.shape
     n_true = truth.shape[-1]
-    sep = np.abs(truth[..., :, None] - truth[..., None, :])
-    sep[..., np.arange(n_true), np.arange(n_true)] = np.inf
-    valid = np.min(sep, axis=-1) >= 2 * gate_rad  # (runs, scans, N)
-    valid[:, :STARTUP_SCANS] = False
-    dist = np.abs(est[..., :, None] - truth[..., None, :])  # (runs, scans, Nt, N)
-    on = (dist <= gate_rad) & valid[..., None, :]
-    on = np.where(np.isnan(dist), False, on)
-    own = assoc[:, None, :, None] == np.arange(n_true)[None, None, None, :]  # (runs, 1, Nt, N)
-    own_on = np.any(on & own, axis=-2)  # target j's own track is on it, (runs, scans, N)
-    lost = valid & ~np.any(on, axis=-2)
-    swapped = np.any(on & ~own & ~own_on[..., None, :], axis=-1)
-    return swapped, lost
+    # track and target axes first, (runs, scans) last: every operation runs along rows of
+    # runs × scans values (with the 5-wide axes last, numpy's loops spent their time on loop
+    # overhead); the same comparisons, so the same booleans
+    T = np.ascontiguousarray(np.moveaxis(np.asarray(truth, float), -1, 0))  # (N, runs, scans)
+    E = np.ascontiguousarray(np.moveaxis(np.asarray(est, float), -1, 0))  # (Nt, runs, scans)
+    sep = np.abs(T[:, None] - T[None, :])  # (N, N, runs, scans)
+    sep[np.arange(n_true), np.arange(n_true)] = np.inf
+    valid = np.min(sep, axis=1) >= 2 * gate_rad  # (N, runs, scans)
+    valid[:, :, :STARTUP_SCANS] = False
+    dist = np.abs(E[:, None] - T[None, :])  # (Nt, N, runs, scans); NaN (no track) is never ≤ gate
+    on = (dist <= gate_rad) & valid[None]
+    own = np.asarray(assoc).T[:, None, :, None] == np.arange(n_true)[None, :, None, None]  # (Nt, N, runs, 1)
+    own_on = np.any(on & own, axis=0)  # target j's own track is on it, (N, runs, scans)
+    lost = valid & ~np.any(on, axis=0)
+    swapped = np.any(on & ~own & ~own_on[None], axis=1)  # (Nt, runs, scans)
+    return np.moveaxis(swapped, 0, -1), np.moveaxis(lost, 0, -1)
 
 
 def _angles(out: dict) -> np.ndarray:

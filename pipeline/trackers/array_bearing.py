@@ -67,7 +67,11 @@ from pipeline.errors import InputError
 from pipeline.trackers.interface import ArraySnapshots, Param, Tracker
 
 STARTUP_SCANS = 2
-FRONT_END_BLOCK_RUNS = 64  # runs per block of the batch EVD (memory, not results)
+# runs per block of the batch EVD and the subspace error (memory and speed, not results): at 16
+# runs a block's covariances and eigenvectors (< 8 MB) reuse the memory of the block before; fresh
+# memory of 64-run blocks cost a quarter of the EVD's time in page faults
+FRONT_END_BLOCK_RUNS = 16
+INNOVATION_BLOCK_RUNS = 256  # runs per call of the innovation kernel (speed, not results)
 PAST_BLOCK_RUNS = 256  # runs per PAST pass: fewer calls per run, arrays still in the L2 cache (speed, not results)
 SUBSPACES = ("past", "batch")
 CRITERIA = ("mdl", "aic")
@@ -211,31 +215,39 @@ def _leading(values: np.ndarray, vectors: np.ndarray, n: int):
 
 class _Evd(threading.Thread):
     """Leading ``n`` eigenvectors of the sample covariance of every tracked scan (scan ≥ 2) of
-    some runs, ``(runs, K − 2, M, n)``, computed in a thread of its own.
+    some runs, ``(runs, K − 2, M, n)``, computed in a thread of its own and, once the caller
+    is free (:meth:`help`), in the caller's thread too.
 
-    In double precision, :data:`FRONT_END_BLOCK_RUNS` runs at a time: the covariances and full
-    eigenvector stacks stay a few tens of MB at any number of runs (every run is its own
-    problem, so the blocks give the same numbers as one batch). An exception is kept and
-    raised by :meth:`result`.
+    In double precision, :data:`FRONT_END_BLOCK_RUNS` runs at a time, each block taken by
+    whichever thread is free: the covariances and full eigenvector stacks stay a few MB at any
+    number of runs (every run is its own problem, so the blocks give the same numbers as one
+    batch). An exception is kept and raised by :meth:`result`.
     """
 
     def __init__(self, X: np.ndarray, rows: np.ndarray, n: int):
         super().__init__(daemon=True)
         self.X, self.rows, self.n = X, rows, n
-        self.vectors, self.error = None, None
+        self.vectors = np.empty((len(rows), X.shape[1] - STARTUP_SCANS, X.shape[2], n), dtype=complex)
+        self.error = None
+        self._next, self._lock = 0, threading.Lock()
 
     def run(self) -> None:
         try:
-            rows, K, M = self.rows, self.X.shape[1], self.X.shape[2]
-            vectors = np.empty((len(rows), K - STARTUP_SCANS, M, self.n), dtype=complex)
-            for first in range(0, len(rows), FRONT_END_BLOCK_RUNS):
-                block = _runs(self.X, rows[first:first + FRONT_END_BLOCK_RUNS])[:, STARTUP_SCANS:]
-                vectors[first:first + len(block)] = batch_signal_subspace(block.astype(complex), self.n)[0]
-            self.vectors = vectors
+            while True:
+                with self._lock:
+                    first = self._next
+                    self._next += FRONT_END_BLOCK_RUNS
+                if first >= len(self.rows):
+                    return
+                block = _runs(self.X, self.rows[first:first + FRONT_END_BLOCK_RUNS])[:, STARTUP_SCANS:]
+                self.vectors[first:first + len(block)] = batch_signal_subspace(block.astype(complex), self.n)[0]
         except BaseException as exc:  # noqa: BLE001 - handed to the caller's thread
             self.error = exc
 
+    help = run  # the caller takes the remaining blocks beside the thread
+
     def result(self) -> np.ndarray:
+        self.join()
         if self.error is not None:
             raise self.error
         return self.vectors
@@ -279,11 +291,14 @@ def front_end(snapshots: np.ndarray, design: SubspaceTrackerDesign) -> FrontEnd:
             evd.start()
             try:
                 past[part, 1:], _ = past_scans(past[part, 0], P[part], _runs(X, rows)[:, 1:], design.forgetting)
+                evd.help()
             finally:
                 evd.join()
             vectors = evd.result()
-            sub_err[rows, STARTUP_SCANS:] = largest_principal_angle(past[part, STARTUP_SCANS:], vectors,
-                                                                    b_orthonormal=True)
+            for sub in range(0, len(rows), FRONT_END_BLOCK_RUNS):  # small temporaries, reused memory
+                chunk = slice(sub, sub + FRONT_END_BLOCK_RUNS)
+                sub_err[rows[chunk], STARTUP_SCANS:] = largest_principal_angle(
+                    past[part][chunk, STARTUP_SCANS:], vectors[chunk], b_orthonormal=True)
             if batch is not None:
                 batch[part, STARTUP_SCANS:] = vectors
         sub_err[sel, :STARTUP_SCANS] = largest_principal_angle(past[:, :STARTUP_SCANS], head_batch, b_orthonormal=True)
@@ -323,6 +338,22 @@ def shared_front_end(snapshots: np.ndarray, design: SubspaceTrackerDesign) -> Fr
 # --------------------------------------------------------------------------- steps 3–5: filters
 
 
+def _innovation_in_blocks(innovation_fn, W: np.ndarray, theta_pred: np.ndarray, spacing_wavelengths: float):
+    """``innovation_fn(W, θ̂, d/λ)`` over :data:`INNOVATION_BLOCK_RUNS` runs at a time.
+
+    Every run is its own problem (the same numbers as one call); the kernels' temporaries (Ryu's
+    (2M × (2N+1)) matrix per target, the M × M projectors) then stay in cache and in reused
+    memory: over 1,000 runs at once they were fresh pages at every scan.
+    """
+    if len(W) <= INNOVATION_BLOCK_RUNS:
+        return innovation_fn(W, theta_pred, spacing_wavelengths)
+    out = np.empty(theta_pred.shape)
+    for first in range(0, len(W), INNOVATION_BLOCK_RUNS):
+        part = slice(first, first + INNOVATION_BLOCK_RUNS)
+        out[part] = innovation_fn(W[part], theta_pred[part], spacing_wavelengths)
+    return out
+
+
 def _track_group(subspaces, theta_minus1, theta_0, design: SubspaceTrackerDesign, strategy: str) -> dict:
     """Steps 3–5 for a group of runs with the same number of tracks ``n`` (outputs (B, K, n, ...))."""
     B, K, M, n = subspaces.shape
@@ -348,7 +379,7 @@ def _track_group(subspaces, theta_minus1, theta_0, design: SubspaceTrackerDesign
     for k in range(STARTUP_SCANS, K):
         x, P = kf_predict(x, P, F, Q)
         out["predicted_rad"][:, k] = x[..., 0]
-        dtheta = innovation_fn(subspaces[:, k], x[..., 0], design.spacing_wavelengths)
+        dtheta = _innovation_in_blocks(innovation_fn, subspaces[:, k], x[..., 0], design.spacing_wavelengths)
         gain, S = kalman_gain(P, H, R)
         ok = np.isfinite(dtheta)
         x_new, P_new = apply_gain(x, P, gain, np.where(ok, dtheta, 0.0)[..., None], H, R)

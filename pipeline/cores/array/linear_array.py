@@ -39,7 +39,12 @@ def steering_vectors(theta: np.ndarray, n_sensors: int, spacing_wavelengths: flo
     theta = np.asarray(theta, dtype=float)
     m = np.arange(n_sensors, dtype=float)
     phase = electrical_spacing(spacing_wavelengths) * np.sin(theta)[..., None, :] * m[:, None]
-    return np.exp(1j * phase)
+    # exp(jφ) as cos φ + j sin φ written in place: the value of the complex exponential of a
+    # purely imaginary argument, without the complex argument array and the complex exp
+    out = np.empty(phase.shape, dtype=complex)
+    np.cos(phase, out=out.real)
+    np.sin(phase, out=out.imag)
+    return out
 
 
 def steering_derivatives(theta: np.ndarray, a: np.ndarray, spacing_wavelengths: float) -> np.ndarray:
