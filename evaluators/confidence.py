@@ -107,14 +107,66 @@ def jackknife(statistic, n_runs: int, groups: int = JACKKNIFE_GROUPS, prob: floa
     if not parts:
         nan = np.full(value.shape, np.nan)
         return value, nan, nan, nan
-    left_out = np.stack([np.asarray(statistic(np.setdiff1d(everything, p)), float) for p in parts])
-    G = len(parts)
+
+    def without(part):
+        # a mask over runs rather than a set difference (which sorts): the same indices, in order
+        kept = np.ones(n_runs, bool)
+        kept[part] = False
+        return everything[kept]
+
+    left_out = np.stack([np.asarray(statistic(without(p)), float) for p in parts])
+    return _jackknife_interval(value, left_out, prob)
+
+
+def _jackknife_interval(value, left_out, prob: float):
+    """``value, se, low, high`` of the grouped jackknife from the G leave-one-group-out
+    estimates ``left_out`` (G, ...)."""
+    G = left_out.shape[0]
     with np.errstate(invalid="ignore"):
         se = np.sqrt((G - 1) / G * _sum_of_squared_deviations(left_out))
         se = np.where(se <= ROUNDING_SPREAD * np.abs(value), 0.0, se)
     se = np.where(np.isfinite(value), se, np.nan)
     half = t_quantile(G - 1, prob) * se
     return value, se, value - half, value + half
+
+
+def group_totals(values, groups: int, left_out: bool = False) -> np.ndarray:
+    """Sums of per-run ``values`` (R, ...) over the runs of each round-robin group of
+    :func:`run_groups` (run r in group r mod G), or with ``left_out`` over the runs outside
+    each group: (G, ...).
+
+    One pass over the values whatever G, where cutting the runs of every group (or of every
+    complement) would copy them G times: a metric that is a function of sums over runs gets its
+    G group estimates from these totals.
+    """
+    v = np.asarray(values)
+    whole, rest = divmod(v.shape[0], groups)
+    totals = np.add.reduce(v[:whole * groups].reshape((whole, groups) + v.shape[1:]), axis=0, dtype=float)
+    totals[:rest] += v[whole * groups:]
+    return totals.sum(axis=0) - totals if left_out else totals
+
+
+def ratio_jackknife(sums, counts, groups: int = JACKKNIFE_GROUPS, prob: float = 0.95):
+    """Grouped-jackknife interval of ``Σ sums / Σ counts`` over runs (a mean over every run's
+    values, e.g. a time-averaged NEES), from per-run ``sums`` and ``counts`` (R,).
+
+    The same estimates as :func:`jackknife` with that statistic, from the groups' totals
+    (:func:`group_totals`) instead of G re-summations of nearly all runs. NaN where no value
+    is counted.
+
+    Returns
+    -------
+    value, se, low, high : float
+    """
+    sums, counts = np.asarray(sums, float), np.asarray(counts, float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        value = np.asarray(sums.sum() / counts.sum())   # 0/0: NaN
+        G = len(run_groups(len(sums), groups))
+        if not G:
+            nan = np.asarray(np.nan)
+            return value, nan, nan, nan
+        left_out = group_totals(sums, G, left_out=True) / group_totals(counts, G, left_out=True)
+    return _jackknife_interval(value, left_out, prob)
 
 
 def _sum_of_squared_deviations(estimates):
@@ -174,7 +226,8 @@ def subset_runs(arrays: dict, runs: np.ndarray, n_runs: int) -> Mapping:
 RANDOM_GROUPS_MIN_RUNS = 200  # from here on each of the G groups holds ≥ 20 runs
 
 
-def summary_intervals(score, runs_data: dict, n_runs: int, groups: int = 10, prob: float = 0.95):
+def summary_intervals(score, runs_data: dict, n_runs: int, groups: int = 10, prob: float = 0.95,
+                      score_groups=None):
     """A long-form metric table with a Monte Carlo standard error and interval on every row.
 
     Below :data:`RANDOM_GROUPS_MIN_RUNS` runs the **grouped jackknife**: the runs are dealt
@@ -196,6 +249,13 @@ def summary_intervals(score, runs_data: dict, n_runs: int, groups: int = 10, pro
     n_runs : int
     groups : int
         G (runs are dealt round-robin, so every group spans the whole data set).
+    score_groups : callable, optional
+        ``score_groups(runs_data, G, left_out) -> (per_scan, summary, group_summaries)`` or
+        None: ``score``'s tables on all runs together with the G summaries it would give on
+        each group's runs alone (``left_out`` False) or on all runs but the group's (True), for
+        a scorer whose metrics are functions of sums over runs (:func:`group_totals`), so that
+        the groups cost one pass over the data instead of G scorings. When it is not given or
+        returns None, every group is scored by ``score``.
 
     Returns
     -------
@@ -205,17 +265,22 @@ def summary_intervals(score, runs_data: dict, n_runs: int, groups: int = 10, pro
     """
     import polars as pl
 
-    per_scan, summary = score(runs_data)
     key = ["tracker", "metric", "scope"]
     parts = run_groups(n_runs, groups)
+    alone = n_runs >= RANDOM_GROUPS_MIN_RUNS
+    grouped = score_groups(runs_data, len(parts), not alone) if parts and score_groups is not None else None
+    if grouped is not None:
+        per_scan, summary, group_summaries = grouped
+    else:
+        per_scan, summary = score(runs_data)
+        everything = np.arange(n_runs)
+        group_summaries = (score(subset_runs(runs_data, part if alone else np.setdiff1d(everything, part), n_runs))[1]
+                           for part in parts)
     if not parts or summary.height == 0:
         return per_scan, summary.with_columns(*(pl.lit(None, pl.Float64).alias(c) for c in ("se", "ci_low", "ci_high")))
-    alone = n_runs >= RANDOM_GROUPS_MIN_RUNS
-    everything = np.arange(n_runs)
     index = {k: i for i, k in enumerate(summary.select(key).iter_rows())}
     estimates = np.full((len(parts), summary.height), np.nan)
-    for g, part in enumerate(parts):
-        _, s = score(subset_runs(runs_data, part if alone else np.setdiff1d(everything, part), n_runs))
+    for g, s in enumerate(group_summaries):
         for *k, v in s.select(*key, "value").iter_rows():
             i = index.get(tuple(k))
             if i is not None and v is not None:

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from evaluators.tracking_metrics import nanmean
-from pipeline.batched_linalg import whiten
+from pipeline.batched_linalg import all_finite, sum_squares, whiten
 
 NORMAL_95 = 1.959963984540054  # the two-sided 95 % quantile of the standard normal
 
@@ -58,23 +58,36 @@ def whitened(error, covariance):
         NaN where the error or the covariance is missing or the covariance is not positive
         definite (such a covariance has no NEES; validation flags it upstream).
     """
+    return _whitened(error, covariance, squared=False)
+
+
+def _whitened(error, covariance, squared: bool):
+    """:func:`whitened`, or with ``squared`` its ``‖w‖²`` (...), summed block by block so that
+    the whitened errors are never held whole."""
     e = np.asarray(error, float)
     P = np.asarray(covariance, float)
     lead = np.broadcast_shapes(e.shape[:-1], P.shape[:-2])
     n = e.shape[-1]
     if not lead:
-        return whiten(e.reshape(1, n), P.reshape(1, n, n))[0]
+        w = whiten(e.reshape(1, n), P.reshape(1, n, n))[0]
+        return np.sum(w * w) if squared else w
     e, P = np.broadcast_to(e, lead + (n,)), np.broadcast_to(P, lead + (n, n))
-    out = np.empty(lead + (n,))
-    # in blocks of whole runs: the factors and temporaries stay a few MB at any number of runs,
-    # and an output that is a strided view (a tracker's transposed buffer) is copied a block at
-    # a time, never whole
-    per_run = int(np.prod(lead[1:], dtype=np.int64))
-    runs = max(1, WHITEN_BLOCK // max(per_run, 1))
-    for start in range(0, lead[0], runs):
-        part = slice(start, start + runs)
-        block = out[part]
-        block[...] = whiten(e[part].reshape(-1, n), P[part].reshape(-1, n, n)).reshape(block.shape)
+    out = np.empty(lead if squared else lead + (n,))
+    # the leading axes in the order the covariances lie in memory (a tracker's buffer often
+    # holds the runs fastest): a block of the first of them then flattens without a copy,
+    # where cutting blocks of runs from such a buffer copies every block twice; every matrix
+    # is whitened alone, so the order changes no value
+    order = sorted(range(len(lead)), key=lambda i: -abs(P.strides[i]) if lead[i] > 1 else 0)
+    e, P, o = (a.transpose(*order, *range(len(lead), a.ndim)) for a in (e, P, out))
+    finish = sum_squares if squared else (lambda w: w)
+    # in blocks along that axis: the factors and temporaries stay a few MB at any number of
+    # runs, and an output that is a strided view is copied a block at a time, never whole
+    per_row = int(np.prod(o.shape[1:len(lead)], dtype=np.int64))
+    rows = max(1, WHITEN_BLOCK // max(per_row, 1))
+    for start in range(0, o.shape[0], rows):
+        part = slice(start, start + rows)
+        block = o[part]
+        block[...] = finish(whiten(e[part].reshape(-1, n), P[part].reshape(-1, n, n))).reshape(block.shape)
     return out
 
 
@@ -93,13 +106,12 @@ def whitened_innovations(out: dict):
     if nu.ndim == 3:  # no track axis
         nu, S = nu[:, :, None], S[:, :, None]
     w = whitened(nu, S)
-    return w, np.einsum("...i,...i->...", w, w)
+    return w, sum_squares(w)
 
 
 def normalised_squared(error, covariance):
     """``eᵀ P⁻¹ e`` over the last axes: ``‖w‖²`` of :func:`whitened` (NaN where it is)."""
-    w = whitened(error, covariance)
-    return np.sum(w * w, axis=-1)
+    return _whitened(error, covariance, squared=True)
 
 
 def consistency_summary(nx, dim: int, prob: float = 0.95) -> dict:
@@ -149,9 +161,9 @@ def innovation_whiteness(innovation, covariance, max_lag: int = 5, whitened_inno
     rho, bound = np.full(max_lag, np.nan), np.full(max_lag, np.nan)
     # missing innovations as zeros with a presence mask: each lag's sums are then plain products
     # over whole arrays (no copies of the present pairs)
-    present = np.isfinite(w).all(axis=-1)
+    present = all_finite(w)
     w0 = np.where(present[..., None], w, 0.0)
-    power = np.sum(w0 * w0, axis=-1)                               # ‖w_k‖², 0 where missing
+    power = sum_squares(w0)                                       # ‖w_k‖², 0 where missing
     for i, j in enumerate(lags):
         if j >= K:
             break

@@ -15,8 +15,8 @@ from __future__ import annotations
 import numpy as np
 import polars as pl
 
-from evaluators.tracking_metrics import (long_form, nanmean, npe_from_squared, rmse_overall, rmse_per_scan, root,
-                                        squared_error)
+from evaluators.confidence import group_totals
+from evaluators.tracking_metrics import long_form, nanmean, npe_from_sums, root, squared_error
 from pipeline.vocabulary import CLAMPED as FLAG_CLAMPED, COASTED as FLAG_COASTED, INITIALISING as FLAG_INITIALISING, NO_TRACK as FLAG_NO_TRACK
 
 SCOPES = ("overall", "cross_range_above_nominal", "cross_range_below_nominal")
@@ -28,7 +28,8 @@ def filtered_mask(flags: np.ndarray) -> np.ndarray:
 
 
 def evaluate(times, tracks: dict, measured_xy, truth_state=None, cross_range_std=None,
-             nominal_cross_range_m: float | None = None, pcrb_position_var=None):
+             nominal_cross_range_m: float | None = None, pcrb_position_var=None, groups: int | None = None,
+             left_out: bool = False):
     """Per-scan and summary tables.
 
     Parameters
@@ -49,6 +50,12 @@ def evaluate(times, tracks: dict, measured_xy, truth_state=None, cross_range_std
         Trace of the position block of the posterior Cramér–Rao bound per scan (Tichavský,
         Muravchik & Nehorai 1998): reported as ``pcrb_position_m`` and, over the filtered
         scans, as ``position_efficiency`` = bound RMS / RMSE (≤ 1 for an unbiased tracker).
+    groups : int, optional
+        Also return the summary of each of ``groups`` round-robin groups of runs
+        (:func:`evaluators.confidence.run_groups`), as this function would give it on the
+        group's runs alone, or with ``left_out`` on all runs but the group's
+        (``score_groups`` of :func:`evaluators.confidence.summary_intervals`).
+    left_out : bool
 
     Returns
     -------
@@ -56,69 +63,137 @@ def evaluate(times, tracks: dict, measured_xy, truth_state=None, cross_range_std
         One row per tracker × scan.
     summary : polars.DataFrame
         Long form: ``tracker, metric, scope, value``.
+    group_summaries : list of polars.DataFrame
+        Only with ``groups``: one summary per group.
+
+    Notes
+    -----
+    Every summary value is a function of per-scan sums over runs (of squared errors, their
+    counts, flags), so the sums are taken once per group of runs (one pass over the outputs)
+    and the all-runs and group values are read from them alike: the groups cost no
+    re-scoring.
     """
-    scans = np.arange(len(times))
-    per_scan_parts, rows = [], []
+    K = len(times)
+    G = groups or 1
+    # per-scan sums over the runs of each group (G, K), taken once: a selection of runs (all of
+    # them, a group, all but a group) reads its values from them (:func:`_selection`)
+    sums_of = lambda a: group_totals(a, G)  # noqa: E731
+    cross = None
     if cross_range_std is not None and nominal_cross_range_m is not None:
-        above_scan = np.nanmean(cross_range_std, axis=0) > nominal_cross_range_m
-    else:
-        above_scan = np.zeros(len(times), bool)
+        cross = _masked_sums(cross_range_std, True, sums_of)
+    stats = {}
     for name, out in tracks.items():
-        ok = filtered_mask(out["flags"])
-        est = np.where(ok[..., None], out["state"], np.nan)
-        cols = {"tracker": [name] * len(times), "scan": scans, "time_s": times}
-        # the paper's gain diagnostics, where a tracker has them (the α-β strategies and the Kalman reference)
-        for key, column in (("alpha", "alpha"), ("beta", "beta")):
-            if key in out:
-                cols[f"{column}_along"] = _nanmean0(out[key][..., 0])
-                cols[f"{column}_cross"] = _nanmean0(out[key][..., 1])
-        if "lambda_cross" in out:
-            cols["lambda_cross"] = _nanmean0(out["lambda_cross"])
-        cols["clamped_fraction"] = np.mean((out["flags"] & FLAG_CLAMPED) > 0, axis=0)
-        row = {"tracker": name, "scope": "overall",
-               "clamped_scans": float(np.sum((out["flags"] & FLAG_CLAMPED) > 0)),
-               "coasted_scans": float(np.sum((out["flags"] & FLAG_COASTED) > 0))}
+        flags = out["flags"]
+        ok = filtered_mask(flags)
+        clamped = (flags & FLAG_CLAMPED) > 0
+        sums = {"ok": sums_of(ok), "clamped": sums_of(clamped), "coasted": sums_of((flags & FLAG_COASTED) > 0)}
         if "innovation" in out and "measurement" in out:
             # innovation of the converted plot (x, y) in metres: trackers that report the plot they used
-            innov = np.where(ok[..., None], out["innovation"], np.nan)
-            cols["rms_innovation_m"] = _rms0(innov)
-            row["rms_innovation_m"] = rmse_overall(innov, 0.0) if ok.any() else np.nan
-        rows.append(row)
+            sums["innovation"] = _masked_sums(squared_error(out["innovation"], 0.0), ok, sums_of)
         if truth_state is not None:
-            # squared errors once per tracker; every RMSE below is a masked mean of these
-            se_pos = squared_error(est[..., :2], truth_state[..., :2])
-            se_vel = squared_error(est[..., 2:], truth_state[..., 2:])
-            measured = out.get("measurement", measured_xy)
-            npe = npe_from_squared(se_pos, squared_error(measured, truth_state[..., :2]))
-            cols["rmse_position_m"] = root(nanmean(se_pos, axis=0))
-            cols["rmse_velocity_mps"] = root(nanmean(se_vel, axis=0))
-            cols["npe"] = npe
-            row.update(rmse_position_m=float(root(nanmean(se_pos))), rmse_velocity_mps=float(root(nanmean(se_vel))),
-                       npe_max=float(np.nanmax(npe)), npe_mean=float(nanmean(npe)),
-                       scans_npe_ge_1=float(np.sum(npe >= 1.0)))
-            if pcrb_position_var is not None:
-                cols["pcrb_position_m"] = np.sqrt(pcrb_position_var)
-                filtered = ok.any(axis=0) & np.isfinite(pcrb_position_var)
-                bound = float(np.sqrt(np.mean(pcrb_position_var[filtered]))) if filtered.any() else np.nan
-                row.update(pcrb_position_m=bound, position_efficiency=bound / row["rmse_position_m"])
-            for scope, sel in (("cross_range_above_nominal", above_scan), ("cross_range_below_nominal", ~above_scan)):
-                if not (sel & ok.any(axis=0)).any():
-                    continue
-                rows.append({"tracker": name, "scope": scope,
-                             "rmse_position_m": float(root(nanmean(se_pos[:, sel]))),
-                             "rmse_velocity_mps": float(root(nanmean(se_vel[:, sel]))),
-                             "npe_mean": float(nanmean(npe[sel])), "scans": float(sel.sum())})
-        per_scan_parts.append(pl.DataFrame(cols))
-    per_scan = pl.concat(per_scan_parts, how="diagonal")
+            # squared errors once per tracker; every RMSE is a ratio of sums of these
+            se_pos = squared_error(out["state"][..., :2], truth_state[..., :2])
+            sums["position"] = _masked_sums(se_pos, ok, sums_of)
+            sums["velocity"] = _masked_sums(squared_error(out["state"][..., 2:], truth_state[..., 2:]), ok, sums_of)
+            sm = squared_error(out.get("measurement", measured_xy), truth_state[..., :2])
+            # NPE compares like with like: the runs where both the estimate and the plot exist
+            both = ok & np.isfinite(se_pos) & np.isfinite(sm)
+            sums["npe"] = (sums_of(np.where(both, se_pos, 0.0)), sums_of(np.where(both, sm, 0.0)), sums_of(both))
+        stats[name] = sums
+    rows_of = lambda pick: _summary_rows(stats, pick, cross, nominal_cross_range_m,  # noqa: E731
+                                         pcrb_position_var, truth_state is not None)
+    per_scan = pl.concat([_per_scan(name, out, stats[name], times, pcrb_position_var)
+                          for name, out in tracks.items()], how="diagonal")
+    summary = rows_of(_selection())
+    if groups is None:
+        return per_scan, summary
+    return per_scan, summary, [rows_of(_selection(g, left_out)) for g in range(G)]
+
+
+def _selection(group: int | None = None, left_out: bool = False):
+    """Per-scan sums over a selection of runs from the sums of every group (G, K): all runs
+    (``group`` None), the group's runs, or with ``left_out`` all runs but the group's."""
+    if group is None:
+        return lambda sums: sums.sum(axis=0)
+    if left_out:
+        return lambda sums: sums.sum(axis=0) - sums[group]
+    return lambda sums: sums[group]
+
+
+def _masked_sums(values, keep, sums_of):
+    """Sums of the finite ``values`` (runs, scans) where ``keep``, and their counts."""
+    valid = keep & np.isfinite(values)
+    return sums_of(np.where(valid, values, 0.0)), sums_of(valid)
+
+
+def _ratio(total, count):
+    """``total / count``, NaN where nothing is counted (an average over no run)."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return total / count
+
+
+def _per_scan(name: str, out: dict, sums: dict, times, pcrb_position_var) -> pl.DataFrame:
+    """One tracker's per-scan table on all runs."""
+    every = _selection()
+    cols = {"tracker": [name] * len(times), "scan": np.arange(len(times)), "time_s": times}
+    # the paper's gain diagnostics, where a tracker has them (the α-β strategies and the Kalman reference)
+    for key in ("alpha", "beta"):
+        if key in out:
+            cols[f"{key}_along"] = _nanmean0(out[key][..., 0])
+            cols[f"{key}_cross"] = _nanmean0(out[key][..., 1])
+    if "lambda_cross" in out:
+        cols["lambda_cross"] = _nanmean0(out["lambda_cross"])
+    cols["clamped_fraction"] = every(sums["clamped"]) / len(out["flags"])
+    if "innovation" in sums:
+        cols["rms_innovation_m"] = root(_ratio(*map(every, sums["innovation"])))
+    if "position" in sums:
+        cols["rmse_position_m"] = root(_ratio(*map(every, sums["position"])))
+        cols["rmse_velocity_mps"] = root(_ratio(*map(every, sums["velocity"])))
+        cols["npe"] = npe_from_sums(*map(every, sums["npe"]))
+        if pcrb_position_var is not None:
+            cols["pcrb_position_m"] = np.sqrt(pcrb_position_var)
+    return pl.DataFrame(cols)
+
+
+def _summary_rows(stats: dict, pick, cross, nominal_cross_range_m, pcrb_position_var, have_truth: bool):
+    """The summary of every tracker over the runs that ``pick`` (:func:`_selection`) sums."""
+    if cross is not None:
+        above_scan = _ratio(*map(pick, cross)) > nominal_cross_range_m   # a scan no run covers: not above
+    else:
+        above_scan = np.zeros(next(iter(stats.values()))["ok"].shape[1], bool)
+    rows = []
+    for name, sums in stats.items():
+        filtered = pick(sums["ok"]) > 0                                  # scans some run has filtered
+        row = {"tracker": name, "scope": "overall", "clamped_scans": float(pick(sums["clamped"]).sum()),
+               "coasted_scans": float(pick(sums["coasted"]).sum())}
+        if "innovation" in sums:
+            total, count = map(pick, sums["innovation"])
+            row["rms_innovation_m"] = float(root(_ratio(total.sum(), count.sum()))) if filtered.any() else np.nan
+        rows.append(row)
+        if not have_truth:
+            continue
+        pos, vel = tuple(map(pick, sums["position"])), tuple(map(pick, sums["velocity"]))
+        npe = npe_from_sums(*map(pick, sums["npe"]))
+        row.update(rmse_position_m=float(root(_ratio(pos[0].sum(), pos[1].sum()))),
+                   rmse_velocity_mps=float(root(_ratio(vel[0].sum(), vel[1].sum()))),
+                   npe_max=float(np.nanmax(npe)), npe_mean=float(nanmean(npe)),
+                   scans_npe_ge_1=float(np.sum(npe >= 1.0)))
+        if pcrb_position_var is not None:
+            bounded = filtered & np.isfinite(pcrb_position_var)
+            bound = float(np.sqrt(np.mean(pcrb_position_var[bounded]))) if bounded.any() else np.nan
+            row.update(pcrb_position_m=bound, position_efficiency=bound / row["rmse_position_m"])
+        for scope, sel in (("cross_range_above_nominal", above_scan), ("cross_range_below_nominal", ~above_scan)):
+            if not (sel & filtered).any():
+                continue
+            rows.append({"tracker": name, "scope": scope,
+                         "rmse_position_m": float(root(_ratio(pos[0][sel].sum(), pos[1][sel].sum()))),
+                         "rmse_velocity_mps": float(root(_ratio(vel[0][sel].sum(), vel[1][sel].sum()))),
+                         "npe_mean": float(nanmean(npe[sel])), "scans": float(sel.sum())})
     # one table for every tracker and scope: the metrics a row lacks are null and dropped, and
     # the metric order is that of first appearance, as the per-tracker tables had it
     summary = long_form(pl.DataFrame(rows, infer_schema_length=None), ["tracker", "scope"]).drop_nulls("value")
-    return per_scan, summary.select("tracker", "metric", "scope", "value")
+    return summary.select("tracker", "metric", "scope", "value")
 
 
 def _nanmean0(a):
     return nanmean(a, axis=0)
-
-
-def _rms0(v):
-    return rmse_per_scan(v, 0.0)

@@ -20,6 +20,8 @@ from itertools import permutations
 
 import numpy as np
 
+from pipeline.batched_linalg import all_finite, sum_squares
+
 BRUTE_FORCE_MAX = 6  # 6! = 720 permutations per scan, evaluated together
 BRUTE_FORCE_BLOCK_SUMS = 1 << 17  # permutation sums per block of problems: 1 MiB, in the cache
 
@@ -85,7 +87,7 @@ def pairwise_distance(tracks, truths, angular: bool = False) -> np.ndarray:
     diff = np.asarray(tracks, float)[..., :, None, :] - np.asarray(truths, float)[..., None, :, :]
     if angular:
         diff = (diff + np.pi) % (2 * np.pi) - np.pi
-    return np.sqrt(np.sum(diff * diff, axis=-1))
+    return np.sqrt(sum_squares(diff))
 
 
 def optimal_assignment(cost: np.ndarray, valid_rows: np.ndarray, valid_cols: np.ndarray, unmatched: float = 0.0):
@@ -114,7 +116,10 @@ def optimal_assignment(cost: np.ndarray, valid_rows: np.ndarray, valid_cols: np.
     match = np.full(lead + (m,), -1, dtype=np.intp)
     if size == 0:
         return np.zeros(lead), match
-    if size <= BRUTE_FORCE_MAX:
+    if size == 1:
+        # one element a side (a single-track family): the one assignment there is, no search
+        total, cols = full[..., 0, 0], np.zeros(lead + (1,), dtype=np.intp)[..., :m]
+    elif size <= BRUTE_FORCE_MAX:
         total, cols = _every_permutation(full.reshape(-1, size, size))
         total, cols = total.reshape(lead), cols.reshape(lead + (size,))[..., :m]
     else:
@@ -157,7 +162,7 @@ def gospa(tracks, truths, cutoff: float, order: float = 2.0, angular: bool = Fal
         ``missed`` and ``false`` (counts), ``ospa``, and ``assigned`` (pairs closer than c).
     """
     X, Y = np.asarray(tracks, float), np.asarray(truths, float)
-    vx, vy = np.isfinite(X).all(axis=-1), np.isfinite(Y).all(axis=-1)
+    vx, vy = all_finite(X), all_finite(Y)
     d = pairwise_distance(np.where(vx[..., None], X, 0.0), np.where(vy[..., None], Y, 0.0), angular)
     cost = np.minimum(d, cutoff) ** order
     cp = cutoff ** order

@@ -24,11 +24,12 @@ import numpy as np
 import polars as pl
 
 from evaluators.assignment_metrics import assignment_metrics, scan_matches
-from evaluators.confidence import jackknife, mean_interval, rms_interval
+from evaluators.confidence import mean_interval, ratio_jackknife, rms_interval
 from evaluators.consistency import (consistency_summary, innovation_whiteness, normalised_squared,
                                    whitened_innovations)
 from evaluators.set_distances import gospa
 from evaluators.tracking_metrics import nanmean
+from pipeline.batched_linalg import sum_squares
 from pipeline.vocabulary import DELETED, NO_TRACK
 
 NOT_A_TRACK = NO_TRACK | DELETED  # NOT_ESTIMATED marks NaN components, which count as absent by themselves
@@ -100,6 +101,52 @@ def _with_ci(name: str, metric: str, value, se, lo, hi, scope: str = "overall") 
             "ci_low": finite(lo), "ci_high": finite(hi)}
 
 
+def _components(a, which):
+    """``a[..., which]``: a view when ``which`` is a run of consecutive components (the usual
+    case, e.g. positions 0 and 1), a copy otherwise."""
+    which = list(which)
+    if which and which == list(range(which[0], which[0] + len(which))):
+        return a[..., which[0]:which[0] + len(which)]
+    return a[..., which]
+
+
+def _slot_mean(a):
+    """Mean over the slot axis 2 of (R, K, S), NaN left out; with one slot, that slot (the same
+    values, without a copy)."""
+    return a[:, :, 0] if a.shape[2] == 1 else nanmean(a, axis=2)
+
+
+def _time_average(per_run_scan, groups: int = 10):
+    """The mean of the finite values of (R, K) over every run and scan, with its grouped
+    jackknife interval over runs, from per-run sums and counts."""
+    finite = np.isfinite(per_run_scan)
+    return ratio_jackknife(np.sum(per_run_scan, axis=1, where=finite), np.sum(finite, axis=1), groups)
+
+
+#: values of the largest (R, K, S, T) intermediate of the set distances per block of runs
+SET_BLOCK = 1 << 17
+
+
+def _in_run_blocks(function, n_runs: int, per_run: int):
+    """``function(slice of runs)`` over blocks of runs, its per-run results (arrays with a
+    leading run axis, in dicts and tuples as ``function`` gives them) joined along the run
+    axis: the assignment's temporaries, a few copies of the sets each, then stay a few MB at
+    any number of runs."""
+    step = max(1, SET_BLOCK // max(per_run, 1))
+    return _joined([function(slice(start, start + step)) for start in range(0, n_runs, step)])
+
+
+def _joined(parts):
+    """Blocks of results (arrays, or dicts and tuples of them) joined along their first axis."""
+    if len(parts) == 1:
+        return parts[0]
+    if isinstance(parts[0], dict):
+        return {k: _joined([p[k] for p in parts]) for k in parts[0]}
+    if isinstance(parts[0], tuple):
+        return tuple(_joined(list(column)) for column in zip(*parts))
+    return np.concatenate(parts)
+
+
 def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: float = 0.95,
                       innovations: dict | None = None):
     """Standard measures of every tracker.
@@ -135,7 +182,6 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
         R, K, S, n = state.shape
         # a slot holds a track only where its flags say it exists and was estimated
         absent = (_as_slots(out["flags"], 0).astype(np.int64) & NOT_A_TRACK) > 0 if "flags" in out else np.zeros((R, K, S), bool)
-        state = np.where(absent[..., None], np.nan, state)
         cols = {"tracker": [name] * K, "scan": np.arange(K), "time_s": np.asarray(times, float)}
         # ---- innovation consistency (needs no truth)
         given = (innovations or {}).get(name)
@@ -144,12 +190,11 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
             nu = _as_slots(out["innovation"], 1)
             w_nu, nis = w_and_nis                                   # (R, K, S, m), (R, K, S)
             m = nu.shape[-1]
-            nis_run = nanmean(nis, axis=2)                         # average over slots
+            nis_run = _slot_mean(nis)                              # average over slots
             c = consistency_summary(nis_run, m, prob)
             cols.update(anis=c["per_scan"], anis_low=c["low"], anis_high=c["high"])
             rows.append(_with_ci(name, "anis_inside_fraction", c["inside_fraction"], np.nan, np.nan, np.nan))
-            v = jackknife(lambda idx: nanmean(nis_run[idx]), R, groups=10)
-            rows.append(_with_ci(name, "nis_time_average", *v))
+            rows.append(_with_ci(name, "nis_time_average", *_time_average(nis_run)))
             rows.append(_with_ci(name, "nis_time_average_low", c["time_low"], np.nan, np.nan, np.nan))
             rows.append(_with_ci(name, "nis_time_average_high", c["time_high"], np.nan, np.nan, np.nan))
             # slots are independent sequences: pool them as if they were more runs
@@ -165,11 +210,27 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
             per_scan.append(pl.DataFrame(cols))
             continue
         tr = _as_slots(truth, 1)                                   # (R, K, T, n_t)
-        est = state[..., comps]
-        positions, true_positions = est[..., pos], tr[..., pos]
-        # ---- OSPA / GOSPA per run and scan
-        g = gospa(positions, true_positions, space.cutoff, space.order, space.angular)
+        compared = _components(state, comps)
+        true_positions = _components(tr, pos)
+        ids = out.get("track_id")
+        ids = None if ids is None else _as_slots(ids[..., None], 1)[..., 0]
+
+        def sets_and_matches(part):
+            """OSPA/GOSPA per run and scan, the matches of every scan and the assignment metrics
+            over whole runs (from those matches, which the NEES pairs use too) of some runs."""
+            # the track positions, NaN where a slot holds no track
+            X = np.where(absent[part][..., None], np.nan, _components(compared[part], pos))
+            Y = true_positions[part]
+            g = gospa(X, Y, space.cutoff, space.order, space.angular)
+            match, dist = scan_matches(X, Y, space.gate, space.angular)
+            a = assignment_metrics(X, Y, space.gate, None if ids is None else ids[part], space.angular,
+                                   matches=(match, dist))
+            return g, match, a
+
+        # a block of runs at a time: the assignments' temporaries stay a few MB at any number of runs
+        g, match, a = _in_run_blocks(sets_and_matches, R, K * S * tr.shape[2])
         u, scale = space.unit, space.scale
+        # ---- OSPA / GOSPA per run and scan
         for key in ("ospa", "gospa", "localisation"):
             column = key if key in ("ospa", "gospa") else f"gospa_{key}"
             cols[f"{column}_{u}"] = scale * nanmean(g[key].astype(float), axis=0)
@@ -177,10 +238,8 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
             cols[f"gospa_{key}"] = nanmean(g[key].astype(float), axis=0)
         for key in ("ospa", "gospa"):
             rows.append(_with_ci(name, f"{key}_mean_{u}", *(scale * v for v in mean_interval(nanmean(g[key], axis=1)))))
+        del g
         # ---- assignment over whole runs
-        ids = out.get("track_id")
-        a = assignment_metrics(positions, true_positions, space.gate,
-                               None if ids is None else _as_slots(ids[..., None], 1)[..., 0], space.angular)
         for key in ("mota", "idf1"):
             rows.append(_with_ci(name, key, *mean_interval(a[key])))
         rows.append(_with_ci(name, f"motp_{u}", *(scale * v for v in mean_interval(a["motp"]))))
@@ -188,29 +247,29 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
                     "false_tracks", "misses", "false_positives"):
             rows.append(_with_ci(name, f"{key}_per_run", *mean_interval(a[key].astype(float))))
         # ---- NEES on matched pairs
-        match, _ = scan_matches(positions, true_positions, space.gate, space.angular)   # (R, K, T)
         if "covariance" in out:
             P = _as_slots(out["covariance"], 2)                                     # (R, K, S, c, c)
             if comps != list(range(P.shape[-1])):
                 P = P[..., comps, :][..., :, comps]
+            # a match is a slot that holds a track, so the states need no masking of their own
             if S == 1:
-                est_m, P_m = est, P   # one slot: every match is slot 0, and it broadcasts over targets
+                est_m, P_m = compared, P   # one slot: every match is slot 0, and it broadcasts over targets
             else:
                 sel = np.maximum(match, 0)
-                est_m = np.take_along_axis(est, sel[..., None], axis=2)
+                est_m = np.take_along_axis(compared, sel[..., None], axis=2)
                 P_m = np.take_along_axis(P, sel[..., None, None], axis=2)
             err = est_m - tr
             if space.angular:
                 err[..., pos] = (err[..., pos] + np.pi) % (2 * np.pi) - np.pi
-            err = np.where((match >= 0)[..., None], err, np.nan)
-            nees = nanmean(normalised_squared(err, P_m), axis=2)   # (R, K)
+            err[match < 0] = np.nan                                 # in place: no second copy of the errors
+            nees = _slot_mean(normalised_squared(err, P_m))         # (R, K)
             c = consistency_summary(nees, len(comps), prob)
             cols.update(anees=c["per_scan"], anees_low=c["low"], anees_high=c["high"])
             rows.append(_with_ci(name, "anees_inside_fraction", c["inside_fraction"], np.nan, np.nan, np.nan))
-            rows.append(_with_ci(name, "nees_time_average", *jackknife(lambda idx: nanmean(nees[idx]), R, groups=10)))
+            rows.append(_with_ci(name, "nees_time_average", *_time_average(nees)))
             rows.append(_with_ci(name, "nees_time_average_low", c["time_low"], np.nan, np.nan, np.nan))
             rows.append(_with_ci(name, "nees_time_average_high", c["time_high"], np.nan, np.nan, np.nan))
-            sq = np.where((match >= 0), np.sum(err[..., pos] ** 2, axis=-1), np.nan)
+            sq = sum_squares(_components(err, pos))               # NaN where unmatched, as err is
             rows.append(_with_ci(name, f"rmse_matched_position_{u}", *(scale * v for v in rms_interval(nanmean(sq, axis=(1, 2))))))
         else:
             rows.append({"tracker": name, "metric": "nees", "scope": "no covariance", "value": None,

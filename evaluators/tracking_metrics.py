@@ -29,8 +29,14 @@ def root(mean_square):
 
 def squared_error(estimate, truth):
     """``‖estimate − truth‖²`` over the last axis, ``(runs, scans)``."""
-    d = np.asarray(estimate, float) - np.asarray(truth, float)
-    return np.sum(d * d, axis=-1)
+    e, t = np.broadcast_arrays(np.asarray(estimate, float), np.asarray(truth, float))
+    # a component at a time, as pipeline.batched_linalg.sum_squares sums: no full-size
+    # difference or square is held, and numpy's slow reduction over a short axis is avoided
+    total = np.zeros(e.shape[:-1])
+    for i in range(e.shape[-1]):
+        d = e[..., i] - t[..., i]
+        total += d * d
+    return total
 
 
 def rms(values, axis=None):
@@ -66,10 +72,15 @@ def npe_from_squared(se, sm):
     """NPE per scan from the squared errors of the estimates ``se`` and of the plots ``sm``
     (both ``(runs, scans)``), as :func:`normalised_position_error`."""
     both = np.isfinite(se) & np.isfinite(sm)
-    num = np.sqrt(np.where(both, se, 0.0).sum(axis=0))
-    den = np.sqrt(np.where(both, sm, 0.0).sum(axis=0))
+    return npe_from_sums(np.where(both, se, 0.0).sum(axis=0), np.where(both, sm, 0.0).sum(axis=0), both.sum(axis=0))
+
+
+def npe_from_sums(se_sum, sm_sum, count):
+    """NPE per scan from the sums over runs of the squared errors of the estimates and of the
+    plots, taken over the ``count`` runs where both exist (NaN where there are none): what
+    :func:`npe_from_squared` computes, for sums gathered elsewhere (e.g. per group of runs)."""
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(both.any(axis=0), num / den, np.nan)
+        return np.where(np.asarray(count) > 0, np.sqrt(se_sum) / np.sqrt(sm_sum), np.nan)
 
 
 def long_form(wide: pl.DataFrame, id_cols: list[str]) -> pl.DataFrame:

@@ -113,7 +113,7 @@ def whiten(e, P):
         # one copy into the stack-last layout: every entry is then a contiguous vector
         L = cholesky_lower(np.ascontiguousarray(np.moveaxis(P, 0, -1)))  # (n, n, N)
         w = forward_substitute(L, np.ascontiguousarray(e.T)[:, None, :])[:, 0, :].T  # (N, n)
-    bad = ~positive_definite(L) | ~np.isfinite(w).all(axis=-1)
+    bad = ~positive_definite(L) | ~all_finite(w)
     w[bad] = np.nan
     return w
 
@@ -121,5 +121,31 @@ def whiten(e, P):
 def positive_definite(L):
     """Where a factor of :func:`cholesky_lower` (``(*lead, n, n, N)``) exists: every pivot finite
     and > 0 (a matrix that is not positive definite has a NaN or zero one)."""
-    d = np.diagonal(L, axis1=-3, axis2=-2)                              # (*lead, N, n)
-    return (d > 0).all(axis=-1) & np.isfinite(d).all(axis=-1)
+    n = L.shape[-2]
+    ok = np.ones(L.shape[:-3] + L.shape[-1:], bool)
+    for i in range(n):
+        d = L[..., i, i, :]
+        ok &= (d > 0) & (d < np.inf)
+    return ok
+
+
+def sum_squares(a):
+    """``Σ a_i²`` over the last, short axis of a float stack ``a`` (..., n), one whole-stack
+    operation per component, left to right: numpy's reduction along a short inner axis steps
+    through the stack n elements at a time and costs several times as much, and the squares
+    are never held whole."""
+    a = np.asarray(a)
+    total = np.zeros(a.shape[:-1], dtype=np.result_type(a.dtype, float))
+    for i in range(a.shape[-1]):
+        total += a[..., i] * a[..., i]
+    return total
+
+
+def all_finite(a):
+    """Whether every component of each short vector of ``a`` (..., n) is finite, (...): as
+    ``np.isfinite(a).all(axis=-1)``, a component at a time (see :func:`sum_squares`)."""
+    a = np.asarray(a)
+    ok = np.ones(a.shape[:-1], bool)
+    for i in range(a.shape[-1]):
+        ok &= np.isfinite(a[..., i])
+    return ok

@@ -399,6 +399,14 @@ class Stage:
         """``(per_scan, summary)`` from :meth:`reference` and the trackers' outputs."""
         raise NotImplementedError
 
+    def score_groups(self, reference: dict, result: dict, design: dict, groups: int, left_out: bool):
+        """:meth:`score` together with the summaries of ``groups`` round-robin groups of runs
+        (each group's runs alone, or with ``left_out`` all runs but the group's), from one pass
+        over the outputs: ``(per_scan, summary, group_summaries)``, or None (the default) when
+        the family's scores are not functions of sums over runs and every group is re-scored
+        (``score_groups`` of :func:`evaluators.confidence.summary_intervals`)."""
+        return None
+
     def cached_reference(self, dataset, design: dict) -> dict:
         """:meth:`reference`, computed once per data set and design (a replay scores its
         trackers one at a time, each against the same reference)."""
@@ -448,8 +456,12 @@ class Stage:
                 sub = {**result, "tracks": runs_data["tracks"]}
                 return self.score({"runs": runs_data["reference"], "fixed": fixed}, sub, design)
 
+            def score_groups(runs_data, groups, left_out):
+                sub = {**result, "tracks": runs_data["tracks"]}
+                return self.score_groups({"runs": runs_data["reference"], "fixed": fixed}, sub, design, groups, left_out)
+
             per_scan, summary = summary_intervals(score, {"tracks": tracks, "reference": reference["runs"]}, n_runs,
-                                                  groups=10)
+                                                  groups=10, score_groups=score_groups)
         tracks = {n: o for n, o in result["tracks"].items() if "state" in o and "flags" in o}
         # whitened once, read by the standard measures and the track summary
         innovations = {n: whitened_innovations(o) for n, o in tracks.items()}

@@ -104,11 +104,16 @@ class RadarTwsStage(Stage):
         return {"runs": runs, "fixed": fixed}
 
     def score(self, reference: dict, result: dict, design: dict):
+        return self.score_groups(reference, result, design, None, False)
+
+    def score_groups(self, reference: dict, result: dict, design: dict, groups, left_out: bool):
+        # every radar metric is a function of per-scan sums over runs: the groups come from one pass
         runs, fixed = reference["runs"], reference.get("fixed", {})
         pcrb = fixed.get("pcrb")
         return radar_eval.evaluate(result["times"], result["tracks"], runs["measured"], runs.get("truth_state"),
                                    runs.get("cross_std"), design["nominal_cross_range_m"],
-                                   None if pcrb is None else pcrb[:, 0, 0] + pcrb[:, 1, 1])
+                                   None if pcrb is None else pcrb[:, 0, 0] + pcrb[:, 1, 1], groups=groups,
+                                   left_out=left_out)
 
     def standard_space(self, design: dict, reference: dict | None = None):
         return position_space(design, truth_components=(0, 1, 2, 3), position_components=(0, 1))

@@ -1,0 +1,213 @@
+"""The evaluators' fast paths give the numbers of the plain computations they replace.
+
+* group estimates from per-group totals (:func:`evaluators.confidence.group_totals`) against
+  re-scoring every group of runs, for the radar family's table and for time averages;
+* whitening in blocks along the axis the covariances lie fastest in, and the NEES summed
+  block by block, against whitening matrix by matrix;
+* the standard measures in blocks of runs against one block;
+* the component-wise sums and checks against numpy's reductions, and the one-element
+  assignment against the permutation search.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import polars as pl
+import pytest
+
+from evaluators import consistency, radar_tws, standard
+from evaluators.confidence import (RANDOM_GROUPS_MIN_RUNS, group_totals, jackknife, ratio_jackknife, run_groups,
+                                   summary_intervals)
+from evaluators.set_distances import _every_permutation, optimal_assignment
+from pipeline.batched_linalg import all_finite, sum_squares, whiten
+from pipeline.vocabulary import CLAMPED, COASTED, INITIALISING, NO_TRACK
+
+RTOL = 1e-12
+
+
+@pytest.mark.parametrize("runs,groups", [(40, 10), (37, 10), (5, 10), (203, 20)])
+@pytest.mark.parametrize("left_out", [False, True])
+def test_group_totals_are_the_sums_over_each_group(runs, groups, left_out):
+    values = np.random.default_rng(runs).normal(size=(runs, 3, 2))
+    parts = run_groups(runs, groups)
+    totals = group_totals(values, len(parts), left_out)
+    for g, part in enumerate(parts):
+        kept = np.setdiff1d(np.arange(runs), part) if left_out else part
+        np.testing.assert_allclose(totals[g], values[kept].sum(axis=0), rtol=RTOL, atol=1e-12)
+
+
+def test_ratio_jackknife_is_the_jackknife_of_the_mean():
+    rng = np.random.default_rng(3)
+    values = rng.chisquare(2, size=(57, 9))
+    values[rng.random(values.shape) < 0.2] = np.nan   # missing scans count for nothing
+    values[4] = np.nan                                 # nor does a run without any
+    finite = np.isfinite(values)
+    sums, counts = np.where(finite, values, 0.0).sum(axis=1), finite.sum(axis=1)
+    fast = ratio_jackknife(sums, counts, groups=10)
+    plain = jackknife(lambda idx: np.nanmean(values[idx]), 57, groups=10)
+    np.testing.assert_allclose(np.array(fast, float), np.array(plain, float), rtol=1e-11)
+
+
+# ------------------------------------------------------------------ the radar family's groups
+
+
+def _radar_outputs(runs: int, scans: int = 12, seed: int = 5):
+    """Outputs of two radar trackers in the vocabulary with every case the scores tell apart:
+    start-up and empty scans, clamped and coasted scans, missing plots and a NaN state."""
+    rng = np.random.default_rng(seed)
+    truth = rng.normal(scale=1e3, size=(runs, scans, 4))
+    measured = truth[..., :2] + rng.normal(scale=50.0, size=(runs, scans, 2))
+    measured[rng.random((runs, scans)) < 0.1] = np.nan
+    tracks = {}
+    for name in ("a", "b"):
+        flags = np.zeros((runs, scans), np.uint16)
+        flags[:, :2] = INITIALISING
+        flags[rng.random((runs, scans)) < 0.05] |= NO_TRACK
+        flags[rng.random((runs, scans)) < 0.1] |= CLAMPED
+        flags[rng.random((runs, scans)) < 0.1] |= COASTED
+        state = truth + rng.normal(scale=30.0, size=truth.shape)
+        state[0, 5] = np.nan
+        out = {"state": state, "flags": flags, "alpha": rng.random((runs, scans, 2)),
+               "beta": rng.random((runs, scans, 2)), "lambda_cross": rng.random((runs, scans))}
+        if name == "a":   # one tracker reports the plot it used and its innovation, the other not
+            out["measurement"] = measured + rng.normal(scale=5.0, size=measured.shape)
+            out["innovation"] = rng.normal(scale=20.0, size=(runs, scans, 2))
+        tracks[name] = out
+    # about half the scans above the nominal cross-range error, one scan covered by no run
+    cross = rng.uniform(0.5, 1.5, size=(runs, scans))
+    cross[:, 3] = np.nan
+    pcrb = rng.uniform(10.0, 100.0, size=scans)
+    pcrb[-1] = np.nan
+    return np.arange(scans, dtype=float), tracks, measured, truth, cross, pcrb
+
+
+def _assert_same_table(fast: pl.DataFrame, plain: pl.DataFrame, rtol=RTOL):
+    assert fast.select("tracker", "metric", "scope").equals(plain.select("tracker", "metric", "scope"))
+    np.testing.assert_allclose(fast["value"].to_numpy().astype(float), plain["value"].to_numpy().astype(float),
+                               rtol=rtol, atol=1e-300)
+
+
+@pytest.mark.parametrize("left_out", [False, True], ids=["alone", "left-out"])
+def test_radar_group_summaries_are_the_scores_of_the_groups(left_out):
+    times, tracks, measured, truth, cross, pcrb = _radar_outputs(43)
+    per_scan, summary, groups = radar_tws.evaluate(times, tracks, measured, truth, cross, 1.0, pcrb,
+                                                   groups=10, left_out=left_out)
+    plain_scan, plain = radar_tws.evaluate(times, tracks, measured, truth, cross, 1.0, pcrb)
+    _assert_same_table(summary, plain)
+    assert per_scan.columns == plain_scan.columns
+    for c in per_scan.columns[3:]:
+        np.testing.assert_allclose(per_scan[c].to_numpy().astype(float), plain_scan[c].to_numpy().astype(float),
+                                   rtol=RTOL)
+    for part, table in zip(run_groups(43, 10), groups):
+        runs = np.setdiff1d(np.arange(43), part) if left_out else part
+        sub = {n: {k: v[runs] for k, v in o.items()} for n, o in tracks.items()}
+        _, expected = radar_tws.evaluate(times, sub, measured[runs], truth[runs], cross[runs], 1.0, pcrb)
+        _assert_same_table(table, expected)
+
+
+@pytest.mark.parametrize("runs", [60, 240], ids=["jackknife", "random-groups"])
+def test_summary_intervals_from_group_totals_match_rescoring(runs):
+    assert (runs >= RANDOM_GROUPS_MIN_RUNS) == (runs == 240)
+    times, tracks, measured, truth, cross, pcrb = _radar_outputs(runs, seed=runs)
+    data = {"tracks": tracks, "reference": {"measured": measured, "truth": truth, "cross": cross}}
+
+    def score(d, groups=None, left_out=False):
+        r = d["reference"]
+        return radar_tws.evaluate(times, d["tracks"], r["measured"], r["truth"], r["cross"], 1.0, pcrb,
+                                  groups=groups, left_out=left_out)
+
+    _, fast = summary_intervals(score, data, runs, score_groups=score)
+    _, plain = summary_intervals(score, data, runs)
+    _assert_same_table(fast, plain)
+    for c in ("se", "ci_low", "ci_high"):
+        x, y = fast[c].to_numpy().astype(float), plain[c].to_numpy().astype(float)
+        assert np.array_equal(np.isnan(x), np.isnan(y)), c
+        # an interval's spread is a difference of estimates: it keeps their rounding, not their size
+        np.testing.assert_allclose(x, y, rtol=1e-9, atol=1e-12 * np.nanmax(np.abs(plain["value"].to_numpy())))
+
+
+def test_a_scorer_without_group_totals_falls_back_to_rescoring():
+    err = np.random.default_rng(2).normal(size=(30, 4))
+    score = lambda d: (None, pl.DataFrame({"tracker": ["t"], "metric": ["m"], "scope": ["overall"],  # noqa: E731
+                                           "value": [float(np.mean(d["err"] ** 2))]}))
+    _, plain = summary_intervals(score, {"err": err}, 30)
+    _, fallback = summary_intervals(score, {"err": err}, 30, score_groups=lambda *a: None)
+    assert plain.equals(fallback)
+
+
+# ------------------------------------------------------------------ whitening and the standard measures
+
+
+def _covariances(lead, n, rng, runs_fastest=True):
+    A = rng.normal(size=lead + (n, n))
+    P = A @ np.swapaxes(A, -1, -2) + 0.5 * np.eye(n)
+    if not runs_fastest:
+        return P
+    # a tracker's buffer: the matrix entries slowest, the runs fastest, seen as (R, K, n, n)
+    buffer = np.ascontiguousarray(np.moveaxis(P, (0, 1), (-1, -2)))   # (n, n, K, R)
+    return np.moveaxis(buffer, (-1, -2), (0, 1))
+
+
+@pytest.mark.parametrize("runs_fastest", [True, False])
+def test_whitening_in_blocks_is_whitening_matrix_by_matrix(monkeypatch, runs_fastest):
+    rng = np.random.default_rng(8)
+    P = _covariances((23, 7), 3, rng, runs_fastest)
+    e = rng.normal(size=(23, 7, 3))
+    e[2, 3] = np.nan
+    P[4, 1] = -np.eye(3)                                       # not positive definite: NaN
+    monkeypatch.setattr(consistency, "WHITEN_BLOCK", 10)       # many blocks, one not full
+    w = consistency.whitened(e, P)
+    expected = whiten(e.reshape(-1, 3), np.ascontiguousarray(P).reshape(-1, 3, 3)).reshape(e.shape)
+    np.testing.assert_array_equal(w, expected)
+    nees = consistency.normalised_squared(e, P)
+    np.testing.assert_array_equal(nees, sum_squares(expected))
+    assert np.isnan(nees[2, 3]) and np.isnan(nees[4, 1]) and np.isfinite(np.delete(nees.ravel(), [2 * 7 + 3, 4 * 7 + 1])).all()
+
+
+def test_the_standard_measures_in_blocks_of_runs_are_those_of_one_block(monkeypatch):
+    rng = np.random.default_rng(11)
+    R, K = 37, 9
+    truth = rng.normal(scale=100.0, size=(R, K, 4))
+    out = {"state": truth + rng.normal(scale=20.0, size=(R, K, 4)),
+           "covariance": _covariances((R, K), 4, rng) * 400.0,
+           "flags": np.where(rng.random((R, K)) < 0.1, NO_TRACK, 0).astype(np.uint16),
+           "innovation": rng.normal(size=(R, K, 2)), "innovation_covariance": _covariances((R, K), 2, rng)}
+    space = standard.EvaluationSpace(truth_components=(0, 1, 2, 3), position_components=(0, 1), angular=False,
+                                     cutoff=60.0, gate=40.0)
+    one_scan, one = standard.evaluate_standard(np.arange(K, dtype=float), {"t": out}, truth, space)
+    monkeypatch.setattr(standard, "SET_BLOCK", 4 * K)          # blocks of 4 runs, the last of 1
+    blocks_scan, blocks = standard.evaluate_standard(np.arange(K, dtype=float), {"t": out}, truth, space)
+    assert one.equals(blocks) and one_scan.equals(blocks_scan)
+
+
+# ------------------------------------------------------------------ small helpers
+
+
+def test_component_sums_and_checks_match_numpy():
+    rng = np.random.default_rng(4)
+    a = rng.normal(size=(50, 6, 4))
+    a[3, 2, 1] = np.nan
+    a[7, 0, 3] = np.inf
+    np.testing.assert_allclose(sum_squares(a), np.sum(a * a, axis=-1), rtol=1e-15)
+    np.testing.assert_array_equal(all_finite(a), np.isfinite(a).all(axis=-1))
+    assert all_finite(np.zeros((3, 0))).all() and sum_squares(np.zeros((3, 0))).tolist() == [0.0] * 3
+
+
+def test_the_one_element_assignment_is_the_permutation_search():
+    rng = np.random.default_rng(6)
+    cost = rng.random((40, 1, 1))
+    rows, cols = rng.random((40, 1)) < 0.8, rng.random((40, 1)) < 0.8
+    total, match = optimal_assignment(cost, rows, cols, unmatched=0.7)
+    full = np.where(rows[:, :, None] & cols[:, None, :], cost, np.where(rows[:, :, None] != cols[:, None, :], 0.7, 0.0))
+    ref_total, ref_cols = _every_permutation(full)
+    np.testing.assert_array_equal(total, ref_total)
+    np.testing.assert_array_equal(match, np.where(rows & cols, ref_cols, -1))
+
+
+def test_jackknife_leaves_out_each_group_in_run_order():
+    seen = []
+    jackknife(lambda idx: seen.append(idx.copy()) or float(len(idx)), 23, groups=5)
+    assert np.array_equal(seen[0], np.arange(23))
+    for part, idx in zip(run_groups(23, 5), seen[1:]):
+        assert np.array_equal(idx, np.setdiff1d(np.arange(23), part))
+
