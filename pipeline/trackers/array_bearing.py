@@ -441,7 +441,8 @@ def track_bearings(snapshots: np.ndarray, design: SubspaceTrackerDesign, strateg
     fe = shared_front_end(snapshots, design)
     width = fe.start.theta_0.shape[1]
     nan = np.nan
-    out = {
+    whole = len(fe.groups) == 1 and len(fe.groups[0][0]) == B and fe.groups[0][1] == width
+    out = {} if whole else {  # one group of every run and all slots: its arrays are the outputs
         "state": np.full((B, K, width, 2), nan), "covariance": np.full((B, K, width, 2, 2), nan),
         "innovation": np.full((B, K, width, 1), nan), "innovation_covariance": np.full((B, K, width, 1, 1), nan),
         "gain": np.full((B, K, width, 2, 1), nan), "predicted_rad": np.full((B, K, width), nan),
@@ -451,8 +452,11 @@ def track_bearings(snapshots: np.ndarray, design: SubspaceTrackerDesign, strateg
                                                    "steering_flops_counted")}
     for sel, n, subspaces in fe.groups:
         part = _track_group(subspaces, fe.start.theta_minus1[sel, :n], fe.start.theta_0[sel, :n], design, strategy)
-        for key, value in part.items():
-            out[key][sel, :, :n] = value
+        if whole:
+            out = part
+        else:
+            for key, value in part.items():
+                out[key][sel, :, :n] = value
         cost = innovation_flops(strategy, M, n)
         for key, name in (("innovation_flops_model", "model"), ("innovation_flops_counted", "counted"),
                           ("steering_flops_counted", "steering")):
