@@ -13,26 +13,21 @@ units already make large, so instead:
 4. R y = Qᵀb is solved by back-substitution (:func:`back_substitute`); the step in the
    original units is y / scale.
 
-Three forms of step 3. :func:`householder_qr` loops over the q ≤ 4 columns, each step
+Two forms of step 3. :func:`householder_qr` loops over the q ≤ 4 columns, each step
 vectorised over the stack (the CRLB path, :func:`information_covariance`).
-:func:`solve_augmented` (:func:`scaled_least_squares`, the coarse grid start) keeps the stack
+:func:`solve_augmented` (the Gauss-Newton path, :func:`scaled_least_squares`) keeps the stack
 axis last and hands the augmented matrices [A | b] to LAPACK's stacked ``geqrf`` through
-:func:`numpy.linalg.qr` in one call, so that R is the leading triangle and Q₁ᵀb the top of the
-last column. The Gauss-Newton iteration (:func:`_factor`) reduces the same augmented stack with
-:func:`_householder_in_place`: the same reflections written over the stack axis, ≈ 17 array
-operations per column whatever the stack's size, which on 500 augmented 6 × 5 matrices takes
-≈ 120 µs against ≈ 260 µs for LAPACK's loop over the matrices (≈ 0.5 µs of call and copy
-overhead each). One Gauss-Newton run does the same arithmetic on Python floats
-(:func:`_factor_one` and its neighbours, the one-run path), to the same bits.
+:func:`numpy.linalg.qr` in one call: a Gauss-Newton iteration on a single run then costs a few
+dozen array calls instead of a few hundred, and on 500 runs the LAPACK loop over matrices is
+still no slower than the column loop (≈ 250 µs against ≈ 300 µs per 500 augmented 6 × 5
+matrices on the reference machine; ≈ 5 µs against ≈ 80 µs for one).
 
 The inverse of R (needed for a covariance, never for a step) is again a back-substitution.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
-from functools import lru_cache
 
 import numpy as np
 
@@ -166,140 +161,18 @@ class LeastSquaresSolution:
 
 
 _DIAGONAL = np.arange(16)  # index of the diagonal of the triangular factors (q ≤ 16), built once
+_DIAGONALS = {q: (_DIAGONAL[:q], _DIAGONAL[:q]) for q in range(17)}
 _IDENTITY = {q: np.eye(q)[:, :, None] for q in range(17)}  # (q, q, 1): broadcast along a stack
 
 
-def _qr_lapack(M: np.ndarray) -> None:
-    """Householder QR of every matrix of a stack M (m, n, B), stack axis last, in place, by
-    LAPACK's ``geqrf`` through :func:`numpy.linalg.qr` (``mode="raw"``): R on and above the
-    diagonal of rows k < n, the Householder vectors below it (:func:`solve_augmented`)."""
-    M[...] = np.linalg.qr(M.transpose(2, 0, 1), mode="raw")[0].transpose(2, 1, 0)
-
-
-def _householder_in_place(M: np.ndarray) -> None:
-    """Householder QR of every matrix of a stack M (m, n, B), stack axis last, in place, one
-    column at a time with every operation over the whole stack (the Gauss-Newton path).
-
-    Columns 0 … n − 2 are reduced and the last one (the right-hand side b) is carried along:
-    afterwards rows k < n − 1 hold R on and above the diagonal and Q₁ᵀb in the last column
-    (below the diagonal is left whatever it became). Column k's reflection maps
-    x = M[k:, k] to β e₁ with β = −sign(x₀)‖x‖ and v = x − β e₁, applied as
-    C ← C − v (vᵀC)/(vᵀv/2) with vᵀv/2 = ‖x‖(‖x‖ + |x₀|) and vᵀC = xᵀC − β C₀; ‖x‖² and xᵀC
-    are one product and one reduction over the rows.
-
-    LAPACK's stacked ``geqrf`` does the same reflections matrix by matrix, at ≈ 0.5 µs of
-    call and copy overhead per 6 × 5 matrix; over the stack axis the whole factorisation is
-    ≈ 17 array operations per column, ≈ 120 µs against ≈ 260 µs for 500 matrices. The
-    reductions run over the leading (row) axis with the n − k ≥ 2 columns inside it, so the
-    rows are added in order whatever B is: a member's factor does not depend on the rest of
-    the stack, and :func:`_householder_columns` (one member, Python floats) gives the same
-    bits. A zero column (vᵀv = 0) leaves the others unchanged.
-    """
-    n = M.shape[1]
-    for k in range(n - 1):
-        X = M[k:, k:]                                   # column k and the columns right of it
-        x = X[:, 0]
-        S = np.add.reduce(x[:, None] * X, axis=0)       # [‖x‖², xᵀC]
-        alpha = X[0, 0]
-        nrm = np.sqrt(S[0])
-        beta = np.copysign(nrm, alpha)
-        np.negative(beta, out=beta)
-        half = nrm * (nrm + np.abs(alpha))              # vᵀv / 2
-        v0 = alpha - beta
-        w = S[1:]
-        w -= beta * X[0, 1:]                            # vᵀC
-        w /= np.where(half > 0, half, 1.0)
-        X[0, 1:] -= v0 * w
-        X[1:, 1:] -= x[1:, None] * w
-        X[0, 0] = beta
-
-
-def _householder_columns(cols: list) -> None:
-    """:func:`_householder_in_place` for one matrix given as its n columns (lists of m floats),
-    in place: the same IEEE operations in the same order (sums written out left to right, as
-    numpy adds the rows there; the builtin ``sum`` compensates from Python 3.12 on)."""
-    n, m = len(cols), len(cols[0])
-    for k in range(n - 1):
-        x = cols[k][k:]
-        S = []
-        for c in cols[k:]:
-            total = x[0] * c[k]
-            for i in range(1, m - k):
-                total += x[i] * c[k + i]
-            S.append(total)
-        alpha = x[0]
-        nrm = math.sqrt(S[0])
-        beta = -math.copysign(nrm, alpha)
-        half = nrm * (nrm + abs(alpha))
-        v0 = alpha - beta
-        div = half if half > 0 else 1.0
-        for j in range(1, n - k):
-            c = cols[k + j]
-            wj = (S[j] - beta * c[k]) / div
-            c[k] -= v0 * wj
-            for i in range(1, m - k):
-                c[k + i] -= x[i] * wj
-        cols[k][k] = beta
-
-
-#: Largest m × n for which :func:`_householder_unrolled` writes the reduction out (its source
-#: grows as m n²: 6 × 5, the 3-sensor joint case, is some 200 lines; beyond the limit the loop
-#: of :func:`_householder_columns` is used, with the same result)
-_UNROLL_MAX_ENTRIES = 64
-
-
-@lru_cache(maxsize=None)
-def _householder_unrolled(m: int, n: int):
-    """:func:`_householder_columns` for m × n matrices, written out as straight-line Python.
-
-    The one-run Gauss-Newton path factors one small matrix per iteration; in the loop form
-    CPython's per-iteration overhead (index arithmetic, list lookups) is about two thirds of
-    the time (≈ 10 µs for 6 × 5 against ≈ 4 µs written out). The source is generated once
-    per shape from the loop's own recipe, entry a{i}_{j} for row i of column j, with every
-    operation in the loop's order, so the bits are the same
-    (tests/test_tdoa_speed_paths.py compares the two and the stacked form).
-    """
-    def a(i, j):
-        return f"a{i}_{j}"
-
-    lines = ["def householder(cols):"]
-    for j in range(n):
-        lines.append(f"    {', '.join(a(i, j) for i in range(m))}, = cols[{j}]")
-    for k in range(n - 1):
-        for j in range(k, n):  # s_j = x·c_j over rows k…m−1, added in row order
-            lines.append(f"    s{j} = {a(k, k)} * {a(k, j)}")
-            lines += [f"    s{j} += {a(i, k)} * {a(i, j)}" for i in range(k + 1, m)]
-        lines += [f"    alpha = {a(k, k)}",
-                  f"    nrm = sqrt(s{k})",
-                  "    beta = -copysign(nrm, alpha)",
-                  "    half = nrm * (nrm + abs(alpha))",
-                  "    v0 = alpha - beta",
-                  "    div = half if half > 0 else 1.0"]
-        for j in range(k + 1, n):
-            lines += [f"    w = (s{j} - beta * {a(k, j)}) / div",
-                      f"    {a(k, j)} -= v0 * w"]
-            lines += [f"    {a(i, j)} -= {a(i, k)} * w" for i in range(k + 1, m)]
-        lines.append(f"    {a(k, k)} = beta")
-    for j in range(n):
-        lines.append(f"    cols[{j}][:] = [{', '.join(a(i, j) for i in range(m))}]")
-    namespace = {"sqrt": math.sqrt, "copysign": math.copysign}
-    exec("\n".join(lines), namespace)  # generated from the fixed recipe above, no outside text
-    return namespace["householder"]
-
-
-def _factor(M: np.ndarray, zero_rtol: float, rank_rtol: float, qr=_householder_in_place):
-    """Column scaling, QR (``qr``: :func:`_householder_in_place` or :func:`_qr_lapack`) and rank
-    test of :func:`solve_augmented` and of the Gauss-Newton iteration.
+def _factor(M: np.ndarray, zero_rtol: float, rank_rtol: float):
+    """Column scaling, QR and rank test of :func:`solve_augmented`.
 
     Returns the factor ``Rt`` (q, q + 1, B: R in the upper triangle, Q₁ᵀb in the last
-    column, rows k and columns j with the stack last; a view of M, which is overwritten by the
-    factorisation), ``scale`` (q, B), the rank-deficiency mask (B,), whether any member is
-    deficient, and ‖b‖² (B,).
+    column, rows k and columns j with the stack last), ``scale`` (q, B), the rank-deficiency
+    mask (B,), whether any member is deficient, and ‖b‖² (B,).
     """
-    m, n, B = M.shape
-    q = n - 1
-    if m < q:
-        raise ValueError(f"least squares needs m ≥ q, got {m} × {q}")
+    q = M.shape[1] - 1
     A = M[:, :q]
     # sums of squares of every column, b's included (‖b‖² is the cost): the reduction runs over
     # the leading axis, so it adds the rows in order whatever B is (a run's answer must not
@@ -311,11 +184,11 @@ def _factor(M: np.ndarray, zero_rtol: float, rank_rtol: float, qr=_householder_i
     used = norms > zero_rtol * np.maximum.reduce(norms, axis=0)
     scale = np.where(used, norms, 1.0)
     A /= scale
-    qr(M)
-    Rt = M[:q]  # rows k < q of the factored stack, contiguous
-    # a zero column counts as a zero on the diagonal (M is finite, so R is). R_kk is row
-    # k (q + 2) of M flattened to (m (q + 1), B): a strided slice, no gather
-    d = np.abs(M.reshape(m * n, B)[:q * (q + 2):q + 2]) * used
+    # raw mode hands back the factored (B, m, q + 1) matrices transposed: swap to rows k,
+    # columns j, stack last
+    Rt = np.ascontiguousarray(np.linalg.qr(M.transpose(2, 0, 1), mode="raw")[0][:, :, :q].transpose(2, 1, 0))
+    # a zero column counts as a zero on the diagonal (M is finite, so R is)
+    d = np.abs(Rt[_DIAGONALS[q]]) * used
     bad = np.minimum.reduce(d, axis=0) <= rank_rtol * np.maximum.reduce(d, axis=0)
     return Rt, scale, bad, bool(np.logical_or.reduce(bad)), squares[q]
 
@@ -337,106 +210,13 @@ def _step(Rt: np.ndarray, scale: np.ndarray, bad: np.ndarray, bad_any: bool):
     return x, np.sqrt(np.add.reduce(Qtb * Qtb, axis=0))
 
 
-# ---------------------------------------------------------------- one stack member
-#
-# The same arithmetic as _factor (with _householder_in_place), _step and _covariance_rows for
-# a stack of one (B = 1), on Python floats: on one member each numpy call costs its fixed
-# overhead (≈ 0.5 µs) for one to thirty numbers, and these functions make some hundred of them
-# per Gauss-Newton iteration. Every operation is the IEEE operation numpy applies elementwise
-# (+, −, ×, ÷, √, copysign, min, max, comparisons), in the same order (numpy's reductions of
-# the batched path add the rows one after the other, see _factor), so the results are those of
-# the batched path to the last bit (tests/test_tdoa_speed_paths.py checks it); sums are
-# written out left to right (the builtin ``sum`` compensates from Python 3.12 on). No explicit
-# inverse either: R⁻¹ (for the covariance) is again a back-substitution.
-
-
-def _factor_one(cols: list, zero_rtol: float, rank_rtol: float):
-    """:func:`_factor` for one member given as the n = q + 1 columns of [A | b] (lists of m
-    floats, overwritten): the factor's rows ``R`` (q lists of q + 1 floats: R in the upper
-    triangle, Q₁ᵀb last), ``scale`` (q floats), whether R is rank deficient, and ‖b‖²; None
-    if a column's sum of squares is not finite (a non-finite entry, or an overflow: the
-    batched path treats those)."""
-    n, m = len(cols), len(cols[0])
-    q = n - 1
-    if m < q:
-        raise ValueError(f"least squares needs m ≥ q, got {m} × {q}")
-    squares = []
-    for c in cols:
-        total = c[0] * c[0]
-        for v in c[1:]:
-            total += v * v
-        squares.append(total)
-    if not all(map(math.isfinite, squares)):
-        return None
-    norms = [math.sqrt(v) for v in squares[:q]]
-    limit = zero_rtol * max(norms)
-    used = [v > limit for v in norms]
-    scale = [v if u else 1.0 for v, u in zip(norms, used)]
-    for j in range(q):
-        s = scale[j]
-        cols[j] = [v / s for v in cols[j]]
-    if m * n <= _UNROLL_MAX_ENTRIES:
-        _householder_unrolled(m, n)(cols)
-    else:
-        _householder_columns(cols)
-    R = [[c[k] for c in cols] for k in range(q)]
-    # |R_kk| × used: × 1.0 leaves |R_kk|, × 0.0 gives +0.0 (R is finite)
-    d = [abs(R[k][k]) if used[k] else 0.0 for k in range(q)]
-    return R, scale, min(d) <= rank_rtol * max(d), squares[q]
-
-
-def _back_substitute_one(R: list, x: list) -> list:
-    """:func:`_back_substitute_rows` for one member: solve R x = y in place (x holds y)."""
-    i = len(x) - 1
-    x[i] /= R[i][i]
-    while i:
-        xi = x[i]
-        for k in range(i):
-            x[k] -= R[k][i] * xi
-        i -= 1
-        x[i] /= R[i][i]
-    return x
-
-
-def _step_one(R: list, scale: list):
-    """:func:`_step` for one full-rank member: x = R⁻¹ Q₁ᵀb / scale (q floats) and ‖Q₁ᵀb‖."""
-    q = len(scale)
-    Qtb = [row[q] for row in R]
-    x = _back_substitute_one(R, list(Qtb))
-    total = Qtb[0] * Qtb[0]
-    for v in Qtb[1:]:
-        total += v * v
-    return [v / s for v, s in zip(x, scale)], math.sqrt(total)
-
-
-def _covariance_one(R: list, scale: list) -> list:
-    """:func:`_covariance_rows` for one full-rank member: D⁻¹ R⁻¹ R⁻ᵀ D⁻¹ as q lists of q.
-
-    R⁻¹ column by column (back-substitution of each column of the identity, as the batched
-    path does for all of them at once), its rows divided by the column scales, then
-    Σ_k (D⁻¹R⁻¹)_ak (D⁻¹R⁻¹)_bk added in k order.
-    """
-    q = len(scale)
-    cols = [_back_substitute_one(R, [1.0 if i == k else 0.0 for i in range(q)]) for k in range(q)]
-    rows = [[col[i] / s for col in cols] for i, s in enumerate(scale)]  # rows of D⁻¹ R⁻¹
-    cov = [[0.0] * q for _ in range(q)]
-    for a, ra in enumerate(rows):
-        for b in range(a, q):  # the (b, a) sum multiplies the same pairs: the same bits
-            rb = rows[b]
-            total = ra[0] * rb[0]
-            for k in range(1, q):
-                total += ra[k] * rb[k]
-            cov[a][b] = cov[b][a] = total
-    return cov
-
-
 def solve_augmented(M: np.ndarray, zero_rtol: float = ZERO_COLUMN_RTOL,
                     rank_rtol: float = RANK_RTOL) -> LeastSquaresSolution:
     """min ‖A x − b‖ for a stack given as augmented matrices [A | b], stack axis last.
 
     The whitened, column-scaled Householder QR of the module, in as few array calls as
-    possible (``docs/papers/tdoa-fdoa.md``, "Speed"; the Gauss-Newton iteration uses the same
-    steps with :func:`_householder_in_place` in place of LAPACK):
+    possible, because a single Gauss-Newton run pays every call's fixed cost at each iteration
+    (``docs/papers/tdoa-fdoa.md``, "Speed"):
 
     * the stack axis is last, so every elementwise step (column norms, scaling, rank test,
       back-substitution) runs over long contiguous rows rather than tiny trailing axes;
@@ -453,8 +233,8 @@ def solve_augmented(M: np.ndarray, zero_rtol: float = ZERO_COLUMN_RTOL,
     Parameters
     ----------
     M : ndarray (m, q + 1, B), m ≥ q, finite
-        Whitened design matrices with the whitened right-hand side as the last column;
-        overwritten (by the column-scaled matrices' QR factorisation).
+        Whitened design matrices with the whitened right-hand side as the last column. The
+        first q columns are divided by their norms in place.
     zero_rtol, rank_rtol : float
         As :data:`ZERO_COLUMN_RTOL` and :data:`RANK_RTOL`.
 
@@ -465,7 +245,7 @@ def solve_augmented(M: np.ndarray, zero_rtol: float = ZERO_COLUMN_RTOL,
     m, n, _ = M.shape
     if m < n - 1:
         raise ValueError(f"least squares needs m ≥ q, got {m} × {n - 1}")
-    Rt, scale, bad, bad_any, _ = _factor(M, zero_rtol, rank_rtol, qr=_qr_lapack)
+    Rt, scale, bad, bad_any, _ = _factor(M, zero_rtol, rank_rtol)
     x, norm = _step(Rt, scale, bad, bad_any)
     return LeastSquaresSolution(x.T, norm, bad, np.triu(Rt[:, :-1].transpose(2, 0, 1)), scale.T)
 

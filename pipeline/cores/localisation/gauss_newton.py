@@ -20,15 +20,13 @@ the model.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 
-from pipeline.cores.localisation.batched_least_squares import (RANK_RTOL, ZERO_COLUMN_RTOL, _covariance_one,
-                                                               _covariance_rows, _factor, _factor_one, _step,
-                                                               _step_one)
+from pipeline.cores.localisation.batched_least_squares import (RANK_RTOL, ZERO_COLUMN_RTOL, _covariance_rows, _factor,
+                                                               _step)
 # the status bits are those of the one flag table (uint16), re-exported for the callers of this core
 from pipeline.vocabulary import CONVERGED, DIVERGED, FLAG_DTYPE, INVALID_START, NOT_CONVERGED, RANK_DEFICIENT
 
@@ -127,13 +125,11 @@ def gauss_newton(model: Callable, theta0: np.ndarray, measured: np.ndarray, sigm
     Each iteration costs a few dozen array calls whatever the number of runs, so that one run
     (recorded data usually is one) is not dominated by fixed per-call costs: the active runs'
     inputs are gathered again only when some run stops, the whitened system is built in place
-    as one augmented array with the run axis last and solved by a Householder QR and a
-    back-substitution, each written over the whole stack
-    (:func:`pipeline.cores.localisation.batched_least_squares._householder_in_place`), and the
-    flags are touched only in iterations where some run stops. A run's answer does not depend on
-    the other runs of the batch, to the last bit. A call with one run takes a shorter path
-    (:func:`_one_run`: the same arithmetic in fewer array calls) unless one of its steps is
-    irregular.
+    as one augmented array with the run axis last and solved by one stacked LAPACK QR and a
+    back-substitution over the stack
+    (:func:`pipeline.cores.localisation.batched_least_squares.solve_augmented`), and the flags
+    are touched only in iterations where some run stops. A run's answer does not depend on
+    the other runs of the batch, to the last bit.
 
     Parameters
     ----------
@@ -167,11 +163,6 @@ def gauss_newton(model: Callable, theta0: np.ndarray, measured: np.ndarray, sigm
     B, p = theta.shape
     free, measured, sigma, measured_t, sigma_t = _prepare(theta, measured, sigma, free)
     batch = batch or {}
-    if B == 1 and iterations >= 1:  # one run: the same steps with fewer array calls, if it is regular
-        with np.errstate(all="ignore"):
-            one = _one_run(model, theta, measured_t, sigma_t, free, iterations, step_tolerance, batch, diverged)
-        if one is not None:
-            return one
     flags = np.zeros(B, FLAG_DTYPE)
     start_ok = _all(np.isfinite(theta if free is None else theta[:, free]), axis=1)
     active = start_ok.copy()
@@ -267,76 +258,6 @@ def gauss_newton(model: Callable, theta0: np.ndarray, measured: np.ndarray, sigm
     if np.logical_or.reduce(final_rank_bad):
         flags[final_rank_bad & ((flags & DIVERGED) == 0) & start_ok] |= RANK_DEFICIENT
     return GaussNewtonResult(theta, iterates, steps, step_sigma, cost, cov, flags)
-
-
-def _one_run(model, theta, measured_t, sigma_t, free, iterations, step_tolerance, batch, diverged):
-    """:func:`gauss_newton` on one run whose every step is regular; None otherwise.
-
-    Recorded data usually is one run, for which the batched loop's array calls on one to
-    thirty numbers cost more than the model. This is the same iteration: the model is called
-    as in the batched loop, and the whitening, the column scaling, the Householder QR, the
-    rank test, the back-substitution, the step and its length, the convergence test and the
-    covariance are the same IEEE operations in the same order on Python floats
-    (:func:`pipeline.cores.localisation.batched_least_squares._factor_one` and its
-    neighbours). A run that meets anything the batched loop treats apart (an invalid start, a
-    non-finite model, a rank-deficient or non-finite step, a divergence, a singular final
-    Jacobian) returns None: the caller then runs the batched loop from the start, which
-    is deterministic, so the result is the same either way (tests/test_tdoa_speed_paths.py).
-    Called under ``np.errstate(all="ignore")``.
-    """
-    p = theta.shape[1]
-    current = theta[0].tolist()
-    unknown = list(range(p)) if free is None else free.tolist()
-    if not all(map(math.isfinite, [current[f] for f in unknown])):
-        return None
-    measured_1, sigma_1 = measured_t[:, 0].tolist(), sigma_t[:, 0].tolist()
-
-    def factor(th):
-        # [A | r] of _whitened_system as columns of Python floats, then _factor's arithmetic
-        g, H = model(th, **batch)
-        g, H = g[0].tolist(), H[0].tolist()
-        cols = [[row[f] / s for row, s in zip(H, sigma_1)] for f in unknown]
-        cols.append([(u - gi) / s for u, gi, s in zip(measured_1, g, sigma_1)])
-        return _factor_one(cols, ZERO_COLUMN_RTOL, RANK_RTOL)  # None if not finite
-
-    path = [current]
-    th = theta
-    norm = math.nan
-    converged = False
-    for _ in range(iterations):
-        factored = factor(th)
-        if factored is None or factored[2]:  # not finite, or rank deficient
-            return None
-        R, scale, _, _ = factored
-        x, norm = _step_one(R, scale)
-        new = list(current)
-        for k, f in enumerate(unknown):
-            new[f] += x[k]
-        if not all(map(math.isfinite, new)):
-            return None
-        th = np.array([new])
-        if diverged is not None and np.logical_or.reduce(np.asarray(diverged(th, **batch), bool), axis=None):
-            return None
-        current = new
-        path.append(new)
-        if norm < step_tolerance:
-            converged = True
-            break
-    # the final statistics (:func:`_final_statistics`) at the estimate
-    factored = factor(th)
-    if factored is None or factored[2]:
-        return None
-    R, scale, _, cost = factored
-    cov_free = np.array([_covariance_one(R, scale)])
-    if free is None:
-        cov = cov_free
-    else:
-        cov = np.full((1, p, p), np.nan)
-        cov[:, free[:, None], free[None, :]] = cov_free
-    steps = len(path) - 1
-    path += [current] * (iterations - steps)  # a run that stopped early repeats its estimate
-    return GaussNewtonResult(th, np.array([path]), np.array([steps], np.int64), np.array([norm]), np.array([cost]),
-                             cov, np.array([CONVERGED if converged else NOT_CONVERGED], FLAG_DTYPE))
 
 
 def final_statistics(model, theta, measured, sigma, free, batch):
