@@ -3,9 +3,9 @@
 PAST over many scans in one pass (:func:`past_scans`) against the textbook recursion of Yang
 (1995) run one snapshot at a time; the largest principal angle against the SVD definition of
 :func:`principal_angles` (small, medium and near-90° angles); and the front end of Ryu, Lee &
-Lee (2001)'s trackers (shared start-up EVD, PAST blocks, batch EVD in a second thread) against
-the same steps written out per scan, for any block size and for groups of runs that are not
-consecutive.
+Lee (2001)'s trackers (shared start-up EVD, PAST blocks, batch EVD and subspace error in a
+second thread) against the same steps written out per scan, for any block size and for groups
+of runs that are not consecutive.
 """
 
 import numpy as np
@@ -142,7 +142,7 @@ def test_the_front_end_is_its_steps_per_scan_for_any_block_size(monkeypatch, sub
             np.testing.assert_array_equal(subspaces, past if subspace == "past" else batch)
 
 
-def test_a_failure_in_the_evd_thread_reaches_the_caller(monkeypatch):
+def test_a_failure_in_the_subspace_error_thread_reaches_the_caller(monkeypatch):
     rng = np.random.default_rng(4)
     X = scene(rng, 2, 4, 12)
 
@@ -150,8 +150,10 @@ def test_a_failure_in_the_evd_thread_reaches_the_caller(monkeypatch):
         raise np.linalg.LinAlgError("no convergence")
 
     monkeypatch.setattr(ab, "batch_signal_subspace", broken)
-    with pytest.raises(np.linalg.LinAlgError, match="no convergence"):
-        ab.front_end(X, ab.SubspaceTrackerDesign(grid_step_rad=np.deg2rad(0.5)))
+    for subspace in ("past", "batch"):
+        design = ab.SubspaceTrackerDesign(grid_step_rad=np.deg2rad(0.5), subspace=subspace)
+        with pytest.raises(np.linalg.LinAlgError, match="no convergence"):
+            ab.front_end(X, design).subspace_error  # the filters (batch) or the subspace error (PAST) wait for it
 
 
 def test_the_start_up_reuses_the_evd_it_is_given():

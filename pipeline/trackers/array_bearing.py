@@ -189,6 +189,67 @@ def start_up(snapshots: np.ndarray, design: SubspaceTrackerDesign, evd=None) -> 
 # --------------------------------------------------------------------------- step 2: subspace
 
 
+class _SubspaceError(threading.Thread):
+    """The batch EVD of every tracked scan (scan ≥ 2) of a group of runs and the largest
+    principal angle between it and PAST's W (``subspace_error_rad``), in a thread of its own.
+
+    Nothing the filters use depends on it (with PAST as the subspace tracker): it runs beside
+    PAST and the first tracker's filters (LAPACK and numpy's larger operations release the
+    GIL), and :meth:`FrontEnd.subspace_error` waits for it. The angle of a run needs PAST's W
+    of that run: the caller reports the runs done so far (:meth:`past_ready`).
+
+    :data:`FRONT_END_BLOCK_RUNS` runs at a time, in double precision: the covariances and full
+    eigenvector stacks stay a few MB at any number of runs (every run is its own problem, so the
+    blocks give the same numbers as one batch). With ``batch`` given (``subspace="batch"``)
+    the leading eigenvectors are also written there. An exception is kept and raised by
+    :meth:`finish`.
+    """
+
+    def __init__(self, X: np.ndarray, sel: np.ndarray, n: int, past: np.ndarray, sub_err: np.ndarray,
+                 batch: np.ndarray | None = None):
+        super().__init__(daemon=True)
+        self.X, self.sel, self.n, self.past, self.sub_err, self.batch = X, sel, n, past, sub_err, batch
+        self.error = None
+        self._ready, self._stopped = 0, False
+        self._cond = threading.Condition()
+
+    def past_ready(self, runs: int) -> None:
+        """PAST's W is complete for the group's first ``runs`` runs."""
+        with self._cond:
+            self._ready = runs
+            self._cond.notify_all()
+
+    def stop(self) -> None:
+        """No more PAST results will come (the caller failed): end without waiting for them."""
+        with self._cond:
+            self._stopped = True
+            self._cond.notify_all()
+
+    def run(self) -> None:
+        try:
+            for first in range(0, len(self.sel), FRONT_END_BLOCK_RUNS):
+                rows = self.sel[first:first + FRONT_END_BLOCK_RUNS]
+                part = slice(first, first + len(rows))
+                block = _runs(self.X, rows)[:, STARTUP_SCANS:].astype(complex)
+                vectors = batch_signal_subspace(block, self.n)[0]
+                if self.batch is not None:
+                    self.batch[part, STARTUP_SCANS:] = vectors
+                with self._cond:
+                    self._cond.wait_for(lambda: self._stopped or self._ready >= part.stop)
+                    if self._stopped:
+                        return
+                self.sub_err[rows, STARTUP_SCANS:] = largest_principal_angle(
+                    self.past[part, STARTUP_SCANS:], vectors, b_orthonormal=True)
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller's thread
+            self.error = exc
+
+    def finish(self) -> None:
+        """Wait for the thread; raise what it raised."""
+        self.join()
+        if self.error is not None:
+            raise self.error
+
+
 @dataclass
 class FrontEnd:
     """What both innovation strategies share: the start-up and, per group of runs with the same
@@ -196,8 +257,17 @@ class FrontEnd:
 
     start: StartUp
     groups: list  # [(run indices, N, subspaces (B_n, K, M, N))]
-    subspace_error: np.ndarray  # (B, K) largest principal angle, PAST vs batch EVD
+    _subspace_error: np.ndarray  # (B, K), complete once the pending threads are done
     n_sensors: int
+    _pending: list = dataclasses.field(default_factory=list)  # [_SubspaceError] still running
+
+    @property
+    def subspace_error(self) -> np.ndarray:
+        """``(B, K)`` largest principal angle, PAST vs batch EVD (waits for its threads)."""
+        while self._pending:
+            self._pending[0].finish()
+            self._pending.pop(0)
+        return self._subspace_error
 
 
 def _runs(X: np.ndarray, rows: np.ndarray) -> np.ndarray:
@@ -213,54 +283,15 @@ def _leading(values: np.ndarray, vectors: np.ndarray, n: int):
     return (np.ascontiguousarray(vectors[..., ::-1][..., :n]), np.ascontiguousarray(values[..., ::-1][..., :n]))
 
 
-class _Evd(threading.Thread):
-    """Leading ``n`` eigenvectors of the sample covariance of every tracked scan (scan ≥ 2) of
-    some runs, ``(runs, K − 2, M, n)``, computed in a thread of its own and, once the caller
-    is free (:meth:`help`), in the caller's thread too.
-
-    In double precision, :data:`FRONT_END_BLOCK_RUNS` runs at a time, each block taken by
-    whichever thread is free: the covariances and full eigenvector stacks stay a few MB at any
-    number of runs (every run is its own problem, so the blocks give the same numbers as one
-    batch). An exception is kept and raised by :meth:`result`.
-    """
-
-    def __init__(self, X: np.ndarray, rows: np.ndarray, n: int):
-        super().__init__(daemon=True)
-        self.X, self.rows, self.n = X, rows, n
-        self.vectors = np.empty((len(rows), X.shape[1] - STARTUP_SCANS, X.shape[2], n), dtype=complex)
-        self.error = None
-        self._next, self._lock = 0, threading.Lock()
-
-    def run(self) -> None:
-        try:
-            while True:
-                with self._lock:
-                    first = self._next
-                    self._next += FRONT_END_BLOCK_RUNS
-                if first >= len(self.rows):
-                    return
-                block = _runs(self.X, self.rows[first:first + FRONT_END_BLOCK_RUNS])[:, STARTUP_SCANS:]
-                self.vectors[first:first + len(block)] = batch_signal_subspace(block.astype(complex), self.n)[0]
-        except BaseException as exc:  # noqa: BLE001 - handed to the caller's thread
-            self.error = exc
-
-    help = run  # the caller takes the remaining blocks beside the thread
-
-    def result(self) -> np.ndarray:
-        self.join()
-        if self.error is not None:
-            raise self.error
-        return self.vectors
-
-
 def front_end(snapshots: np.ndarray, design: SubspaceTrackerDesign) -> FrontEnd:
     """Steps 1–2 for every run: start-up, then PAST (or batch EVD) per group of equal N.
 
     Each scan's sample covariance is decomposed once: scans 0 and 1 serve both the start-up
-    and the subspaces; PAST runs from scan 0's EVD over a block of runs at a time while the
-    batch EVD of the block's other scans is computed beside it (:class:`_Evd`); the latter is
-    kept only where the filters use it (``subspace="batch"``) and otherwise reduced to the
-    subspace error block by block.
+    and the subspaces; PAST runs from scan 0's EVD over :data:`PAST_BLOCK_RUNS` runs at a time,
+    while the batch EVD of the other scans and the subspace error are computed beside it
+    (:class:`_SubspaceError`). With PAST as the subspace tracker the returned front end does not
+    wait for them (:attr:`FrontEnd.subspace_error` does); with ``subspace="batch"`` the filters
+    need the EVD, and this function waits.
     """
     if design.subspace not in SUBSPACES:
         raise ValueError(f"unknown subspace tracker {design.subspace!r} (have: {', '.join(SUBSPACES)})")
@@ -270,40 +301,39 @@ def front_end(snapshots: np.ndarray, design: SubspaceTrackerDesign) -> FrontEnd:
     head_values, head_vectors = eigen_decomposition(sample_covariance(head))
     init = start_up(head, design, (head_values, head_vectors))
     sub_err = np.full((B, K), np.nan)
-    groups = []
-    for n in np.unique(init.n_tracks):
-        if n == 0:
-            continue
-        n = int(n)
-        sel = np.flatnonzero(init.n_tracks == n)
-        head_batch, head_lam = _leading(head_values[sel], head_vectors[sel], n)
-        past = np.empty((len(sel), K, M, n), dtype=complex)
-        batch = np.empty_like(past) if design.subspace == "batch" else None
-        past[:, 0], P = initial_state(head_batch[:, 0], head_lam[:, 0], design.forgetting)
-        if batch is not None:
-            batch[:, :STARTUP_SCANS] = head_batch
-        for first in range(0, len(sel), PAST_BLOCK_RUNS):
-            rows = sel[first:first + PAST_BLOCK_RUNS]
-            part = slice(first, first + len(rows))
-            # the batch EVD of the block's tracked scans does not depend on PAST: it runs in a
-            # second thread (LAPACK releases the GIL) while this one runs PAST over the block
-            evd = _Evd(X, rows, n)
-            evd.start()
-            try:
-                past[part, 1:], _ = past_scans(past[part, 0], P[part], _runs(X, rows)[:, 1:], design.forgetting)
-                evd.help()
-            finally:
-                evd.join()
-            vectors = evd.result()
-            for sub in range(0, len(rows), FRONT_END_BLOCK_RUNS):  # small temporaries, reused memory
-                chunk = slice(sub, sub + FRONT_END_BLOCK_RUNS)
-                sub_err[rows[chunk], STARTUP_SCANS:] = largest_principal_angle(
-                    past[part][chunk, STARTUP_SCANS:], vectors[chunk], b_orthonormal=True)
+    fe = FrontEnd(init, [], sub_err, M)
+    try:
+        for n in np.unique(init.n_tracks):
+            if n == 0:
+                continue
+            n = int(n)
+            sel = np.flatnonzero(init.n_tracks == n)
+            head_batch, head_lam = _leading(head_values[sel], head_vectors[sel], n)
+            past = np.empty((len(sel), K, M, n), dtype=complex)
+            batch = np.empty_like(past) if design.subspace == "batch" else None
+            past[:, 0], P = initial_state(head_batch[:, 0], head_lam[:, 0], design.forgetting)
             if batch is not None:
-                batch[part, STARTUP_SCANS:] = vectors
-        sub_err[sel, :STARTUP_SCANS] = largest_principal_angle(past[:, :STARTUP_SCANS], head_batch, b_orthonormal=True)
-        groups.append((sel, n, past if batch is None else batch))
-    return FrontEnd(init, groups, sub_err, M)
+                batch[:, :STARTUP_SCANS] = head_batch
+            errors = _SubspaceError(X, sel, n, past, sub_err, batch)
+            fe._pending.append(errors)
+            errors.start()
+            # every run of a block in one PAST pass: the work per snapshot is a handful of
+            # element-wise operations, whose cost per call is amortised over the block's runs
+            for first in range(0, len(sel), PAST_BLOCK_RUNS):
+                rows = sel[first:first + PAST_BLOCK_RUNS]
+                part = slice(first, first + len(rows))
+                past[part, 1:], _ = past_scans(past[part, 0], P[part], _runs(X, rows)[:, 1:], design.forgetting)
+                errors.past_ready(part.stop)
+            sub_err[sel, :STARTUP_SCANS] = largest_principal_angle(past[:, :STARTUP_SCANS], head_batch,
+                                                                   b_orthonormal=True)
+            if batch is not None:
+                errors.finish()  # the filters track the batch EVD: it must be complete
+            fe.groups.append((sel, n, past if batch is None else batch))
+    except BaseException:
+        for errors in fe._pending:
+            errors.stop()
+        raise
+    return fe
 
 
 _MEMO = {"ref": None, "key": None, "value": None}
@@ -464,7 +494,7 @@ def track_bearings(snapshots: np.ndarray, design: SubspaceTrackerDesign, strateg
     out.update(flops)
     out["n_tracks"] = np.broadcast_to(fe.start.n_tracks[:, None], (B, K)).astype(np.int32)
     out["source_count"] = np.broadcast_to(fe.start.source_counts[:, 1][:, None], (B, K)).astype(np.int32)
-    out["subspace_error_rad"] = fe.subspace_error.copy()
+    out["subspace_error_rad"] = fe.subspace_error.copy()  # last: its thread ran beside the filters
     return out
 
 
