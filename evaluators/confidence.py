@@ -10,6 +10,9 @@ can be estimated from the runs themselves. Two tools:
   ``SE = √((G − 1)/G · Σ_g (θ₍g₎ − θ̄)²)``, with a t interval on G − 1 degrees of freedom. It
   is exact for sums and means and first-order right for smooth functions of them (RMSE, NEES
   averages, rates), and needs only G re-evaluations of the metric, not one per bootstrap draw.
+  A metric that is a function of sums over runs needs none: its G estimates come from the
+  groups' totals (:func:`group_totals`, :func:`ratio_jackknife`, ``score_groups`` of
+  :func:`summary_intervals`), one pass over the runs.
 
 See ``docs/evaluation.md``.
 """

@@ -458,7 +458,8 @@ class Stage:
 
             def score_groups(runs_data, groups, left_out):
                 sub = {**result, "tracks": runs_data["tracks"]}
-                return self.score_groups({"runs": runs_data["reference"], "fixed": fixed}, sub, design, groups, left_out)
+                return self.score_groups({"runs": runs_data["reference"], "fixed": fixed}, sub, design, groups,
+                                         left_out)
 
             per_scan, summary = summary_intervals(score, {"tracks": tracks, "reference": reference["runs"]}, n_runs,
                                                   groups=10, score_groups=score_groups)
