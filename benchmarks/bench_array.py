@@ -31,7 +31,15 @@ What it measures
    printed table is echoed, followed by the innovation's time per run-scan batched over the
    file's runs for N = 5 and 6 (the timing the Table 1 report used to carry).
 
-4. Optional (``--sensitivity``): the default scenario with its motion sped up (knot times
+4. Optional (``--front-end RUNS``, alone): the trackers' shared front end on RUNS simulated runs
+   of the array-crossing scenario (M = 15, 30 snapshots, 62 scans, 5 targets), per run-scan as
+   median [min–max] over the passes: the batch EVD, PAST, the subspace error, and the whole
+   front end as the trackers call it (the EVD and subspace error in a second thread beside
+   PAST); then the EVD variants per covariance (complex ``eigh`` as used, ``eigvalsh``, the
+   real 2M × 2M embedding, SciPy's ``zheevr`` for the leading vectors only) — the measurements
+   behind the choice of the first.
+
+5. Optional (``--sensitivity``): the default scenario with its motion sped up (knot times
    compressed), to show how the crossing rate drives track coalescence; and the bias of the
    tracks behind two targets moving at ≈ 1°/s with PAST's subspace and with the per-scan EVD.
 
@@ -48,6 +56,7 @@ From the repository root, with the package installed (``pip install -e .[peers]`
     python benchmarks/bench_array.py                 # everything
     python benchmarks/bench_array.py --skip-mc       # kernels only
     python benchmarks/bench_array.py --music-only    # the MUSIC comparison only
+    python benchmarks/bench_array.py --front-end 256 # the trackers' front end only
 """
 
 from __future__ import annotations
@@ -239,6 +248,78 @@ def full_monte_carlo(runs: int) -> None:
         f"{times[('proposed', n)] / times[('ryu', n)]:.3f}" for n in (5, 6)))
 
 
+def front_end_times(runs: int, repeats: int) -> None:
+    """What the trackers' shared front end costs per run-scan, piece by piece, and the EVD
+    variants measured against LAPACK's complex Hermitian ``eigh`` (zheevd) that it uses."""
+    import threading
+
+    from pipeline.cores.array.music import eigen_decomposition, sample_covariance
+    from pipeline.cores.array.past_subspace import batch_signal_subspace, initial_state, largest_principal_angle, past_scans
+    from pipeline.trackers import array_bearing as ab
+    from recorders.array_snapshots import simulate
+    from recorders.scenarios import load_scenario
+
+    section(f"front end of the array trackers: {runs} runs of the array-crossing scenario")
+    data = simulate(dict(load_scenario("array-crossing").params), runs, 7)
+    X = np.array(data.fixed["/array/snapshots"]["snapshots"])
+    X.flags.writeable = False
+    R, K, M, Ns = X.shape
+    n = 5
+    block = ab.FRONT_END_BLOCK_RUNS
+    head = X[:, :2].astype(complex)
+    values, vectors = eigen_decomposition(sample_covariance(head))
+    basis, lam = ab._leading(values, vectors, n)
+    W0, P0 = initial_state(basis[:, 0], lam[:, 0], 0.97)
+    past, _ = past_scans(W0, P0, X[:, 1:], 0.97)
+    evd = np.concatenate([batch_signal_subspace(X[f:f + block, 2:].astype(complex), n)[0] for f in range(0, R, block)])
+
+    def per_run_scan(fn, scans):
+        samples = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            fn()
+            samples.append((time.perf_counter() - t0) / (R * scans))
+        return spread(samples, 1e6, 2, "µs")
+
+    rows = [
+        ("batch EVD (covariance, eigh, leading vectors), 16-run blocks", per_run_scan(
+            lambda: [batch_signal_subspace(X[f:f + block, 2:].astype(complex), n) for f in range(0, R, block)], K - 2)),
+        (f"PAST over the {Ns} snapshots of a scan, {ab.PAST_BLOCK_RUNS}-run blocks", per_run_scan(
+            lambda: [past_scans(W0[f:f + ab.PAST_BLOCK_RUNS], P0[f:f + ab.PAST_BLOCK_RUNS],
+                                X[f:f + ab.PAST_BLOCK_RUNS, 1:], 0.97) for f in range(0, R, ab.PAST_BLOCK_RUNS)], K - 1)),
+        ("subspace error (largest principal angle), 16-run chunks", per_run_scan(
+            lambda: [largest_principal_angle(past[f:f + block, 1:], evd[f:f + block], b_orthonormal=True)
+                     for f in range(0, R, block)], K - 2)),
+    ]
+    design = ab.SubspaceTrackerDesign()
+    rows.append(("front end as the trackers call it (the EVD thread beside PAST)",
+                 per_run_scan(lambda: ab.front_end(X, design).subspace_error, K)))
+    for name, cells in rows:
+        print(f"  {name:<68} {cells} per run-scan")
+
+    # the EVD variants, per 15 × 15 covariance (one 16-run block of tracked scans)
+    Rb = sample_covariance(X[:block, 2:].astype(complex)).reshape(-1, M, M)
+    real = np.block([[Rb.real, -Rb.imag], [Rb.imag, Rb.real]])
+    from scipy.linalg.lapack import zheevr
+
+    variants = {
+        "numpy eigh (zheevd), batched: what the trackers use": lambda: np.linalg.eigh(Rb),
+        "numpy eigvalsh, batched (values only)": lambda: np.linalg.eigvalsh(Rb),
+        "numpy eigh of the real 2M × 2M embedding, batched": lambda: np.linalg.eigh(real),
+        f"scipy zheevr, the {n} leading vectors only, one call per matrix":
+            lambda: [zheevr(r, compute_v=1, lower=1, range="I", il=M - n + 1, iu=M) for r in Rb],
+    }
+    print(f"  EVD variants per {M} × {M} covariance ({len(Rb)} matrices, {repeats} passes):")
+    for name, fn in variants.items():
+        samples = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            fn()
+            samples.append((time.perf_counter() - t0) / len(Rb))
+        print(f"    {name:<66} {spread(samples, 1e6, 2, 'µs')}")
+    print(f"  ({threading.active_count()} threads alive after the runs; load average {os.getloadavg()[0]:.2f})")
+
+
 def crossing_rate_sensitivity(runs: int, factors=(1.0, 1.33, 2.0)) -> None:
     """Why the all-runs MSE is far above the paper's: tracks merge at slow crossings."""
     from evaluators.array_bearing import evaluate
@@ -300,6 +381,8 @@ def main():
     ap.add_argument("--music-grids", default="361,1801",
                     help="grid sizes over θ ∈ [−90°, 90°] for the MUSIC comparison (181 is 1°)")
     ap.add_argument("--music-only", action="store_true", help="only the MUSIC comparison")
+    ap.add_argument("--front-end", type=int, default=0, metavar="RUNS",
+                    help="only the front end's pieces per run-scan, on RUNS simulated runs (e.g. 256)")
     ap.add_argument("--runs", type=int, default=100, help="Monte Carlo runs per SNR")
     ap.add_argument("--skip-mc", action="store_true")
     ap.add_argument("--sensitivity", action="store_true", help="also the crossing-rate study (≈ 3 × the MC time)")
@@ -308,6 +391,9 @@ def main():
     grids = tuple(int(g) for g in args.music_grids.split(","))
     if args.music_only:
         music_vs_pyroomacoustics(args.trials, max(5, args.music_repeats), grids)
+        return
+    if args.front_end:
+        front_end_times(args.front_end, max(5, args.music_repeats))
         return
     innovation_table(15, args.batch, args.repeats)
     music_vs_pyroomacoustics(args.trials, max(5, args.music_repeats), grids)

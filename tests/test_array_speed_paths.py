@@ -164,3 +164,30 @@ def test_the_start_up_reuses_the_evd_it_is_given():
     a, b = ab.start_up(head, design), ab.start_up(head, design, evd)
     for key in ("n_tracks", "theta_minus1", "theta_0", "source_counts"):
         np.testing.assert_array_equal(getattr(a, key), getattr(b, key))
+
+
+def test_the_memo_keeps_no_snapshots_alive_and_another_data_set_replaces_it():
+    """The front end's thread lets go of the snapshots once done, so the memo dies with them; a
+    second data set then replaces the memo (in a thread with a deadline: a lock held while the
+    first array's weak-reference callback runs would hang)."""
+    import gc
+    import threading
+    import weakref
+
+    rng = np.random.default_rng(6)
+    design = ab.SubspaceTrackerDesign(grid_step_rad=np.deg2rad(0.5))
+    first = scene(rng, 3, 5, 12).astype(np.complex64)
+    first.flags.writeable = False
+    ab.track_bearings(first, design, "proposed")
+    gone = weakref.ref(first)
+    del first
+    gc.collect()
+    assert gone() is None
+    for _ in range(2):  # each replaces the memo of the one before, whose array is then freed
+        X = scene(rng, 3, 5, 12).astype(np.complex64)
+        X.flags.writeable = False
+        worker = threading.Thread(target=ab.track_bearings, args=(X, design, "ryu"), daemon=True)
+        worker.start()
+        worker.join(timeout=60)
+        assert not worker.is_alive()
+        del X

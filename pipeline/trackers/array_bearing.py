@@ -242,6 +242,9 @@ class _SubspaceError(threading.Thread):
                     self.past[part, STARTUP_SCANS:], vectors, b_orthonormal=True)
         except BaseException as exc:  # noqa: BLE001 - handed to the caller's thread
             self.error = exc
+        finally:
+            # the memo keeps the front end, and must not keep the snapshots alive through it
+            self.X = self.sel = self.past = self.sub_err = self.batch = None
 
     def finish(self) -> None:
         """Wait for the thread; raise what it raised."""
@@ -259,14 +262,13 @@ class FrontEnd:
     groups: list  # [(run indices, N, subspaces (B_n, K, M, N))]
     _subspace_error: np.ndarray  # (B, K), complete once the pending threads are done
     n_sensors: int
-    _pending: list = dataclasses.field(default_factory=list)  # [_SubspaceError] still running
+    _pending: list = dataclasses.field(default_factory=list)  # [_SubspaceError] of the groups
 
     @property
     def subspace_error(self) -> np.ndarray:
         """``(B, K)`` largest principal angle, PAST vs batch EVD (waits for its threads)."""
-        while self._pending:
-            self._pending[0].finish()
-            self._pending.pop(0)
+        for thread in self._pending:  # (joining a finished thread again costs nothing; any caller may wait)
+            thread.finish()
         return self._subspace_error
 
 
@@ -337,7 +339,9 @@ def front_end(snapshots: np.ndarray, design: SubspaceTrackerDesign) -> FrontEnd:
 
 
 _MEMO = {"ref": None, "key": None, "value": None}
-_MEMO_LOCK = threading.Lock()
+# re-entrant: replacing the memo's value can free the last reference to the previous snapshots,
+# whose weak-reference callback (_forget) then runs in this thread while it holds the lock
+_MEMO_LOCK = threading.RLock()
 
 
 def _forget(ref) -> None:
