@@ -3,8 +3,8 @@
 PAST over many scans in one pass (:func:`past_scans`) against the textbook recursion of Yang
 (1995) run one snapshot at a time; the largest principal angle against the SVD definition of
 :func:`principal_angles` (small, medium and near-90° angles); and the front end of Ryu, Lee &
-Lee (2001)'s trackers (shared start-up EVD, PAST blocks, batch EVD and subspace error in a
-second thread) against the same steps written out per scan, for any block size and for groups
+Lee (2001)'s trackers (shared start-up EVD, PAST blocks, batch EVD and subspace error in
+blocks) against the same steps written out per scan, for any block size and for groups
 of runs that are not consecutive.
 """
 
@@ -142,7 +142,7 @@ def test_the_front_end_is_its_steps_per_scan_for_any_block_size(monkeypatch, sub
             np.testing.assert_array_equal(subspaces, past if subspace == "past" else batch)
 
 
-def test_a_failure_in_the_subspace_error_thread_reaches_the_caller(monkeypatch):
+def test_a_failure_in_the_batch_evd_reaches_the_caller(monkeypatch):
     rng = np.random.default_rng(4)
     X = scene(rng, 2, 4, 12)
 
@@ -153,7 +153,7 @@ def test_a_failure_in_the_subspace_error_thread_reaches_the_caller(monkeypatch):
     for subspace in ("past", "batch"):
         design = ab.SubspaceTrackerDesign(grid_step_rad=np.deg2rad(0.5), subspace=subspace)
         with pytest.raises(np.linalg.LinAlgError, match="no convergence"):
-            ab.front_end(X, design).subspace_error  # the filters (batch) or the subspace error (PAST) wait for it
+            ab.front_end(X, design)
 
 
 def test_the_start_up_reuses_the_evd_it_is_given():
@@ -167,7 +167,7 @@ def test_the_start_up_reuses_the_evd_it_is_given():
 
 
 def test_the_memo_keeps_no_snapshots_alive_and_another_data_set_replaces_it():
-    """The front end's thread lets go of the snapshots once done, so the memo dies with them; a
+    """The memo holds no reference to the snapshots, so it dies with them; a
     second data set then replaces the memo (in a thread with a deadline: a lock held while the
     first array's weak-reference callback runs would hang)."""
     import gc

@@ -189,68 +189,25 @@ def start_up(snapshots: np.ndarray, design: SubspaceTrackerDesign, evd=None) -> 
 # --------------------------------------------------------------------------- step 2: subspace
 
 
-class _SubspaceError(threading.Thread):
+def _batch_subspaces(X: np.ndarray, sel: np.ndarray, n: int, past: np.ndarray, sub_err: np.ndarray,
+                     batch: np.ndarray | None = None) -> None:
     """The batch EVD of every tracked scan (scan ≥ 2) of a group of runs and the largest
-    principal angle between it and PAST's W (``subspace_error_rad``), in a thread of its own.
-
-    Nothing the filters use depends on it (with PAST as the subspace tracker): it runs beside
-    PAST and the first tracker's filters (LAPACK and numpy's larger operations release the
-    GIL), and :meth:`FrontEnd.subspace_error` waits for it. The angle of a run needs PAST's W
-    of that run: the caller reports the runs done so far (:meth:`past_ready`).
+    principal angle between it and PAST's W (``subspace_error_rad``, written into ``sub_err``).
 
     :data:`FRONT_END_BLOCK_RUNS` runs at a time, in double precision: the covariances and full
     eigenvector stacks stay a few MB at any number of runs (every run is its own problem, so the
     blocks give the same numbers as one batch). With ``batch`` given (``subspace="batch"``)
-    the leading eigenvectors are also written there. An exception is kept and raised by
-    :meth:`finish`.
+    the leading eigenvectors are also written there, for the filters to track.
     """
-
-    def __init__(self, X: np.ndarray, sel: np.ndarray, n: int, past: np.ndarray, sub_err: np.ndarray,
-                 batch: np.ndarray | None = None):
-        super().__init__(daemon=True)
-        self.X, self.sel, self.n, self.past, self.sub_err, self.batch = X, sel, n, past, sub_err, batch
-        self.error = None
-        self._ready, self._stopped = 0, False
-        self._cond = threading.Condition()
-
-    def past_ready(self, runs: int) -> None:
-        """PAST's W is complete for the group's first ``runs`` runs."""
-        with self._cond:
-            self._ready = runs
-            self._cond.notify_all()
-
-    def stop(self) -> None:
-        """No more PAST results will come (the caller failed): end without waiting for them."""
-        with self._cond:
-            self._stopped = True
-            self._cond.notify_all()
-
-    def run(self) -> None:
-        try:
-            for first in range(0, len(self.sel), FRONT_END_BLOCK_RUNS):
-                rows = self.sel[first:first + FRONT_END_BLOCK_RUNS]
-                part = slice(first, first + len(rows))
-                block = _runs(self.X, rows)[:, STARTUP_SCANS:].astype(complex)
-                vectors = batch_signal_subspace(block, self.n)[0]
-                if self.batch is not None:
-                    self.batch[part, STARTUP_SCANS:] = vectors
-                with self._cond:
-                    self._cond.wait_for(lambda: self._stopped or self._ready >= part.stop)
-                    if self._stopped:
-                        return
-                self.sub_err[rows, STARTUP_SCANS:] = largest_principal_angle(
-                    self.past[part, STARTUP_SCANS:], vectors, b_orthonormal=True)
-        except BaseException as exc:  # noqa: BLE001 - handed to the caller's thread
-            self.error = exc
-        finally:
-            # the memo keeps the front end, and must not keep the snapshots alive through it
-            self.X = self.sel = self.past = self.sub_err = self.batch = None
-
-    def finish(self) -> None:
-        """Wait for the thread; raise what it raised."""
-        self.join()
-        if self.error is not None:
-            raise self.error
+    for first in range(0, len(sel), FRONT_END_BLOCK_RUNS):
+        rows = sel[first:first + FRONT_END_BLOCK_RUNS]
+        part = slice(first, first + len(rows))
+        block = _runs(X, rows)[:, STARTUP_SCANS:].astype(complex)
+        vectors = batch_signal_subspace(block, n)[0]
+        if batch is not None:
+            batch[part, STARTUP_SCANS:] = vectors
+        sub_err[rows, STARTUP_SCANS:] = largest_principal_angle(past[part, STARTUP_SCANS:], vectors,
+                                                                b_orthonormal=True)
 
 
 @dataclass
@@ -260,16 +217,8 @@ class FrontEnd:
 
     start: StartUp
     groups: list  # [(run indices, N, subspaces (B_n, K, M, N))]
-    _subspace_error: np.ndarray  # (B, K), complete once the pending threads are done
+    subspace_error: np.ndarray  # (B, K) largest principal angle, PAST vs batch EVD
     n_sensors: int
-    _pending: list = dataclasses.field(default_factory=list)  # [_SubspaceError] of the groups
-
-    @property
-    def subspace_error(self) -> np.ndarray:
-        """``(B, K)`` largest principal angle, PAST vs batch EVD (waits for its threads)."""
-        for thread in self._pending:  # (joining a finished thread again costs nothing; any caller may wait)
-            thread.finish()
-        return self._subspace_error
 
 
 def _runs(X: np.ndarray, rows: np.ndarray) -> np.ndarray:
@@ -290,10 +239,8 @@ def front_end(snapshots: np.ndarray, design: SubspaceTrackerDesign) -> FrontEnd:
 
     Each scan's sample covariance is decomposed once: scans 0 and 1 serve both the start-up
     and the subspaces; PAST runs from scan 0's EVD over :data:`PAST_BLOCK_RUNS` runs at a time,
-    while the batch EVD of the other scans and the subspace error are computed beside it
-    (:class:`_SubspaceError`). With PAST as the subspace tracker the returned front end does not
-    wait for them (:attr:`FrontEnd.subspace_error` does); with ``subspace="batch"`` the filters
-    need the EVD, and this function waits.
+    then the batch EVD of the other scans gives the subspace error (:func:`_batch_subspaces`;
+    with ``subspace="batch"`` also the subspaces the filters track).
     """
     if design.subspace not in SUBSPACES:
         raise ValueError(f"unknown subspace tracker {design.subspace!r} (have: {', '.join(SUBSPACES)})")
@@ -304,37 +251,27 @@ def front_end(snapshots: np.ndarray, design: SubspaceTrackerDesign) -> FrontEnd:
     init = start_up(head, design, (head_values, head_vectors))
     sub_err = np.full((B, K), np.nan)
     fe = FrontEnd(init, [], sub_err, M)
-    try:
-        for n in np.unique(init.n_tracks):
-            if n == 0:
-                continue
-            n = int(n)
-            sel = np.flatnonzero(init.n_tracks == n)
-            head_batch, head_lam = _leading(head_values[sel], head_vectors[sel], n)
-            past = np.empty((len(sel), K, M, n), dtype=complex)
-            batch = np.empty_like(past) if design.subspace == "batch" else None
-            past[:, 0], P = initial_state(head_batch[:, 0], head_lam[:, 0], design.forgetting)
-            if batch is not None:
-                batch[:, :STARTUP_SCANS] = head_batch
-            errors = _SubspaceError(X, sel, n, past, sub_err, batch)
-            fe._pending.append(errors)
-            errors.start()
-            # every run of a block in one PAST pass: the work per snapshot is a handful of
-            # element-wise operations, whose cost per call is amortised over the block's runs
-            for first in range(0, len(sel), PAST_BLOCK_RUNS):
-                rows = sel[first:first + PAST_BLOCK_RUNS]
-                part = slice(first, first + len(rows))
-                past[part, 1:], _ = past_scans(past[part, 0], P[part], _runs(X, rows)[:, 1:], design.forgetting)
-                errors.past_ready(part.stop)
-            sub_err[sel, :STARTUP_SCANS] = largest_principal_angle(past[:, :STARTUP_SCANS], head_batch,
-                                                                   b_orthonormal=True)
-            if batch is not None:
-                errors.finish()  # the filters track the batch EVD: it must be complete
-            fe.groups.append((sel, n, past if batch is None else batch))
-    except BaseException:
-        for errors in fe._pending:
-            errors.stop()
-        raise
+    for n in np.unique(init.n_tracks):
+        if n == 0:
+            continue
+        n = int(n)
+        sel = np.flatnonzero(init.n_tracks == n)
+        head_batch, head_lam = _leading(head_values[sel], head_vectors[sel], n)
+        past = np.empty((len(sel), K, M, n), dtype=complex)
+        batch = np.empty_like(past) if design.subspace == "batch" else None
+        past[:, 0], P = initial_state(head_batch[:, 0], head_lam[:, 0], design.forgetting)
+        if batch is not None:
+            batch[:, :STARTUP_SCANS] = head_batch
+        # every run of a block in one PAST pass: the work per snapshot is a handful of
+        # element-wise operations, whose cost per call is amortised over the block's runs
+        for first in range(0, len(sel), PAST_BLOCK_RUNS):
+            rows = sel[first:first + PAST_BLOCK_RUNS]
+            part = slice(first, first + len(rows))
+            past[part, 1:], _ = past_scans(past[part, 0], P[part], _runs(X, rows)[:, 1:], design.forgetting)
+        sub_err[sel, :STARTUP_SCANS] = largest_principal_angle(past[:, :STARTUP_SCANS], head_batch,
+                                                               b_orthonormal=True)
+        _batch_subspaces(X, sel, n, past, sub_err, batch)
+        fe.groups.append((sel, n, past if batch is None else batch))
     return fe
 
 
@@ -498,7 +435,7 @@ def track_bearings(snapshots: np.ndarray, design: SubspaceTrackerDesign, strateg
     out.update(flops)
     out["n_tracks"] = np.broadcast_to(fe.start.n_tracks[:, None], (B, K)).astype(np.int32)
     out["source_count"] = np.broadcast_to(fe.start.source_counts[:, 1][:, None], (B, K)).astype(np.int32)
-    out["subspace_error_rad"] = fe.subspace_error.copy()  # last: its thread ran beside the filters
+    out["subspace_error_rad"] = fe.subspace_error.copy()
     return out
 
 
