@@ -63,7 +63,7 @@ from recorders import simulator_for
 from recorders.scenarios import load_scenario
 from recorders.simulated import record, write_simulated
 
-from timing import time_repeats as timed  # noqa: E402
+from timing import spread, time_repeats as timed  # noqa: E402
 
 RERUN_SHARE_TARGET = 0.10
 SPEEDUP_TARGET = 80.0  # batched Kalman filter at 500 runs against FilterPy per run
@@ -275,9 +275,9 @@ def main(argv=None) -> int:
         per_ours, per_fp = ours_s / steps * 1e6, fp_s / steps * 1e6
         speedup = fp_s / ours_s
         print(f"  track_plots 'kalman' (one vectorised call)  {fmt_s(ours_s)}   {per_ours:7.3f} µs/run-step   "
-              f"[median of {len(ours_all)}]")
+              f"{spread(ours_all, 1e6 / steps, 3)} [median [min–max] of {len(ours_all)}]")
         print(f"  FilterPy KalmanFilter (per-run loop)        {fmt_s(fp_s)}   {per_fp:7.3f} µs/run-step   "
-              f"[median of {len(fp_all)}]")
+              f"{spread(fp_all, 1e6 / steps, 3)} [median [min–max] of {len(fp_all)}]")
         ok = speedup >= SPEEDUP_TARGET
         print(f"  speed-up                                    {speedup:9.1f} ×    target ≥ {SPEEDUP_TARGET:.0f} ×  "
               f"-> {'PASS' if ok else 'MISS'}")
