@@ -32,7 +32,7 @@ from pipeline.errors import InputError
 from pipeline.face.cli import main
 from pipeline.registry import ENTRY_POINT_GROUP, available_trackers
 from pipeline.replay import replay
-from pipeline.trackers.interface import TrackerError, call_tracker
+from pipeline.trackers.interface import TrackerError, call_tracker, validate_outputs
 
 PREFIX = vocab.FAMILIES["radar-plots"].output_prefix  # /tracks/radar/
 STAGE = "radar-tws"
@@ -508,3 +508,50 @@ def test_param_bounds_are_checked_by_the_base_class():
     for bad in (0.0, 1.0, float("nan"), None):
         with pytest.raises(ValueError, match="gain"):
             Bounded(gain=bad)
+
+
+@pytest.mark.parametrize("block", [5, 32768])
+@pytest.mark.parametrize("problem, expected", [
+    ("nan", "covariance not finite where the state is"),
+    ("asymmetric", "covariance not symmetric"),
+    ("indefinite", "covariance not positive definite"),
+    ("semidefinite", None),   # a zero eigenvalue is inside the check's tolerance
+    ("dead_slot", None),      # a NaN covariance where the state is NaN and flagged NO_TRACK
+])
+def test_the_covariance_check_names_the_first_bad_matrix(monkeypatch, block, problem, expected):
+    """The output check accepts what an eigenvalue test accepts and names the run and scan of
+    the first bad matrix, whatever the block it falls in."""
+    import pipeline.trackers.interface as interface
+
+    monkeypatch.setattr(interface, "COVARIANCE_CHECK_BLOCK", block)
+    rng = np.random.default_rng(8)
+    runs, scans, n = 4, 3, 4
+    A = rng.normal(size=(runs, scans, n, n))
+    cov = A @ np.swapaxes(A, -1, -2) + 0.1 * np.eye(n)
+    state = rng.normal(size=(runs, scans, n))
+    flags = np.zeros((runs, scans), np.uint16)
+    bad_run, bad_scan = 2, 1
+    if problem == "nan":
+        cov[bad_run, bad_scan, 1, 2] = np.nan
+    elif problem == "asymmetric":
+        cov[bad_run, bad_scan, 0, 3] += 1e-3 * cov[bad_run, bad_scan, 0, 0]
+    elif problem == "indefinite":
+        w, V = np.linalg.eigh(cov[bad_run, bad_scan])
+        w[0] = -1e-3 * w[-1]
+        cov[bad_run, bad_scan] = (V * w) @ V.T
+    elif problem == "semidefinite":
+        w, V = np.linalg.eigh(cov[bad_run, bad_scan])
+        w[0] = 0.0
+        cov[bad_run, bad_scan] = (V * w) @ V.T
+    elif problem == "dead_slot":
+        cov[bad_run, bad_scan] = np.nan
+        state[bad_run, bad_scan] = np.nan
+        flags[bad_run, bad_scan] = vocab.NO_TRACK
+    out = {"state": state, "flags": flags, "covariance": cov}
+    if expected is None:
+        validate_outputs(out, runs, scans, "t")
+        live = np.isfinite(state).all(axis=-1)
+        assert np.linalg.eigvalsh(cov[live]).min() >= -1e-9 * np.abs(np.diagonal(cov[live], axis1=-2, axis2=-1)).max()
+        return
+    with pytest.raises(TrackerError, match=f"run {bad_run} scan {bad_scan}: {expected}"):
+        validate_outputs(out, runs, scans, "t")

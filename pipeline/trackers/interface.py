@@ -401,19 +401,26 @@ def _check_covariance(cov, state, name, where) -> None:
         if not len(c):
             continue
         where_live = np.arange(len(live)) if everything else np.flatnonzero(live)
-        finite = np.isfinite(c).all(axis=(-2, -1))
+        # one copy with the matrices last, (n, n, block): every test below then reduces over the
+        # short leading axes, rows of the block at a time (numpy's reductions over a trailing
+        # (n, n) pair cost several times more), and the copy is the one the factorisation needs
+        t = np.ascontiguousarray(np.moveaxis(c, 0, -1))
+        entries = t.reshape(n * n, -1)
+        finite = np.logical_and.reduce(np.isfinite(entries), axis=0)
         if not finite.all():
             fail(start + where_live[np.argmin(finite)], "covariance not finite where the state is")
-        scale = np.maximum(np.abs(np.diagonal(c, axis1=-2, axis2=-1)).max(axis=-1), np.finfo(float).tiny)
-        asym = np.abs(c - np.swapaxes(c, -1, -2)).max(axis=(-2, -1)) > 1e-8 * scale
+        on_diagonal = (np.arange(n), np.arange(n))
+        scale = np.maximum(np.maximum.reduce(np.abs(t[on_diagonal]), axis=0), np.finfo(float).tiny)
+        asym = np.maximum.reduce(np.abs(entries - t.transpose(1, 0, 2).reshape(n * n, -1)), axis=0) > 1e-8 * scale
         if asym.any():
             fail(start + where_live[np.argmax(asym)], "covariance not symmetric")
         # c + δI has a Cholesky factor exactly when c's smallest eigenvalue exceeds −δ: one batched
         # factorisation, entry by entry (pipeline.batched_linalg), clears the common case; the
         # eigenvalues are computed only to name the offending entry
         tolerance = 1e-9 * scale
+        t[on_diagonal] += tolerance  # t is now c + δI
         with np.errstate(invalid="ignore", divide="ignore"):
-            factor = cholesky_lower(np.ascontiguousarray(np.moveaxis(c + tolerance[:, None, None] * eye, 0, -1)))
+            factor = cholesky_lower(t)
         if positive_definite(factor).all():
             continue
         lowest = np.linalg.eigvalsh(c)[..., 0]
