@@ -626,7 +626,7 @@ def radar_pcrb(truth_state, times, truth_sigma_v: float, sigma_range_m: float, s
     """
     from pipeline.cores.filters.converted_measurements import converted_covariance
     from pipeline.cores.filters.kalman import white_acceleration_model
-    from pipeline.cores.filters.pcrb import pcrb_recursion, polar_information
+    from pipeline.cores.filters.pcrb import pcrb_recursion, polar_position_information
 
     truth = np.asarray(truth_state, float)
     R, K = truth.shape[:2]
@@ -634,8 +634,10 @@ def radar_pcrb(truth_state, times, truth_sigma_v: float, sigma_range_m: float, s
     if K < 2:
         return out
     detected = np.ones((R, K), bool) if detected is None else np.asarray(detected, bool)
-    info = np.where(detected[..., None, None], polar_information(truth[..., :2], sigma_range_m, sigma_bearing_rad), 0.0)
-    info = info.mean(axis=0)
+    # the average over runs of the information, of its one non-zero (position) block alone
+    block = polar_position_information(truth[..., :2], sigma_range_m, sigma_bearing_rad)
+    info = np.zeros((K, 4, 4))
+    info[:, :2, :2] = np.where(detected[..., None, None], block, 0.0).mean(axis=0)
     F = np.empty((K, 4, 4))
     Q = np.empty((K, 4, 4))
     F[0], Q[0] = np.eye(4), 0.0
