@@ -555,3 +555,20 @@ def test_the_covariance_check_names_the_first_bad_matrix(monkeypatch, block, pro
         return
     with pytest.raises(TrackerError, match=f"run {bad_run} scan {bad_scan}: {expected}"):
         validate_outputs(out, runs, scans, "t")
+
+
+@pytest.mark.parametrize("runs, scans, live_matrices", [(1, 1, 1), (5, 1, 5), (4, 3, 1), (4, 3, 12)])
+def test_the_covariance_check_never_changes_the_outputs(runs, scans, live_matrices):
+    """The check factorises c + δI on a copy, even when a block holds one matrix (whose
+    stack-last layout would otherwise be a view of the tracker's own array)."""
+    rng = np.random.default_rng(9)
+    A = rng.normal(size=(runs, scans, 4, 4))
+    cov = A @ np.swapaxes(A, -1, -2) + 0.1 * np.eye(4)
+    state = rng.normal(size=(runs, scans, 4))
+    flags = np.zeros((runs, scans), np.uint16)
+    dead = np.arange(runs * scans) >= live_matrices
+    state.reshape(-1, 4)[dead] = np.nan
+    flags.reshape(-1)[dead] = vocab.NO_TRACK
+    before = cov.copy()
+    validate_outputs({"state": state, "flags": flags, "covariance": cov}, runs, scans, "t")
+    np.testing.assert_array_equal(cov, before)

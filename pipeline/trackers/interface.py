@@ -404,7 +404,7 @@ def _check_covariance(cov, state, name, where) -> None:
         # one copy with the matrices last, (n, n, block): every test below then reduces over the
         # short leading axes, rows of the block at a time (numpy's reductions over a trailing
         # (n, n) pair cost several times more), and the copy is the one the factorisation needs
-        t = np.ascontiguousarray(np.moveaxis(c, 0, -1))
+        t = np.moveaxis(c, 0, -1).copy()  # always a copy (one matrix alone would be a view): δI is added to it
         entries = t.reshape(n * n, -1)
         finite = np.logical_and.reduce(np.isfinite(entries), axis=0)
         if not finite.all():
