@@ -516,6 +516,11 @@ def _normalise(name: str, value) -> np.ndarray:
     a = np.asarray(value)
     if not a.flags.c_contiguous:  # (np.ascontiguousarray would turn 0-d into 1-d)
         a = a.copy(order="C")
+    return _little_endian_contract_dtype(name, a)
+
+
+def _little_endian_contract_dtype(name: str, a: np.ndarray) -> np.ndarray:
+    """``a`` little-endian (a copy only if it was not), refused unless its dtype is in the contract."""
     if a.dtype.byteorder == ">":
         a = a.astype(a.dtype.newbyteorder("<"))
     if a.dtype.str not in _ALLOWED_DTYPES:
@@ -906,10 +911,7 @@ class McapFrameWriter:
             if a.shape[:2] != (n_runs, n_scans):
                 raise ValueError(f"write_grid on {topic}: array {name!r} has shape {a.shape}, expected "
                                  f"({n_runs}, {n_scans}, ...)")
-            if a.dtype.byteorder == ">":
-                a = a.astype(a.dtype.newbyteorder("<"))
-            if a.dtype.str not in _ALLOWED_DTYPES:
-                raise ValueError(f"dtype {a.dtype.str} of array {name!r} is not in the contract")
+            a = _little_endian_contract_dtype(name, a)  # no C-order copy of the whole grid: scans are cut below
             columns.append((name, a.dtype.str, a.shape[2:], a))
         for k in range(n_scans):
             msg = Scan(scan=k, time_s=float(times[k]), frame_count=n_runs)
