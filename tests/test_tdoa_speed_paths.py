@@ -39,3 +39,19 @@ def test_one_run_alone_equals_its_row_in_a_batch(seed, free, tol):
         for field in FIELDS:
             a, b = getattr(one, field)[0], getattr(batch, field)[r]
             assert np.array_equal(a, b, equal_nan=True), (field, r, a, b)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_single_matrix_factor_equals_its_slice_of_the_stacked_factor(seed):
+    """A stack of one goes to scipy's ``dgeqrf`` and a stack to numpy's stacked QR: the same
+    LAPACK routine, so the factors must agree to the bit, badly scaled columns included."""
+    from pipeline.cores.localisation.batched_least_squares import _geqrf_rows
+
+    rng = np.random.default_rng(seed)
+    for m, q in [(6, 4), (12, 4), (3, 2), (20, 3), (5, 4)]:
+        M = rng.standard_normal((m, q + 1, 9)) * 10.0 ** rng.uniform(-8, 8, (1, q + 1, 9))
+        stacked = _geqrf_rows(M.copy(), q)
+        for b in range(M.shape[2]):
+            alone = _geqrf_rows(M[:, :, b:b + 1].copy(), q)
+            assert alone.shape == (q, q + 1, 1)
+            assert np.array_equal(alone[:, :, 0], stacked[:, :, b]), (m, q, b)

@@ -20,7 +20,9 @@ axis last and hands the augmented matrices [A | b] to LAPACK's stacked ``geqrf``
 :func:`numpy.linalg.qr` in one call: a Gauss-Newton iteration on a single run then costs a few
 dozen array calls instead of a few hundred, and on 500 runs the LAPACK loop over matrices is
 still no slower than the column loop (≈ 250 µs against ≈ 300 µs per 500 augmented 6 × 5
-matrices on the reference machine; ≈ 5 µs against ≈ 80 µs for one).
+matrices on the reference machine). A stack of one (a single recording) calls the same LAPACK
+routine through ``scipy.linalg.lapack.dgeqrf``, without the stacked call's set-up (≈ 1 µs
+against ≈ 6 µs per 6 × 5 matrix), and gets the same bits.
 
 The inverse of R (needed for a covariance, never for a step) is again a back-substitution.
 """
@@ -30,6 +32,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg.lapack import dgeqrf as _dgeqrf
 
 #: Columns whose norm is below this fraction of the largest column are treated as zero
 #: (the geometry gives no information on that unknown, e.g. an emitter on the sensors' line).
@@ -161,8 +164,27 @@ class LeastSquaresSolution:
 
 
 _DIAGONAL = np.arange(16)  # index of the diagonal of the triangular factors (q ≤ 16), built once
-_DIAGONALS = {q: (_DIAGONAL[:q], _DIAGONAL[:q]) for q in range(17)}
 _IDENTITY = {q: np.eye(q)[:, :, None] for q in range(17)}  # (q, q, 1): broadcast along a stack
+
+
+def _geqrf_rows(M: np.ndarray, q: int) -> np.ndarray:
+    """LAPACK ``geqrf`` of every (m, q + 1) matrix of ``M`` (stack last), returned as the top
+    q rows of the factored matrices, (q, q + 1, B): R in the upper triangle, Q₁ᵀb last.
+
+    A stack goes to the stacked :func:`numpy.linalg.qr` (``mode="raw"``); a single matrix goes
+    to ``scipy.linalg.lapack.dgeqrf`` directly (≈ 1 µs against ≈ 6 µs for the stacked call's
+    checks and set-up, paid at every iteration of a one-run Gauss-Newton). Both run the same
+    LAPACK routine on the same matrix, so a run's factor is the same alone as in a stack
+    (``tests/test_tdoa_speed_paths.py`` checks it to the bit).
+    """
+    if M.shape[2] == 1:
+        factored, _, _, info = _dgeqrf(M[:, :, 0])
+        if info:  # only for an invalid argument, which the shapes rule out
+            raise ValueError(f"geqrf failed (info {info})")
+        return factored[:q, :, None]
+    # raw mode hands back the factored (B, m, q + 1) matrices transposed: swap to rows k,
+    # columns j, stack last
+    return np.ascontiguousarray(np.linalg.qr(M.transpose(2, 0, 1), mode="raw")[0][:, :, :q].transpose(2, 1, 0))
 
 
 def _factor(M: np.ndarray, zero_rtol: float, rank_rtol: float):
@@ -184,12 +206,11 @@ def _factor(M: np.ndarray, zero_rtol: float, rank_rtol: float):
     used = norms > zero_rtol * np.maximum.reduce(norms, axis=0)
     scale = np.where(used, norms, 1.0)
     A /= scale
-    # raw mode hands back the factored (B, m, q + 1) matrices transposed: swap to rows k,
-    # columns j, stack last
-    Rt = np.ascontiguousarray(np.linalg.qr(M.transpose(2, 0, 1), mode="raw")[0][:, :, :q].transpose(2, 1, 0))
-    # a zero column counts as a zero on the diagonal (M is finite, so R is)
-    d = np.abs(Rt[_DIAGONALS[q]]) * used
-    bad = np.minimum.reduce(d, axis=0) <= rank_rtol * np.maximum.reduce(d, axis=0)
+    Rt = _geqrf_rows(M, q)
+    # a zero column counts as a zero on the diagonal (M is finite, so R is); the diagonal is
+    # a (B, q) view, and a minimum or maximum is exact in any order
+    d = np.abs(Rt.diagonal(axis1=0, axis2=1)) * used.T
+    bad = np.minimum.reduce(d, axis=1) <= rank_rtol * np.maximum.reduce(d, axis=1)
     return Rt, scale, bad, bool(np.logical_or.reduce(bad)), squares[q]
 
 
