@@ -84,3 +84,63 @@ def test_cv_kernel_equals_generic_filter_to_rounding():
         np.testing.assert_allclose(components_to_matrix(cu), Pg, rtol=1e-8, atol=1e-6 * np.abs(Pg).max())
         x, P = xg, Pg
         z = z + rng.normal(size=z.shape) * 30
+
+
+def test_relative_pivots_in_blocks_equal_the_whole_stack(monkeypatch):
+    """cv_relative_pivots takes large stacks in blocks; every step is elementwise, so the blocks
+    must give the same bits as one pass, NaN and indefinite members included."""
+    from pipeline.cores.filters import kalman
+
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(7 * 13, 4, 4))
+    P = A @ np.swapaxes(A, -1, -2) + 1e-3 * np.eye(4)
+    P[::11, 2, 2] = -1.0   # not positive definite: NaN pivot
+    P[::17, 0, 1] = np.nan
+    c = kalman.matrix_to_components(P).reshape(10, 7, 13)
+    whole = kalman.cv_relative_pivots(c)
+    for block in (1, 13, 20, 50):
+        monkeypatch.setattr(kalman, "PIVOT_BLOCK", block)
+        np.testing.assert_array_equal(kalman.cv_relative_pivots(c), whole)
+        np.testing.assert_array_equal(kalman.cv_relative_pivots(np.moveaxis(np.moveaxis(c, 0, 1).copy(), 1, 0)), whole)
+    assert np.isnan(whole.reshape(-1)[::11]).all() and np.isfinite(whole.reshape(-1)[1:11]).all()
+
+
+def test_components_to_matrix_along_any_axis():
+    """The components may lie on any axis; the matrices come out on the last two axes, equal
+    to the matrices the components were taken from."""
+    from pipeline.cores.filters.kalman import components_to_matrix, matrix_to_components
+
+    rng = np.random.default_rng(4)
+    A = rng.normal(size=(6 * 5, 4, 4))
+    P = (A @ np.swapaxes(A, -1, -2)).reshape(6, 5, 4, 4)
+    c = matrix_to_components(P.reshape(-1, 4, 4)).reshape(10, 6, 5)
+    np.testing.assert_array_equal(components_to_matrix(c), P)
+    np.testing.assert_array_equal(components_to_matrix(np.moveaxis(c, 0, 1), axis=1), P)
+    np.testing.assert_array_equal(components_to_matrix(np.moveaxis(c, 0, -1), axis=-1), P)
+
+
+def test_floor_on_matrix_entries_equals_floor_on_components():
+    """cv_floor_components repairs a stack of 16 matrix entries exactly as the same stack given
+    as its ten components: same repaired set, same matrices."""
+    from pipeline.cores.filters.kalman import (ENTRY_OF_COMPONENT, components_to_matrix, cv_floor_components,
+                                               matrix_to_components)
+
+    rng = np.random.default_rng(5)
+    A = rng.normal(size=(40, 4, 4))
+    P = A @ np.swapaxes(A, -1, -2) + 1e-2 * np.eye(4)
+    w, V = np.linalg.eigh(P[::3])
+    w[:, 0] = -1e-3 * w[:, -1]                       # indefinite: repaired
+    P[::3] = (V * w[:, None, :]) @ np.swapaxes(V, -1, -2)
+    P[::3] = 0.5 * (P[::3] + np.swapaxes(P[::3], -1, -2))
+    P[5, 1, 1] = np.nan                                # not finite: left alone
+    live = np.ones(40, bool)
+    live[7] = False                                    # dead: left alone
+    comps = matrix_to_components(P)
+    entries = np.moveaxis(P.reshape(40, 16), -1, 0).copy()
+    fixed_c, floored_c = cv_floor_components(comps, live)
+    fixed_e, floored_e = cv_floor_components(entries, live)
+    assert floored_c[::3][1:].all() and floored_c.sum() == floored_e.sum() > 0
+    np.testing.assert_array_equal(floored_c, floored_e)
+    np.testing.assert_array_equal(components_to_matrix(fixed_c), np.moveaxis(fixed_e, 0, -1).reshape(40, 4, 4))
+    np.testing.assert_array_equal(fixed_e[list(ENTRY_OF_COMPONENT)], fixed_c)
+    assert np.linalg.eigvalsh(components_to_matrix(fixed_c)[floored_c]).min() > 0

@@ -79,7 +79,7 @@ from pipeline.cores.filters.kalman import (
     cv_floor_components,
     cv_position_update_components,
     cv_predict_components,
-    components_to_matrix,
+    MATRIX_FROM_COMPONENTS,
 )
 
 from pipeline.cores.association.track_management import ConfirmationRule, EndingRule, TrackLife
@@ -345,7 +345,9 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
     nan = np.nan
     # outputs are filled scan by scan, runs last (contiguous), and transposed once at the end
     state = np.full((n_scans, 4, n_runs), nan)
-    cov = np.full((n_scans, 10, n_runs), nan)
+    # the covariance's 16 entries row by row, written once per scan from the ten components
+    # the filter carries: the (runs, scans, 4, 4) output is a view of it, with no second pass
+    cov = np.full((n_scans, 16, n_runs), nan)
     alpha = np.full((n_scans, 2, n_runs), nan)
     beta = np.full((n_scans, 2, n_runs), nan)
     lam = np.full((n_scans, n_runs), nan)
@@ -457,11 +459,11 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
             x = np.where(started, x_new, x)
             c = np.where(started, c_new, c)
             state[k][:, started] = x[:, started]
-            cov[k][:, started] = c[:, started]
+            cov[k][:, started] = c[MATRIX_FROM_COMPONENTS][:, started]
         else:
             x, c = x_new, c_new
             state[k] = x
-            cov[k] = c
+            np.take(c, MATRIX_FROM_COMPONENTS, axis=0, out=cov[k])
     # last line of defence, over all scans at once: a reported covariance that is not safely
     # positive definite is repaired and flagged (the forms above keep the filters far from it
     # except at extreme designs; the filters' recursion does not see the repair)
@@ -477,7 +479,7 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
     g = gains.transpose(1, 0, 2)
     return {
         "state": state.transpose(2, 0, 1),
-        "covariance": components_to_matrix(cov.transpose(1, 2, 0)),
+        "covariance": cov.transpose(2, 0, 1).reshape(n_runs, n_scans, 4, 4),  # a view (the last axis splits)
         "innovation_covariance": s.reshape(s.shape[:2] + (2, 2)),
         "gain": g.reshape(g.shape[:2] + (4, 2)),  # rows x, y, ẋ, ẏ; columns the converted x, y
         "alpha": alpha.transpose(2, 0, 1),
@@ -599,6 +601,10 @@ TRACKERS = (FixedGains, ApproximateGains, ExactGains, KalmanReference)
 # --------------------------------------------------------------------------- the bound
 
 
+#: Run-scans per block of :func:`radar_pcrb`'s average of the plots' information.
+PCRB_BLOCK = 65536
+
+
 def radar_pcrb(truth_state, times, truth_sigma_v: float, sigma_range_m: float, sigma_bearing_rad: float,
                detected=None) -> np.ndarray:
     """Posterior Cramér–Rao bound per scan for the radar scenario (``docs/evaluation.md``).
@@ -634,10 +640,15 @@ def radar_pcrb(truth_state, times, truth_sigma_v: float, sigma_range_m: float, s
     if K < 2:
         return out
     detected = np.ones((R, K), bool) if detected is None else np.asarray(detected, bool)
-    # the average over runs of the information, of its one non-zero (position) block alone
-    block = polar_position_information(truth[..., :2], sigma_range_m, sigma_bearing_rad)
+    # the average over runs of the information, of its one non-zero (position) block alone, a
+    # few scans at a time: its temporaries stay a few MB at any number of runs (the mean over
+    # runs adds them in the same order whatever the block)
     info = np.zeros((K, 4, 4))
-    info[:, :2, :2] = np.where(detected[..., None, None], block, 0.0).mean(axis=0)
+    step = max(1, PCRB_BLOCK // R)
+    for first in range(0, K, step):
+        scans = slice(first, first + step)
+        block = polar_position_information(truth[:, scans, :2], sigma_range_m, sigma_bearing_rad)
+        info[scans, :2, :2] = np.where(detected[:, scans, None, None], block, 0.0).mean(axis=0)
     F = np.empty((K, 4, 4))
     Q = np.empty((K, 4, 4))
     F[0], Q[0] = np.eye(4), 0.0

@@ -244,19 +244,41 @@ def matrix_to_components(P):
                      P[:, 1, 3], P[:, 2, 2], P[:, 2, 3], P[:, 3, 3]])
 
 
-def components_to_matrix(c):
-    """(10, …) components → (…, 4, 4) symmetric covariance."""
+def components_to_matrix(c, axis: int = 0):
+    """Components along ``axis`` (10 of them) → symmetric 4 × 4 covariances on the last two axes.
+
+    ``(10, …)`` → ``(…, 4, 4)`` by default; with ``axis=1``, ``(K, 10, R)`` → ``(K, R, 4, 4)``.
+    The result is a view of one gather along ``axis`` (``np.take``): when the components lie in
+    rows (a tracker's runs-last layout) it copies whole rows rather than gathering entries one
+    matrix at a time, and its matrices keep that layout (the runs innermost), which the output
+    checks and the evaluators read row by row.
+    """
     c = np.asarray(c)
-    # one gather pass writing the output in order (writing each entry into a preallocated
-    # (…, 4, 4) array strides through all of it 16 times: 6× slower at 640,000 matrices)
-    return np.moveaxis(c, 0, -1)[..., _MATRIX_FROM_COMPONENTS].reshape(c.shape[1:] + (4, 4))
+    axis = axis % c.ndim
+    entries = np.moveaxis(np.take(c, MATRIX_FROM_COMPONENTS, axis=axis), axis, -1)
+    return entries.reshape(entries.shape[:-1] + (4, 4))  # splitting the last axis: still a view
 
 
-# the component index of each entry of the 4×4 matrix, row by row, in state order [x, y, ẋ, ẏ]
-_MATRIX_FROM_COMPONENTS = np.array([A00, A01, B00, B01,
+#: The component index of each of the 16 entries of the 4×4 matrix, row by row, in state order
+#: [x, y, ẋ, ẏ].
+MATRIX_FROM_COMPONENTS = np.array([A00, A01, B00, B01,
                                     A01, A11, B10, B11,
                                     B00, B10, C00, C01,
                                     B01, B11, C01, C11])
+#: Where each of the ten components sits among the 16 entries of the matrix, row by row (its
+#: upper-triangle entry): the components of a ``(16, ...)`` stack of matrix entries.
+ENTRY_OF_COMPONENT = (0, 1, 5, 2, 3, 6, 7, 10, 11, 15)
+_IDENTITY_ORDER = tuple(range(10))
+
+
+def _component_rows(c):
+    """How to read the ten components from ``c``: the identity for a ``(10, ...)`` component
+    stack, :data:`ENTRY_OF_COMPONENT` for a ``(16, ...)`` stack of row-major matrix entries."""
+    if len(c) == 16:
+        return ENTRY_OF_COMPONENT
+    if len(c) == 10:
+        return _IDENTITY_ORDER
+    raise ValueError(f"expected 10 covariance components or 16 matrix entries on the first axis, got {len(c)}")
 
 
 def cv_predict_components(x, c, dt: float, sigma_v: float):
@@ -399,16 +421,38 @@ PIVOT_FLOOR = 1e-12
 REPAIR_FLOOR = 1e-9
 
 
+#: Covariances per block of :func:`cv_relative_pivots`: its two dozen temporaries stay in cache.
+PIVOT_BLOCK = 16384
+
+
 def cv_relative_pivots(c):
-    """Smallest LDLᵀ pivot of each covariance ``(10, runs)``, relative to its diagonal entry.
+    """Smallest LDLᵀ pivot of each covariance ``(10, ...)`` (or its 16 matrix entries, row by
+    row, ``(16, ...)``), relative to its diagonal entry.
 
     ``min_i d_i / P_ii`` in state order [x, y, ẋ, ẏ]; it is at most the smallest eigenvalue of the
     correlation matrix, so a value well above rounding (≳ 10⁻¹⁴) means Cholesky succeeds. NaN
-    where an entry is NaN or a pivot is not positive.
+    where an entry is NaN or a pivot is not positive. A stack of more than
+    :data:`PIVOT_BLOCK` covariances is taken in blocks along its first axis (every step is
+    elementwise, so the result is the same); at 640,000 covariances that is several times faster
+    than allocating each temporary at full size.
     """
-    p00, p10, p11 = c[A00], c[A01], c[A11]
-    p20, p21, p22 = c[B00], c[B10], c[C00]
-    p30, p31, p32, p33 = c[B01], c[B11], c[C01], c[C11]
+    c = np.asarray(c)
+    if c.ndim < 2 or c[0].size <= PIVOT_BLOCK:
+        return _relative_pivots(c)
+    per_row = max(1, c[0, 0].size)
+    step = max(1, PIVOT_BLOCK // per_row)
+    out = np.empty(c.shape[1:])
+    for first in range(0, c.shape[1], step):
+        out[first:first + step] = _relative_pivots(c[:, first:first + step])
+    return out
+
+
+def _relative_pivots(c):
+    """:func:`cv_relative_pivots` of one block."""
+    at = _component_rows(c)
+    p00, p10, p11 = c[at[A00]], c[at[A01]], c[at[A11]]
+    p20, p21, p22 = c[at[B00]], c[at[B10]], c[at[C00]]
+    p30, p31, p32, p33 = c[at[B01]], c[at[B11]], c[at[C01]], c[at[C11]]
     with np.errstate(divide="ignore", invalid="ignore"):
         l10 = p10 / p00
         d1 = p11 - l10 * p10
@@ -424,7 +468,8 @@ def cv_relative_pivots(c):
 
 
 def cv_floor_components(c, live, floor: float = PIVOT_FLOOR, repair: float = REPAIR_FLOOR):
-    """Repair covariances ``(10, ...)`` that are not safely positive definite.
+    """Repair covariances ``(10, ...)`` (or their matrix entries ``(16, ...)``, see
+    :func:`cv_relative_pivots`) that are not safely positive definite.
 
     Where ``live`` (shape ``...``) and :func:`cv_relative_pivots` is below ``floor`` (or not a
     number), the correlation matrix's eigenvalues are raised to ``repair`` times its largest and
@@ -443,7 +488,9 @@ def cv_floor_components(c, live, floor: float = PIVOT_FLOOR, repair: float = REP
     if not floored.any():
         return c, floored
     where = np.nonzero(floored)
-    P = components_to_matrix(c[(slice(None),) + where])
+    entries = len(c) == 16
+    P = np.moveaxis(c[(slice(None),) + where], 0, -1).reshape(-1, 4, 4) if entries else \
+        components_to_matrix(c[(slice(None),) + where])
     ok = np.isfinite(P).all(axis=(-2, -1))
     floored[where] = ok
     where, P = tuple(w[ok] for w in where), P[ok]
@@ -455,8 +502,9 @@ def cv_floor_components(c, live, floor: float = PIVOT_FLOOR, repair: float = REP
     w = np.maximum(w, repair * w[:, -1:])
     corr = (V * w[:, None, :]) @ np.swapaxes(V, -1, -2)
     P = corr * (d[:, :, None] * d[:, None, :])
+    P = 0.5 * (P + np.swapaxes(P, -1, -2))
     out = c.copy()
-    out[(slice(None),) + where] = matrix_to_components(0.5 * (P + np.swapaxes(P, -1, -2)))
+    out[(slice(None),) + where] = np.moveaxis(P.reshape(-1, 16), -1, 0) if entries else matrix_to_components(P)
     return out, floored
 
 
