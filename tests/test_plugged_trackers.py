@@ -557,13 +557,57 @@ def test_the_covariance_check_names_the_first_bad_matrix(monkeypatch, block, pro
         validate_outputs(out, runs, scans, "t")
 
 
+def runs_innermost(a):
+    """The same values laid out as most trackers write them: a scan's runs side by side."""
+    return np.ascontiguousarray(np.moveaxis(a, 0, -1)).transpose((a.ndim - 1,) + tuple(range(a.ndim - 1)))
+
+
+@pytest.mark.parametrize("layout", [np.ascontiguousarray, runs_innermost])
+@pytest.mark.parametrize("block", [6, 32768])
+@pytest.mark.parametrize("problem, expected", [
+    ("nan", "covariance not finite where the state is"),
+    ("asymmetric", "covariance not symmetric"),
+    ("indefinite", "covariance not positive definite"),
+])
+@pytest.mark.parametrize("dead_first_scan", [False, True])
+def test_the_covariance_check_names_the_first_of_several_bad_matrices(monkeypatch, layout, block, problem, expected,
+                                                                    dead_first_scan):
+    """Two bad matrices, the later one in (run, scan) order lying on an earlier scan: the
+    message names the first in (run, scan) order, whatever order the check reads a block in
+    (scan by scan when the runs are innermost) and whether it gathers the live matrices."""
+    import pipeline.trackers.interface as interface
+
+    monkeypatch.setattr(interface, "COVARIANCE_CHECK_BLOCK", block)
+    rng = np.random.default_rng(10)
+    runs, scans, n = 5, 4, 4
+    A = rng.normal(size=(runs, scans, n, n))
+    cov = A @ np.swapaxes(A, -1, -2) + 0.1 * np.eye(n)
+    state = rng.normal(size=(runs, scans, n))
+    flags = np.zeros((runs, scans), np.uint16)
+    if dead_first_scan:  # no estimate on scan 0: the check gathers the live matrices
+        cov[:, 0], state[:, 0], flags[:, 0] = np.nan, np.nan, vocab.NO_TRACK
+    for run, scan in [(1, 3), (2, 1)]:
+        if problem == "nan":
+            cov[run, scan, 1, 2] = np.nan
+        elif problem == "asymmetric":
+            cov[run, scan, 0, 3] += 1e-3 * cov[run, scan, 0, 0]
+        else:
+            w, V = np.linalg.eigh(cov[run, scan])
+            w[0] = -1e-3 * w[-1]
+            cov[run, scan] = (V * w) @ V.T
+    out = {"state": state, "flags": flags, "covariance": layout(cov)}
+    with pytest.raises(TrackerError, match=f"run 1 scan 3: {expected}"):
+        validate_outputs(out, runs, scans, "t")
+
+
+@pytest.mark.parametrize("layout", [np.ascontiguousarray, runs_innermost])
 @pytest.mark.parametrize("runs, scans, live_matrices", [(1, 1, 1), (5, 1, 5), (4, 3, 1), (4, 3, 12)])
-def test_the_covariance_check_never_changes_the_outputs(runs, scans, live_matrices):
+def test_the_covariance_check_never_changes_the_outputs(runs, scans, live_matrices, layout):
     """The check factorises c + δI on a copy, even when a block holds one matrix (whose
     stack-last layout would otherwise be a view of the tracker's own array)."""
     rng = np.random.default_rng(9)
     A = rng.normal(size=(runs, scans, 4, 4))
-    cov = A @ np.swapaxes(A, -1, -2) + 0.1 * np.eye(4)
+    cov = layout(A @ np.swapaxes(A, -1, -2) + 0.1 * np.eye(4))
     state = rng.normal(size=(runs, scans, 4))
     flags = np.zeros((runs, scans), np.uint16)
     dead = np.arange(runs * scans) >= live_matrices

@@ -373,15 +373,41 @@ def validate_outputs(outputs: dict, n_runs: int, n_scans: int, name: str, where:
 COVARIANCE_CHECK_BLOCK = 32768  # matrices per block: a few MB of temporaries, whatever the run count
 
 
+def _live_entries(block, live, everything: bool, scan_major: bool):
+    """A copy of the live matrices of ``block`` (runs, scans[, slots], n, n) as their entries
+    ``(n², count)``, and the position of each in the block's (run, scan) order.
+
+    The entries are taken with the matrix axes first, a view where the axes merge (a copy
+    otherwise), and gathered in one pass; ``scan_major`` reads the block scan by scan, which
+    keeps every read a contiguous row when the runs are innermost.
+    """
+    n = block.shape[-1]
+    position = np.arange(live.size).reshape(live.shape)
+    entries = np.moveaxis(block, (-2, -1), (0, 1))
+    entries = entries.reshape((n * n,) + entries.shape[2:])
+    if scan_major:
+        position, live, entries = position.T, live.T, entries.transpose(0, 2, 1)
+    if not everything:
+        # entry by entry: ``entries[:, live]`` would come out with the matrices outermost, (count, n²)
+        # in memory, and every reduction over it would stride
+        gathered = np.empty((n * n, int(np.count_nonzero(live))))
+        for row, entry in zip(gathered, entries):
+            row[...] = entry[live]
+        return gathered, position[live]
+    entries = entries.reshape(n * n, -1)
+    # always a copy (one matrix alone would be a view): the caller adds δI to it
+    return (entries.copy() if np.shares_memory(entries, block) else entries), position.reshape(-1)
+
+
 def _check_covariance(cov, state, name, where) -> None:
     """Finite, symmetric and positive (semi-)definite wherever the state is finite; checked in
     blocks of :data:`COVARIANCE_CHECK_BLOCK` matrices so that the temporaries stay small and in
-    cache at any number of runs."""
+    cache at any number of runs. A failure names the first offending matrix in (run, scan)
+    order, whatever order a block is read in."""
     n = state.shape[-1]
     if cov.shape != state.shape + (n,):
         raise TrackerError(f"tracker {name!r}: covariance has shape {cov.shape}, expected {state.shape + (n,)}", where)
     live_all = np.isfinite(state).all(axis=-1)
-    eye = np.eye(n)
 
     def fail(index: int, problem: str):
         """``index``: the offending matrix in the flattened (runs, scans[, slots]) order."""
@@ -392,28 +418,26 @@ def _check_covariance(cov, state, name, where) -> None:
     # blocks of whole runs: an output that is a strided view is copied a block at a time
     per_run = int(np.prod(live_all.shape[1:], dtype=np.int64))
     runs = max(1, COVARIANCE_CHECK_BLOCK // max(per_run, 1))
+    # most trackers lay their outputs out with the runs innermost (a scan's runs side by side):
+    # such a block is then read scan by scan, each matrix entry a contiguous row of runs
+    scan_major = cov.ndim == 4 and abs(cov.strides[0]) < abs(cov.strides[1])
     for first_run in range(0, live_all.shape[0], runs):
         start = first_run * per_run
-        live = live_all[first_run:first_run + runs].reshape(-1)
-        block = cov[first_run:first_run + runs].reshape(-1, n, n)
+        live = live_all[first_run:first_run + runs]
         everything = live.all()
-        c = block if everything else block[live]
-        if not len(c):
+        if not everything and not live.any():
             continue
-        where_live = np.arange(len(live)) if everything else np.flatnonzero(live)
-        # one copy with the matrices last, (n, n, block): every test below then reduces over the
-        # short leading axes, rows of the block at a time (numpy's reductions over a trailing
-        # (n, n) pair cost several times more), and the copy is the one the factorisation needs
-        t = np.moveaxis(c, 0, -1).copy()  # always a copy (one matrix alone would be a view): δI is added to it
-        entries = t.reshape(n * n, -1)
+        entries, where_live = _live_entries(cov[first_run:first_run + runs], live, everything, scan_major)
+        t = entries.reshape(n, n, -1)
         finite = np.logical_and.reduce(np.isfinite(entries), axis=0)
         if not finite.all():
-            fail(start + where_live[np.argmin(finite)], "covariance not finite where the state is")
+            fail(start + where_live[~finite].min(), "covariance not finite where the state is")
         on_diagonal = (np.arange(n), np.arange(n))
         scale = np.maximum(np.maximum.reduce(np.abs(t[on_diagonal]), axis=0), np.finfo(float).tiny)
-        asym = np.maximum.reduce(np.abs(entries - t.transpose(1, 0, 2).reshape(n * n, -1)), axis=0) > 1e-8 * scale
+        upper, lower = np.triu_indices(n, 1)  # each pair of mirrored entries once
+        asym = np.maximum.reduce(np.abs(t[upper, lower] - t[lower, upper]), axis=0) > 1e-8 * scale
         if asym.any():
-            fail(start + where_live[np.argmax(asym)], "covariance not symmetric")
+            fail(start + where_live[asym].min(), "covariance not symmetric")
         # c + δI has a Cholesky factor exactly when c's smallest eigenvalue exceeds −δ: one batched
         # factorisation, entry by entry (pipeline.batched_linalg), clears the common case; the
         # eigenvalues are computed only to name the offending entry
@@ -423,8 +447,9 @@ def _check_covariance(cov, state, name, where) -> None:
             factor = cholesky_lower(t)
         if positive_definite(factor).all():
             continue
-        lowest = np.linalg.eigvalsh(c)[..., 0]
+        entries, _ = _live_entries(cov[first_run:first_run + runs], live, everything, scan_major)  # without δI
+        lowest = np.linalg.eigvalsh(np.moveaxis(entries.reshape(n, n, -1), -1, 0))[..., 0]
         indefinite = lowest <= -tolerance
         if indefinite.any():
-            first = int(np.argmax(indefinite))
+            first = int(np.argmin(np.where(indefinite, where_live, live_all.size)))
             fail(start + where_live[first], f"covariance not positive definite (smallest eigenvalue {lowest[first]:.3g})")
