@@ -133,7 +133,37 @@ def _in_run_blocks(function, n_runs: int, per_run: int):
     axis: the assignment's temporaries, a few copies of the sets each, then stay a few MB at
     any number of runs."""
     step = max(1, SET_BLOCK // max(per_run, 1))
-    return _joined([function(slice(start, start + step)) for start in range(0, n_runs, step)])
+    first = function(slice(0, step))
+    if step >= n_runs:
+        return first
+    # each block is written into arrays allocated once: joining a list of blocks would hold the
+    # results twice at its end (75 MB at 10,000 radar runs)
+    joined = _allocate_runs(first, n_runs)
+    _put_runs(joined, first, slice(0, step))
+    for start in range(step, n_runs, step):
+        _put_runs(joined, function(slice(start, start + step)), slice(start, start + step))
+    return joined
+
+
+def _allocate_runs(part, n_runs: int):
+    """Empty arrays shaped like ``part``'s (in dicts and tuples) with ``n_runs`` on the run axis."""
+    if isinstance(part, dict):
+        return {k: _allocate_runs(v, n_runs) for k, v in part.items()}
+    if isinstance(part, tuple):
+        return tuple(_allocate_runs(v, n_runs) for v in part)
+    return np.empty((n_runs,) + part.shape[1:], part.dtype)
+
+
+def _put_runs(joined, part, runs: slice) -> None:
+    """Write the block ``part`` into ``joined`` at ``runs``."""
+    if isinstance(part, dict):
+        for k, v in part.items():
+            _put_runs(joined[k], v, runs)
+    elif isinstance(part, tuple):
+        for j, v in zip(joined, part):
+            _put_runs(j, v, runs)
+    else:
+        joined[runs] = part
 
 
 def _joined(parts):

@@ -181,6 +181,25 @@ def test_the_standard_measures_in_blocks_of_runs_are_those_of_one_block(monkeypa
     assert one.equals(blocks) and one_scan.equals(blocks_scan)
 
 
+@pytest.mark.parametrize("block", [1, 23, 5 * 23])
+def test_the_radar_pcrb_in_blocks_of_scans_is_the_bound_of_one_block(monkeypatch, block):
+    """radar_pcrb averages the plots' information over runs a few scans at a time; the mean over
+    runs adds in the same order whatever the block, so the bound is the same to the bit."""
+    from pipeline.trackers import radar_tws as tracker
+
+    rng = np.random.default_rng(12)
+    R, K = 23, 11
+    truth = np.empty((R, K, 4))
+    truth[..., :2] = rng.uniform(5e3, 5e4, (R, 1, 2)) + np.arange(K)[None, :, None] * rng.normal(0, 50, (R, 1, 2))
+    truth[..., 2:] = rng.normal(0, 50, (R, K, 2))
+    detected = rng.random((R, K)) > 0.2
+    args = (truth, 5.0 * np.arange(K), 0.5, 30.0, np.deg2rad(0.8))
+    whole = tracker.radar_pcrb(*args, detected=detected)
+    monkeypatch.setattr(tracker, "PCRB_BLOCK", block)
+    assert np.array_equal(tracker.radar_pcrb(*args, detected=detected), whole, equal_nan=True)
+    assert np.isfinite(whole[1:]).all()
+
+
 # ------------------------------------------------------------------ small helpers
 
 
