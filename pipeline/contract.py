@@ -1647,18 +1647,29 @@ def _item_counts(ch: "ChannelData", name: str) -> np.ndarray:
     return np.array([np.shape(a)[0] if np.ndim(a) else 1 for a in ch.array(name)])
 
 
+#: Values per block of :func:`_values_problem`: its temporaries (a complex array's magnitudes)
+#: stay a few MB however large the column.
+VALUES_CHECK_BLOCK = 1 << 19
+
+
 def _values_problem(a: np.ndarray, spec) -> str | None:
     """What is wrong with the values ``a`` under ``spec`` (see :func:`check_values`), or None."""
     if a.size == 0:
         return None
     if a.dtype.kind not in spec.kinds:
         return f"holds {a.dtype} values (expected {'/'.join(_KIND_NAMES[k] for k in spec.kinds)})"
-    if spec.finite and not np.all(np.isfinite(a)):
-        return f"holds {int(np.sum(~np.isfinite(a)))} NaN/Inf value(s)"
-    magnitude = np.abs(a) if a.dtype.kind == "c" else a
+    flat = a.reshape(-1)
+    blocks = [flat[i:i + VALUES_CHECK_BLOCK] for i in range(0, flat.size, VALUES_CHECK_BLOCK)]
+    if spec.finite and not all(np.isfinite(b).all() for b in blocks):
+        return f"holds {sum(int(np.count_nonzero(~np.isfinite(b))) for b in blocks)} NaN/Inf value(s)"
+    low = high = 0
     with np.errstate(invalid="ignore"):
-        low = 0 if spec.low is None or a.dtype.kind == "c" else int(np.sum(magnitude < spec.low))
-        high = 0 if spec.high is None else int(np.sum(magnitude > spec.high))
+        for b in blocks:
+            magnitude = np.abs(b) if a.dtype.kind == "c" else b
+            if spec.low is not None and a.dtype.kind != "c":
+                low += int(np.count_nonzero(magnitude < spec.low))
+            if spec.high is not None:
+                high += int(np.count_nonzero(magnitude > spec.high))
     if low:
         return f"holds {low} negative value(s)" if spec.low == 0 else f"holds {low} value(s) below {spec.low:g}"
     if high:

@@ -527,3 +527,23 @@ def test_duplicated_frames_and_unequal_item_lists_are_refused(tmp_path, case, sh
     res = invoke(path, "--out", tmp_path / "o" / "tracks.mcap", "--no-rrd")
     assert_one_line_error(res, path, fragment)
     assert sha(path) == before and not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("block", [1, 3, 7, 1 << 19])
+def test_the_value_check_counts_the_same_in_any_block(monkeypatch, block):
+    """The value table's check runs in blocks of values (its temporaries stay small); the counts it
+    reports, NaN, above and below, and complex magnitudes, do not depend on the block."""
+    import pipeline.contract as contract
+    from pipeline.vocabulary import ValueSpec
+
+    monkeypatch.setattr(contract, "VALUES_CHECK_BLOCK", block)
+    a = np.arange(20.0).reshape(4, 5)
+    a[1, 2] = a[3, 4] = np.nan
+    assert contract._values_problem(a, ValueSpec()) == "holds 2 NaN/Inf value(s)"
+    a = np.nan_to_num(a) - 3.0
+    assert contract._values_problem(a, ValueSpec(low=0.0)) == "holds 5 negative value(s)"  # -3, -2, -1 and the two NaN
+    assert contract._values_problem(a, ValueSpec(high=10.0)) == "holds 5 value(s) above 10"  # 14 … 18, less 3
+    z = np.full((3, 4), 1e29 + 1e29j)
+    z[2, 1] = 1e30 + 0j          # on the bound: accepted
+    z[0, 3] = 8e29 + 8e29j       # |z| > 1e30 although neither part is
+    assert contract._values_problem(z, ValueSpec(kinds="fc", low=-1e30, high=1e30)) == "holds 1 value(s) above 1e+30"
