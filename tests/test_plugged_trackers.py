@@ -510,6 +510,29 @@ def test_param_bounds_are_checked_by_the_base_class():
             Bounded(gain=bad)
 
 
+def _random_outputs(seed, runs, scans, n):
+    """Positive definite covariances, finite states and no flags, (runs, scans, ...)."""
+    rng = np.random.default_rng(seed)
+    A = rng.normal(size=(runs, scans, n, n))
+    return (A @ np.swapaxes(A, -1, -2) + 0.1 * np.eye(n), rng.normal(size=(runs, scans, n)),
+            np.zeros((runs, scans), np.uint16))
+
+
+def _spoil(cov, state, flags, run, scan, problem):
+    """Make one matrix ``problem``: not finite, asymmetric, indefinite, semidefinite (inside the
+    check's tolerance) or a dead slot (NaN with a NaN state flagged NO_TRACK)."""
+    if problem == "nan":
+        cov[run, scan, 1, 2] = np.nan
+    elif problem == "asymmetric":
+        cov[run, scan, 0, 3] += 1e-3 * cov[run, scan, 0, 0]
+    elif problem in ("indefinite", "semidefinite"):
+        w, V = np.linalg.eigh(cov[run, scan])
+        w[0] = -1e-3 * w[-1] if problem == "indefinite" else 0.0
+        cov[run, scan] = (V * w) @ V.T
+    elif problem == "dead_slot":
+        cov[run, scan], state[run, scan], flags[run, scan] = np.nan, np.nan, vocab.NO_TRACK
+
+
 @pytest.mark.parametrize("block", [5, 32768])
 @pytest.mark.parametrize("problem, expected", [
     ("nan", "covariance not finite where the state is"),
@@ -524,29 +547,10 @@ def test_the_covariance_check_names_the_first_bad_matrix(monkeypatch, block, pro
     import pipeline.trackers.interface as interface
 
     monkeypatch.setattr(interface, "COVARIANCE_CHECK_BLOCK", block)
-    rng = np.random.default_rng(8)
     runs, scans, n = 4, 3, 4
-    A = rng.normal(size=(runs, scans, n, n))
-    cov = A @ np.swapaxes(A, -1, -2) + 0.1 * np.eye(n)
-    state = rng.normal(size=(runs, scans, n))
-    flags = np.zeros((runs, scans), np.uint16)
+    cov, state, flags = _random_outputs(8, runs, scans, n)
     bad_run, bad_scan = 2, 1
-    if problem == "nan":
-        cov[bad_run, bad_scan, 1, 2] = np.nan
-    elif problem == "asymmetric":
-        cov[bad_run, bad_scan, 0, 3] += 1e-3 * cov[bad_run, bad_scan, 0, 0]
-    elif problem == "indefinite":
-        w, V = np.linalg.eigh(cov[bad_run, bad_scan])
-        w[0] = -1e-3 * w[-1]
-        cov[bad_run, bad_scan] = (V * w) @ V.T
-    elif problem == "semidefinite":
-        w, V = np.linalg.eigh(cov[bad_run, bad_scan])
-        w[0] = 0.0
-        cov[bad_run, bad_scan] = (V * w) @ V.T
-    elif problem == "dead_slot":
-        cov[bad_run, bad_scan] = np.nan
-        state[bad_run, bad_scan] = np.nan
-        flags[bad_run, bad_scan] = vocab.NO_TRACK
+    _spoil(cov, state, flags, bad_run, bad_scan, problem)
     out = {"state": state, "flags": flags, "covariance": cov}
     if expected is None:
         validate_outputs(out, runs, scans, "t")
@@ -578,23 +582,12 @@ def test_the_covariance_check_names_the_first_of_several_bad_matrices(monkeypatc
     import pipeline.trackers.interface as interface
 
     monkeypatch.setattr(interface, "COVARIANCE_CHECK_BLOCK", block)
-    rng = np.random.default_rng(10)
     runs, scans, n = 5, 4, 4
-    A = rng.normal(size=(runs, scans, n, n))
-    cov = A @ np.swapaxes(A, -1, -2) + 0.1 * np.eye(n)
-    state = rng.normal(size=(runs, scans, n))
-    flags = np.zeros((runs, scans), np.uint16)
+    cov, state, flags = _random_outputs(10, runs, scans, n)
     if dead_first_scan:  # no estimate on scan 0: the check gathers the live matrices
         cov[:, 0], state[:, 0], flags[:, 0] = np.nan, np.nan, vocab.NO_TRACK
     for run, scan in [(1, 3), (2, 1)]:
-        if problem == "nan":
-            cov[run, scan, 1, 2] = np.nan
-        elif problem == "asymmetric":
-            cov[run, scan, 0, 3] += 1e-3 * cov[run, scan, 0, 0]
-        else:
-            w, V = np.linalg.eigh(cov[run, scan])
-            w[0] = -1e-3 * w[-1]
-            cov[run, scan] = (V * w) @ V.T
+        _spoil(cov, state, flags, run, scan, problem)
     out = {"state": state, "flags": flags, "covariance": layout(cov)}
     with pytest.raises(TrackerError, match=f"run 1 scan 3: {expected}"):
         validate_outputs(out, runs, scans, "t")
