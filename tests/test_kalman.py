@@ -105,20 +105,6 @@ def test_relative_pivots_in_blocks_equal_the_whole_stack(monkeypatch):
     assert np.isnan(whole.reshape(-1)[::11]).all() and np.isfinite(whole.reshape(-1)[1:11]).all()
 
 
-def test_components_to_matrix_along_any_axis():
-    """The components may lie on any axis; the matrices come out on the last two axes, equal
-    to the matrices the components were taken from."""
-    from pipeline.cores.filters.kalman import components_to_matrix, matrix_to_components
-
-    rng = np.random.default_rng(4)
-    A = rng.normal(size=(6 * 5, 4, 4))
-    P = (A @ np.swapaxes(A, -1, -2)).reshape(6, 5, 4, 4)
-    c = matrix_to_components(P.reshape(-1, 4, 4)).reshape(10, 6, 5)
-    np.testing.assert_array_equal(components_to_matrix(c), P)
-    np.testing.assert_array_equal(components_to_matrix(np.moveaxis(c, 0, 1), axis=1), P)
-    np.testing.assert_array_equal(components_to_matrix(np.moveaxis(c, 0, -1), axis=-1), P)
-
-
 def test_floor_on_matrix_entries_equals_floor_on_components():
     """cv_floor_components repairs a stack of 16 matrix entries exactly as the same stack given
     as its ten components: same repaired set, same matrices."""

@@ -396,7 +396,7 @@ def _live_entries(block, live, everything: bool, scan_major: bool):
         return gathered, position[live]
     entries = entries.reshape(n * n, -1)
     # always a copy (one matrix alone would be a view): the caller adds δI to it
-    return (entries.copy() if np.shares_memory(entries, block) else entries), position.reshape(-1)
+    return (entries.copy() if np.may_share_memory(entries, block) else entries), position.reshape(-1)
 
 
 def _check_covariance(cov, state, name, where) -> None:
