@@ -42,6 +42,9 @@ from pathlib import Path
 
 from timing import print_table, spread  # benchmarks/ is on sys.path when run as a script
 
+KIB = 1024  # ru_maxrss is in KiB on Linux
+MB = 1e6  # peak memory is printed in MB of 10⁶ bytes, as every other figure here (before 2026-11-27 evening: MiB)
+
 SETS = {  # name: (scenario, runs, target wall s, target peak MB; None: no target)
     "radar-10": ("radar-tws", 10, 0.6, None),
     "colored-10": ("colored-imm", 10, 0.6, None),
@@ -73,7 +76,7 @@ def replay_once(data: Path, out: Path, tree: str | None, recording: bool) -> tup
     child.returncode = os.waitstatus_to_exitcode(status)
     if child.returncode:
         raise SystemExit(f"replay {data.name} failed: {child.stderr.read().decode()[-400:]}")
-    return wall, usage.ru_maxrss / 1024  # kB on Linux
+    return wall, usage.ru_maxrss * KIB / MB
 
 
 FLOOR_IMPORTS = {  # what a replay cannot start without, and the Rerun SDK its recording needs
@@ -96,7 +99,7 @@ def import_floor(repeats: int) -> list[list[str]]:
             child = subprocess.Popen([sys.executable, "-c", code])
             _, status, usage = os.wait4(child.pid, 0)
             walls[label].append(time.perf_counter() - t0)
-            peaks[label].append(usage.ru_maxrss / 1024)
+            peaks[label].append(usage.ru_maxrss * KIB / MB)
             if os.waitstatus_to_exitcode(status):
                 raise SystemExit(f"import floor: {code!r} failed")
     return [[label, spread(walls[label], 1.0, 2, "s"), spread(peaks[label], 1.0, 0, "MB")] for label in FLOOR_IMPORTS]
