@@ -48,7 +48,7 @@ def test_single_matrix_factor_equals_its_slice_of_the_stacked_factor(seed):
     from pipeline.cores.localisation.batched_least_squares import _geqrf_rows
 
     rng = np.random.default_rng(seed)
-    for m, q in [(6, 4), (12, 4), (3, 2), (20, 3), (5, 4)]:
+    for m, q in [(6, 4), (12, 4), (3, 2), (20, 3), (5, 4), (4, 4)]:  # the last: as many rows as unknowns
         M = rng.standard_normal((m, q + 1, 9)) * 10.0 ** rng.uniform(-8, 8, (1, q + 1, 9))
         stacked = _geqrf_rows(M.copy(), q)
         for b in range(M.shape[2]):
