@@ -166,17 +166,6 @@ def _put_runs(joined, part, runs: slice) -> None:
         joined[runs] = part
 
 
-def _joined(parts):
-    """Blocks of results (arrays, or dicts and tuples of them) joined along their first axis."""
-    if len(parts) == 1:
-        return parts[0]
-    if isinstance(parts[0], dict):
-        return {k: _joined([p[k] for p in parts]) for k in parts[0]}
-    if isinstance(parts[0], tuple):
-        return tuple(_joined(list(column)) for column in zip(*parts))
-    return np.concatenate(parts)
-
-
 def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: float = 0.95,
                       innovations: dict | None = None):
     """Standard measures of every tracker.

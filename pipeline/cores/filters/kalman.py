@@ -259,8 +259,8 @@ MATRIX_FROM_COMPONENTS = np.array([A00, A01, B00, B01,
                                     B00, B10, C00, C01,
                                     B01, B11, C01, C11])
 #: Where each of the ten components sits among the 16 entries of the matrix, row by row (its
-#: upper-triangle entry): the components of a ``(16, ...)`` stack of matrix entries.
-ENTRY_OF_COMPONENT = (0, 1, 5, 2, 3, 6, 7, 10, 11, 15)
+#: first, upper-triangle entry): the components of a ``(16, ...)`` stack of matrix entries.
+ENTRY_OF_COMPONENT = tuple(int(np.flatnonzero(MATRIX_FROM_COMPONENTS == k)[0]) for k in range(10))
 _IDENTITY_ORDER = tuple(range(10))
 
 
