@@ -283,7 +283,7 @@ class _OutputWriter:
         self.wait()
         if self._writer is None:
             self._context = write_dataset(self.path, self._metadata_for_runs(_n_runs({stage.name: unit})),
-                                          zstd_level=OUTPUT_ZSTD_LEVEL)
+                                          zstd_level=OUTPUT_ZSTD_LEVEL, pack_symmetric=True)
             self._writer = self._context.__enter__()
 
         beside = stage_base.outputs_nbytes(unit["tracks"]) >= stage_base.SCORING_UNIT_BYTES
@@ -291,6 +291,8 @@ class _OutputWriter:
         def job():
             t = time.perf_counter()
             stage.write(self._writer, unit)
+            if beside:  # its bytes reach the disk now, beside the scoring, not in the final fsync
+                self._writer.sync()
             self.seconds += time.perf_counter() - t
             if beside:
                 self.seconds_beside += time.perf_counter() - t

@@ -4,6 +4,7 @@ v1 files still read and upgrade, damage is named, claims are bounded, bytes are 
 from __future__ import annotations
 
 import hashlib
+import re
 import struct
 import time
 import tracemalloc
@@ -473,3 +474,143 @@ def test_a_complete_scan_major_grid_is_a_read_only_view_of_the_same_values(path)
                 assert not grid.flags.writeable and np.shares_memory(grid, column.values)
                 views += 1
     assert views  # every bundled data set has such a channel
+
+
+# --------------------------------------------------------------------------- frames kept per message
+
+
+@st.composite
+def message_blocks(draw):
+    """Messages as (scan, first_run, count, time): in the writer's order or any other."""
+    n = draw(st.integers(1, 8))
+    return [(draw(st.integers(0, 5)), draw(st.integers(0, 6)), draw(st.integers(1, 4)),
+             draw(st.sampled_from([0.0, -0.0, 0.5, 2.0]))) for _ in range(n)]
+
+
+@settings(max_examples=200, deadline=None)
+@given(blocks=message_blocks(), writer_order=st.tuples(st.integers(1, 4), st.integers(1, 4), st.integers(1, 3)))
+def test_frames_kept_per_message_equal_the_per_frame_arrays(blocks, writer_order):
+    """A channel that keeps its messages' (scan, first run, count, time) answers run, scan,
+    time_s, the grid's size, scan-major order and the scan times as the per-frame arrays do."""
+    from pipeline.contract import ChannelData, _FrameBlocks
+
+    runs, scans, split = writer_order  # also the writer's own layout: every scan whole, maybe split in parts
+    ordered = [(k, first, min(split, runs - first), float(k)) for k in range(scans) for first in range(0, runs, split)]
+    for rows in (blocks, ordered):
+        scan, first, count, time_s = (np.array(c) for c in zip(*rows))
+        index = _FrameBlocks(scan.astype(np.int64), first.astype(np.int64), count.astype(np.int64),
+                             time_s.astype(np.float64))
+        lazy = ChannelData.of_blocks(index, {})
+        run = np.concatenate([np.arange(f, f + c) for f, c in zip(first, count)]).astype(np.int64)
+        eager = ChannelData(run, np.repeat(scan, count).astype(np.int64), np.repeat(time_s, count).astype(np.float64), {})
+        for attr in ("run", "scan", "time_s"):
+            u, v = getattr(lazy, attr), getattr(eager, attr)
+            assert u.dtype == v.dtype and u.tobytes() == v.tobytes(), attr
+        assert (lazy.n_frames, lazy.n_runs, lazy.n_scans) == (eager.n_frames, eager.n_runs, eager.n_scans)
+        assert lazy._scan_major() == eager._scan_major()
+        assert lazy.times().tobytes() == eager.times().tobytes()
+    assert ChannelData.of_blocks(_FrameBlocks(*(np.array(c) for c in zip(*ordered))), {})._scan_major()
+
+
+def test_a_channel_read_from_whole_scans_keeps_no_per_frame_arrays(radar_v2):
+    ds = read_dataset(radar_v2)
+    for ch in ds.channels.values():
+        assert ch._run is None and ch._blocks is not None
+        assert ch.n_frames == ch.run.size == 12 * 64
+
+
+# --------------------------------------------------------------------------- symmetric matrices
+
+
+def symmetric_grid(rng, shape):
+    a = rng.normal(size=shape)
+    return a + np.swapaxes(a, -1, -2)
+
+
+def column_layouts(path, topic):
+    """{array name: set of layouts} over the messages of ``topic``, as stored."""
+    from mcap.reader import make_reader
+
+    layouts = {}
+    with open(path, "rb") as f:
+        for _, _, message in make_reader(f).iter_messages(topics=[topic]):
+            scan = Scan()
+            scan.ParseFromString(message.data)
+            for c in scan.columns:
+                layouts.setdefault(c.name, set()).add(c.layout)
+    return layouts
+
+
+def test_symmetric_grids_are_stored_as_triangles_and_read_back_to_the_bit(tmp_path):
+    from pipeline.contract import FIXED, SYMMETRIC
+
+    rng = np.random.default_rng(11)
+    runs, scans = 7, 5
+    cov = symmetric_grid(rng, (runs, scans, 4, 4))
+    cov[2, 1] = np.nan                      # NaN, ±0 and ±inf on both sides of the diagonal
+    cov[3, 2, 0, 1] = cov[3, 2, 1, 0] = -0.0
+    cov[4, 3, 2, 3] = cov[4, 3, 3, 2] = np.inf
+    cov = cov.transpose(1, 0, 2, 3).copy().transpose(1, 0, 2, 3)   # strided, as a tracker may give it
+    nearly = symmetric_grid(rng, (runs, scans, 3, 3))
+    nearly[5, 4, 0, 2] = np.nextafter(nearly[5, 4, 2, 0], np.inf)  # one scan off by one ulp
+    minus_zero = symmetric_grid(rng, (runs, scans, 2, 2))
+    minus_zero[0, 0, 0, 1], minus_zero[0, 0, 1, 0] = 0.0, -0.0      # equal as numbers, not as bits
+    arrays = {"covariance": cov, "nearly": nearly, "minus_zero": minus_zero,
+              "per_target": symmetric_grid(rng, (runs, scans, 3, 2, 2)),
+              "single": rng.normal(size=(runs, scans, 1, 1)), "wide": rng.normal(size=(runs, scans, 2, 3)),
+              "complex": (symmetric_grid(rng, (runs, scans, 2, 2)) + 0j), "counts": np.ones((runs, scans, 2, 2), np.int64),
+              "f32": symmetric_grid(rng, (runs, scans, 3, 3)).astype(np.float32)}
+    times = np.arange(scans, dtype=float)
+    for pack in (False, True):
+        path = tmp_path / f"pack{pack}.mcap"
+        with write_dataset(path, pack_symmetric=pack) as w:
+            w.write_grid("/tracks/a", times, arrays)
+        got = read_dataset(path).channel("/tracks/a")
+        for name, a in arrays.items():
+            g = np.ascontiguousarray(got.grid(name))
+            a = a if a.dtype.kind in "fc" else a.astype(np.float64)  # grid() gives integers as floats
+            assert g.dtype == a.dtype and g.shape == a.shape
+            assert g.tobytes() == np.ascontiguousarray(a).tobytes(), name
+        layouts = column_layouts(path, "/tracks/a")
+        if not pack:
+            assert all(v == {FIXED} for v in layouts.values())
+            continue
+        assert layouts["covariance"] == layouts["per_target"] == layouts["f32"] == {SYMMETRIC}
+        assert layouts["nearly"] == layouts["minus_zero"] == {FIXED, SYMMETRIC}  # the one scan that is not
+        assert layouts["single"] == layouts["wide"] == layouts["complex"] == layouts["counts"] == {FIXED}
+    packed, whole = (tmp_path / "packTrue.mcap").stat().st_size, (tmp_path / "packFalse.mcap").stat().st_size
+    assert packed < whole
+
+
+def test_only_files_that_pack_carry_the_symmetric_layout_in_their_schema(tmp_path):
+    from mcap.reader import make_reader
+
+    from pipeline.contract import PACKED_SCAN_DESCRIPTOR_SET, SCAN_DESCRIPTOR_SET
+
+    assert b"SYMMETRIC" in PACKED_SCAN_DESCRIPTOR_SET and b"SYMMETRIC" not in SCAN_DESCRIPTOR_SET
+    for pack in (False, True):
+        with write_dataset(tmp_path / "a.mcap", pack_symmetric=pack) as w:
+            w.write_grid("/t", np.arange(2.0), {"s": np.zeros((2, 2, 2))})
+        with open(tmp_path / "a.mcap", "rb") as f:
+            (schema,) = make_reader(f).get_summary().schemas.values()
+        assert schema.data == (PACKED_SCAN_DESCRIPTOR_SET if pack else SCAN_DESCRIPTOR_SET)
+
+
+@pytest.mark.parametrize("shape, n_values, problem", [
+    ((3, 3), 5, "claims 2 entries of symmetric (3, 3) (float64) but holds 40 bytes"),
+    ((2, 3), 6, "stored as symmetric matrices but has entries of shape (2, 3)"),
+    ((4,), 4, "stored as symmetric matrices but has entries of shape (4,)"),
+])
+def test_a_bad_symmetric_column_is_an_input_error(tmp_path, shape, n_values, problem):
+    from pipeline.contract import McapFrameWriter, SYMMETRIC
+
+    p = tmp_path / "sym.mcap"
+    msg = Scan(scan=0, frame_count=2)
+    col = msg.columns.add(name="covariance", dtype="<f8", layout=SYMMETRIC, values=np.zeros(n_values).tobytes())
+    col.shape.extend(shape)
+    with open(p, "wb") as f:
+        w = McapFrameWriter(f, pack_symmetric=True)
+        w._add_message("/tracks/x", 0.0, msg.SerializeToString())
+        w.finish()
+    with pytest.raises(InputError, match=re.escape(problem)):
+        read_dataset(p)
