@@ -541,8 +541,11 @@ def column_layouts(path, topic):
     return layouts
 
 
-def test_symmetric_grids_are_stored_as_triangles_and_read_back_to_the_bit(tmp_path):
+def test_symmetric_grids_are_stored_as_triangles_and_read_back_to_the_bit(tmp_path, monkeypatch):
+    import pipeline.contract
     from pipeline.contract import FIXED, SYMMETRIC
+
+    monkeypatch.setattr(pipeline.contract, "PACK_BLOCK_BYTES", 1)  # one scan per block: decided scan by scan
 
     rng = np.random.default_rng(11)
     runs, scans = 7, 5
@@ -580,6 +583,14 @@ def test_symmetric_grids_are_stored_as_triangles_and_read_back_to_the_bit(tmp_pa
         assert layouts["single"] == layouts["wide"] == layouts["complex"] == layouts["counts"] == {FIXED}
     packed, whole = (tmp_path / "packTrue.mcap").stat().st_size, (tmp_path / "packFalse.mcap").stat().st_size
     assert packed < whole
+    # blocks of scans (here all in one): the scan that is not symmetric keeps its block whole
+    monkeypatch.setattr(pipeline.contract, "PACK_BLOCK_BYTES", 1 << 20)
+    with write_dataset(tmp_path / "block.mcap", pack_symmetric=True) as w:
+        w.write_grid("/tracks/a", times, arrays)
+    got = read_dataset(tmp_path / "block.mcap").channel("/tracks/a")
+    assert np.ascontiguousarray(got.grid("nearly")).tobytes() == nearly.tobytes()
+    layouts = column_layouts(tmp_path / "block.mcap", "/tracks/a")
+    assert layouts["nearly"] == {FIXED} and layouts["covariance"] == {SYMMETRIC}
 
 
 def test_only_files_that_pack_carry_the_symmetric_layout_in_their_schema(tmp_path):
