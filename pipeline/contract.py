@@ -90,7 +90,7 @@ MAX_SPARSITY = 64  # a channel's [run, scan] grid may have at most this many cel
 MAX_CHUNK_BYTES = 1 << 30  # a chunk's declared uncompressed size
 MAX_PADDED_BYTES = 1 << 30  # grid()/ragged() refuse larger outputs that are mostly padding
 BLOCK_BYTES = 32 << 20  # the writer closes a message of one channel and scan beyond this
-PACK_BLOCK_BYTES = 4 << 20  # scans of a symmetric grid packed in one call (McapFrameWriter.write_grid)
+PACK_BLOCK_BYTES = 1 << 20  # scans of a symmetric grid packed in one call (McapFrameWriter.write_grid)
 
 FIXED, RAGGED, IRREGULAR, SYMMETRIC = 0, 1, 2, 3
 
