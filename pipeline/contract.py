@@ -502,9 +502,11 @@ class ChannelData:
         Returns
         -------
         values : ndarray
-            Padded values.
+            Padded values; a read-only view of the decoded values when every frame holds the
+            same number of float64 entries and the frames are in the writer's order.
         counts : ndarray of int, shape (run, scan)
-            How many entries each frame held (0 where the frame is missing).
+            How many entries each frame held (0 where the frame is missing); read-only with
+            such a view.
 
         Raises
         ------
@@ -532,6 +534,14 @@ class ChannelData:
                 raise InputError(f"{self.topic} array {name!r} is a scalar in {self._where(0)}; "
                                  "it must hold a list of entries (at least 1-D) in every frame", self.path)
             length, tail = column.shape[0], column.shape[1:]
+            if column.dtype == np.float64 and self._scan_major():
+                # as in grid(): every frame holds ``length`` entries, in the writer's order, so
+                # the padded array is the values themselves (read-only views, no padding to fill:
+                # 15 MB and a scatter less for a 10,000-run radar data set's plots)
+                R, K = self.n_runs, self.n_scans
+                view = column.values.reshape(K, R, length, *tail).swapaxes(0, 1)
+                view.flags.writeable = False
+                return view, np.broadcast_to(np.int64(length), (R, K))
             lengths = np.full(column.count, length, np.int64)
             return self._pad(name, lengths, tail, lambda: column.values.reshape(column.count * length, *tail))
         return self._pad(name, column.lengths(), column.shape, lambda: column.values)
