@@ -180,3 +180,20 @@ def test_the_bundled_data_sets_pass_their_baselines(runner):
     res = runner.invoke(main, ["check", str(data)])
     assert res.exit_code == 0, res.output
     assert "0 drifted" in res.output
+
+
+@pytest.mark.parametrize("given", [None, "1"])
+def test_the_command_line_turns_numpy_huge_pages_off_before_numpy_loads_unless_told(given):
+    """numpy reads NUMPY_MADVISE_HUGEPAGE once, when it is first imported: the command line's
+    module must set its default without importing numpy itself, and leave a user's value alone."""
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != "NUMPY_MADVISE_HUGEPAGE"}
+    if given is not None:
+        env["NUMPY_MADVISE_HUGEPAGE"] = given
+    code = ("import sys, os, pipeline.face.cli; print('numpy' in sys.modules, "
+            "os.environ['NUMPY_MADVISE_HUGEPAGE'])")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
+    assert out.split() == ["False", given or "0"]

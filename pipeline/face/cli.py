@@ -10,9 +10,18 @@ stdout.
 from __future__ import annotations
 
 import json
+import os
 import sys
 import time
 from pathlib import Path
+
+# numpy asks the kernel for transparent huge pages on every array of 4 MB and more; a replay
+# makes its large arrays once, fills them once and frees them, and on this 2-core machine the
+# page faults (with compaction) cost more than the huge pages save: 10,000 radar runs 0.13–0.48 s
+# faster without, in 6 of 6 interleaved pairs, 1,000 array runs 0.43–0.96 s in 3 of 3, no change
+# on 500 coloured-noise or 10 radar runs (docs/benchmarks.md). numpy reads this when it is first
+# imported, which the command line does lazily, after this line; a value the user set stands.
+os.environ.setdefault("NUMPY_MADVISE_HUGEPAGE", "0")
 
 import click
 
