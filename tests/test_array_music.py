@@ -222,3 +222,39 @@ def test_one_block_equals_its_row_of_a_batch():
     assert np.allclose(values, ref_values, rtol=1e-12)
     assert np.allclose(vectors @ np.diag(values) @ np.conj(vectors.T), sample_covariance(X[0]), atol=1e-12)
     assert np.allclose(np.abs(np.sum(np.conj(vectors) * ref_vectors, axis=0)), 1.0, atol=1e-9)
+
+
+
+def test_stacks_shared_among_threads_give_the_bits_of_one_call(monkeypatch):
+    """split_over_threads cuts a stack among threads; every matrix goes through the routine it
+    would have met in one call (EVDs, inverses; leading axes kept), and a piece's error is raised."""
+    import pytest
+
+    import pipeline.batched_linalg as bl
+
+    monkeypatch.setattr(bl, "_cores", lambda: 3)
+    monkeypatch.setattr(bl, "THREAD_MIN_WORK", 1)  # split even this small stack
+    rng = np.random.default_rng(8)
+    X = rng.normal(size=(2, 301, 5, 7)) + 1j * rng.normal(size=(2, 301, 5, 7))
+    R = X @ np.conj(np.swapaxes(X, -1, -2))
+    pieces = []
+
+    def eigh(a):
+        pieces.append(a.shape[0])
+        return np.linalg.eigh(a)
+
+    values, vectors = bl.split_over_threads(eigh, R)
+    assert sorted(pieces) == [200, 201, 201]  # the flattened stack of 602 in three
+    expected = np.linalg.eigh(R)
+    assert values.shape == expected[0].shape and vectors.shape == expected[1].shape
+    assert values.tobytes() == expected[0].tobytes() and vectors.tobytes() == expected[1].tobytes()
+    assert all(a.tobytes() == b.tobytes() for a, b in zip(eigen_decomposition(R), expected))
+    assert bl.split_over_threads(np.linalg.inv, R).tobytes() == np.linalg.inv(R).tobytes()
+    singular = R.copy()
+    singular[1, 250] = 0.0
+    with pytest.raises(np.linalg.LinAlgError):
+        bl.split_over_threads(np.linalg.inv, singular)
+    monkeypatch.setattr(bl, "_cores", lambda: 1)  # one core: one call, as before
+    pieces.clear()
+    bl.split_over_threads(eigh, R)
+    assert pieces == [2]
