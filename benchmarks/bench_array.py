@@ -23,7 +23,8 @@ What it measures
    over ``--trials`` blocks: pyroomacoustics as shipped (mode vectors computed on every call)
    and with them precomputed, ours one block per call and batched over all blocks; then the
    four speed-ups, paired per pass, with PASS/MISS against the ≥ 3× target, and how often both
-   pick the same grid peaks.
+   pick the same grid peaks. Ours runs on one core here, as the peer does
+   (``pipeline.batched_linalg.MAX_THREADS = 1``).
 3. **Full Monte Carlo from MCAP to table.** ``replay simulate array-crossing --runs 100
    --snr-db 0,5,10`` is written to a temporary file (time shown separately), then
    ``replay eval`` of it (read, MUSIC start-up, PAST, both trackers, evaluation and the Table 1
@@ -141,9 +142,21 @@ def music_vs_pyroomacoustics(trials: int, repeats: int, grid_sizes=(361, 1801)) 
     refines each by a parabola; pyroomacoustics stops at the grid point). pyroomacoustics gets
     the block as one STFT bin of its (M, nfft/2 + 1, Ns) input. Each repeat times one pass over
     all ``trials`` blocks for each of the four, in a rotating order, so that load on a shared
-    machine falls on all four alike; the speed-ups are per repeat (same pass, paired).
+    machine falls on all four alike; the speed-ups are per repeat (same pass, paired). Ours runs
+    on one core, as pyroomacoustics does: a replay shares a large stack's EVDs among the cores
+    (``pipeline.batched_linalg.MAX_THREADS``), which this per-core comparison turns off.
     """
-    section("MUSIC spectrum + peaks: ours vs pyroomacoustics (M = 15, Ns = 30, 5 sources, 10 dB)")
+    import pipeline.batched_linalg
+
+    threads, pipeline.batched_linalg.MAX_THREADS = pipeline.batched_linalg.MAX_THREADS, 1
+    try:
+        _music_one_core(trials, repeats, grid_sizes)
+    finally:
+        pipeline.batched_linalg.MAX_THREADS = threads
+
+
+def _music_one_core(trials: int, repeats: int, grid_sizes) -> None:
+    section("MUSIC spectrum + peaks: ours vs pyroomacoustics (M = 15, Ns = 30, 5 sources, 10 dB; one core each)")
     try:
         import pyroomacoustics as pra
         from pyroomacoustics.doa.doa import ModeVector

@@ -154,6 +154,9 @@ def all_finite(a):
 #: work a thread takes at the least in :func:`split_over_threads`, in matrices × m³ (about 300
 #: EVDs of 15 × 15): below, the threads cost more than they save
 THREAD_MIN_WORK = 1 << 20
+#: threads :func:`split_over_threads` uses at the most (1: every stack in one call, on one core,
+#: as the per-core comparisons with peer libraries in ``benchmarks/`` set it)
+MAX_THREADS = 4
 
 
 def _cores() -> int:
@@ -165,13 +168,13 @@ def _cores() -> int:
         return os.cpu_count() or 1
 
 
-def split_over_threads(function, stack: np.ndarray, max_threads: int = 4):
+def split_over_threads(function, stack: np.ndarray):
     """``function(stack)`` for a numpy ``linalg`` function that works matrix by matrix over a
-    stack ``(..., m, m)`` (``eigh``, ``solve`` …), with the stack split across threads.
+    stack ``(..., m, m)`` (``eigh``, ``inv`` …), with the stack split across threads.
 
     numpy's linalg loops release the GIL while LAPACK runs, but each call keeps to one core: a
     stack of a few hundred small matrices or more is cut into one piece per available core (at
-    most ``max_threads``, at least :data:`THREAD_MIN_WORK` of work each) and the pieces
+    most :data:`MAX_THREADS`, at least :data:`THREAD_MIN_WORK` of work each) and the pieces
     run at once. Every matrix goes through the same routine as in one call, so the result is
     identical to the bit; an error a piece raises is raised here. Returns what ``function``
     returns, arrays (or tuples of them) joined along the stack.
@@ -179,7 +182,7 @@ def split_over_threads(function, stack: np.ndarray, max_threads: int = 4):
     stack = np.asarray(stack)
     lead = stack.shape[:-2]
     n = int(np.prod(lead, dtype=np.int64)) if lead else 1
-    threads = min(_cores(), max_threads, n * stack.shape[-1] ** 3 // THREAD_MIN_WORK)
+    threads = min(_cores(), MAX_THREADS, n * stack.shape[-1] ** 3 // THREAD_MIN_WORK)
     if threads < 2:
         return function(stack)
     from concurrent.futures import ThreadPoolExecutor
