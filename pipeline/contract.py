@@ -341,6 +341,7 @@ class ChannelData:
 
     @classmethod
     def of_blocks(cls, blocks: _FrameBlocks, arrays, topic: str = "channel", path: str | None = None) -> "ChannelData":
+        """A channel whose frames are the messages ``blocks`` lists (no per-frame arrays kept)."""
         return cls(None, None, None, arrays, topic, path, blocks=blocks)
 
     def __repr__(self) -> str:
