@@ -178,6 +178,12 @@ def split_over_threads(function, stack: np.ndarray):
     run at once. Every matrix goes through the same routine as in one call, so the result is
     identical to the bit; an error a piece raises is raised here. Returns what ``function``
     returns, arrays (or tuples of them) joined along the stack.
+
+    The caller waits for the pieces, so it must not hold a lock that a weak-reference callback
+    or finalizer may take: a garbage collection can run on a worker thread. The array front
+    end's memo (``pipeline.trackers.array_bearing.shared_front_end``) releases its lock before
+    the front end runs; an earlier front end that ran its EVDs on a thread of their own hung
+    once that way (commit 37f9e75).
     """
     stack = np.asarray(stack)
     lead = stack.shape[:-2]
