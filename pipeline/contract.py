@@ -856,12 +856,13 @@ def _upper_triangles(a: np.ndarray) -> np.ndarray | None:
     n = a.shape[-1]
     flat = a.reshape(a.shape[:-2] + (n * n,))  # a view where the matrices' entries are evenly spaced
     upper, lower = _triangle_indices(n)
-    packed = flat.take(upper, axis=-1)
-    bits = np.dtype(f"<u{a.dtype.itemsize}")
-    off = upper != lower
-    if not np.array_equal(packed[..., off].view(bits), flat.take(lower[off], axis=-1).view(bits)):
-        return None
-    return packed
+    # the same bits, mirrored pair by pair, compared in place (an integer view of the same
+    # width is a view of any layout): no gathered copy before the one that is written
+    bits = flat.view(f"<u{a.dtype.itemsize}")
+    for u, l in zip(upper.tolist(), lower.tolist()):
+        if u != l and not np.array_equal(bits[..., u], bits[..., l]):
+            return None
+    return flat.take(upper, axis=-1)
 
 
 class McapFrameWriter:
