@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 import zstandard
 
-from pipeline.contract import OUTPUT_ZSTD_LEVEL
+from pipeline.contract import OUTPUT_ZSTD_LEVEL, upper_triangles
 from pipeline.replay import replay
 from timing import print_table  # benchmarks/ is on sys.path when run as a script
 
@@ -54,13 +54,6 @@ def unshuffled(data: bytes, itemsize: int) -> bytes:
     return np.frombuffer(data, np.uint8).reshape(itemsize, -1).T.tobytes()
 
 
-def packed(a: np.ndarray) -> np.ndarray:
-    """Upper triangles of a stack of symmetric matrices (exactly symmetric ones lose nothing)."""
-    n = a.shape[-1]
-    i, j = np.triu_indices(n)
-    return a[..., i, j]
-
-
 def sizes(a: np.ndarray, symmetric: bool) -> dict:
     """Compressed bytes of ``a`` (scan-major, as the outputs file holds it) per encoding."""
     a = np.ascontiguousarray(np.swapaxes(a, 0, 1))  # scans first, every run of a scan together
@@ -71,8 +64,9 @@ def sizes(a: np.ndarray, symmetric: bool) -> dict:
     shuffled_bytes = slow.compress(shuffled(raw, item))
     assert unshuffled(zstandard.ZstdDecompressor().decompress(shuffled_bytes), item) == raw
     out["shuffle9"] = len(shuffled_bytes)
-    if symmetric and np.array_equal(a, np.swapaxes(a, -1, -2), equal_nan=True):
-        triangles = np.ascontiguousarray(packed(a)).tobytes()
+    packed = upper_triangles(a) if symmetric else None  # the writer's own packing, None unless bit-symmetric
+    if packed is not None:
+        triangles = np.ascontiguousarray(packed).tobytes()
         out["packed1"] = len(fast.compress(triangles))
         out["packed9"] = len(slow.compress(triangles))
     else:

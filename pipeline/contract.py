@@ -845,13 +845,14 @@ def _square_real(dtype: np.dtype, inner: tuple) -> bool:
     return dtype.kind == "f" and len(inner) >= 2 and inner[-1] == inner[-2] >= 2
 
 
-def _upper_triangles(a: np.ndarray) -> np.ndarray | None:
+def upper_triangles(a: np.ndarray) -> np.ndarray | None:
     """``a``'s matrices (its last two axes) as their upper triangles, ``(..., n(n+1)/2)``, when
     every one of them is symmetric to the bit (NaN and −0 included); else None.
 
     Lossless by construction: the lower triangle read back is the upper one, which equals it
     bit for bit. A grid that is not exactly symmetric (a plugged tracker's rounding) is stored
-    whole.
+    whole. What the writer's ``SYMMETRIC`` layout holds (``benchmarks/bench_output_size.py``
+    measures it through this function too).
     """
     n = a.shape[-1]
     flat = a.reshape(a.shape[:-2] + (n * n,))  # a view where the matrices' entries are evenly spaced
@@ -1057,7 +1058,7 @@ class McapFrameWriter:
         step = n_scans if not scan_bytes else max(1, min(n_scans, PACK_BLOCK_BYTES // scan_bytes))
         for first in range(0, n_scans, step):
             # each packing column's scans first … first + step − 1 as upper triangles, or None
-            packed = {i: _upper_triangles(columns[i][3][:, first:first + step]) for i in packing}
+            packed = {i: upper_triangles(columns[i][3][:, first:first + step]) for i in packing}
             for k in range(first, min(first + step, n_scans)):
                 msg = Scan(scan=k, time_s=float(times[k]), frame_count=n_runs)
                 for i, (name, dtype, inner, a) in enumerate(columns):
