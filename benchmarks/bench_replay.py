@@ -7,7 +7,8 @@ default radar-tws with 10 and 10,000 runs, colored-imm with 10 and 500 runs and
 array-crossing with 10 and 1,000 runs. Each is replayed ``--repeats`` times (default 5) in a
 fresh process, ``python -m pipeline.face.cli FILE --out … --force --figures none`` (figures are
 drawn after the result, in a process of their own, when ``replay`` runs on a terminal), with
-``--no-rrd`` from 100 runs up. The wall time is the child's, from ``time.perf_counter`` around
+``--no-rrd`` from 100 runs up, after the packages of every tree measured are byte-compiled (as
+``pip install .`` leaves them). The wall time is the child's, from ``time.perf_counter`` around
 it; the peak memory is the child's own maximum resident set, from ``os.wait4``.
 
 With ``--before TREE`` (a checkout of an earlier commit, e.g. a ``git worktree``) every replay
@@ -53,6 +54,25 @@ SETS = {  # name: (scenario, runs, target wall s, target peak MB; None: no targe
     "colored-500": ("colored-imm", 500, 35.0 / 3, 1650.0 / 3),
     "array-1000": ("array-crossing", 1000, 14.0 / 3, 2100.0 / 3),
 }
+
+
+def compile_bytecode(tree: str | None) -> None:
+    """Byte-compile the packages a replay imports from ``tree`` (None: the installed ones), not timed.
+
+    ``pip install .`` compiles them when it installs, so a user's replay starts from bytecode;
+    a checkout under ``PYTHONDONTWRITEBYTECODE`` (as on the development machine) would otherwise
+    compile about 0.15 s of source in every timed process (docs/benchmarks.md).
+    """
+    import compileall
+    import importlib.util
+
+    for package in ("pipeline", "evaluators", "recorders"):
+        if tree is not None:
+            folder = Path(tree) / package
+        else:
+            spec = importlib.util.find_spec(package)
+            folder = Path(next(iter(spec.submodule_search_locations)))
+        compileall.compile_dir(str(folder), quiet=1)
 
 
 def simulate(scenario: str, runs: int, out: Path) -> None:
@@ -125,6 +145,8 @@ def main() -> None:
         ap.error(f"unknown set(s) {', '.join(unknown)}")
     trees = {"before": str(Path(args.before).resolve())} if args.before else {}
     trees["after"] = None
+    for tree in trees.values():
+        compile_bytecode(tree)
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(args.keep or tmp)
         work.mkdir(parents=True, exist_ok=True)

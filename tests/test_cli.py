@@ -197,3 +197,18 @@ def test_the_command_line_turns_numpy_huge_pages_off_before_numpy_loads_unless_t
             "os.environ['NUMPY_MADVISE_HUGEPAGE'])")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
     assert out.split() == ["False", given or "0"]
+
+
+def test_the_command_line_defers_numpy_f2py_which_scipy_imports_but_never_uses():
+    """scipy's import pulls in numpy.f2py through ``from numpy import *``: under the command
+    line it must stay unexecuted until something uses it, then be the ordinary module."""
+    import subprocess
+    import sys
+
+    code = ("import sys, pipeline.face.cli, scipy.special, numpy\n"
+            "m = sys.modules.get('numpy.f2py')\n"
+            "print(m is None or type(m).__name__ == '_LazyModule', 'numpy.f2py.crackfortran' in sys.modules)\n"
+            "print(callable(numpy.f2py.run_main), type(sys.modules['numpy.f2py']).__name__, "
+            "'numpy.f2py.crackfortran' in sys.modules)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.split() == ["True", "False", "True", "module", "True"]

@@ -9,6 +9,7 @@ stdout.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import sys
@@ -24,6 +25,10 @@ from pathlib import Path
 os.environ.setdefault("NUMPY_MADVISE_HUGEPAGE", "0")
 
 import click
+
+from pipeline.face import lazy_imports
+
+lazy_imports.defer()  # numpy.f2py, which scipy's import pulls in for nothing: 0.08–0.15 s of every replay
 
 from pipeline import __version__
 from pipeline.errors import InputError
@@ -723,15 +728,29 @@ def run_cmd(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, s
       replay radar.mcap --tracker my_trackers.py:ConstantVelocity --set plot_sigma_m=120
       replay radar.mcap --out study/a/tracks.mcap --force     # replace study/a's earlier replay
     """
-    from pipeline.contract import read_dataset
-    from pipeline.replay import replay
-    from recorders.scenarios import parse_assignments
-
     if data is None and map_path is not None:
         raise click.UsageError("--map needs the recording it maps: replay FOREIGN.mcap --map MAP.toml")
     if data is None:
         data = bundled_data_dir() / DEMO_NAME
         click.echo(f"no data set given: replaying the bundled demo {data}")
+    from pipeline.face import recording_process
+
+    # before the heavy imports below: the child loads Rerun on the other core while they run
+    recorder = (recording_process.RecordingProcess(data, recover)
+                if not no_rrd and map_path is None and recording_process.worth_it(data) else None)
+    with recorder or contextlib.nullcontext():
+        _run(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, sets, rerun_run, tracker_specs,
+             map_path, figures_mode, recorder)
+
+
+def _run(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, sets, rerun_run, tracker_specs,
+         map_path, figures_mode, recorder):
+    """``run_cmd``'s work, with ``recorder`` (a :class:`~pipeline.face.recording_process.RecordingProcess`,
+    or None to record in this process) already started."""
+    from pipeline.contract import read_dataset
+    from pipeline.replay import replay
+    from recorders.scenarios import parse_assignments
+
     if data.suffix.lower() in CONVERTED_SUFFIXES and map_path is None:  # a recording, not yet a data set
         raise InputError(f"a {data.suffix.lstrip('.').upper()} file is converted first: "
                          f"{CONVERTED_SUFFIXES[data.suffix.lower()]} (see replay convert --help)", data)
@@ -775,7 +794,8 @@ def run_cmd(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, s
         with progress.Phases(f"replaying {data.name}", ("filter", "evaluate", "write", "rerun")) as phases:
             res = replay(data, wanted, outputs.path(out_path.name), staged_rrd, design_overrides=parse_assignments(sets),
                          rerun_run=rerun_run, dataset=dataset, progress=phases.step, tracker_specs=specs,
-                         keep_runs=rerun_run + 1)  # the views, figures and listing read runs 0 … rerun_run
+                         keep_runs=rerun_run + 1,  # the views, figures and listing read runs 0 … rerun_run
+                         recorder=recorder if staged_rrd is not None else None)
         res.timings["read_s"] = t_read
         res.timings["total_s"] += t_read
         if res.dataset.recovered_messages is not None:
@@ -789,6 +809,12 @@ def run_cmd(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, s
         with progress.timed("tables and plots"):
             tables = [outputs.final(p) for p in _export_tables(res, outputs.stage)]
             plots = [outputs.final(p) for p in _report_plot(res, outputs.stage)] if figures_mode == "now" else []
+        if recorder is not None and staged_rrd is not None:  # the recording is part of the set: wait for it
+            t_wait = time.perf_counter()
+            recorder.finish()
+            t_wait = time.perf_counter() - t_wait
+            progress.timing("waiting for the recording's process", t_wait)
+            res.timings["rerun_s"] = res.timings.get("rerun_s", 0.0) + t_wait
     res.out_path = out_path
     res.rrd_path = rrd_path
     click.echo("")
