@@ -78,7 +78,7 @@ def _canonical(specs):
 
 def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, design_overrides=None,
            rerun_run: int = 0, dataset: Dataset | None = None, progress=None, tracker_specs=(),
-           keep_runs: int | None = None) -> ReplayResult:
+           keep_runs: int | None = None, recorder=None) -> ReplayResult:
     """Replay every applicable stage over a data set.
 
     Trackers go through in scoring units (:meth:`pipeline.stages.base.Stage.run_units`): once
@@ -115,6 +115,11 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
         are written and scored (what the per-run views and figures read); None keeps them all.
         A stage whose views read every run (:attr:`~pipeline.stages.base.Stage.views_read_all_runs`)
         keeps them all regardless.
+    recorder : callable, optional
+        What writes the Rerun recording, called as ``recorder(rrd_path, dataset, stages,
+        results, per_scan, rerun_run)`` once everything is scored: by default
+        :func:`pipeline.face.rerun_views.write_recording`, in this process; the command line
+        may pass a :class:`pipeline.face.recording_process.RecordingProcess` instead.
 
     Raises
     ------
@@ -185,16 +190,11 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
     if out_path is not None:
         res.out_path = Path(out_path)
     if rrd_path is not None:
-        from pipeline.face.rerun_views import views_for
-        from pipeline.face.timeline import recording
+        if recorder is None:
+            from pipeline.face.rerun_views import write_recording as recorder
 
         t4 = time.perf_counter()
-        # One recording per file; with several stages the first stage's blueprint is the default.
-        bp = views_for(stages[0]).blueprint(stages[0], list(results[stages[0].name]["tracks"]), ds, rerun_run)
-        with recording(rrd_path, "trackreplay", Path(ds.path).stem, bp) as rec:
-            for st in stages:
-                part = res.per_scan.filter(pl.col("stage") == st.name)
-                views_for(st).log_rerun(st, rec, ds, results[st.name], part, rerun_run)
+        recorder(rrd_path, ds, stages, results, res.per_scan, rerun_run)
         res.rrd_path = Path(rrd_path)
         timings["rerun_s"] = time.perf_counter() - t4
     step(1)

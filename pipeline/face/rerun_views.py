@@ -7,6 +7,7 @@ Each module named here exposes ``blueprint(stage, trackers, dataset=None, run=0)
 from __future__ import annotations
 
 import importlib
+from pathlib import Path
 
 VIEW_MODULES = {
     "radar-tws": "pipeline.face.rerun_radar_tws",
@@ -23,6 +24,24 @@ def views_for(stage):
     if name is None:
         raise KeyError(f"no Rerun views registered for stage {stage.name!r} (add it to VIEW_MODULES)")
     return importlib.import_module(name)
+
+
+def write_recording(rrd_path, ds, stages, results, per_scan, rerun_run: int = 0) -> None:
+    """A replay's Rerun recording: every stage's views, saved atomically to ``rrd_path``.
+
+    ``results`` and ``per_scan`` are :func:`pipeline.replay.replay`'s (the per-scan table with
+    its ``stage`` column); one recording per file, whose default blueprint is the first stage's.
+    """
+    import polars as pl
+
+    from pipeline.face.timeline import recording
+
+    first = stages[0]
+    blueprint = views_for(first).blueprint(first, list(results[first.name]["tracks"]), ds, rerun_run)
+    with recording(rrd_path, "trackreplay", Path(ds.path).stem, blueprint) as rec:
+        for stage in stages:
+            part = per_scan.filter(pl.col("stage") == stage.name)
+            views_for(stage).log_rerun(stage, rec, ds, results[stage.name], part, rerun_run)
 
 
 def log_comparison(comparison, rrd_path) -> None:

@@ -1,0 +1,112 @@
+"""The Rerun recording written by a second process (pipeline.face.recording_process).
+
+A recording made by the child must hold the same data as the one a replay makes in-process:
+``rerun rrd compare`` (the Rerun CLI's own comparison, independent of our code) decides. A child
+that fails must give one line and leave nothing; one that is not waited for must be stopped.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from pipeline.errors import InputError
+from pipeline.face import recording_process
+from pipeline.face.recording_process import RecordingProcess
+from pipeline.replay import replay
+
+REPO = recording_process.Path(__file__).resolve().parents[1]
+
+
+def same_recording(a, b) -> bool:
+    """Whether two .rrd files hold the same data (log times aside), by the Rerun CLI."""
+    done = subprocess.run([sys.executable, "-m", "rerun", "rrd", "compare", str(a), str(b)], capture_output=True)
+    return done.returncode == 0
+
+
+@pytest.mark.parametrize("demo", ["radar_tws_demo.mcap", "array_crossing_demo.mcap", "tdoa_fdoa_demo.mcap"])
+def test_the_child_draws_the_same_recording_as_the_replay_itself(demo, tmp_path):
+    data = REPO / "data" / demo
+    here = replay(data, rrd_path=tmp_path / "here.rrd", rerun_run=1, design_overrides=None)
+    with RecordingProcess(data) as recorder:
+        there = replay(data, rrd_path=tmp_path / "there.rrd", rerun_run=1, recorder=recorder)
+        recorder.finish()
+    assert there.summary.equals(here.summary)
+    assert same_recording(tmp_path / "here.rrd", tmp_path / "there.rrd")
+    other = replay(data, rrd_path=tmp_path / "other.rrd", rerun_run=0)  # the comparison does tell them apart
+    assert not same_recording(tmp_path / "there.rrd", other.rrd_path)
+
+
+def test_the_child_draws_with_the_designs_the_replay_used(tmp_path):
+    data = REPO / "data" / "radar_tws_demo.mcap"
+    override = {"nominal_cross_range_m": "120"}
+    replay(data, rrd_path=tmp_path / "here.rrd", design_overrides=override)
+    with RecordingProcess(data) as recorder:
+        replay(data, rrd_path=tmp_path / "there.rrd", design_overrides=override, recorder=recorder)
+        recorder.finish()
+    assert same_recording(tmp_path / "here.rrd", tmp_path / "there.rrd")
+
+
+def test_a_child_that_cannot_write_gives_one_line_and_leaves_nothing(tmp_path):
+    data = REPO / "data" / "radar_tws_demo.mcap"
+    (tmp_path / "a_file").write_text("not a folder")
+    with RecordingProcess(data) as recorder:
+        replay(data, rrd_path=tmp_path / "a_file" / "tracks.rrd", recorder=recorder)
+        with pytest.raises(InputError) as caught:
+            recorder.finish()
+    message = str(caught.value)
+    assert "the Rerun recording was not written" in message and "\n" not in message
+    assert message.startswith(str(data))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file"]
+
+
+def test_a_child_left_without_finish_is_stopped(tmp_path):
+    with RecordingProcess(REPO / "data" / "radar_tws_demo.mcap") as recorder:
+        child = recorder._child
+    assert child.poll() is not None
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_outputs_that_do_not_pickle_are_drawn_in_this_process(tmp_path, monkeypatch):
+    data = REPO / "data" / "radar_tws_demo.mcap"
+
+    def refuse(*args, **kwargs):
+        raise TypeError("cannot pickle a plugged tracker's object")
+
+    monkeypatch.setattr(recording_process.pickle, "dumps", refuse)
+    with RecordingProcess(data) as recorder:
+        replay(data, rrd_path=tmp_path / "tracks.rrd", recorder=recorder)
+        recorder.finish()
+        assert recorder._child.poll() is not None  # stopped: it had nothing to draw
+    replay(data, rrd_path=tmp_path / "here.rrd")
+    assert same_recording(tmp_path / "here.rrd", tmp_path / "tracks.rrd")
+
+
+def test_a_second_process_is_used_only_where_it_can_overlap_an_import(tmp_path, monkeypatch):
+    small, large = tmp_path / "small.mcap", tmp_path / "large.mcap"
+    small.write_bytes(b"x" * 1000)
+    with open(large, "wb") as f:
+        f.truncate(recording_process.LARGEST_INPUT_BYTES + 1)
+    monkeypatch.delitem(sys.modules, "rerun", raising=False)
+    assert recording_process.worth_it(small, cores=2)
+    assert not recording_process.worth_it(small, cores=1)  # nothing to overlap it on
+    assert not recording_process.worth_it(large, cores=2)  # the import is a small part of that wait
+    assert not recording_process.worth_it(tmp_path / "missing.mcap", cores=2)
+    monkeypatch.setitem(sys.modules, "rerun", object())
+    assert not recording_process.worth_it(small, cores=2)  # already loaded: nothing to overlap
+
+
+def test_the_command_line_records_a_small_replay_in_a_second_process(tmp_path):
+    """A fresh ``replay`` on a small file waits for its child before the outputs appear, and
+    its recording matches an in-process one."""
+    data = REPO / "data" / "radar_tws_demo.mcap"
+    done = subprocess.run([sys.executable, "-m", "pipeline.face.cli", "-v", str(data), "--out",
+                           str(tmp_path / "out" / "tracks.mcap"), "--figures", "none"],
+                          capture_output=True, text=True, cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert "timing: waiting for the recording's process" in done.stderr
+    replay(data, rrd_path=tmp_path / "here.rrd")
+    assert same_recording(tmp_path / "here.rrd", tmp_path / "out" / "tracks.rrd")
+    assert not any(p.name.startswith(".partial-") for p in (tmp_path / "out").iterdir())
