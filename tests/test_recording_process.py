@@ -110,3 +110,16 @@ def test_the_command_line_records_a_small_replay_in_a_second_process(tmp_path):
     replay(data, rrd_path=tmp_path / "here.rrd")
     assert same_recording(tmp_path / "here.rrd", tmp_path / "out" / "tracks.rrd")
     assert not any(p.name.startswith(".partial-") for p in (tmp_path / "out").iterdir())
+
+
+def test_the_child_imports_this_process_package_not_one_in_the_working_folder(tmp_path, monkeypatch):
+    """A ``pipeline`` folder of another project in the working folder must not shadow ours."""
+    impostor = tmp_path / "pipeline"
+    impostor.mkdir()
+    (impostor / "__init__.py").write_text("raise ImportError('the wrong pipeline package')\n")
+    monkeypatch.chdir(tmp_path)
+    data = REPO / "data" / "radar_tws_demo.mcap"
+    with RecordingProcess(data) as recorder:
+        replay(data, rrd_path=tmp_path / "tracks.rrd", recorder=recorder)
+        recorder.finish()
+    assert (tmp_path / "tracks.rrd").stat().st_size > 0

@@ -20,6 +20,7 @@ import os
 import pickle
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 from pipeline.errors import InputError
@@ -59,8 +60,12 @@ class RecordingProcess:
     def __init__(self, data_path, recover: bool = False):
         self._data_path = Path(data_path)
         self._drawn_here = False
+        self._sending = None
+        # this interpreter with this process's module path: ``python -m`` would put the working
+        # folder first, where another project's ``pipeline`` package may be
+        start = f"import sys; sys.path[:] = {sys.path!r}; from pipeline.face.recording_process import main; main()"
         self._child = subprocess.Popen(
-            [sys.executable, "-m", "pipeline.face.recording_process", os.fspath(data_path), "1" if recover else "0"],
+            [sys.executable, "-c", start, os.fspath(data_path), "1" if recover else "0"],
             stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
 
     def __enter__(self) -> "RecordingProcess":
@@ -88,16 +93,24 @@ class RecordingProcess:
             write_recording(rrd_path, ds, stages, results, per_scan, rerun_run)
             self._drawn_here = True
             return
+        # on a thread: the child may still be importing, and the pipe takes 64 KiB at a time;
+        # meanwhile this process prints and writes its tables
+        self._sending = threading.Thread(target=self._send, args=(data,), daemon=True)
+        self._sending.start()
+
+    def _send(self, data: bytes) -> None:
         try:
             self._child.stdin.write(data)
             self._child.stdin.close()
-        except OSError:  # the child has gone: finish() says why
+        except (OSError, ValueError):  # the child has gone (finish() says why), or was stopped
             pass
 
     def finish(self) -> None:
         """Wait until the recording is written; raise :class:`InputError` if it could not be."""
         if self._drawn_here:
             return
+        if self._sending is not None:
+            self._sending.join()
         if self._child.stdin and not self._child.stdin.closed:
             self._child.stdin.close()
         problem = self._child.stderr.read().decode(errors="replace").strip()
@@ -110,6 +123,8 @@ class RecordingProcess:
         if self._child.poll() is None:
             self._child.kill()
         self._child.wait()
+        if self._sending is not None:  # its write fails at once on the closed pipe
+            self._sending.join()
         for stream in (self._child.stdin, self._child.stderr):
             if stream is not None and not stream.closed:
                 stream.close()
@@ -117,15 +132,20 @@ class RecordingProcess:
 
 def _record(data_path: str, recover: bool) -> None:
     """The child: import Rerun and read the input, then draw what the replay sends."""
+    from pipeline.face import lazy_imports
+
+    lazy_imports.defer()  # as the command line does
     import rerun  # noqa: F401  (what this process is for: loaded while the replay runs)
     import rerun.blueprint  # noqa: F401
 
     from pipeline.contract import read_dataset
-    from pipeline.face.rerun_views import write_recording
+    from pipeline.face.rerun_views import views_for, write_recording
     from pipeline.stages import applicable_stages
 
     ds = read_dataset(data_path, recover=recover)
     stages = {s.name: s for s in applicable_stages(ds.channels)}
+    for stage in stages.values():  # their views' imports (scipy for some), still while the replay runs
+        views_for(stage)
     try:
         payload = pickle.load(sys.stdin.buffer)
     except EOFError:  # the replay ended without a recording to write (it failed, or was stopped)
@@ -136,7 +156,9 @@ def _record(data_path: str, recover: bool) -> None:
                     payload["per_scan"], payload["rerun_run"])
 
 
-if __name__ == "__main__":
+def main() -> None:
+    """The child's entry point: ``DATA RECOVER`` (``1`` or ``0``) in ``sys.argv``, the payload on stdin;
+    a failure is one line on stderr and exit status 1."""
     import warnings
 
     warnings.filterwarnings("ignore", category=RuntimeWarning)  # as the command line does
