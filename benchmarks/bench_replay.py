@@ -22,7 +22,8 @@ also runs with ``PYTHONPATH=TREE``, interleaved with this tree's, so that both s
 The table gives medians with min–max over the repeats and says PASS/MISS against the speed
 issue's targets (docs/benchmarks.md).
 
-A second table, the **import floor**, times fresh processes that only import what every replay
+Before them, ``replay --help`` is timed in fresh processes (target < 0.15 s). A second table,
+the **import floor**, times fresh processes that only import what every replay
 needs before it can print a table (numpy, polars, scipy.special for the χ² and t quantiles,
 mcap, zstandard, protobuf, click) and, beside it, the same plus the Rerun SDK that writes the
 ``.rrd``: no 10-run replay can be faster than these. ``--floor-only`` prints just that table.
@@ -114,6 +115,18 @@ def replay_once(data: Path, out: Path, tree: str | None, recording: bool) -> tup
     return wall, usage.ru_maxrss * KIB / MB
 
 
+HELP_TARGET_S = 0.15
+
+
+def help_once(tree: str | None, cwd: str) -> float:
+    """Wall seconds of ``replay --help`` in a fresh process."""
+    env = dict(os.environ, PYTHONPATH=tree) if tree else None
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "pipeline.face.cli", "--help"], env=env, cwd=cwd, check=True,
+                   stdout=subprocess.DEVNULL)
+    return time.perf_counter() - t0
+
+
 FLOOR_IMPORTS = {  # what a replay cannot start without, and the Rerun SDK its recording needs
     "numpy, polars, scipy.special, mcap, zstandard, protobuf, click":
         "import numpy, polars, scipy.special, mcap.reader, mcap.writer, zstandard, google.protobuf, click",
@@ -163,6 +176,16 @@ def main() -> None:
     trees["after"] = None
     for tree in trees.values():
         compile_bytecode(tree)
+    helps = {label: [] for label in trees}
+    with tempfile.TemporaryDirectory() as empty:  # a folder without a pipeline/ of its own
+        for _ in range(args.repeats):
+            for label, tree in trees.items():
+                helps[label].append(help_once(tree, empty))
+    print(f"replay --help, median [min–max] of {args.repeats}, fresh process each (target < {HELP_TARGET_S} s)")
+    print_table(["tree", "wall", ""], [[label, spread(helps[label], 1.0, 3, "s"),
+                                        "PASS" if sorted(helps[label])[len(helps[label]) // 2] < HELP_TARGET_S
+                                        else "MISS"] for label in trees])
+    print()
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(args.keep or tmp)
         work.mkdir(parents=True, exist_ok=True)
