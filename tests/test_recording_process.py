@@ -123,3 +123,18 @@ def test_the_child_imports_this_process_package_not_one_in_the_working_folder(tm
         replay(data, rrd_path=tmp_path / "tracks.rrd", recorder=recorder)
         recorder.finish()
     assert (tmp_path / "tracks.rrd").stat().st_size > 0
+
+
+def test_a_child_that_cannot_start_leaves_the_recording_to_this_process(tmp_path, monkeypatch):
+    data = REPO / "data" / "radar_tws_demo.mcap"
+    monkeypatch.setattr(recording_process, "worth_it", lambda path: True)
+    started = []
+
+    def no_processes(*args, **kwargs):
+        started.append(args)
+        raise OSError(11, "Resource temporarily unavailable")
+
+    monkeypatch.setattr(recording_process.subprocess, "Popen", no_processes)
+    assert recording_process.start(data) is None and len(started) == 1
+    monkeypatch.setattr(recording_process.sys, "executable", "")  # an embedded interpreter
+    assert recording_process.start(data) is None and len(started) == 1

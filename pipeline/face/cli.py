@@ -736,8 +736,7 @@ def run_cmd(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, s
     from pipeline.face import recording_process
 
     # before the heavy imports below: the child loads Rerun on the other core while they run
-    recorder = (recording_process.RecordingProcess(data, recover)
-                if not no_rrd and map_path is None and recording_process.worth_it(data) else None)
+    recorder = recording_process.start(data, recover) if not no_rrd and map_path is None else None
     with recorder or contextlib.nullcontext():
         _run(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, sets, rerun_run, tracker_specs,
              map_path, figures_mode, recorder)

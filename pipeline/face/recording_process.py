@@ -48,6 +48,17 @@ def worth_it(data_path, cores: int | None = None) -> bool:
     return cores >= 2 and size <= LARGEST_INPUT_BYTES
 
 
+def start(data_path, recover: bool = False) -> "RecordingProcess | None":
+    """A :class:`RecordingProcess` for ``data_path`` if :func:`worth_it` and it starts; else None
+    (the replay then records in its own process)."""
+    if not worth_it(data_path) or not sys.executable or getattr(sys, "frozen", False):
+        return None
+    try:
+        return RecordingProcess(data_path, recover)
+    except OSError:  # no interpreter to start, no processes left: record here
+        return None
+
+
 class RecordingProcess:
     """The child process that writes one replay's recording; a ``recorder`` for
     :func:`pipeline.replay.replay`.
