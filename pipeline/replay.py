@@ -117,7 +117,8 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
         keeps them all regardless.
     recorder : callable, optional
         What writes the Rerun recording, called as ``recorder(rrd_path, dataset, stages,
-        results, per_scan, rerun_run)`` once everything is scored: by default
+        results, per_scan, rerun_run)`` once everything is scored, returning when the recording
+        is written (or raising :class:`InputError`): by default
         :func:`pipeline.face.rerun_views.write_recording`, in this process; the command line
         may pass a :class:`pipeline.face.recording_process.RecordingProcess` instead.
 

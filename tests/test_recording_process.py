@@ -32,7 +32,6 @@ def test_the_child_draws_the_same_recording_as_the_replay_itself(demo, tmp_path)
     here = replay(data, rrd_path=tmp_path / "here.rrd", rerun_run=1, design_overrides=None)
     with RecordingProcess(data) as recorder:
         there = replay(data, rrd_path=tmp_path / "there.rrd", rerun_run=1, recorder=recorder)
-        recorder.finish()
     assert there.summary.equals(here.summary)
     assert same_recording(tmp_path / "here.rrd", tmp_path / "there.rrd")
     other = replay(data, rrd_path=tmp_path / "other.rrd", rerun_run=0)  # the comparison does tell them apart
@@ -45,7 +44,6 @@ def test_the_child_draws_with_the_designs_the_replay_used(tmp_path):
     replay(data, rrd_path=tmp_path / "here.rrd", design_overrides=override)
     with RecordingProcess(data) as recorder:
         replay(data, rrd_path=tmp_path / "there.rrd", design_overrides=override, recorder=recorder)
-        recorder.finish()
     assert same_recording(tmp_path / "here.rrd", tmp_path / "there.rrd")
 
 
@@ -53,20 +51,50 @@ def test_a_child_that_cannot_write_gives_one_line_and_leaves_nothing(tmp_path):
     data = REPO / "data" / "radar_tws_demo.mcap"
     (tmp_path / "a_file").write_text("not a folder")
     with RecordingProcess(data) as recorder:
-        replay(data, rrd_path=tmp_path / "a_file" / "tracks.rrd", recorder=recorder)
         with pytest.raises(InputError) as caught:
-            recorder.finish()
+            replay(data, rrd_path=tmp_path / "a_file" / "tracks.rrd", recorder=recorder)
     message = str(caught.value)
-    assert "the Rerun recording was not written" in message and "\n" not in message
-    assert message.startswith(str(data))
+    assert message == f"{tmp_path / 'a_file'}: File exists"  # as the command line words it in-process
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file"]
 
 
-def test_a_child_left_without_finish_is_stopped(tmp_path):
+def test_a_child_refuses_an_input_replaced_between_the_two_reads(tmp_path):
+    from recorders.scenarios import load_scenario
+    from recorders.simulated import record
+
+    data, other = tmp_path / "radar.mcap", tmp_path / "other.mcap"
+    record(data, load_scenario("radar-tws"), runs=3, seed=1)
+    record(other, load_scenario("radar-tws"), runs=3, seed=2)
+    with RecordingProcess(data) as recorder:
+        recorder.stamp_input()
+        ds = recording_process.Path(data)  # the replay's own read, before the file is replaced
+        from pipeline.contract import read_dataset
+
+        dataset = read_dataset(ds)
+        __import__("os").replace(other, data)
+        with pytest.raises(InputError) as caught:
+            replay(data, rrd_path=tmp_path / "tracks.rrd", dataset=dataset, recorder=recorder)
+    assert "changed while it was replayed" in str(caught.value) and "\n" not in str(caught.value)
+    assert not (tmp_path / "tracks.rrd").exists()
+
+
+def test_a_child_left_unused_is_stopped(tmp_path):
     with RecordingProcess(REPO / "data" / "radar_tws_demo.mcap") as recorder:
         child = recorder._child
     assert child.poll() is not None
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_stopped_child_exits_in_order_so_its_clean_ups_run():
+    """``close()`` (Ctrl-C, an error) stops the child with SIGTERM, which it turns into an exit
+    that unwinds: the recording's ``finally`` removes its temporary file, as in-process."""
+    import signal
+    import time
+
+    with RecordingProcess(REPO / "data" / "radar_tws_demo.mcap") as recorder:
+        time.sleep(1.0)  # inside its imports or waiting for the payload
+        recorder._child.send_signal(signal.SIGTERM)
+        assert recorder._child.wait(timeout=10) == 128 + signal.SIGTERM  # not -SIGTERM: not killed outright
 
 
 def test_outputs_that_do_not_pickle_are_drawn_in_this_process(tmp_path, monkeypatch):
@@ -78,7 +106,6 @@ def test_outputs_that_do_not_pickle_are_drawn_in_this_process(tmp_path, monkeypa
     monkeypatch.setattr(recording_process.pickle, "dumps", refuse)
     with RecordingProcess(data) as recorder:
         replay(data, rrd_path=tmp_path / "tracks.rrd", recorder=recorder)
-        recorder.finish()
         assert recorder._child.poll() is not None  # stopped: it had nothing to draw
     replay(data, rrd_path=tmp_path / "here.rrd")
     assert same_recording(tmp_path / "here.rrd", tmp_path / "tracks.rrd")
@@ -106,7 +133,7 @@ def test_the_command_line_records_a_small_replay_in_a_second_process(tmp_path):
                            str(tmp_path / "out" / "tracks.mcap"), "--figures", "none"],
                           capture_output=True, text=True, cwd=tmp_path)
     assert done.returncode == 0, done.stderr
-    assert "timing: waiting for the recording's process" in done.stderr
+    assert "timing: rerun, drawn by a second process" in done.stderr
     replay(data, rrd_path=tmp_path / "here.rrd")
     assert same_recording(tmp_path / "here.rrd", tmp_path / "out" / "tracks.rrd")
     assert not any(p.name.startswith(".partial-") for p in (tmp_path / "out").iterdir())
@@ -121,7 +148,6 @@ def test_the_child_imports_this_process_package_not_one_in_the_working_folder(tm
     data = REPO / "data" / "radar_tws_demo.mcap"
     with RecordingProcess(data) as recorder:
         replay(data, rrd_path=tmp_path / "tracks.rrd", recorder=recorder)
-        recorder.finish()
     assert (tmp_path / "tracks.rrd").stat().st_size > 0
 
 

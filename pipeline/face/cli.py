@@ -777,6 +777,8 @@ def _run(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, sets
 
         data = convert_for_replay(data, map_path)
     t_read = time.perf_counter()
+    if recorder is not None:
+        recorder.stamp_input()
     dataset = read_dataset(data, recover=recover)  # bad files fail here, before any progress output
     t_read = time.perf_counter() - t_read
     progress.timing("read", t_read)
@@ -788,13 +790,16 @@ def _run(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, sets
     # every output is staged and moved into place at the end: a crash or a kill leaves the
     # previous set untouched, never a mix (a recording elsewhere than the folder is one atomic file)
     rrd_inside = rrd_path is not None and rrd_path.parent.resolve() == out_dir.resolve()
-    with OutputSet(out_dir, replaces=[out_path.with_suffix(".rrd").name, *REPORT_FILES]) as outputs:
+    with OutputSet(out_dir, replaces=[out_path.with_suffix(".rrd").name, *REPORT_FILES]) as outputs, \
+            contextlib.closing(recorder) if recorder else contextlib.nullcontext():  # stopped before the set goes
         staged_rrd = outputs.path(rrd_path.name) if rrd_inside else rrd_path
         with progress.Phases(f"replaying {data.name}", ("filter", "evaluate", "write", "rerun")) as phases:
             res = replay(data, wanted, outputs.path(out_path.name), staged_rrd, design_overrides=parse_assignments(sets),
                          rerun_run=rerun_run, dataset=dataset, progress=phases.step, tracker_specs=specs,
                          keep_runs=rerun_run + 1,  # the views, figures and listing read runs 0 … rerun_run
                          recorder=recorder if staged_rrd is not None else None)
+        if recorder is not None and staged_rrd is not None:
+            progress.timing("rerun, drawn by a second process", res.timings.get("rerun_s", 0.0))
         res.timings["read_s"] = t_read
         res.timings["total_s"] += t_read
         if res.dataset.recovered_messages is not None:
@@ -808,12 +813,6 @@ def _run(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, sets
         with progress.timed("tables and plots"):
             tables = [outputs.final(p) for p in _export_tables(res, outputs.stage)]
             plots = [outputs.final(p) for p in _report_plot(res, outputs.stage)] if figures_mode == "now" else []
-        if recorder is not None and staged_rrd is not None:  # the recording is part of the set: wait for it
-            t_wait = time.perf_counter()
-            recorder.finish()
-            t_wait = time.perf_counter() - t_wait
-            progress.timing("waiting for the recording's process", t_wait)
-            res.timings["rerun_s"] = res.timings.get("rerun_s", 0.0) + t_wait
     res.out_path = out_path
     res.rrd_path = rrd_path
     click.echo("")

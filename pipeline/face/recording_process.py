@@ -7,8 +7,10 @@ heavy. The child imports Rerun and reads the same input while the replay runs on
 when the replay has scored everything it sends the child what the views draw (tracker outputs,
 the per-scan table, the designs used), and the child draws them with the very function a replay
 uses in-process (:func:`pipeline.face.rerun_views.write_recording`) into the staged ``.rrd``.
-The command line waits for it before any output is moved into place, so the outputs still
-appear all together or not at all.
+The replay waits for it, so the outputs still appear all together or not at all, and a
+failure is the one line the replay would have given in-process. Before drawing, the child
+checks that it read the same input file as the replay (not one put in its place meanwhile).
+Stopped early, it exits through its clean-ups, which remove its temporary file.
 
 It only pays when there is an import to overlap and little data to hand over:
 :func:`worth_it` says when.
@@ -20,7 +22,7 @@ import os
 import pickle
 import subprocess
 import sys
-import threading
+import tempfile
 from pathlib import Path
 
 from pipeline.errors import InputError
@@ -59,25 +61,39 @@ def start(data_path, recover: bool = False) -> "RecordingProcess | None":
         return None
 
 
+def file_stamp(path) -> tuple:
+    """What tells one version of a file from another: device, inode, size, modification time."""
+    st = os.stat(path)
+    return st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns
+
+
 class RecordingProcess:
     """The child process that writes one replay's recording; a ``recorder`` for
     :func:`pipeline.replay.replay`.
 
-    Start it (``with RecordingProcess(data) as recorder:``) before the replay's imports, pass it
-    to ``replay(..., recorder=recorder)``, and call :meth:`finish` before the outputs are moved
-    into place. Leaving the block without :meth:`finish` (an error, Ctrl-C) stops the child.
+    Start it (``with RecordingProcess(data) as recorder:``, or :func:`start`) before the
+    replay's imports, call :meth:`stamp_input` as the replay reads its input, and pass it to
+    ``replay(..., recorder=recorder)``: the call returns when the recording is written, or
+    raises :class:`InputError`. Leaving the block otherwise (an error, Ctrl-C) stops the child,
+    which removes what it had begun to write.
     """
 
     def __init__(self, data_path, recover: bool = False):
         self._data_path = Path(data_path)
-        self._drawn_here = False
-        self._sending = None
+        self._input_stamp = None
+        # the child's messages go to a file, not a pipe: a pipe it filled (warnings, a profiler's
+        # output) while this process waits to hand it the payload would block both
+        self._errors = tempfile.TemporaryFile()
         # this interpreter with this process's module path: ``python -m`` would put the working
         # folder first, where another project's ``pipeline`` package may be
         start = f"import sys; sys.path[:] = {sys.path!r}; from pipeline.face.recording_process import main; main()"
-        self._child = subprocess.Popen(
-            [sys.executable, "-c", start, os.fspath(data_path), "1" if recover else "0"],
-            stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        try:
+            self._child = subprocess.Popen(
+                [sys.executable, "-c", start, os.fspath(data_path), "1" if recover else "0"],
+                stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=self._errors)
+        except BaseException:
+            self._errors.close()
+            raise
 
     def __enter__(self) -> "RecordingProcess":
         return self
@@ -86,14 +102,23 @@ class RecordingProcess:
         self.close()
         return False
 
+    def stamp_input(self) -> None:
+        """Note the input file as this process reads it: the child refuses to draw a file that
+        is not the same (replaced or rewritten between the two reads)."""
+        try:
+            self._input_stamp = file_stamp(self._data_path)
+        except OSError:
+            self._input_stamp = None  # the replay's own read reports it
+
     def __call__(self, rrd_path, ds, stages, results, per_scan, rerun_run: int = 0) -> None:
-        """Hand the child what the views draw (it has read ``ds``'s file itself) and return.
+        """Hand the child what the views draw (it has read ``ds``'s file itself) and wait until
+        the recording is written; raise :class:`InputError` if it was not.
 
         Outputs that do not pickle (a plugged tracker's own types) are drawn here instead, as a
         replay without a child would.
         """
         payload = {"rrd_path": os.fspath(rrd_path), "stages": [s.name for s in stages], "results": results,
-                   "per_scan": per_scan, "rerun_run": rerun_run,
+                   "per_scan": per_scan, "rerun_run": rerun_run, "input_stamp": self._input_stamp,
                    "designs": {s.name: ds.cache[("design", s.name)] for s in stages if ("design", s.name) in ds.cache}}
         try:
             data = pickle.dumps(payload, protocol=pickle.HIGHEST_PROTOCOL)
@@ -102,43 +127,42 @@ class RecordingProcess:
 
             self.close()
             write_recording(rrd_path, ds, stages, results, per_scan, rerun_run)
-            self._drawn_here = True
             return
-        # on a thread: the child may still be importing, and the pipe takes 64 KiB at a time;
-        # meanwhile this process prints and writes its tables
-        self._sending = threading.Thread(target=self._send, args=(data,), daemon=True)
-        self._sending.start()
-
-    def _send(self, data: bytes) -> None:
         try:
             self._child.stdin.write(data)
             self._child.stdin.close()
-        except (OSError, ValueError):  # the child has gone (finish() says why), or was stopped
+        except OSError:  # the child has gone: its status and message say why
             pass
-
-    def finish(self) -> None:
-        """Wait until the recording is written; raise :class:`InputError` if it could not be."""
-        if self._drawn_here:
-            return
-        if self._sending is not None:
-            self._sending.join()
-        if self._child.stdin and not self._child.stdin.closed:
-            self._child.stdin.close()
-        problem = self._child.stderr.read().decode(errors="replace").strip()
         if self._child.wait() != 0:
-            last = problem.splitlines()[-1] if problem else f"exit status {self._child.returncode}"
-            raise InputError(f"the Rerun recording was not written: {last}", self._data_path)
+            self._errors.seek(0)
+            said = [line[len(_MESSAGE):] for line in self._errors.read().decode(errors="replace").splitlines()
+                    if line.startswith(_MESSAGE)]
+            if said:
+                raise InputError(said[-1])
+            raise InputError(f"the Rerun recording was not written (its process ended with status "
+                             f"{self._child.returncode})", self._data_path)
 
     def close(self) -> None:
-        """Stop the child if it is still running (nothing of it stays: it writes atomically)."""
+        """Stop the child if it is still running, and let it remove what it had begun to write."""
         if self._child.poll() is None:
-            self._child.kill()
-        self._child.wait()
-        if self._sending is not None:  # its write fails at once on the closed pipe
-            self._sending.join()
-        for stream in (self._child.stdin, self._child.stderr):
-            if stream is not None and not stream.closed:
-                stream.close()
+            self._child.terminate()  # the child turns SIGTERM into an exit that runs its clean-ups
+            try:
+                self._child.wait(timeout=STOP_SECONDS)
+            except subprocess.TimeoutExpired:
+                self._child.kill()
+                self._child.wait()
+        if self._child.stdin is not None and not self._child.stdin.closed:
+            try:
+                self._child.stdin.close()
+            except OSError:
+                pass
+        self._errors.close()
+
+
+#: How long :meth:`RecordingProcess.close` gives the child to clean up before it is killed.
+STOP_SECONDS = 5.0
+#: What starts the line a child writes for the user (anything else on its stderr is not for them).
+_MESSAGE = "replay-recording: "
 
 
 def _record(data_path: str, recover: bool) -> None:
@@ -153,6 +177,7 @@ def _record(data_path: str, recover: bool) -> None:
     from pipeline.face.rerun_views import views_for, write_recording
     from pipeline.stages import applicable_stages
 
+    stamp = file_stamp(data_path)
     ds = read_dataset(data_path, recover=recover)
     stages = {s.name: s for s in applicable_stages(ds.channels)}
     for stage in stages.values():  # their views' imports (scipy for some), still while the replay runs
@@ -161,20 +186,37 @@ def _record(data_path: str, recover: bool) -> None:
         payload = pickle.load(sys.stdin.buffer)
     except EOFError:  # the replay ended without a recording to write (it failed, or was stopped)
         return
+    if payload["input_stamp"] is not None and tuple(payload["input_stamp"]) != stamp:
+        raise InputError("changed while it was replayed, so the recording would not match the outputs; "
+                         "replay it again", data_path)
     for name, design in payload["designs"].items():  # what this replay used, --set included
         ds.cache[("design", name)] = design
     write_recording(payload["rrd_path"], ds, [stages[n] for n in payload["stages"]], payload["results"],
                     payload["per_scan"], payload["rerun_run"])
 
 
+def _stop(signum, frame):
+    raise SystemExit(128 + signum)  # unwinds: the recording's temporary file is removed
+
+
 def main() -> None:
-    """The child's entry point: ``DATA RECOVER`` (``1`` or ``0``) in ``sys.argv``, the payload on stdin;
-    a failure is one line on stderr and exit status 1."""
+    """The child's entry point: ``DATA RECOVER`` (``1`` or ``0``) in ``sys.argv``, the payload on
+    stdin. A failure ends with one line for the user on stderr, in the words the command line
+    would use, and exit status 1."""
+    import signal
     import warnings
 
+    signal.signal(signal.SIGTERM, _stop)
     warnings.filterwarnings("ignore", category=RuntimeWarning)  # as the command line does
     try:
         _record(sys.argv[1], sys.argv[2] == "1")
-    except Exception as exc:  # one line for the parent, which reports it
-        print(f"{type(exc).__name__}: {exc}", file=sys.stderr)
+    except InputError as exc:
+        print(f"{_MESSAGE}{exc}", file=sys.stderr)
+        sys.exit(1)
+    except OSError as exc:  # the file system's answer, as the command line words it
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"{_MESSAGE}{where}{exc.strerror or exc}", file=sys.stderr)
+        sys.exit(1)
+    except Exception as exc:  # a bug of ours: one line, naming what failed
+        print(f"{_MESSAGE}the Rerun recording was not written: {type(exc).__name__}: {exc}", file=sys.stderr)
         sys.exit(1)
