@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline.machine import usable_cores
+
 _sum = np.add.reduce   # without ndarray.sum's Python wrapper: these arrays are small
 
 
@@ -159,13 +161,7 @@ THREAD_MIN_WORK = 1 << 20
 MAX_THREADS = 4
 
 
-def _cores() -> int:
-    import os
-
-    try:
-        return len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):  # not Linux
-        return os.cpu_count() or 1
+_cores = usable_cores  # (a module name of its own, so that tests can set the count)
 
 
 def split_over_threads(function, stack: np.ndarray):

@@ -473,7 +473,9 @@ def _close_dask(client, cluster, futures, finished) -> None:
 
 
 def default_workers() -> int:
-    return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
+    from pipeline.machine import usable_cores
+
+    return usable_cores()
 
 
 # --------------------------------------------------------------------------- the sweep

@@ -42,7 +42,9 @@ def worth_it(data_path, cores: int | None = None) -> bool:
     if "rerun" in sys.modules:
         return False
     if cores is None:
-        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        from pipeline.machine import usable_cores
+
+        cores = usable_cores()
     try:
         size = Path(data_path).stat().st_size
     except OSError:
