@@ -7,17 +7,20 @@ that fails must give one line and leave nothing; one that is not waited for must
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
+from pipeline.contract import read_dataset
 from pipeline.errors import InputError
 from pipeline.face import recording_process
 from pipeline.face.recording_process import RecordingProcess
 from pipeline.replay import replay
 
-REPO = recording_process.Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[1]
 
 
 def same_recording(a, b) -> bool:
@@ -29,7 +32,7 @@ def same_recording(a, b) -> bool:
 @pytest.mark.parametrize("demo", ["radar_tws_demo.mcap", "array_crossing_demo.mcap", "tdoa_fdoa_demo.mcap"])
 def test_the_child_draws_the_same_recording_as_the_replay_itself(demo, tmp_path):
     data = REPO / "data" / demo
-    here = replay(data, rrd_path=tmp_path / "here.rrd", rerun_run=1, design_overrides=None)
+    here = replay(data, rrd_path=tmp_path / "here.rrd", rerun_run=1)
     with RecordingProcess(data) as recorder:
         there = replay(data, rrd_path=tmp_path / "there.rrd", rerun_run=1, recorder=recorder)
     assert there.summary.equals(here.summary)
@@ -67,11 +70,8 @@ def test_a_child_refuses_an_input_replaced_between_the_two_reads(tmp_path):
     record(other, load_scenario("radar-tws"), runs=3, seed=2)
     with RecordingProcess(data) as recorder:
         recorder.stamp_input()
-        ds = recording_process.Path(data)  # the replay's own read, before the file is replaced
-        from pipeline.contract import read_dataset
-
-        dataset = read_dataset(ds)
-        __import__("os").replace(other, data)
+        dataset = read_dataset(data)  # the replay's own read, before the file is replaced
+        os.replace(other, data)
         with pytest.raises(InputError) as caught:
             replay(data, rrd_path=tmp_path / "tracks.rrd", dataset=dataset, recorder=recorder)
     assert "changed while it was replayed" in str(caught.value) and "\n" not in str(caught.value)
