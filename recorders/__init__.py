@@ -18,6 +18,7 @@ RECORDERS = {
     "array-snapshots": "recorders.array_snapshots",
     "colored-noise": "recorders.colored_noise",
     "tdoa-fdoa": "recorders.tdoa_fdoa",
+    "radar-multi": "recorders.radar_multi",
     # one line per recorder: "name": "recorders.module",
 }
 
