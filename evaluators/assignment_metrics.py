@@ -1,22 +1,41 @@
-"""Track-to-truth assignment metrics over whole runs: CLEAR MOT, identity F1, track quality.
+"""Track-to-truth assignment metrics over whole runs: CLEAR MOT, identity measures, track quality.
 
 At every scan the tracks are assigned to the true targets by the minimum-cost assignment of
-:mod:`evaluators.set_distances` with cost ``min(d, gate)``; a pair closer than the **gate** is a
-match. From the matches, per run:
+:mod:`evaluators.set_distances` with cost ``min(d, gate)²``; a pair closer than the **gate** is a
+match. Minimising that cost is maximising ``Σ (1 − (d/gate)²)`` over the matches, so it is
+TrackEval's CLEAR matching with the similarity ``s = max(0, 1 − (d/gate)²)``. From the matches, per
+run:
 
-* CLEAR MOT (Bernardin & Stiefelhagen 2008): misses (true targets without a match), false
-  positives (tracks without a match), identity switches (a target matched to a different track
-  identity than at its previous match), MOTA = 1 − (misses + false positives + switches) /
-  target presences, MOTP = mean distance of the matches;
-* track quality (Li, Huang & Nevatia's MT/PT/ML convention): a target is *mostly tracked* when
-  matched in ≥ 80 % of the scans it exists, *mostly lost* when in < 20 %, else *partially
+* CLEAR MOT (Bernardin & Stiefelhagen 2008, eqs. 1–2): misses (true targets without a match),
+  false positives (tracks without a match), identity switches (a target matched to a different
+  track identity than at its last earlier match, at any earlier scan), MOTA = 1 − (misses +
+  false positives + switches) / target presences, MOTP = mean distance of the matches (the
+  distance form of the paper's MOTP);
+* track quality (Li, Huang & Nevatia 2009): a target is *mostly tracked* when matched in more
+  than 80 % of the scans it exists, *mostly lost* when in less than 20 %, else *partially
   tracked*; *track breaks* (fragmentations) count the times a target's matching resumes after a
-  gap; a *false track* is a track identity never matched to any target;
-* identity F1 (Ristani et al. 2016): the one-to-one pairing of target and track identities that
-  maximises the scans they are matched within the gate (IDTP), with
-  IDF1 = 2 IDTP / (2 IDTP + IDFP + IDFN).
+  scan without it; a *false track* is a track identity never matched to any target;
+* identity measures (Ristani, Solera, Zou, Cucchiara & Tomasi 2016, eqs. 7–9): the one-to-one
+  pairing of target and track identities over the whole run that maximises IDTP, with
+  IDP = IDTP / (IDTP + IDFP), IDR = IDTP / (IDTP + IDFN), IDF1 = 2 IDTP / (2 IDTP + IDFP + IDFN).
 
-See ``docs/evaluation.md``.
+Targets are counted **per truth identity**. With ``truth_ids`` (R, K, T) a slot may hold
+different targets over time and one target may move between slots; without it, truth slot t is
+target t for the whole run.
+
+Two conventions (``convention``):
+
+``"trackeval"`` (the default with ``truth_ids``), as TrackEval's ``clear.py`` and ``identity.py``
+    (Luiten & Hoffhues 2020): a target keeps its previous scan's track while that pair stays
+    within the gate and only the rest is assigned optimally (Bernardin & Stiefelhagen 2008,
+    §2.1.1); mostly tracked is "> 80 %"; IDTP counts every scan at which a target and a track
+    identity are both present within the gate (Ristani et al. 2016), whatever the scan's
+    assignment chose.
+``"per-scan"`` (the default without ``truth_ids``: the numbers of earlier releases, bit for bit)
+    each scan's optimal assignment alone; mostly tracked is "≥ 80 %"; IDTP counts the scans at
+    which the scan's assignment matched the pair.
+
+See ``docs/evaluation.md`` (section *CLEAR MOT and identity measures*).
 """
 
 from __future__ import annotations
@@ -28,6 +47,9 @@ from pipeline.batched_linalg import all_finite
 
 MOSTLY_TRACKED = 0.8
 MOSTLY_LOST = 0.2
+CONVENTIONS = ("trackeval", "per-scan")
+#: values of the largest (problems, T, S) distance block the scan matching holds at once
+MATCH_BLOCK = 1 << 20
 
 
 def slot_identities(tracks) -> np.ndarray:
@@ -37,7 +59,25 @@ def slot_identities(tracks) -> np.ndarray:
     return np.where(present, ids, -1)
 
 
-def scan_matches(tracks, truths, gate: float, angular: bool = False):
+def default_convention(truth_ids=None) -> str:
+    """``"trackeval"`` when truths carry identities, else ``"per-scan"`` (earlier releases)."""
+    return "per-scan" if truth_ids is None else "trackeval"
+
+
+def _truth_identities(truths, truth_ids):
+    """Presence (R, K, T) and identity (R, K, T, −1 absent) of every truth slot: its slot
+    index without ``truth_ids``; with them a slot is present when its row is finite and its
+    identity ≥ 0."""
+    present = all_finite(truths)
+    if truth_ids is None:
+        return present, np.where(present, np.arange(present.shape[-1]), -1)
+    tid = np.asarray(truth_ids).astype(np.int64, copy=False)
+    present = present & (tid >= 0)
+    return present, np.where(present, tid, -1)
+
+
+def scan_matches(tracks, truths, gate: float, angular: bool = False, track_ids=None, truth_ids=None,
+                 keep_previous: bool | None = None):
     """Per-scan matches of tracks to targets.
 
     Parameters
@@ -45,7 +85,19 @@ def scan_matches(tracks, truths, gate: float, angular: bool = False):
     tracks : ndarray (R, K, S, d), NaN rows absent
     truths : ndarray (R, K, T, d), NaN rows absent
     gate : float
-        Largest distance of a match (the family's units).
+        Largest distance of a match (the family's units); a match is closer than the gate.
+    angular : bool
+        The components are angles (differences wrap).
+    track_ids : ndarray of int (R, K, S), optional
+        Track identity per slot (−1 empty); default: the slot.
+    truth_ids : ndarray of int (R, K, T), optional
+        Target identity per truth slot (−1 empty); default: the slot. Identities must be unique
+        within a scan.
+    keep_previous : bool, optional
+        Keep every target's match of the previous scan (by identities) while the pair stays within
+        the gate, and assign only the rest optimally (Bernardin & Stiefelhagen 2008, §2.1.1; the
+        rule of TrackEval's ``clear.py``). Default: with ``truth_ids`` only
+        (:func:`default_convention`); without, each scan's optimal assignment alone.
 
     Returns
     -------
@@ -55,7 +107,31 @@ def scan_matches(tracks, truths, gate: float, angular: bool = False):
         Distance to the matched track (NaN when unmatched).
     """
     X, Y = np.asarray(truths, float), np.asarray(tracks, float)
-    vx, vy = all_finite(X), all_finite(Y)
+    if keep_previous is None:
+        keep_previous = default_convention(truth_ids) == "trackeval"
+    vx, tid = _truth_identities(X, truth_ids)
+    vy = all_finite(Y)
+    if keep_previous:
+        ids = slot_identities(Y) if track_ids is None else np.asarray(track_ids)
+        return _matches_keeping_previous(X, Y, vx, vy, tid, ids, gate, angular)
+    R, K, T = vx.shape
+    S = vy.shape[-1]
+    match = np.empty((R, K, T), np.intp)
+    dist = np.empty((R, K, T))
+    # blocks of runs and scans: every (run, scan) is its own problem, so cutting them changes no
+    # bit of any result and the distances stay a few MB at 50 targets × 1,000 scans × 100 runs
+    flat = lambda a: a.reshape((R * K,) + a.shape[2:])
+    Xf, Yf, vxf, vyf = flat(X), flat(Y), flat(vx), flat(vy)
+    mf, df = flat(match), flat(dist)
+    step = max(1, MATCH_BLOCK // max(T * S, 1))
+    for a in range(0, R * K, step):
+        b = slice(a, a + step)
+        mf[b], df[b] = _scan_block(Xf[b], Yf[b], vxf[b], vyf[b], gate, angular)
+    return match, dist
+
+
+def _scan_block(X, Y, vx, vy, gate, angular):
+    """Each scan's own optimal assignment for a block of (run, scan) problems."""
     d = pairwise_distance(np.where(vx[..., None], X, 0.0), np.where(vy[..., None], Y, 0.0), angular)
     # squared capped distances: in one dimension (bearings) two tracks on the same side of two
     # targets tie in the sum of distances, so the last bit of a state would pick the match;
@@ -66,8 +142,39 @@ def scan_matches(tracks, truths, gate: float, angular: bool = False):
     return np.where(ok, match, -1), np.where(ok, dist, np.nan)
 
 
-def assignment_metrics(tracks, truths, gate: float, track_ids=None, angular: bool = False, matches=None) -> dict:
-    """Per-run CLEAR MOT, IDF1 and track-quality counts (arrays of shape (R,)).
+def _matches_keeping_previous(X, Y, vx, vy, tid, ids, gate, angular):
+    """:func:`scan_matches` with ``keep_previous``: scan by scan, every run at once."""
+    R, K, T = vx.shape
+    S = vy.shape[-1]
+    match = np.full((R, K, T), -1, np.intp)
+    dist = np.full((R, K, T), np.nan)
+    carried_id = np.full((R, T), -1, np.int64)   # track identity matched to each truth slot at k − 1
+    for k in range(K):
+        d = pairwise_distance(np.where(vx[:, k, :, None], X[:, k], 0.0), np.where(vy[:, k, :, None], Y[:, k], 0.0),
+                              angular)                                             # (R, T, S)
+        close = vx[:, k, :, None] & vy[:, k, None, :] & (d < gate)
+        if k:
+            # the previous match follows the target's identity, which may have changed slot
+            same = (tid[:, k, :, None] == tid[:, k - 1, None, :]) & (tid[:, k, :, None] >= 0)
+            wanted = np.where(same, carried_id[:, None, :], -1).max(axis=2)           # (R, T)
+            kept = close & (wanted[..., None] >= 0) & (ids[:, k, None, :] == wanted[..., None])
+        else:
+            kept = np.zeros((R, T, S), bool)
+        kept_rows, kept_cols = kept.any(axis=2), kept.any(axis=1)
+        _, m = optimal_assignment(np.minimum(d, gate) ** 2, vx[:, k] & ~kept_rows, vy[:, k] & ~kept_cols,
+                                  unmatched=gate ** 2)
+        m = np.where(kept_rows, kept.argmax(axis=2), m)
+        md = np.take_along_axis(d, np.maximum(m, 0)[..., None], axis=-1)[..., 0]
+        ok = (m >= 0) & (md < gate)
+        match[:, k] = np.where(ok, m, -1)
+        dist[:, k] = np.where(ok, md, np.nan)
+        carried_id = np.where(ok, np.take_along_axis(ids[:, k], np.maximum(m, 0), axis=-1), -1)
+    return match, dist
+
+
+def assignment_metrics(tracks, truths, gate: float, track_ids=None, angular: bool = False, matches=None,
+                       truth_ids=None, convention: str | None = None) -> dict:
+    """Per-run CLEAR MOT, identity measures and track-quality counts (arrays of shape (R,)).
 
     Parameters
     ----------
@@ -76,20 +183,48 @@ def assignment_metrics(tracks, truths, gate: float, track_ids=None, angular: boo
     gate : float
     track_ids : ndarray of int (R, K, S), optional
         Track identity per slot (−1 empty); default: each slot is one track for the whole run.
+    angular : bool
     matches : tuple, optional
-        ``(match, distance)`` of :func:`scan_matches` on the same sets, when already computed.
+        ``(match, distance)`` of :func:`scan_matches` on the same sets with the same
+        convention's ``keep_previous``, when already computed.
+    truth_ids : ndarray of int (R, K, T), optional
+        Target identity per truth slot (−1 empty; unique within a scan); default: each slot is
+        one target for the whole run.
+    convention : {"trackeval", "per-scan"}, optional
+        See the module's docstring; default :func:`default_convention`.
 
     Returns
     -------
     dict of ndarray (R,)
-        ``targets``, ``presences`` (target-scans), ``matches``, ``misses``, ``false_positives``,
-        ``id_switches``, ``track_breaks``, ``mostly_tracked``, ``partially_tracked``,
-        ``mostly_lost``, ``false_tracks``, ``distance_sum``, ``idtp``, ``idfp``, ``idfn``; and the
-        ratios ``mota``, ``motp``, ``idf1`` per run.
+        ``targets`` (truth identities present), ``presences`` (target-scans), ``matches``,
+        ``misses``, ``false_positives``, ``id_switches``, ``track_breaks`` (TrackEval's
+        ``Frag``), ``mostly_tracked``, ``partially_tracked``, ``mostly_lost``,
+        ``false_tracks``, ``distance_sum``, ``idtp``, ``idfp``, ``idfn``; and the ratios
+        ``mota``, ``motp``, ``idf1``, ``idp``, ``idr`` per run (NaN where undefined).
     """
+    convention = default_convention(truth_ids) if convention is None else convention
+    if convention not in CONVENTIONS:
+        raise ValueError(f"convention must be one of {CONVENTIONS}, not {convention!r}")
     tracks, truths = np.asarray(tracks, float), np.asarray(truths, float)
     ids = slot_identities(tracks) if track_ids is None else np.asarray(track_ids)
-    match, dist = scan_matches(tracks, truths, gate, angular) if matches is None else matches
+    if matches is None:
+        matches = scan_matches(tracks, truths, gate, angular, ids, truth_ids, keep_previous=convention == "trackeval")
+    if truth_ids is None and convention == "per-scan":
+        out = _slot_metrics(ids, truths, matches)
+    else:
+        out = _identity_metrics(tracks, truths, gate, ids, truth_ids, matches, convention, angular)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out["mota"] = 1 - (out["misses"] + out["false_positives"] + out["id_switches"]) / out["presences"]
+        out["motp"] = out["distance_sum"] / out["matches"]
+        out["idf1"] = 2 * out["idtp"] / (2 * out["idtp"] + out["idfp"] + out["idfn"])
+        out["idp"] = out["idtp"] / (out["idtp"] + out["idfp"])
+        out["idr"] = out["idtp"] / (out["idtp"] + out["idfn"])
+    return out
+
+
+def _slot_metrics(ids, truths, matches) -> dict:
+    """The counts with truth slot t as target t and each scan's own assignment (earlier releases)."""
+    match, dist = matches
     R, K, T = match.shape
     present = all_finite(truths)                                   # (R, K, T)
     track_present = ids >= 0                                       # (R, K, S)
@@ -124,11 +259,101 @@ def assignment_metrics(tracks, truths, gate: float, track_ids=None, angular: boo
     }
     out["partially_tracked"] = out["targets"] - out["mostly_tracked"] - out["mostly_lost"]
     out.update(_identity_counts(ids, matched_id, present, track_present))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        out["mota"] = 1 - (out["misses"] + out["false_positives"] + out["id_switches"]) / out["presences"]
-        out["motp"] = out["distance_sum"] / out["matches"]
-        out["idf1"] = 2 * out["idtp"] / (2 * out["idtp"] + out["idfp"] + out["idfn"])
     return out
+
+
+def _identity_metrics(tracks, truths, gate, ids, truth_ids, matches, convention, angular) -> dict:
+    """The counts per truth identity, from histories sorted by (run, identity, scan)."""
+    match, dist = matches
+    R, K, T = match.shape
+    present, tid = _truth_identities(truths, truth_ids)
+    track_present = ids >= 0
+    matched = (match >= 0) & present
+    matched_id = np.where(matched, np.take_along_axis(ids, np.maximum(match, 0), axis=-1), -1)
+
+    # one event per target presence, in the order (run, identity, scan): each identity's history
+    r, k, t = np.nonzero(present)
+    u, v = tid[r, k, t], matched_id[r, k, t]
+    order = np.lexsort((k, u, r))
+    r, k, u, v = r[order], k[order], u[order], v[order]
+    n = r.size
+    first = np.ones(n, bool)
+    first[1:] = (r[1:] != r[:-1]) | (u[1:] != u[:-1])
+    group = np.cumsum(first) - 1                                    # one per (run, identity)
+    group_start = np.flatnonzero(first)[group]
+    hit = v >= 0
+    # the latest earlier event of the same identity with a match (any number of scans back)
+    last_hit = np.maximum.accumulate(np.where(hit, np.arange(n), -1))
+    before = np.concatenate([[-1], last_hit[:-1]])
+    earlier = before >= group_start
+    prev_v = np.where(earlier, v[np.maximum(before, 0)], -1)
+    switches = hit & earlier & (prev_v != v)
+    # a break: matched now, not matched at the scan just before (absent counts as not matched),
+    # matched at some earlier scan; TrackEval's Frag (starts of matched stretches − 1 per target)
+    tracked_before = np.zeros(n, bool)
+    tracked_before[1:] = ~first[1:] & (k[1:] == k[:-1] + 1) & hit[:-1]
+    breaks = hit & ~tracked_before & earlier
+
+    groups = int(group[-1]) + 1 if n else 0
+    group_run = r[first]
+    seen = np.bincount(group, minlength=groups)
+    tracked = np.bincount(group, weights=hit, minlength=groups)
+    ratio = tracked / np.maximum(seen, 1)
+    mostly = ratio > MOSTLY_TRACKED if convention == "trackeval" else ratio >= MOSTLY_TRACKED
+    lost = ratio < MOSTLY_LOST
+    per_run = lambda flags, runs: np.bincount(runs, weights=flags, minlength=R).astype(np.int64)
+    out = {
+        "targets": np.bincount(group_run, minlength=R).astype(np.int64),
+        "presences": present.sum(axis=(1, 2)),
+        "matches": matched.sum(axis=(1, 2)),
+        "misses": (present & ~matched).sum(axis=(1, 2)),
+        "false_positives": track_present.sum(axis=(1, 2)) - matched.sum(axis=(1, 2)),
+        "id_switches": per_run(switches, r),
+        "track_breaks": per_run(breaks, r),
+        "mostly_tracked": per_run(mostly, group_run),
+        "mostly_lost": per_run(lost, group_run),
+        "distance_sum": np.nansum(np.where(matched, dist, np.nan), axis=(1, 2)),
+    }
+    out["partially_tracked"] = out["targets"] - out["mostly_tracked"] - out["mostly_lost"]
+    out.update(_identity_pairing(tracks, truths, gate, ids, tid, present, match, matched_id, convention, angular))
+    return out
+
+
+def _identity_pairing(tracks, truths, gate, ids, tid, present, match, matched_id, convention, angular) -> dict:
+    """IDTP/IDFP/IDFN per run from one global pairing of truth and track identities (Ristani et
+    al. 2016), and the false tracks (track identities never matched at any scan)."""
+    from scipy.optimize import linear_sum_assignment  # imported where needed: 0.25 s
+
+    R = ids.shape[0]
+    track_present = ids >= 0
+    idtp, false_tracks = np.zeros(R, np.int64), np.zeros(R, np.int64)
+    for r in range(R):
+        track_uniq = np.unique(ids[r][track_present[r]])
+        truth_uniq = np.unique(tid[r][present[r]])
+        if track_uniq.size == 0:
+            continue
+        matched_uniq = np.unique(matched_id[r][matched_id[r] >= 0])
+        false_tracks[r] = track_uniq.size - matched_uniq.size
+        if truth_uniq.size == 0:
+            continue
+        if convention == "trackeval":
+            # every scan at which both identities are present within the gate counts, whatever the
+            # scan's assignment chose: the global pairing decides (Ristani et al. 2016, §4)
+            X, Y = truths[r], tracks[r]
+            vx, vy = present[r], all_finite(Y) & track_present[r]
+            d = pairwise_distance(np.where(vx[..., None], X, 0.0), np.where(vy[..., None], Y, 0.0), angular)
+            kk, tt, ss = np.nonzero(vx[:, :, None] & vy[:, None, :] & (d < gate))
+        else:
+            kk, tt = np.nonzero(matched_id[r] >= 0)
+            ss = match[r][kk, tt]
+        u = np.searchsorted(truth_uniq, tid[r][kk, tt])
+        v = np.searchsorted(track_uniq, ids[r][kk, ss])
+        weight = np.bincount(u * track_uniq.size + v, minlength=truth_uniq.size * track_uniq.size)
+        weight = weight.reshape(truth_uniq.size, track_uniq.size)
+        rows, cols = linear_sum_assignment(-weight)
+        idtp[r] = weight[rows, cols].sum()
+    return {"idtp": idtp, "idfp": track_present.sum(axis=(1, 2)) - idtp, "idfn": present.sum(axis=(1, 2)) - idtp,
+            "false_tracks": false_tracks}
 
 
 def _identity_counts(ids, matched_id, present, track_present) -> dict:

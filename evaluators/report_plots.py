@@ -144,19 +144,30 @@ def plot_tracks_xy(tracks_m: dict, path: str | Path, measured_m=None, truth_m=No
     Parameters
     ----------
     tracks_m : dict
-        ``tracker -> (K, 2)`` positions, NaN where there is no track.
+        ``tracker -> (K, 2)`` positions, NaN where there is no track, or ``(K, S, 2)`` for a
+        tracker with track slots (each slot a line, broken where it holds no track).
     measured_m : ndarray (N, 2), optional
-    truth_m : ndarray (K, 2), optional
+    truth_m : ndarray (K, 2) or (K, T, 2), optional
     """
     fig, ax = plt.subplots(figsize=(8, 6.5))
     if measured_m is not None and len(measured_m):
         m = np.asarray(measured_m, float) / 1e3
-        ax.plot(m[:, 0], m[:, 1], ".", color="0.6", ms=3, label="measured positions", zorder=1)
+        many = len(m) > 2000  # clutter: smaller, lighter dots keep the tracks readable
+        ax.plot(m[:, 0], m[:, 1], ".", color="0.75" if many else "0.6", ms=1.5 if many else 3,
+                label="measured positions", zorder=1)
     if truth_m is not None:
         t = np.asarray(truth_m, float) / 1e3
-        ax.plot(t[:, 0], t[:, 1], color="k", ls="--", lw=1.0, label="truth", zorder=2)
+        t = t[:, None] if t.ndim == 2 else t
+        for j in range(t.shape[1]):
+            ax.plot(t[:, j, 0], t[:, j, 1], color="k", ls="--", lw=1.0 if t.shape[1] == 1 else 0.7,
+                    label="truth" if j == 0 else None, zorder=2)
     for i, (name, xy) in enumerate(tracks_m.items()):
         xy = np.asarray(xy, float) / 1e3
+        if xy.ndim == 3:
+            style = {k: v for k, v in series_style(i).items() if k != "marker"}
+            for j in range(xy.shape[1]):
+                ax.plot(xy[:, j, 0], xy[:, j, 1], lw=1.0, label=name if j == 0 else None, zorder=3, **style)
+            continue
         ax.plot(xy[:, 0], xy[:, 1], lw=1.2, ms=3.5, markevery=staggered_markers(len(xy), i), label=name, zorder=3,
                 **series_style(i))
     ax.set_xlabel("x (km)")

@@ -5,6 +5,9 @@
 * GOSPA with α = 2 (Rahmathullah, García-Fernández & Svensson 2017, eq. 2 and Prop. 1):
   ``d = (min_γ Σ_{(i,j)∈γ} d(x_i, y_j)^p + (c^p/2)(|X| + |Y| − 2|γ|))^(1/p)`` over partial
   assignments γ; it splits into localisation, missed-target and false-track parts.
+* per-scan switching (:func:`gospa_switching`): GOSPA plus a charge γ^p/2 per half switch of
+  the per-scan assignments between scans (in the spirit of trajectory GOSPA, García-Fernández,
+  Rahmathullah & Svensson 2020, but not its joint optimisation over scans).
 
 Both reduce to one assignment on the cost ``min(d, c)^p``: a pair at or beyond the cut-off ``c``
 costs as much as leaving both unassigned. Sets are padded arrays with NaN rows for absent
@@ -84,10 +87,16 @@ def pairwise_distance(tracks, truths, angular: bool = False) -> np.ndarray:
 
     With ``angular`` the components are angles and differences wrap to (−π, π].
     """
-    diff = np.asarray(tracks, float)[..., :, None, :] - np.asarray(truths, float)[..., None, :, :]
-    if angular:
-        diff = (diff + np.pi) % (2 * np.pi) - np.pi
-    return np.sqrt(sum_squares(diff))
+    X, Y = np.asarray(tracks, float), np.asarray(truths, float)
+    # a component at a time, left to right (the sum of pipeline.batched_linalg.sum_squares, bit
+    # for bit): no (..., m, n, d) difference array with a short strided last axis
+    total = np.zeros(np.broadcast_shapes(X.shape[:-2], Y.shape[:-2]) + (X.shape[-2], Y.shape[-2]))
+    for i in range(X.shape[-1]):
+        diff = X[..., :, None, i] - Y[..., None, :, i]
+        if angular:
+            diff = (diff + np.pi) % (2 * np.pi) - np.pi
+        total += diff * diff
+    return np.sqrt(total, out=total)
 
 
 def optimal_assignment(cost: np.ndarray, valid_rows: np.ndarray, valid_cols: np.ndarray, unmatched: float = 0.0):
@@ -106,6 +115,14 @@ def optimal_assignment(cost: np.ndarray, valid_rows: np.ndarray, valid_cols: np.
     cost = np.asarray(cost, float)
     lead, (m, n) = cost.shape[:-2], cost.shape[-2:]
     size = max(m, n)
+    if size > BRUTE_FORCE_MAX:
+        valid_r = np.broadcast_to(valid_rows, lead + (m,))
+        valid_c = np.broadcast_to(valid_cols, lead + (n,))
+        pair = valid_r[..., :, None] & valid_c[..., None, :]
+        if np.all(np.where(pair, cost, unmatched) <= unmatched):
+            # every pair costs at most leaving its two elements unmatched (capped distances,
+            # negated similarities): a sparse matching problem, mostly solved without a search
+            return _sparse_assignment(cost, pair, valid_r.sum(axis=-1), valid_c.sum(axis=-1), float(unmatched))
     rows_present = np.zeros(lead + (size,), bool)
     rows_present[..., :m] = valid_rows
     cols_present = np.zeros(lead + (size,), bool)
@@ -139,6 +156,65 @@ def optimal_assignment(cost: np.ndarray, valid_rows: np.ndarray, valid_cols: np.
     return total, match
 
 
+def _sparse_assignment(cost, pair, n_rows, n_cols, unmatched):
+    """:func:`optimal_assignment` beyond the brute-force size when no pair costs more than
+    ``unmatched``.
+
+    Then the padded problem is a maximum-weight matching: with ``u`` pairs cheaper than
+    ``unmatched`` (the *edges*) in an assignment, the total is
+    ``max(m′, n′)·unmatched − Σ_edges (unmatched − cost)`` (m′, n′ present rows and columns),
+    because every present element not on an edge pairs with padding or with another such
+    element at ``unmatched`` per pair. So elements without an edge play no part, and an edge
+    whose row and column have no other edge is in every optimal assignment (exchanging it for
+    any other partners costs more). What is left, usually little where targets are apart, is
+    solved by trying every permutation (:func:`_every_permutation`, all problems at once) when
+    it has at most ``BRUTE_FORCE_MAX`` rows and columns, else by
+    ``scipy.optimize.linear_sum_assignment``. Rows that end on no edge get −1 (their partner
+    would cost ``unmatched``, the cut-off, which every caller reads as unmatched).
+    """
+    from scipy.optimize import linear_sum_assignment
+
+    lead, (m, n) = cost.shape[:-2], cost.shape[-2:]
+    cost = cost.reshape((-1, m, n))
+    edge = pair.reshape((-1, m, n)) & (cost < unmatched)
+    weight = np.where(edge, unmatched - cost, 0.0)
+    row_edges, col_edges = edge.sum(axis=2), edge.sum(axis=1)
+    alone = edge & (row_edges[:, :, None] == 1) & (col_edges[:, None, :] == 1)
+    alone_row = alone.any(axis=2)
+    match = np.where(alone_row, alone.argmax(axis=2), -1)
+    gain = np.where(alone, weight, 0.0).sum(axis=(1, 2))
+    rest_rows = (row_edges > 0) & ~alone_row
+    rest_cols = (col_edges > 0) & ~alone.any(axis=1)
+    n_rest = np.maximum(rest_rows.sum(axis=1), rest_cols.sum(axis=1))
+    small = np.flatnonzero((n_rest > 0) & (n_rest <= BRUTE_FORCE_MAX))
+    if small.size:
+        # the left-over rows and columns first (stable order), cut to the largest left-over size
+        size = int(n_rest[small].max())
+        rows = np.argsort(~rest_rows[small], axis=1, kind="stable")[:, :size]
+        cols = np.argsort(~rest_cols[small], axis=1, kind="stable")[:, :size]
+        sub = np.zeros((small.size, size, size))
+        w = weight[small[:, None, None], rows[:, :, None], cols[:, None, :]]
+        ok = (np.take_along_axis(rest_rows[small], rows, axis=1)[:, :, None]
+              & np.take_along_axis(rest_cols[small], cols, axis=1)[:, None, :])
+        sub[:, :rows.shape[1], :cols.shape[1]] = np.where(ok, w, 0.0)
+        total, perm = _every_permutation(-sub)
+        gain[small] -= total
+        r_in = np.arange(rows.shape[1])
+        c_in = perm[:, :rows.shape[1]]
+        chosen = (c_in < cols.shape[1]) & (np.take_along_axis(sub[:, :rows.shape[1]], c_in[..., None], axis=2)[..., 0] > 0)
+        b_i, r_i = np.nonzero(chosen)
+        match[small[b_i], rows[b_i, r_in[r_i]]] = cols[b_i, c_in[b_i, r_i]]
+    for b in np.flatnonzero(n_rest > BRUTE_FORCE_MAX):
+        rows, cols = np.flatnonzero(rest_rows[b]), np.flatnonzero(rest_cols[b])
+        w = weight[b][rows][:, cols]
+        r, c = linear_sum_assignment(w, maximize=True)
+        used = w[r, c] > 0
+        match[b, rows[r[used]]] = cols[c[used]]
+        gain[b] += w[r[used], c[used]].sum()
+    total = np.maximum(n_rows, n_cols).reshape(-1) * unmatched - gain
+    return total.reshape(lead), match.reshape(lead + (m,))
+
+
 def gospa(tracks, truths, cutoff: float, order: float = 2.0, angular: bool = False) -> dict:
     """GOSPA (α = 2) and its parts for padded sets, vectorised over the leading axes.
 
@@ -161,6 +237,12 @@ def gospa(tracks, truths, cutoff: float, order: float = 2.0, angular: bool = Fal
         ``gospa``, ``localisation`` (Σ d^p over assigned pairs closer than c, to the power 1/p),
         ``missed`` and ``false`` (counts), ``ospa``, and ``assigned`` (pairs closer than c).
     """
+    return _gospa_and_assignment(tracks, truths, cutoff, order, angular)[0]
+
+
+def _gospa_and_assignment(tracks, truths, cutoff, order, angular):
+    """:func:`gospa`'s dict and its assignment: the truth column of each track row (..., m),
+    −1 where the track is not assigned to a truth closer than c."""
     X, Y = np.asarray(tracks, float), np.asarray(truths, float)
     vx, vy = all_finite(X), all_finite(Y)
     d = pairwise_distance(np.where(vx[..., None], X, 0.0), np.where(vy[..., None], Y, 0.0), angular)
@@ -179,5 +261,128 @@ def gospa(tracks, truths, cutoff: float, order: float = 2.0, angular: bool = Fal
     g = np.maximum(total - cp / 2 * excess, 0.0) ** (1 / order)
     big = np.maximum(m_count, n_count)
     ospa = np.where(big > 0, (total / np.maximum(big, 1)) ** (1 / order), 0.0)
-    return {"gospa": g, "localisation": loc ** (1 / order), "missed": n_count - assigned,
-            "false": m_count - assigned, "ospa": ospa, "assigned": assigned}
+    parts = {"gospa": g, "localisation": loc ** (1 / order), "missed": n_count - assigned,
+             "false": m_count - assigned, "ospa": ospa, "assigned": assigned}
+    return parts, np.where(close, match, -1)
+
+
+#: values of the largest (problems, m, n) distance block :func:`gospa_switching` holds at once
+SWITCHING_BLOCK = 1 << 20
+
+
+def gospa_switching(tracks, truths, cutoff: float, order: float = 2.0, switch_penalty: float | None = None,
+                    track_ids=None, truth_ids=None, angular: bool = False, per: str = "track") -> dict:
+    """Per-scan GOSPA with a switching term computed from the per-scan assignments.
+
+    This is **per-scan switching, not trajectory GOSPA**. Trajectory GOSPA (García-Fernández,
+    Rahmathullah & Svensson 2020, *IEEE Trans. Signal Process.* 68, eq. 4) optimises one
+    assignment per scan jointly over the whole run with a cost for changing it; here each
+    scan keeps GOSPA's own optimal assignment (Rahmathullah, García-Fernández & Svensson 2017)
+    and the changes of that assignment between scans are charged afterwards, as Stone Soup's
+    ``GOSPAMetric(switching_penalty=γ)`` does.
+
+    **Half switches.** Follow one identity (a track identity with ``per="track"``, a truth
+    identity with ``per="truth"``) over the scans at which it is present. At each such scan it
+    is either assigned to an identity of the other side (a pair of GOSPA's assignment closer than
+    c) or unassigned. From its first assigned scan on, each change of that state between two
+    consecutive scans of its presence counts
+
+    * 2 half switches (one switch) when it goes from one assigned identity to another,
+    * 1 half switch when it goes from assigned to unassigned or from unassigned to assigned;
+
+    staying the same counts none. The scans before its first assignment count none (a track
+    still converging, a target not yet tracked: GOSPA's false and missed parts charge those
+    scans already), and neither do the scans it is absent (a gap is not a switch). A change is
+    charged at the later of the two scans.
+
+    Per scan, the switching part is ``(γ^p/2)·h`` with ``h`` the half switches charged there,
+    and ``gospa_switching = (GOSPA^p + (γ^p/2)·h)^(1/p)``. So a switch costs γ^p, twice the
+    γ^p/2 of trajectory GOSPA's s(π^k, π^{k+1}) = 1; a half switch costs γ^p/2 (Stone Soup's
+    factor). The default γ = c makes a switch cost as much as one pair at the cut-off.
+
+    Parameters
+    ----------
+    tracks : ndarray (R, K, m, d)
+        Track estimates; rows with NaN are absent.
+    truths : ndarray (R, K, n, d)
+        True states in the same space; rows with NaN are absent.
+    cutoff, order : float
+        GOSPA's ``c`` and ``p``.
+    switch_penalty : float, optional
+        γ (≥ 0), in the units of the space; default ``cutoff``.
+    track_ids : ndarray of int (R, K, m), optional
+        Track identity per slot (−1 empty); default: the slot.
+    truth_ids : ndarray of int (R, K, n), optional
+        Target identity per slot (−1 empty); default: the slot. Identities are unique within a scan.
+    angular : bool
+    per : {"track", "truth"}
+        Whose assignment history is followed.
+
+    Returns
+    -------
+    dict of ndarray (R, K)
+        :func:`gospa`'s parts (``gospa``, ``localisation``, ``missed``, ``false``, ``ospa``,
+        ``assigned``), ``half_switches``, ``switching`` = ``((γ^p/2)·h)^(1/p)`` and
+        ``gospa_switching``.
+    """
+    if per not in ("track", "truth"):
+        raise ValueError(f"per must be 'track' or 'truth', not {per!r}")
+    gamma = float(cutoff if switch_penalty is None else switch_penalty)
+    X, Y = np.asarray(tracks, float), np.asarray(truths, float)
+    R, K, m = X.shape[:3]
+    n = Y.shape[2]
+    # the assignment of every scan, in blocks of (run, scan) problems (each is its own problem)
+    flat = lambda a: a.reshape((R * K,) + a.shape[2:])
+    Xf, Yf = flat(X), flat(Y)
+    parts, match = None, np.empty((R * K, m), np.intp)
+    step = max(1, SWITCHING_BLOCK // max(m * n, 1))
+    for a in range(0, R * K, step):
+        block = slice(a, a + step)
+        p, match[block] = _gospa_and_assignment(Xf[block], Yf[block], cutoff, order, angular)
+        if parts is None:
+            parts = {key: np.empty((R * K,), v.dtype) for key, v in p.items()}
+        for key, v in p.items():
+            parts[key][block] = v
+    parts = {key: v.reshape(R, K) for key, v in parts.items()}
+    match = match.reshape(R, K, m)
+
+    track_id = np.where(all_finite(X), np.arange(m), -1) if track_ids is None else np.asarray(track_ids)
+    truth_id = np.where(all_finite(Y), np.arange(n), -1) if truth_ids is None else np.asarray(truth_ids)
+    # the identity of the other side assigned to each present element, −1 for none
+    if per == "track":
+        own, present = track_id, all_finite(X) & (track_id >= 0)
+        partner = np.where(match >= 0, np.take_along_axis(truth_id, np.maximum(match, 0), axis=-1), -1)
+    else:
+        own, present = truth_id, all_finite(Y) & (truth_id >= 0)
+        back = np.full((R, K, n), -1, np.intp)
+        r_i, k_i, j_i = np.nonzero(match >= 0)
+        back[r_i, k_i, match[r_i, k_i, j_i]] = j_i
+        partner = np.where(back >= 0, np.take_along_axis(track_id, np.maximum(back, 0), axis=-1), -1)
+    half = _half_switches(own, partner, present)
+    term = gamma ** order / 2 * half
+    parts["half_switches"] = half
+    parts["switching"] = term ** (1 / order)
+    parts["gospa_switching"] = (parts["gospa"] ** order + term) ** (1 / order)
+    return parts
+
+
+def _half_switches(own, partner, present) -> np.ndarray:
+    """Half switches charged per (run, scan) (R, K) from each present identity's partner
+    history (see :func:`gospa_switching`)."""
+    R, K = present.shape[:2]
+    r, k, j = np.nonzero(present)
+    ident, state = own[r, k, j], partner[r, k, j]
+    order = np.lexsort((k, ident, r))
+    r, k, ident, state = r[order], k[order], ident[order], state[order]
+    same = np.zeros(r.size, bool)
+    same[1:] = (r[1:] == r[:-1]) & (ident[1:] == ident[:-1])
+    # from the first assigned scan of each identity on
+    first = ~same
+    group = np.cumsum(first) - 1
+    assigned_so_far = np.maximum.accumulate(np.where(state >= 0, np.arange(r.size), -1))
+    started_before = np.zeros(r.size, bool)
+    started_before[1:] = assigned_so_far[:-1] >= np.flatnonzero(first)[group][1:]
+    prev = np.concatenate([[-1], state[:-1]])
+    changed = same & started_before & (state != prev)
+    halves = np.where(changed, np.where((state >= 0) & (prev >= 0), 2, 1), 0)
+    return np.bincount(r * K + k, weights=halves, minlength=R * K).reshape(R, K).astype(np.int64)

@@ -24,10 +24,11 @@ import numpy as np
 import polars as pl
 
 from evaluators.assignment_metrics import assignment_metrics, scan_matches
-from evaluators.confidence import mean_interval, ratio_jackknife, rms_interval
+from evaluators.confidence import jackknife, mean_interval, ratio_jackknife, rms_interval
 from evaluators.consistency import (consistency_summary, innovation_whiteness, normalised_squared,
                                    whitened_innovations)
-from evaluators.set_distances import gospa
+from evaluators.hota import SUM_KEYS as HOTA_SUMS, hota_sums, pooled_hota
+from evaluators.set_distances import gospa_switching
 from evaluators.tracking_metrics import nanmean
 from pipeline.batched_linalg import sum_squares
 from pipeline.vocabulary import DELETED, NO_TRACK
@@ -57,6 +58,12 @@ class EvaluationSpace:
         Unit of the distances as reported (suffix of the metric names, e.g. ``m``, ``deg``).
     scale : float
         Factor from the space's SI units to ``unit`` (180/π for angles reported in degrees).
+    hota_distance : float, optional
+        HOTA's ``d₀``, where the point similarity reaches 0 (:mod:`evaluators.hota`); default
+        ``cutoff``.
+    gospa_switch_penalty : float, optional
+        γ of the per-scan GOSPA switching term (:func:`evaluators.set_distances.gospa_switching`);
+        default ``cutoff``.
     """
 
     truth_components: tuple
@@ -67,6 +74,8 @@ class EvaluationSpace:
     order: float = 2.0
     unit: str = "m"
     scale: float = 1.0
+    hota_distance: float | None = None
+    gospa_switch_penalty: float | None = None
 
 
 def position_space(design: dict, truth_components, position_components) -> EvaluationSpace:
@@ -74,7 +83,14 @@ def position_space(design: dict, truth_components, position_components) -> Evalu
     ``ospa_cutoff_m``, ``assignment_gate_m`` and ``ospa_order``."""
     return EvaluationSpace(truth_components=tuple(truth_components), position_components=tuple(position_components),
                            angular=False, cutoff=float(design["ospa_cutoff_m"]),
-                           gate=float(design["assignment_gate_m"]), order=float(design["ospa_order"]))
+                           gate=float(design["assignment_gate_m"]), order=float(design["ospa_order"]),
+                           hota_distance=_optional(design, "hota_distance_m"),
+                           gospa_switch_penalty=_optional(design, "gospa_switch_penalty_m"))
+
+
+def _optional(design: dict, key: str, scale: float = 1.0):
+    """A design value that a family may leave out (None: the space's default)."""
+    return None if design.get(key) is None else float(design[key]) * scale
 
 
 def bearing_space(design: dict) -> EvaluationSpace:
@@ -83,7 +99,9 @@ def bearing_space(design: dict) -> EvaluationSpace:
     return EvaluationSpace(truth_components=(0,), position_components=(0,), angular=True,
                            cutoff=float(np.deg2rad(design["ospa_cutoff_deg"])),
                            gate=float(np.deg2rad(design["assignment_gate_deg"])), order=float(design["ospa_order"]),
-                           unit="deg", scale=float(np.rad2deg(1.0)))
+                           unit="deg", scale=float(np.rad2deg(1.0)),
+                           hota_distance=_optional(design, "hota_distance_deg", np.deg2rad(1.0)),
+                           gospa_switch_penalty=_optional(design, "gospa_switch_penalty_deg", np.deg2rad(1.0)))
 
 def _as_slots(a, extra_dims: int):
     """(R, K, n...) → (R, K, 1, n...) for single-track families; slot families pass through.
@@ -167,7 +185,7 @@ def _put_runs(joined, part, runs: slice) -> None:
 
 
 def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: float = 0.95,
-                      innovations: dict | None = None):
+                      innovations: dict | None = None, truth_ids=None):
     """Standard measures of every tracker.
 
     Parameters
@@ -183,11 +201,17 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
         Level of every interval and bound.
     innovations : dict, optional
         ``name ->`` :func:`evaluators.consistency.whitened_innovations`, when already computed.
+    truth_ids : ndarray of int (R, K, [T]), optional
+        Target identity of every truth slot (−1 empty) when the truth is a set per scan whose
+        slots change hands; default: truth slot t is target t for the whole run. With it the
+        CLEAR and identity measures follow TrackEval's convention
+        (:mod:`evaluators.assignment_metrics`).
 
     Returns
     -------
     per_scan : polars.DataFrame
-        ``tracker, scan, time_s`` and ANEES/ANIS with bounds, OSPA, GOSPA and its parts.
+        ``tracker, scan, time_s`` and ANEES/ANIS with bounds, OSPA, GOSPA and its parts, the
+        per-scan GOSPA with switching and its half switches.
     summary : polars.DataFrame
         Long form ``tracker, metric, scope, value, se, ci_low, ci_high``.
     """
@@ -240,14 +264,20 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
             # the track positions, NaN where a slot holds no track
             X = np.where(absent[part][..., None], np.nan, _components(compared[part], pos))
             Y = true_positions[part]
-            g = gospa(X, Y, space.cutoff, space.order, space.angular)
-            match, dist = scan_matches(X, Y, space.gate, space.angular)
-            a = assignment_metrics(X, Y, space.gate, None if ids is None else ids[part], space.angular,
-                                   matches=(match, dist))
-            return g, match, a
+            part_ids = None if ids is None else ids[part]
+            part_truth_ids = None if truth_ids is None else truth_slot_ids[part]
+            g = gospa_switching(X, Y, space.cutoff, space.order, space.gospa_switch_penalty, part_ids, part_truth_ids,
+                                space.angular)
+            match, dist = scan_matches(X, Y, space.gate, space.angular, part_ids, part_truth_ids)
+            a = assignment_metrics(X, Y, space.gate, part_ids, space.angular, matches=(match, dist),
+                                   truth_ids=part_truth_ids)
+            d0 = space.cutoff if space.hota_distance is None else space.hota_distance
+            h = hota_sums(X, Y, d0, part_ids, part_truth_ids, space.angular)
+            return g, match, a, {key: h[key] for key in HOTA_SUMS}
 
         # a block of runs at a time: the assignments' temporaries stay a few MB at any number of runs
-        g, match, a = _in_run_blocks(sets_and_matches, R, K * S * tr.shape[2])
+        truth_slot_ids = None if truth_ids is None else _as_slots(np.asarray(truth_ids)[..., None], 1)[..., 0]
+        g, match, a, h = _in_run_blocks(sets_and_matches, R, K * S * tr.shape[2])
         u, scale = space.unit, space.scale
         # ---- OSPA / GOSPA per run and scan
         for key in ("ospa", "gospa", "localisation"):
@@ -257,6 +287,11 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
             cols[f"gospa_{key}"] = nanmean(g[key].astype(float), axis=0)
         for key in ("ospa", "gospa"):
             rows.append(_with_ci(name, f"{key}_mean_{u}", *(scale * v for v in mean_interval(nanmean(g[key], axis=1)))))
+        # per-scan switching (not trajectory GOSPA): GOSPA plus γ^p/2 per half switch
+        cols[f"gospa_switching_{u}"] = scale * nanmean(g["gospa_switching"], axis=0)
+        cols["gospa_half_switches"] = nanmean(g["half_switches"].astype(float), axis=0)
+        rows.append(_with_ci(name, f"gospa_switching_mean_{u}",
+                             *(scale * v for v in mean_interval(nanmean(g["gospa_switching"], axis=1)))))
         del g
         # ---- assignment over whole runs
         for key in ("mota", "idf1"):
@@ -265,6 +300,14 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
         for key in ("mostly_tracked", "partially_tracked", "mostly_lost", "track_breaks", "id_switches",
                     "false_tracks", "misses", "false_positives"):
             rows.append(_with_ci(name, f"{key}_per_run", *mean_interval(a[key].astype(float))))
+        for key in ("idp", "idr"):
+            rows.append(_with_ci(name, key, *mean_interval(a[key])))
+        # ---- HOTA: counts and sums added over runs, never per-run HOTA averaged; the interval
+        # re-pools the runs with each group left out (grouped jackknife)
+        parts = ("hota", "deta", "assa", "loca")
+        hota_ci = jackknife(lambda runs: [pooled_hota(h, runs)[key] for key in parts], R, 10)
+        for i, key in enumerate(parts):
+            rows.append(_with_ci(name, key, *(v[i] for v in hota_ci)))
         # ---- NEES on matched pairs
         if "covariance" in out:
             P = _as_slots(out["covariance"], 2)                                     # (R, K, S, c, c)

@@ -27,16 +27,16 @@ from pipeline.trackers.interface import Tracker, tracker_name
 
 ENTRY_POINT_GROUP = "trackreplay.trackers"
 
-# One line per paper: the module that holds its trackers exposes TRACKERS, a tuple of classes.
-# the built-in trackers' modules by family: a replay imports only its family's numerics
+# One line per family: the modules that hold its built-in trackers, each exposing TRACKERS (a
+# tuple of classes); a replay imports only its family's numerics
 BUILTIN_FAMILY_MODULES = {
-    "radar-plots": "pipeline.trackers.radar_tws",
-    "bearing-peaks": "pipeline.trackers.bearing_peaks",
-    "array-snapshots": "pipeline.trackers.array_bearing",
-    "tdoa-fdoa": "pipeline.trackers.emitter",
-    "colored-position": "pipeline.trackers.colored_noise",
+    "radar-plots": ("pipeline.trackers.radar_tws", "pipeline.trackers.radar_multi_target"),
+    "bearing-peaks": ("pipeline.trackers.bearing_peaks",),
+    "array-snapshots": ("pipeline.trackers.array_bearing",),
+    "tdoa-fdoa": ("pipeline.trackers.emitter",),
+    "colored-position": ("pipeline.trackers.colored_noise",),
 }
-BUILTIN_MODULES = tuple(BUILTIN_FAMILY_MODULES.values())
+BUILTIN_MODULES = tuple(m for modules in BUILTIN_FAMILY_MODULES.values() for m in modules)
 
 
 @dataclass(frozen=True)
@@ -174,6 +174,5 @@ def trackers_of_family(family: str, specs=()) -> list[TrackerEntry]:
     any other tracker is refused (:func:`available_trackers`)."""
     if specs:
         return [e for e in available_trackers(specs).values() if e.family == family]
-    module = BUILTIN_FAMILY_MODULES.get(family)
-    entries = _builtin_entries((module,) if module else ()) + _entry_point_entries()
+    entries = _builtin_entries(BUILTIN_FAMILY_MODULES.get(family, ())) + _entry_point_entries()
     return [e for e in entries if e.family == family]

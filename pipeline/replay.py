@@ -35,9 +35,14 @@ class ReplayResult:
     failures: list = field(default_factory=list)  # TrackerErrors of trackers left out
 
 
-def select_trackers(stages, names=None, specs=()) -> dict:
+def select_trackers(stages, names=None, specs=(), dataset=None) -> dict:
     """Stage name → the tracker entries to run: every built-in and plugged (``specs``) tracker
     of the stage's family, or the ones ``names`` selects.
+
+    Without ``names``, a built-in tracker runs when it is made for the data set's kind of
+    scene (``Tracker.targets``): the multi-target ones where :meth:`Stage.holds_many_targets`
+    says ``dataset`` holds many targets, the single-target ones (the papers') elsewhere.
+    Plugged trackers always run; ``names`` picks any.
 
     Raises
     ------
@@ -58,9 +63,12 @@ def select_trackers(stages, names=None, specs=()) -> dict:
                              f"{', '.join(sorted(families))}")
     chosen = {}
     for stage in stages:
-        # the --tracker ones always; by default the built-ins too; installed (entry-point) ones by name
+        scene = "many" if dataset is not None and stage.holds_many_targets(dataset) else "one"
+        # the --tracker ones always; by default the built-ins for this scene; installed
+        # (entry-point) ones by name
         chosen[stage.name] = [e for e in table.values() if e.family == stage.family and
-                              (e.name in plugged or (e.name in names if names else e.builtin))]
+                              (e.name in plugged or (e.name in names if names else
+                                                     e.builtin and getattr(e.cls, "targets", "one") == scene))]
     if names:
         have = {e.name for pool in chosen.values() for e in pool}
         unknown = [n for n in names if n not in have]
@@ -136,7 +144,7 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
     if not stages:
         have = ", ".join(sorted(ds.channels)) or "none"
         raise InputError(f"no stage applies to the channels in this file ({have})", ds.path)
-    chosen = select_trackers(stages, trackers, tracker_specs)
+    chosen = select_trackers(stages, trackers, tracker_specs, ds)
     designs = {}
     for stage in stages:
         design = stage.design(ds, design_overrides, chosen[stage.name])
@@ -160,12 +168,14 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
                     # with every unit, are written once, after the trackers
                     writer.write(stage, {"times": times, "tracks": {name: unit[name] for name in own}})
                     t2 = time.perf_counter()
-                    p, s = stage.measure(ds, {"times": times, "tracks": unit}, design)
-                    tables.append((own, p, s))
+                    scored, p, s, errors = measure_isolated(stage, ds, times, unit, own, design)
+                    failures += errors
+                    if scored:
+                        tables.append((scored, p, s))
                     timings["evaluate_s"] += time.perf_counter() - t2
                     writer.wait()
                     keep = None if stage.views_read_all_runs else keep_runs
-                    result["tracks"].update({name: _first_runs(unit[name], keep) for name in own})
+                    result["tracks"].update({name: _first_runs(unit[name], keep) for name in scored})
                     extras = {name: out for name, out in unit.items() if name not in own}
                 # let go of this unit's outputs before the next one is filtered: the loop variable
                 # would hold them alive until the generator yields again (a second tracker's worth
@@ -202,6 +212,49 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
     timings["total_s"] = time.perf_counter() - t0
     res.failures = failures
     return res
+
+
+def measure_isolated(stage, ds, times, unit: dict, own, design: dict):
+    """:meth:`Stage.measure` of a unit of trackers, one tracker's failure kept to that tracker.
+
+    A tracker whose outputs pass :func:`~pipeline.trackers.interface.validate_outputs` may still
+    hold something a measure cannot score (a plugged tracker's layout no evaluator foresaw).
+    When the unit fails as a whole, each tracker is scored alone; the ones that still fail get
+    one :class:`~pipeline.trackers.interface.TrackerError` each and the others are kept.
+
+    Returns
+    -------
+    scored : list of str
+        Trackers of ``own`` whose scores are in the tables.
+    per_scan, summary : polars.DataFrame or None
+    errors : list of TrackerError
+    """
+    from pipeline.trackers.interface import TrackerError
+
+    try:
+        p, s = stage.measure(ds, {"times": times, "tracks": unit}, design)
+        return list(own), p, s, []
+    except TrackerError:
+        pass
+    except InputError:
+        raise  # the data set or the design, not a tracker, is at fault: every tracker would fail
+    except Exception:  # noqa: BLE001 - narrowed to the tracker at fault below
+        pass
+    extras = {name: out for name, out in unit.items() if name not in own}
+    scored, parts, errors = [], [], []
+    for name in own:
+        try:
+            parts.append(stage.measure(ds, {"times": times, "tracks": {name: unit[name], **extras}}, design))
+            scored.append(name)
+        except Exception as exc:  # noqa: BLE001 - this tracker's failure, reported as one line
+            errors.append(TrackerError(f"tracker {name!r}: its outputs could not be scored: {type(exc).__name__}: "
+                                       f"{exc}", name))
+    if not scored:
+        return [], None, None, errors
+    if len(parts) == 1:
+        return scored, parts[0][0], parts[0][1], errors
+    p, s = _joined_tables([([n], p, s) for n, (p, s) in zip(scored, parts)])
+    return scored, p, s, errors
 
 
 def _first_runs(outputs: dict, keep: int | None) -> dict:

@@ -18,8 +18,8 @@ from dataclasses import dataclass
 # One table of channel names. Recorders write them, stages read them, nothing else spells them.
 
 CHANNELS = {
-    "radar_plots": "/radar/plots",            # ragged range_m, bearing_rad per run and scan
-    "radar_truth": "/radar/truth",            # state [x, y, vx, vy] (m, m/s)
+    "radar_plots": "/radar/plots",            # ragged range_m, bearing_rad (origin: target id or -1) per run and scan
+    "radar_truth": "/radar/truth",            # state [x, y, vx, vy] (m, m/s); a set: ragged state + target_id
     "xcorr_peaks": "/xcorr/peaks",            # ragged bearing_rad, amplitude, origin (target or -1)
     "xcorr_truth": "/xcorr/truth",            # bearing_rad, bearing_rate_radps per target
     "array_snapshots": "/array/snapshots",    # complex snapshots (sensors, snapshots)
@@ -54,10 +54,13 @@ class ValueSpec:
 _FAR_M = 1e12
 _FAST_MPS = 1e9
 _TURNS = 1e3  # radians: angles may be unwrapped, but not astronomically
+_MAX_TARGET_ID = (1 << 31) - 1  # target identities are non-negative integers (int64 on disk)
 
 VALUES = {
-    "radar_plots": {"range_m": ValueSpec(low=0.0, high=_FAR_M), "bearing_rad": ValueSpec(low=-_TURNS, high=_TURNS)},
-    "radar_truth": {"state": ValueSpec(low=-_FAR_M, high=_FAR_M)},
+    "radar_plots": {"range_m": ValueSpec(low=0.0, high=_FAR_M), "bearing_rad": ValueSpec(low=-_TURNS, high=_TURNS),
+                    "origin": ValueSpec(kinds="iu", low=-1, high=_MAX_TARGET_ID)},
+    "radar_truth": {"state": ValueSpec(low=-_FAR_M, high=_FAR_M),
+                    "target_id": ValueSpec(kinds="iu", low=0, high=_MAX_TARGET_ID)},
     "xcorr_peaks": {"bearing_rad": ValueSpec(low=-_TURNS, high=_TURNS), "amplitude": ValueSpec(low=0.0, high=1e30),
                     "origin": ValueSpec(kinds="iu", low=-1, high=1 << 24)},
     "xcorr_truth": {"bearing_rad": ValueSpec(low=-_TURNS, high=_TURNS),
@@ -78,7 +81,8 @@ VALUES = {
 # arrays of a channel that list the same items (one entry per plot, per peak): equal lengths in
 # every frame
 PARALLEL = {
-    "radar_plots": ("range_m", "bearing_rad"),
+    "radar_plots": ("range_m", "bearing_rad", "origin"),
+    "radar_truth": ("state", "target_id"),
     "xcorr_peaks": ("bearing_rad", "amplitude", "origin"),
 }
 TIME_LIMIT_S = 1e10  # scan times: finite and within ±317 years of the recording's epoch

@@ -166,7 +166,7 @@ def _complete_user_params(recorder: str, params: dict, path: Path) -> dict:
 UNIT_SUFFIXES = {
     "m": "m", "km": "km", "m2": "m²", "s": "s", "deg": "deg", "deg2": "deg²", "rad": "rad",
     "radps": "rad/s", "mps": "m/s", "mps2": "m/s²", "hz": "Hz", "db": "dB", "wavelengths": "λ",
-    "samples": "samples", "scans": "scans",
+    "samples": "samples", "scans": "scans", "m2ps3": "m²/s³", "degps": "deg/s",
 }
 
 # units of parameters whose name does not state theirs (or states only a part of it: the q of a
@@ -181,6 +181,7 @@ NAMED_UNITS = {
     "step_tolerance_sigma": "σ",          # a multiple of a standard deviation
     "imm_transition": "probability",      # a matrix of transition probabilities
     "emitter": "preset", "pairs": "pair list",
+    "initial_targets_mean": "count", "turning_fraction": "fraction",
     # flags and choices (their value's type is not known from the name alone)
     "startup_gains": "flag", "gcc_phat": "flag", "amplitude_tracking": "flag", "stationary_emitter": "flag",
     "trajectory": "choice", "geometry": "choice", "pair": "choice", "track_start": "choice",

@@ -7,8 +7,8 @@ import numpy as np
 from evaluators import radar_tws as radar_eval
 from pipeline import vocabulary as vocab
 from pipeline.cores.filters.converted_measurements import polar_to_cartesian
-from pipeline.face.timeline import (color, log_metric_series, log_path, log_points, log_series, north_up,
-                                    north_up_bounds, rr, rrb)
+from pipeline.face.timeline import (color, log_identified, log_metric_series, log_path, log_points, log_series,
+                                    north_up, north_up_bounds, rr, rrb)
 
 TRUTH = vocab.CHANNELS["radar_truth"]
 XY = "/xy/world"  # under the x/y view's origin, flipped north-up (see timeline.north_up)
@@ -59,10 +59,19 @@ def log_rerun(stage, rec, dataset, result: dict, per_scan, run: int = 0) -> None
     history = plots_xy.reshape(-1, 2)
     history = history[np.all(np.isfinite(history), axis=1)]
     rec.log(f"{XY}/plots/all", rr.Points2D(history, colors=[color("plots")], radii=[-1.5]), static=True)
-    truth = dataset.channels.get(TRUTH)
-    if truth is not None:
-        log_path(rec, f"{XY}/truth", truth.grid("state")[run, :, :2], color("truth"))
+    truth = stage.decode_truth(dataset)
+    many = truth is not None and not (truth[0].shape[2] == 1 and (truth[1] == 0).all())
+    if truth is not None and not many:
+        log_path(rec, f"{XY}/truth", truth[0][run, :, 0, :2], color("truth"))
+    elif many:
+        log_identified(rec, f"{XY}/truth", scans, times, truth[0][run, :, :, :2], truth[1][run], "target ",
+                       radius=-2.5)
+        log_series(rec, "/counts/targets", scans, times, (truth[1][run] >= 0).sum(axis=1), "true targets",
+                   color("truth"))
     for name, out in result["tracks"].items():
+        if np.ndim(out["state"]) == 4:  # track slots: every track in its identity's colour
+            _log_slots(rec, name, out, run, scans, times)
+            continue
         ok = radar_eval.filtered_mask(out["flags"][run])
         xy = np.where(ok[:, None], out["state"][run, :, :2], np.nan)
         log_path(rec, f"{XY}/tracks/{name}/path", xy, color(name))
@@ -78,3 +87,21 @@ def log_rerun(stage, rec, dataset, result: dict, per_scan, run: int = 0) -> None
     if with_lambda:
         log_series(rec, "/gains/lambda_cross/measured", scans, times, with_lambda[0]["lambda_cross"][run],
                    "λ_k", (200, 200, 200))
+
+
+def _log_slots(rec, name: str, out: dict, run: int, scans, times) -> None:
+    """A multi-slot tracker's run: confirmed tracks labelled by identity, tentative ones as small
+    points, and the counts of confirmed and tentative tracks per scan."""
+    flags = np.asarray(out["flags"][run]).astype(np.int64)
+    state = np.asarray(out["state"][run], float)
+    ids = np.asarray(out["track_id"][run]) if "track_id" in out else np.where(
+        np.isfinite(state).all(axis=-1), np.arange(state.shape[1]), -1)
+    exists = (flags & (vocab.NO_TRACK | vocab.DELETED)) == 0
+    tentative = exists & ((flags & vocab.INITIALISING) > 0)
+    confirmed = exists & ~tentative
+    log_identified(rec, f"{XY}/tracks/{name}", scans, times, state[..., :2], np.where(confirmed, ids, -1),
+                   f"{name} ")
+    log_points(rec, f"{XY}/tracks/{name}/tentative", scans, times,
+               [state[k, tentative[k], :2] for k in range(len(scans))], color(name), radius=-2.0)
+    log_series(rec, f"/counts/confirmed/{name}", scans, times, confirmed.sum(axis=1), f"{name} confirmed")
+    log_series(rec, f"/counts/tentative/{name}", scans, times, tentative.sum(axis=1), f"{name} tentative")

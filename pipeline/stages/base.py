@@ -427,6 +427,11 @@ class Stage:
         """Truth ``(R, K, [T,] n)`` in :meth:`standard_space`'s components, or None."""
         return None
 
+    def standard_truth_ids(self, reference: dict):
+        """Target identities ``(R, K, T)`` of :meth:`standard_truth`'s slots (−1 empty), or None:
+        slot t is target t for the whole run."""
+        return None
+
     def measure(self, dataset, result: dict, design: dict):
         """Every metric with its Monte Carlo interval: the family's own scores (grouped
         jackknife over runs, :func:`evaluators.confidence.summary_intervals`) and the standard
@@ -473,12 +478,19 @@ class Stage:
             family = summary if "kind" in summary.columns else summary.with_columns(kind=pl.lit("family"))
             return per_scan, pl.concat([family, lives], how="diagonal_relaxed")
         truth = self.standard_truth(reference) if reference is not None else None
-        std_scan, std_summary = evaluate_standard(result["times"], tracks, truth, space, innovations=innovations)
+        truth_ids = self.standard_truth_ids(reference) if truth is not None else None
+        std_scan, std_summary = evaluate_standard(result["times"], tracks, truth, space, innovations=innovations,
+                                                  **({} if truth_ids is None or "truth_ids" not in evaluate_standard.__code__.co_varnames else {"truth_ids": truth_ids}))  # TEMP until truth_ids lands
         if std_scan.height and per_scan.height and "scan" in per_scan.columns:
             extra = [c for c in std_scan.columns if c not in per_scan.columns or c in ("tracker", "scan")]
             per_scan = per_scan.join(std_scan.select(extra), on=["tracker", "scan"], how="left")
         return per_scan, pl.concat([summary.with_columns(kind=pl.lit("family")),
                                     std_summary.with_columns(kind=pl.lit("standard")), lives], how="diagonal_relaxed")
+
+    def holds_many_targets(self, dataset) -> bool:
+        """Whether ``dataset`` is a scene of many targets (its truth is a set with identities),
+        for which the family's multi-target trackers run by default."""
+        return False
 
     def has_truth(self, dataset) -> bool:
         """Whether ``dataset`` holds the truth of this stage's family (else only what needs no

@@ -18,6 +18,7 @@ from pipeline import vocabulary as vocab
 from pipeline.trackers.interface import RadarPlots
 from pipeline.errors import InputError, require_finite
 from pipeline.stages.base import Stage
+from pipeline.stages.truth_sets import identity_slots, single_target
 from pipeline.trackers.radar_tws import radar_pcrb
 from evaluators.standard import position_space
 
@@ -51,9 +52,46 @@ class RadarTwsStage(Stage):
 
     def decode(self, dataset, design: dict) -> RadarPlots:
         rng, brg, counts, times = self.decode_plots(dataset)
-        truth = dataset.channels.get(TRUTH)
+        truth = self.decode_truth(dataset)
         return RadarPlots(range_m=rng, bearing_rad=brg, counts=counts, times_s=times,
-                          truth_state=truth.grid("state") if truth is not None else None)
+                          truth_state=None if truth is None else truth[0],
+                          truth_target_id=None if truth is None else truth[1])
+
+    def holds_many_targets(self, dataset) -> bool:
+        truth = dataset.channels.get(TRUTH)
+        return truth is not None and "target_id" in truth.arrays
+
+    def decode_truth(self, dataset):
+        """The truth as a set per scan, ``(state (R, K, T, 4), target_id (R, K, T))`` in
+        identity-stable slots (:mod:`pipeline.stages.truth_sets`), or None without truth.
+        A file written before truth sets (one ``state`` per frame, no ``target_id``) holds one
+        target, identity 0. Decoded and checked once per data set."""
+        if "radar_truth" not in dataset.cache:
+            dataset.cache["radar_truth"] = self._decode_truth(dataset)
+        return dataset.cache["radar_truth"]
+
+    def _decode_truth(self, dataset):
+        truth = dataset.channels.get(TRUTH)
+        if truth is None:
+            return None
+        plot_counts = self.decode_plots(dataset)[2]
+        if truth.n_runs > plot_counts.shape[0] or truth.n_scans > plot_counts.shape[1]:
+            raise InputError(f"{TRUTH} holds truth for {truth.n_runs} run(s) × {truth.n_scans} scan(s) but "
+                             f"{PLOTS} only {plot_counts.shape[0]} × {plot_counts.shape[1]}", dataset.path)
+        if "target_id" not in truth.arrays:
+            state = truth.grid("state")
+            if state.ndim != 3 or state.shape[-1] != 4:
+                raise InputError(f"{TRUTH} state has shape {state.shape[2:]} per frame; a single target's truth "
+                                 "is [x, y, vx, vy] (a set of targets also carries target_id)", dataset.path)
+            state = _fit_runs_scans(state, plot_counts.shape)
+            return single_target(state)
+        state, counts = truth.ragged("state")
+        ids, id_counts = truth.ragged("target_id")
+        if state.ndim != 4 or state.shape[-1] != 4:
+            raise InputError(f"{TRUTH} state rows have shape {state.shape[3:]}; each target's is [x, y, vx, vy]",
+                             dataset.path)
+        state, ids = identity_slots(state, ids, counts, TRUTH, dataset.path)
+        return _fit_runs_scans(state, plot_counts.shape), _fit_runs_scans(ids, plot_counts.shape, -1)
 
     evaluation_defaults = {"ospa_cutoff_m": 1000.0, "ospa_order": 2.0, "assignment_gate_m": 500.0}
     report_metrics = ("rmse_position_m", "rmse_velocity_mps", "npe", "alpha_cross")
@@ -71,13 +109,18 @@ class RadarTwsStage(Stage):
             rng, brg, counts, _ = self.decode_plots(dataset)
             have = np.arange(rng.shape[2])[None, :] < counts[0][:, None]
             measured = polar_to_cartesian(rng[0][have], brg[0][have])
-            truth = dataset.channels.get(TRUTH)
-            tracks = {name: np.where(((np.asarray(out["flags"])[0] & (vocab.NO_TRACK | vocab.DELETED)) > 0)[:, None],
-                                     np.nan, np.asarray(out["state"], float)[0, :, :2])
+            truth = self.decode_truth(dataset)
+            # confirmed tracks: a tentative one is a hypothesis, and clutter starts many
+            hidden = vocab.NO_TRACK | vocab.DELETED | vocab.INITIALISING
+            tracks = {name: np.where(((np.asarray(out["flags"])[0] & hidden) > 0)[..., None],
+                                     np.nan, np.asarray(out["state"], float)[0, ..., :2])
                       for name, out in result["tracks"].items() if "state" in out and "flags" in out}
+            truth_xy = None if truth is None else truth[0][0, :, :, :2]
             paths.append(plot_tracks_xy(tracks, Path(out_dir) / "tracks.png", measured,
-                                        None if truth is None else truth.grid("state")[0, :, :2],
-                                        title=f"{title}: run 0" if title else "run 0"))
+                                        None if truth_xy is None else (truth_xy[:, 0] if truth_xy.shape[1] == 1
+                                                                       else truth_xy),
+                                        title=f"{title}: run 0 of {counts.shape[0]}" if title
+                                        else f"run 0 of {counts.shape[0]}"))
         return paths
 
     def reference(self, dataset, design: dict) -> dict:
@@ -85,12 +128,13 @@ class RadarTwsStage(Stage):
         first = np.where(counts > 0, 0, -1)
         measured = polar_to_cartesian(rng[..., 0], brg[..., 0]) if rng.shape[2] else np.full(counts.shape + (2,), np.nan)
         measured[first < 0] = np.nan
-        truth = dataset.channels.get(TRUTH)
+        truth = self.decode_truth(dataset)
         runs, fixed = {"measured": measured}, {}
         if truth is not None:
-            truth_state = truth.grid("state")
-            if truth_state.shape[:2] != counts.shape:
-                raise InputError(f"{TRUTH} covers {truth_state.shape[:2]} run×scan, plots {counts.shape}", dataset.path)
+            runs["truth_set"], runs["truth_ids"] = truth
+        # the paper's measures follow one target through every scan: a single-target file only
+        if truth is not None and truth[0].shape[2] == 1 and (truth[1] == 0).all():
+            truth_state = truth[0][:, :, 0]
             require_finite(f"{TRUTH} state", truth_state, dataset.path)
             runs["truth_state"] = truth_state
             runs["cross_std"] = np.hypot(truth_state[..., 0], truth_state[..., 1]) * np.deg2rad(design["sigma_bearing_deg"])
@@ -110,7 +154,11 @@ class RadarTwsStage(Stage):
         # every radar metric is a function of per-scan sums over runs: the groups come from one pass
         runs, fixed = reference["runs"], reference.get("fixed", {})
         pcrb = fixed.get("pcrb")
-        return radar_eval.evaluate(result["times"], result["tracks"], runs["measured"], runs.get("truth_state"),
+        # the paper's measures score one track per run; multi-slot trackers get the standard ones
+        one_track = {name: out for name, out in result["tracks"].items() if np.ndim(out.get("state")) == 3}
+        if not one_track:
+            return _no_family_scores(groups)
+        return radar_eval.evaluate(result["times"], one_track, runs["measured"], runs.get("truth_state"),
                                    runs.get("cross_std"), design["nominal_cross_range_m"],
                                    None if pcrb is None else pcrb[:, 0, 0] + pcrb[:, 1, 1], groups=groups,
                                    left_out=left_out)
@@ -119,4 +167,26 @@ class RadarTwsStage(Stage):
         return position_space(design, truth_components=(0, 1, 2, 3), position_components=(0, 1))
 
     def standard_truth(self, reference: dict):
-        return reference["runs"].get("truth_state")
+        return reference["runs"].get("truth_set")
+
+    def standard_truth_ids(self, reference: dict):
+        return reference["runs"].get("truth_ids")
+
+
+def _fit_runs_scans(a, shape, fill=np.nan):
+    """``a`` (R', K', ...) padded with ``fill`` to the plots' ``(R, K)`` (truth may stop early)."""
+    if a.shape[:2] == tuple(shape):
+        return a
+    out = np.full(tuple(shape) + a.shape[2:], fill, dtype=a.dtype)
+    out[:a.shape[0], :a.shape[1]] = a
+    return out
+
+
+def _no_family_scores(groups):
+    """The paper's tables with no tracker in them (every tracker of the unit keeps track slots)."""
+    import polars as pl
+
+    per_scan = pl.DataFrame(schema={"tracker": pl.String, "scan": pl.Int64, "time_s": pl.Float64})
+    summary = pl.DataFrame(schema={"tracker": pl.String, "metric": pl.String, "scope": pl.String,
+                                   "value": pl.Float64})
+    return (per_scan, summary) if groups is None else (per_scan, summary, [summary] * groups)

@@ -85,6 +85,10 @@ class Tracker:
     form: ClassVar[str] = "batch"
     params: ClassVar[tuple[Param, ...]] = ()
     label: ClassVar[str] = ""  # legend label in figures (default: name)
+    #: the scene the tracker is made for: "one" target per run (it returns one track, or the
+    #: paper's fixed slots) or "many" (tracks born and deleted among clutter, any number of
+    #: slots); a replay runs the built-ins made for the data set's scene unless told which
+    targets: ClassVar[str] = "one"
 
     def __init__(self, **design):
         defaults = {p.name: p.default for p in self.params}
@@ -152,7 +156,8 @@ class RadarPlots(Measurements):
     """Radar plots, NaN-padded to the largest count of a scan.
 
     ``range_m``, ``bearing_rad`` : (R, K, W); ``counts`` : (R, K) real plots per scan;
-    ``times_s`` : (K,); ``truth_state`` : (R, K, 4) ``[x, y, vx, vy]`` or None.
+    ``times_s`` : (K,); ``truth_state`` : (R, K, T, 4) ``[x, y, vx, vy]`` of the targets present
+    (NaN in empty slots) or None, with ``truth_target_id`` (R, K, T) their identities (−1 empty).
     Bearing is measured from the x axis towards the y axis (x = r cos θ, y = r sin θ).
     """
 
@@ -161,6 +166,7 @@ class RadarPlots(Measurements):
     counts: np.ndarray = _per_run()
     times_s: np.ndarray = None
     truth_state: np.ndarray | None = _per_run(None)
+    truth_target_id: np.ndarray | None = _per_run(None)
     state_size = 4  # [x, y, vx, vy]
 
 

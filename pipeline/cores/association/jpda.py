@@ -316,6 +316,11 @@ def _others(n: int) -> np.ndarray:
 def cluster_tracks(gated: np.ndarray) -> np.ndarray:
     """Connected components of the tracks-share-a-gated-peak graph.
 
+    Tracks and peaks of every run are the nodes of one bipartite graph, a gated pair its edge;
+    its connected components (:func:`scipy.sparse.csgraph.connected_components`, linear in the
+    gated pairs) are the clusters. Each track is labelled with the smallest track index of its
+    cluster, run by run.
+
     Parameters
     ----------
     gated : ndarray of bool (R, T, m)
@@ -325,13 +330,20 @@ def cluster_tracks(gated: np.ndarray) -> np.ndarray:
     labels : ndarray of int (R, T)
         The smallest track index of each track's cluster.
     """
-    R, T, _ = gated.shape
-    g = gated.astype(np.float64)
-    reach = (g @ np.swapaxes(g, 1, 2) > 0) | np.eye(T, dtype=bool)
-    for _ in range(int(np.ceil(np.log2(max(T, 2))))):
-        r = reach.astype(np.float64)
-        reach = (r @ r) > 0
-    return np.argmax(reach, axis=2)
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    R, T, m = gated.shape
+    run, track, peak = np.nonzero(gated)
+    n = R * (T + m)
+    # node numbers: run r's tracks r·T + t, then every run's peaks after all tracks
+    rows, cols = run * T + track, R * T + run * m + peak
+    graph = coo_matrix((np.ones(rows.size, np.int8), (rows, cols)), shape=(n, n))
+    _, component = connected_components(graph, directed=False)
+    component = component[:R * T]
+    smallest = np.full(n, T, np.int64)
+    np.minimum.at(smallest, component, np.tile(np.arange(T), R))
+    return smallest[component].reshape(R, T)
 
 
 def joint_association_probabilities(ratio: np.ndarray, miss: np.ndarray, gated: np.ndarray,
@@ -423,7 +435,15 @@ def _clustered_marginals(r, miss, gated, predicted_bearing, max_cluster_tracks, 
         first = group_start[group_size == s]
         flat = order[first[:, None] + np.arange(s)]  # (batch, s) flat (run, track) indices
         run, trk = np.divmod(flat, T)
-        bb, b0 = association_marginals(r[run, trk], miss[run, trk])
+        if s == 1:  # a track alone: β_j = r_j / (miss + Σ r), β₀ = miss / (miss + Σ r), no recursion
+            rr, mm = r[run, trk], miss[run, trk]
+            Z = mm + rr.sum(axis=-1)
+            ok = Z > 0
+            Zs = np.where(ok, Z, 1.0)
+            bb = np.where(ok[..., None], rr / Zs[..., None], 0.0)
+            b0 = np.where(ok, mm / Zs, 1.0)
+        else:
+            bb, b0 = association_marginals(r[run, trk], miss[run, trk])
         beta[run, trk] = bb
         beta0[run, trk] = b0
     return beta, beta0
@@ -465,6 +485,51 @@ def pda_update(x, P4, gain, S, innovation, gated, beta, beta0):
     w = spread - (1.0 - beta0) * S
     P4_post = P4 + w[..., None] * (gain[..., :, None] * gain[..., None, :]).reshape(P4.shape)
     return x_post, P4_post, nu_bar
+
+
+def gaussian_likelihood_ratio(squared_distance, det_S, detection_probability, clutter_density):
+    """``P_D N(ν; 0, S) / λ`` per track and plot from the squared Mahalanobis distance
+    ``d² = νᵀ S⁻¹ ν`` ``(..., T, W)`` and ``|S|`` ``(..., T)`` of an m = 2 measurement (the radar's
+    range and bearing; λ in plots per unit of measurement space, e.g. per metre and radian).
+    The event weights of eq. A.5 in any dimension; :func:`position_likelihood_ratio` is the
+    bearing (m = 1) case."""
+    pdf = np.exp(-0.5 * squared_distance) / (2.0 * np.pi * np.sqrt(det_S))[..., None]
+    return detection_probability * pdf / clutter_density
+
+
+def pda_update_gaussian(x, P, gain, S, innovation, gated, beta, beta0):
+    """PDA combination of the per-plot updates (the PDAF update of Bar-Shalom, Willett & Tian 2011; the
+    bearing paper's eq. A.7) for any state and measurement size.
+
+    ``x⁺ = x + K ν̄`` with ``ν̄ = Σ_j β_j ν_j``;
+    ``P⁺ = P − (1 − β₀) K S Kᵀ + K (Σ_j β_j ν_j ν_jᵀ − ν̄ ν̄ᵀ) Kᵀ``: with probability β₀ the
+    prediction stands, otherwise the Kalman posterior ``P − K S Kᵀ``, plus the spread of the
+    innovations. :func:`pda_update` is the same formula for the two-state bearing filter.
+
+    Parameters
+    ----------
+    x : (…, n), P : (…, n, n)
+        Predicted state and covariance.
+    gain : (…, n, m), S : (…, m, m)
+        Kalman gain and innovation covariance.
+    innovation : (…, W, m), gated : (…, W) bool
+        Per-plot innovations (ungated entries may hold anything; their β is 0).
+    beta : (…, W), beta0 : (…,)
+
+    Returns
+    -------
+    x_post : (…, n)
+    P_post : (…, n, n)
+    nu_bar : (…, m)
+    """
+    nu = np.where(gated[..., None], innovation, 0.0)
+    weighted = beta[..., None] * nu
+    nu_bar = weighted.sum(axis=-2)
+    spread = np.einsum("...wi,...wj->...ij", weighted, nu) - nu_bar[..., :, None] * nu_bar[..., None, :]
+    spread -= (1.0 - beta0)[..., None, None] * S
+    x_post = x + np.einsum("...ij,...j->...i", gain, nu_bar)
+    P_post = P + gain @ spread @ np.swapaxes(gain, -1, -2)
+    return x_post, 0.5 * (P_post + np.swapaxes(P_post, -1, -2)), nu_bar
 
 
 def update_strength(strength: np.ndarray, amplitude: np.ndarray, gated: np.ndarray) -> np.ndarray:

@@ -139,6 +139,19 @@ class TrackLife:
         self.age = np.where(where, scans, self.age)
         self.coasting = np.where(where, 0, self.coasting)
 
+    def resize(self, slots: int) -> None:
+        """Grow the last axis (the track slots) to ``slots``; the new slots hold no track. A
+        multi-target tracker calls it when more tracks are alive than it has slots for."""
+        extra = slots - self.alive.shape[-1]
+        if extra <= 0:
+            return
+
+        def grown(a):
+            return np.concatenate([a, np.zeros(a.shape[:-1] + (extra,), a.dtype)], axis=-1)
+
+        self.alive, self.tentative = grown(self.alive), grown(self.tentative)
+        self.hits, self.age, self.coasting = grown(self.hits), grown(self.age), grown(self.coasting)
+
     @property
     def settled(self) -> bool:
         """Whether :meth:`step` can change nothing but the coasting count.

@@ -1,0 +1,186 @@
+"""HOTA for point targets: detection, association and localisation accuracy over Monte Carlo runs.
+
+HOTA (Luiten, Ošep, Dendorfer, Torr, Geiger, Leal-Taixé & Leibe 2021, *IJCV* 129, §5) scores a
+tracker at each localisation threshold α = 0.05, 0.10, …, 0.95 from a similarity ``S ∈ [0, 1]``
+between a track and a target. For points we use ``S = max(0, 1 − d/d₀)`` with ``d₀`` a design
+value (the distance at which a track stops resembling the target; ``hota_distance_m`` of a family).
+
+Per run (the paper's "sequence"):
+
+1. every pair of truth identity *g* and track identity *h* gets a global alignment score
+   ``A(g, h) = Σ_k Ŝ_k / (n_g + n_h − Σ_k Ŝ_k)``, where ``n_g``, ``n_h`` count the scans the
+   identities are present and ``Ŝ_k = S / (Σ_row S + Σ_col S − S)`` is scan k's similarity
+   normalised within its matrix (TrackEval's soft count of potential matches);
+2. at each scan the pairs are assigned optimally on ``A · S`` (eq. 18's objective), once for all α;
+3. for each α the assigned pairs with ``S ≥ α`` are true positives (TP); the targets left are
+   misses (FN), the tracks left false positives (FP);
+4. ``DetA_α = |TP| / (|TP| + |FN| + |FP|)`` (eq. 5), ``AssA_α = (1/|TP|) Σ_{c∈TP} A(c)`` with
+   ``A(c) = |TPA(c)| / (|TPA(c)| + |FNA(c)| + |FPA(c)|)`` (eqs. 6–9, counted per identity pair),
+   ``HOTA_α = √(DetA_α · AssA_α)`` (eq. 10) and ``LocA_α = (1/|TP|) Σ_{c∈TP} S(c)`` (eq. 12);
+5. HOTA, DetA, AssA, LocA are the means over the 19 values of α (eq. 11).
+
+Over Monte Carlo runs nothing is averaged per run: TP, FN, FP, the association sums and the
+similarity sums of every α are **summed over runs** and the ratios formed from the totals (so
+AssA and LocA are weighted by |TP|, as TrackEval combines sequences). :func:`hota_sums` returns
+those per-run sums, so :func:`pooled_hota` gives the value of any subset of runs (Monte Carlo
+intervals by regrouping runs, :mod:`evaluators.confidence`).
+
+At an α without a single TP, AssA_α = 0 and LocA_α = 1: TrackEval's conventions, kept so that the
+averages over α agree with it. See ``docs/evaluation.md`` (section *HOTA*).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from evaluators.set_distances import optimal_assignment, pairwise_distance
+from pipeline.batched_linalg import all_finite
+
+#: the localisation thresholds α, built as TrackEval builds them (so every bit of α agrees)
+HOTA_ALPHAS = np.arange(0.05, 0.99, 0.05)
+_EPS = np.finfo(float).eps
+SUM_KEYS = ("tp", "fn", "fp", "loc_sum", "ass_sum", "ass_re_sum", "ass_pr_sum")
+
+
+def point_similarity(distance, distance_scale: float):
+    """``max(0, 1 − d/d₀)``: 1 on the target, 0 from ``d₀`` on (Luiten et al. 2021, §5)."""
+    return np.maximum(0.0, 1.0 - np.asarray(distance, float) / float(distance_scale))
+
+
+def hota_sums(tracks, truths, distance_scale: float, track_ids=None, truth_ids=None, angular: bool = False,
+              alphas=HOTA_ALPHAS) -> dict:
+    """Per-run sums from which HOTA and its parts are formed for any set of runs.
+
+    Parameters
+    ----------
+    tracks : ndarray (R, K, S, d)
+        Track positions; NaN rows are absent.
+    truths : ndarray (R, K, T, d)
+        True positions in the same space; NaN rows are absent.
+    distance_scale : float
+        ``d₀`` (> 0) of the similarity :func:`point_similarity`, in the units of the space.
+    track_ids : ndarray of int (R, K, S), optional
+        Track identity per slot (−1 empty); default: the slot.
+    truth_ids : ndarray of int (R, K, T), optional
+        Target identity per slot (−1 empty); default: the slot. Identities are unique within a scan.
+    angular : bool
+        The components are angles (radians): differences wrap.
+    alphas : ndarray (A,)
+        Localisation thresholds.
+
+    Returns
+    -------
+    dict of ndarray (R, A)
+        ``tp``, ``fn``, ``fp`` (counts), ``loc_sum`` (Σ S over the TPs), ``ass_sum`` (Σ A(c) over
+        the TPs), ``ass_re_sum`` and ``ass_pr_sum`` (the same for association recall and
+        precision); and ``alphas`` (A,).
+    """
+    tracks, truths = np.asarray(tracks, float), np.asarray(truths, float)
+    alphas = np.asarray(alphas, float)
+    R = tracks.shape[0]
+    out = {key: np.zeros((R, alphas.size)) for key in SUM_KEYS}
+    for r in range(R):
+        one = _one_run(tracks[r], truths[r], float(distance_scale), None if track_ids is None else track_ids[r],
+                       None if truth_ids is None else truth_ids[r], angular, alphas)
+        for key in SUM_KEYS:
+            out[key][r] = one[key]
+    out["alphas"] = alphas
+    return out
+
+
+def _compact(ids, present):
+    """Identities (K, n) as 0…U−1 (−1 absent) and U."""
+    uniq = np.unique(ids[present])
+    return np.where(present, np.searchsorted(uniq, np.where(present, ids, uniq[0] if uniq.size else 0)), -1), uniq.size
+
+
+def _one_run(tracks, truths, d0, track_ids, truth_ids, angular, alphas) -> dict:
+    """The sums of :func:`hota_sums` for one run (tracks (K, S, d), truths (K, T, d))."""
+    vy = all_finite(tracks)
+    vx = all_finite(truths)
+    gid_raw = np.broadcast_to(np.arange(vx.shape[-1]), vx.shape) if truth_ids is None else np.asarray(truth_ids)
+    tid_raw = np.broadcast_to(np.arange(vy.shape[-1]), vy.shape) if track_ids is None else np.asarray(track_ids)
+    vx, vy = vx & (gid_raw >= 0), vy & (tid_raw >= 0)
+    gid, n_truth_ids = _compact(gid_raw, vx)
+    tid, n_track_ids = _compact(tid_raw, vy)
+    A = alphas.size
+    n_truth, n_track = int(vx.sum()), int(vy.sum())
+    if n_truth == 0 or n_track == 0:
+        zeros = np.zeros(A)
+        return {"tp": zeros, "fn": np.full(A, n_truth), "fp": np.full(A, n_track), "loc_sum": zeros,
+                "ass_sum": zeros, "ass_re_sum": zeros, "ass_pr_sum": zeros}
+    pair = vx[:, :, None] & vy[:, None, :]                                          # (K, T, S)
+    d = pairwise_distance(np.where(vx[..., None], truths, 0.0), np.where(vy[..., None], tracks, 0.0), angular)
+    sim = np.where(pair, point_similarity(d, d0), 0.0)
+
+    # 1. global alignment score between identities, from each scan's normalised similarity
+    denom = sim.sum(axis=1, keepdims=True) + sim.sum(axis=2, keepdims=True) - sim
+    soft = np.where(denom > _EPS, sim / np.where(denom > _EPS, denom, 1.0), 0.0)
+    key = gid[:, :, None] * n_track_ids + tid[:, None, :]                          # (K, T, S)
+    potential = np.bincount(key[pair], weights=soft[pair], minlength=n_truth_ids * n_track_ids)
+    potential = potential.reshape(n_truth_ids, n_track_ids)
+    truth_count = np.bincount(gid[vx], minlength=n_truth_ids).astype(float)[:, None]
+    track_count = np.bincount(tid[vy], minlength=n_track_ids).astype(float)[None, :]
+    alignment = potential / (truth_count + track_count - potential)
+
+    # 2. one assignment per scan maximising Σ A·S (the same for every α)
+    score = np.where(pair, alignment[np.maximum(gid, 0)[:, :, None], np.maximum(tid, 0)[:, None, :]] * sim, 0.0)
+    _, match = optimal_assignment(-score, vx, vy, unmatched=0.0)                   # (K, T)
+    k_m, t_m = np.nonzero(match >= 0)
+    s_m = match[k_m, t_m]
+    sim_m = sim[k_m, t_m, s_m]
+    key_m = key[k_m, t_m, s_m]
+
+    # 3.–4. per α: TPs, and per identity pair the TPA count that gives A(c)
+    out = {k: np.zeros(A) for k in SUM_KEYS}
+    for a, alpha in enumerate(alphas):
+        tp = sim_m >= alpha - _EPS
+        n_tp = int(tp.sum())
+        out["tp"][a], out["fn"][a], out["fp"][a] = n_tp, n_truth - n_tp, n_track - n_tp
+        if n_tp == 0:
+            continue
+        out["loc_sum"][a] = sim_m[tp].sum()
+        tpa = np.bincount(key_m[tp], minlength=n_truth_ids * n_track_ids).reshape(n_truth_ids, n_track_ids)
+        # Σ_c A(c) over the TPs = Σ over identity pairs of |TPA| · A(pair)
+        out["ass_sum"][a] = np.sum(tpa * (tpa / np.maximum(1.0, truth_count + track_count - tpa)))
+        out["ass_re_sum"][a] = np.sum(tpa * (tpa / np.maximum(1.0, truth_count)))
+        out["ass_pr_sum"][a] = np.sum(tpa * (tpa / np.maximum(1.0, track_count)))
+    return out
+
+
+def pooled_hota(sums: dict, runs=None) -> dict:
+    """HOTA and its parts of the runs ``runs`` (default: all) from :func:`hota_sums`.
+
+    The counts and sums are added over the runs first and the ratios formed from the totals;
+    never an average of per-run HOTA.
+
+    Returns
+    -------
+    dict
+        Floats ``hota``, ``deta``, ``assa``, ``loca``, ``detre``, ``detpr``, ``assre``,
+        ``asspr`` (each the mean over α), and the same per α as arrays (A,) under
+        ``<name>_alpha``.
+    """
+    pick = slice(None) if runs is None else np.asarray(runs)
+    total = {key: np.asarray(sums[key])[pick].sum(axis=0) for key in SUM_KEYS}
+    tp, fn, fp = total["tp"], total["fn"], total["fp"]
+    per_alpha = {
+        "deta": tp / np.maximum(1.0, tp + fn + fp),
+        "detre": tp / np.maximum(1.0, tp + fn),
+        "detpr": tp / np.maximum(1.0, tp + fp),
+        "assa": total["ass_sum"] / np.maximum(1.0, tp),
+        "assre": total["ass_re_sum"] / np.maximum(1.0, tp),
+        "asspr": total["ass_pr_sum"] / np.maximum(1.0, tp),
+        # 1 at an α without TP (TrackEval's convention)
+        "loca": np.maximum(1e-10, total["loc_sum"]) / np.maximum(1e-10, tp),
+    }
+    per_alpha["hota"] = np.sqrt(per_alpha["deta"] * per_alpha["assa"])
+    out = {name: float(np.mean(v)) for name, v in per_alpha.items()}
+    out.update({f"{name}_alpha": v for name, v in per_alpha.items()})
+    return out
+
+
+def hota(tracks, truths, distance_scale: float, track_ids=None, truth_ids=None, angular: bool = False) -> dict:
+    """HOTA, DetA, AssA, LocA (and recall/precision parts) pooled over all runs: :func:`pooled_hota`
+    of :func:`hota_sums`."""
+    return pooled_hota(hota_sums(tracks, truths, distance_scale, track_ids, truth_ids, angular))

@@ -1,0 +1,167 @@
+"""Per-track filters: one object owns a track's motion model, measurement prediction, innovation
+covariance, gate and update, so a multi-target loop never computes any of them itself.
+
+A multi-target tracker (:mod:`pipeline.trackers.radar_multi_target`) keeps a batch of tracks,
+``x`` ``(..., n)`` and ``P`` ``(..., n, n)`` over any leading axes (runs, track slots), and asks
+its filter, scan by scan, to
+
+1. :meth:`~TrackFilter.predict` every track over the scan interval;
+2. :meth:`~TrackFilter.predict_measurement`: the predicted measurement ``ẑ``, its Jacobian
+   ``H`` and the innovation covariance ``S = H P Hᵀ + R``;
+3. :meth:`~TrackFilter.innovations` of every track against every plot (angles wrapped) and
+   their squared Mahalanobis distances, which the association gates with a χ² quantile;
+4. :meth:`~TrackFilter.update` with one innovation per track (nearest neighbour, GNN) or with
+   a combined innovation and its spread (PDA, :func:`pipeline.cores.association.jpda.pda_update_gaussian`);
+5. :meth:`~TrackFilter.start` a track from one plot no track claimed.
+
+The filter here is the extended Kalman filter of a nearly-constant-velocity target seen in range
+and bearing (Bar-Shalom, Li & Kirubarajan 2001, §6.2 for the continuous white-noise acceleration
+model, §10.3 for the polar EKF). Another filter (a UKF, a converted-measurement KF, an IMM) is one
+more class with the same five methods; no loop changes. Every product goes through the one Kalman
+filter of :mod:`pipeline.cores.filters.kalman`.
+
+State ``[x, y, ẋ, ẏ]`` (m, m/s); measurement ``[r, θ]`` (m, rad), θ counter-clockwise from +x.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline.cores.filters.kalman import continuous_white_noise_model, joseph_covariance, kalman_gain
+
+
+def wrap_angle(angle):
+    """``angle`` into [−π, π)."""
+    return (np.asarray(angle) + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def symmetric_2x2_inverse(S):
+    """Inverse and determinant of a stack of symmetric 2×2 matrices ``(..., 2, 2)``, element-wise
+    (what a batched ``np.linalg.inv`` computes, without its per-matrix call overhead)."""
+    a, b, d = S[..., 0, 0], S[..., 0, 1], S[..., 1, 1]
+    det = a * d - b * b
+    inv = np.empty(S.shape)
+    inv[..., 0, 0] = d / det
+    inv[..., 1, 1] = a / det
+    inv[..., 0, 1] = inv[..., 1, 0] = -b / det
+    return inv, det
+
+
+@dataclass(frozen=True)
+class TrackFilter:
+    """Interface of a per-track filter (see the module docstring). Subclasses set ``state_size``
+    and ``measurement_size`` and implement the five methods; arrays are batched over leading axes."""
+
+    state_size = 0
+    measurement_size = 0
+
+    def predict(self, x, P, dt: float):  # pragma: no cover - interface
+        """``(x⁻, P⁻)`` after ``dt`` seconds."""
+        raise NotImplementedError
+
+    def predict_measurement(self, x, P):  # pragma: no cover - interface
+        """``(ẑ, H, S)``: predicted measurement ``(..., m)``, Jacobian ``(..., m, n)`` and
+        innovation covariance ``(..., m, m)``."""
+        raise NotImplementedError
+
+    def innovations(self, z, z_pred):  # pragma: no cover - interface
+        """``z − ẑ`` for plots ``z`` ``(..., W, m)`` against tracks ``ẑ`` ``(..., S, m)``:
+        ``(..., S, W, m)``."""
+        raise NotImplementedError
+
+    def update(self, x, P, H, S, innovation):
+        """Kalman update of ``(x, P)`` with one innovation per track (Joseph form).
+
+        Returns ``(x⁺, P⁺, K)``."""
+        K, _ = kalman_gain(P, H, self.measurement_covariance(x))
+        x_post = x + np.einsum("...ij,...j->...i", K, innovation)
+        return x_post, joseph_covariance(P, K, H, self.measurement_covariance(x)), K
+
+    def start(self, z):  # pragma: no cover - interface
+        """``(x₀, P₀)`` of tracks started from single plots ``z`` ``(..., m)``."""
+        raise NotImplementedError
+
+    def measurement_covariance(self, x):  # pragma: no cover - interface
+        raise NotImplementedError
+
+
+@dataclass(frozen=True)
+class PolarConstantVelocityEKF(TrackFilter):
+    """Nearly-constant-velocity motion, range-bearing plots, extended Kalman filter.
+
+    Attributes
+    ----------
+    process_noise_m2ps3 : float
+        Spectral density q of the white acceleration per axis (m²/s³):
+        ``Q = q [[T³/3, T²/2], [T²/2, T]]`` per axis (continuous white-noise acceleration).
+    sigma_range_m, sigma_bearing_rad : float
+        Plot noise: ``R = diag(σ_r², σ_θ²)``.
+    initial_speed_sigma_mps : float
+        Standard deviation of each velocity component of a track started from one plot (a
+        velocity prior of zero mean: the start knows the position only).
+    """
+
+    process_noise_m2ps3: float
+    sigma_range_m: float
+    sigma_bearing_rad: float
+    initial_speed_sigma_mps: float
+
+    state_size = 4
+    measurement_size = 2
+
+    def motion_model(self, dt: float):
+        """``F``, ``Q`` ``(4, 4)`` for state ``[x, y, ẋ, ẏ]``: the per-axis continuous white-noise
+        model of :func:`~pipeline.cores.filters.kalman.continuous_white_noise_model`, both axes."""
+        F1, Q1 = continuous_white_noise_model(float(dt), self.process_noise_m2ps3, 2)
+        eye = np.eye(2)
+        return np.kron(F1, eye), np.kron(Q1, eye)
+
+    def predict(self, x, P, dt: float):
+        F, Q = self.motion_model(dt)
+        x_pred = x @ F.T
+        P_pred = F @ P @ F.T + Q
+        return x_pred, 0.5 * (P_pred + np.swapaxes(P_pred, -1, -2))
+
+    def measurement_covariance(self, x=None):
+        return np.diag([self.sigma_range_m ** 2, self.sigma_bearing_rad ** 2])
+
+    def predict_measurement(self, x, P):
+        px, py = x[..., 0], x[..., 1]
+        r2 = px * px + py * py
+        r = np.sqrt(r2)
+        H = np.zeros(x.shape[:-1] + (2, 4))
+        H[..., 0, 0], H[..., 0, 1] = px / r, py / r
+        H[..., 1, 0], H[..., 1, 1] = -py / r2, px / r2
+        S = H @ P @ np.swapaxes(H, -1, -2) + self.measurement_covariance()
+        S = 0.5 * (S + np.swapaxes(S, -1, -2))
+        return np.stack([r, np.arctan2(py, px)], axis=-1), H, S
+
+    def innovations(self, z, z_pred):
+        nu = z[..., None, :, :] - z_pred[..., :, None, :]
+        nu[..., 1] = wrap_angle(nu[..., 1])
+        return nu
+
+    def start(self, z):
+        r, b = z[..., 0], z[..., 1]
+        c, s = np.cos(b), np.sin(b)
+        x = np.zeros(z.shape[:-1] + (4,))
+        x[..., 0], x[..., 1] = r * c, r * s
+        # converted position covariance D diag(σ_r², r²σ_θ²) Dᵀ, velocity prior independent of it
+        along, cross = self.sigma_range_m ** 2, (r * self.sigma_bearing_rad) ** 2
+        P = np.zeros(z.shape[:-1] + (4, 4))
+        P[..., 0, 0] = along * c * c + cross * s * s
+        P[..., 1, 1] = along * s * s + cross * c * c
+        P[..., 0, 1] = P[..., 1, 0] = (along - cross) * c * s
+        P[..., 2, 2] = P[..., 3, 3] = self.initial_speed_sigma_mps ** 2
+        return x, P
+
+
+def squared_distances(innovation, S):
+    """``νᵀ S⁻¹ ν`` of every track-plot pair: ``innovation`` ``(..., S, W, m)``, ``S`` ``(..., S, m, m)``."""
+    if S.shape[-1] == 2:
+        S_inv, _ = symmetric_2x2_inverse(S)
+    else:
+        S_inv = np.linalg.inv(S)
+    return np.einsum("...wi,...ij,...wj->...w", innovation, S_inv, innovation)

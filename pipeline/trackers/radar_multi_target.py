@@ -1,0 +1,412 @@
+"""Multi-target radar trackers: global nearest neighbour (GNN) and JPDA over range-bearing plots.
+
+Tracks are born, confirmed, coasted and deleted among clutter, any number at a time. One scan
+loop (:func:`track_multi_target`) serves both; what differs is a small **association strategy**:
+
+``gnn``      one optimal one-to-one assignment of tracks to plots per scan inside the χ² gates,
+             "not detected" an option for every track (Blackman & Popoli 1999, ch. 6;
+             :func:`pipeline.cores.association.gnn.gnn_assignment`); a Kalman update with the
+             assigned plot.
+``jpda_mt``  joint probabilistic data association (Fortmann, Bar-Shalom & Scheffe 1983): the
+             marginal association probabilities of every track and gated plot from the project's
+             one JPDA core (:func:`pipeline.cores.association.jpda.joint_association_probabilities`,
+             exact per cluster of tracks sharing plots), then the PDA update
+             (:func:`pipeline.cores.association.jpda.pda_update_gaussian`).
+
+Each track is filtered by a **per-track filter** object
+(:class:`pipeline.cores.filters.track_filter.PolarConstantVelocityEKF`: nearly-constant-velocity
+motion, range-bearing EKF), which owns prediction, predicted measurement, innovation covariance
+and update; the gate is the χ² quantile of the innovation's two degrees of freedom.
+
+Track life is the shared mechanism of :mod:`pipeline.cores.association.track_management`: a plot
+that no track claimed (GNN: not assigned; JPDA: inside no gate) starts a tentative track
+(``INITIALISING``) at the plot with a zero-mean velocity prior; it is confirmed when
+``confirm_hits`` of its first ``confirm_window`` scans had a plot in its gate, and deleted
+(``DELETED | NO_TRACK``) after ``max_coasted_scans`` scans in a row without one, or at once when it
+can no longer be confirmed. Every track has an identity (``track_id``) never reused within a run;
+tracks live in **slots** (the output's track axis), and a slot freed at scan k can hold a new
+track from scan k + 1 on. See docs/trackers.md, "Multi-target trackers".
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline import vocabulary as vocab
+from pipeline.cores.association.gnn import gnn_assignment
+from pipeline.cores.association.jpda import (
+    gaussian_likelihood_ratio,
+    joint_association_probabilities,
+    pda_update_gaussian,
+)
+from pipeline.cores.association.track_management import ConfirmationRule, EndingRule, TrackLife
+from pipeline.cores.filters.kalman import kalman_gain
+from pipeline.cores.filters.track_filter import (
+    PolarConstantVelocityEKF,
+    TrackFilter,
+    squared_distances,
+    symmetric_2x2_inverse,
+)
+from pipeline.trackers.interface import Param, Tracker
+
+#: smallest clutter density (plots per metre and radian) the JPDA weighs plots against: a
+#: scenario without clutter still has a finite likelihood ratio
+MIN_CLUTTER_DENSITY = 1e-12
+#: slots a run's track arrays start with; they double when the tracks alive outgrow them
+INITIAL_SLOTS = 8
+
+
+@dataclass(frozen=True)
+class MultiTargetDesign:
+    """Design of a multi-target tracker (SI units, radians).
+
+    Attributes
+    ----------
+    track_filter : TrackFilter
+        The per-track filter.
+    detection_probability : float
+        P_D of a target per scan.
+    clutter_density : float
+        Clutter plots per unit of measurement space (per metre of range and radian of bearing).
+    gate_chi2 : float
+        A plot is in a track's gate when ``νᵀ S⁻¹ ν`` is at most this.
+    gate_probability : float
+        P_G: the chance that a target's own plot falls inside the gate.
+    confirmation, ending : ConfirmationRule, EndingRule
+        Track management (M-of-N confirmation; deletion after coasting).
+    max_cluster_tracks : int
+        Largest cluster of tracks the JPDA solves exactly as a whole (bigger ones are cut and
+        flagged ``CLUSTER_SPLIT``).
+    """
+
+    track_filter: TrackFilter
+    detection_probability: float
+    clutter_density: float
+    gate_chi2: float
+    gate_probability: float
+    confirmation: ConfirmationRule
+    ending: EndingRule
+    max_cluster_tracks: int = 12
+
+
+# --------------------------------------------------------------------------- association strategies
+
+
+@dataclass(frozen=True)
+class ScanAssociation:
+    """What an association strategy returns for one scan.
+
+    ``x``, ``P``: posterior of every slot (prediction where coasted); ``hit`` (R, S): a plot was
+    used; ``claimed`` (R, W): plots a track took (the rest may start tracks); ``innovation``
+    (R, S, m) and ``innovation_covariance`` (R, S, m, m) of the update, NaN where none or where
+    it is not a single plot's (the JPDA's combined innovation is not Gaussian with covariance
+    S); ``flags`` (R, S) extra flag bits."""
+
+    x: np.ndarray
+    P: np.ndarray
+    hit: np.ndarray
+    claimed: np.ndarray
+    innovation: np.ndarray | None
+    innovation_covariance: np.ndarray | None
+    flags: np.ndarray
+
+
+class GlobalNearestNeighbour:
+    """GNN: the assignment minimising Σ νᵀS⁻¹ν + ln|S| over the pairs it makes plus, for a track
+    left without a plot, the gate plus ln|S| (so a pair is taken only inside the gate)."""
+
+    name = "gnn"
+    reports_innovation = True
+
+    def associate(self, design: MultiTargetDesign, x, P, H, S, nu, d2, gated) -> ScanAssociation:
+        f = design.track_filter
+        _, det = symmetric_2x2_inverse(S) if S.shape[-1] == 2 else (None, np.linalg.det(S))
+        log_det = np.log(np.where(det > 0, det, 1.0))
+        plot = gnn_assignment(d2 + log_det[..., None], gated, design.gate_chi2 + log_det)
+        hit = plot >= 0
+        picked = np.take_along_axis(nu, np.maximum(plot, 0)[..., None, None], axis=-2)[..., 0, :]
+        picked = np.where(hit[..., None], picked, 0.0)
+        x_upd, P_upd, _ = f.update(x, P, H, S, picked)
+        x = np.where(hit[..., None], x_upd, x)
+        P = np.where(hit[..., None, None], P_upd, P)
+        claimed = np.zeros(gated.shape[::2], bool)
+        run, slot = np.nonzero(hit)
+        claimed[run, plot[run, slot]] = True
+        innovation = np.where(hit[..., None], picked, np.nan)
+        covariance = np.where(hit[..., None, None], S, np.nan)
+        return ScanAssociation(x, P, hit, claimed, innovation, covariance, np.zeros(hit.shape, np.uint32))
+
+
+class JointProbabilistic:
+    """JPDA: marginal association probabilities per cluster from the one JPDA core, PDA update."""
+
+    name = "jpda_mt"
+    reports_innovation = False
+
+    def associate(self, design: MultiTargetDesign, x, P, H, S, nu, d2, gated) -> ScanAssociation:
+        f = design.track_filter
+        _, det = symmetric_2x2_inverse(S) if S.shape[-1] == 2 else (None, np.linalg.det(S))
+        ratio = gaussian_likelihood_ratio(d2, np.where(det > 0, det, 1.0), design.detection_probability,
+                                          design.clutter_density)
+        miss = np.full(gated.shape[:-1], 1.0 - design.detection_probability * design.gate_probability)
+        # the order in which a cluster too large to solve whole is cut: around the radar, by bearing
+        order = np.arctan2(x[..., 1], x[..., 0])
+        beta, beta0, split = joint_association_probabilities(ratio, miss, gated, order, design.max_cluster_tracks)
+        # a hit when a plot is more likely than not the track's own: a lost track whose gate has
+        # grown over clutter keeps coasting towards deletion instead of living on clutter
+        hit = gated.any(axis=-1) & (beta0 < 0.5)
+        K, _ = kalman_gain(P, H, f.measurement_covariance(x))
+        x_upd, P_upd, _ = pda_update_gaussian(x, P, K, S, nu, gated, beta, beta0)
+        x = np.where(hit[..., None], x_upd, x)
+        P = np.where(hit[..., None, None], P_upd, P)
+        flags = np.where(split, vocab.CLUSTER_SPLIT, 0).astype(np.uint32)
+        return ScanAssociation(x, P, hit, gated.any(axis=-2), None, None, flags)
+
+
+ASSOCIATIONS = {a.name: a for a in (GlobalNearestNeighbour(), JointProbabilistic())}
+
+
+# --------------------------------------------------------------------------- the scan loop
+
+
+class _Slots:
+    """The tracks of every run in slots: states, covariances, identities and their life."""
+
+    def __init__(self, runs: int, design: MultiTargetDesign):
+        n = design.track_filter.state_size
+        self.x = np.zeros((runs, 0, n))
+        self.P = np.zeros((runs, 0, n, n))
+        self.ids = np.zeros((runs, 0), np.int64)
+        self.next_id = np.zeros(runs, np.int64)
+        self.life = TrackLife((runs, 0), design.confirmation, design.ending)
+        self.grow(INITIAL_SLOTS)
+
+    @property
+    def count(self) -> int:
+        return self.ids.shape[1]
+
+    def grow(self, slots: int) -> None:
+        """Room for at least ``slots`` tracks per run (empty slots added at the end)."""
+        extra = slots - self.count
+        if extra <= 0:
+            return
+        R, n = self.x.shape[0], self.x.shape[-1]
+        # an empty slot holds a harmless state (1 m along x, unit covariance) so that the
+        # filter's arithmetic on it stays finite; it is never reported
+        self.x = np.concatenate([self.x, np.broadcast_to(np.eye(n)[0], (R, extra, n))], axis=1)
+        self.P = np.concatenate([self.P, np.broadcast_to(np.eye(n), (R, extra, n, n))], axis=1)
+        self.ids = np.concatenate([self.ids, np.full((R, extra), -1, np.int64)], axis=1)
+        self.life.resize(self.count)
+
+    def start(self, runs, z, track_filter: TrackFilter, free) -> np.ndarray:
+        """Start one track per row of ``runs`` (sorted) from plot ``z`` in a free slot of its run.
+        Returns the slots' mask ``(R, S)``."""
+        R = self.x.shape[0]
+        born = np.bincount(runs, minlength=R)
+        need = int((born - free.sum(axis=1)).max(initial=0))
+        if need > 0:
+            self.grow(max(2 * self.count, self.count + need))
+            free = np.concatenate([free, np.ones((R, self.count - free.shape[1]), bool)], axis=1)
+        first = np.cumsum(born) - born
+        rank = np.arange(runs.size) - first[runs]
+        free_slots = np.argsort(~free, axis=1, kind="stable")
+        slots = free_slots[runs, rank]
+        x0, P0 = track_filter.start(z)
+        self.x[runs, slots] = x0
+        self.P[runs, slots] = P0
+        self.ids[runs, slots] = self.next_id[runs] + rank
+        self.next_id += born
+        where = np.zeros(self.ids.shape, bool)
+        where[runs, slots] = True
+        self.life.start(where, hits=1, scans=1)
+        return where
+
+
+def track_multi_target(range_m, bearing_rad, counts, times, design: MultiTargetDesign, association) -> dict:
+    """Track any number of targets through every scan of every run.
+
+    Parameters
+    ----------
+    range_m, bearing_rad : ndarray (R, K, W)
+        Plots, NaN-padded beyond ``counts``.
+    counts : ndarray of int (R, K)
+    times : ndarray (K,)
+        Scan times (s), increasing.
+    design : MultiTargetDesign
+    association : GlobalNearestNeighbour or JointProbabilistic
+
+    Returns
+    -------
+    dict
+        ``state`` (R, K, S, 4), ``covariance`` (R, K, S, 4, 4), ``flags`` (R, K, S) uint32,
+        ``track_id`` (R, K, S) (−1 in empty slots), and for the GNN ``innovation`` (R, K, S, 2)
+        and ``innovation_covariance`` (R, K, S, 2, 2), with S the most slots any scan needed.
+    """
+    f = design.track_filter
+    R, K = counts.shape
+    slots = _Slots(R, design)
+    scans = []
+    for k in range(K):
+        w = int(counts[:, k].max(initial=0))
+        z = np.stack([range_m[:, k, :w], bearing_rad[:, k, :w]], axis=-1)
+        valid = np.arange(w) < counts[:, k, None]
+        alive = slots.life.alive.copy()
+        flags = np.zeros(alive.shape, np.uint32)
+        innovation = covariance = None
+        claimed = np.zeros((R, w), bool)
+        ending = np.zeros(alive.shape, bool)
+        if alive.any():
+            x, P = f.predict(slots.x, slots.P, float(times[k] - times[k - 1]))
+            z_pred, H, S = f.predict_measurement(x, P)
+            nu = f.innovations(np.where(valid[..., None], z, 0.0), z_pred)
+            d2 = squared_distances(nu, S)
+            gated = alive[..., None] & valid[:, None, :] & (d2 <= design.gate_chi2)
+            step = association.associate(design, x, P, H, S, nu, d2, gated)
+            slots.x = np.where(alive[..., None], step.x, slots.x)
+            slots.P = np.where(alive[..., None, None], step.P, slots.P)
+            flags |= np.where(alive, step.flags, 0).astype(np.uint32)
+            claimed = step.claimed
+            innovation, covariance = step.innovation, step.innovation_covariance
+            position_variance = slots.P[..., 0, 0] + slots.P[..., 1, 1]
+            tentative, ending = slots.life.step(step.hit & alive, slots.x[..., 0], position_variance)
+            flags |= np.where(alive & ~step.hit & ~ending, vocab.COASTED, 0).astype(np.uint32)
+        # plots no track claimed start tentative tracks, in slots free before this scan
+        run, plot = np.nonzero(valid & ~claimed)
+        free = ~alive
+        if run.size:
+            slots.start(run, z[run, plot], f, free)
+        S_now = slots.count
+        flags = _pad(flags, S_now, vocab.NO_TRACK)
+        ending = _pad(ending, S_now, False)
+        live = slots.life.alive
+        flags |= np.where(live & slots.life.tentative, vocab.INITIALISING, 0).astype(np.uint32)
+        flags |= np.where(~live, vocab.NO_TRACK, 0).astype(np.uint32)
+        flags |= np.where(ending, vocab.DELETED, 0).astype(np.uint32)
+        state = np.where(live[..., None], slots.x, np.nan)
+        scans.append({
+            "state": state,
+            "covariance": np.where(live[..., None, None], slots.P, np.nan),
+            "flags": flags,
+            "track_id": np.where(live, slots.ids, -1),
+            **({"innovation": _pad(innovation, S_now, np.nan),
+                "innovation_covariance": _pad(covariance, S_now, np.nan)}
+               if association.reports_innovation and innovation is not None else {}),
+        })
+        slots.ids = np.where(ending, -1, slots.ids)
+    return _stack_scans(scans, slots.count, association.reports_innovation)
+
+
+def _pad(a, slots: int, fill):
+    """``a`` (R, S, ...) with slots added up to ``slots``, holding ``fill``."""
+    if a is None or a.shape[1] >= slots:
+        return a
+    pad = np.full((a.shape[0], slots - a.shape[1]) + a.shape[2:], fill, dtype=a.dtype)
+    return np.concatenate([a, pad], axis=1)
+
+
+def _stack_scans(scans: list, slots: int, innovations: bool) -> dict:
+    """Per-scan outputs of different slot counts as ``(R, K, S, ...)`` arrays."""
+    R = scans[0]["state"].shape[0] if scans else 0
+    fills = {"state": np.nan, "covariance": np.nan, "flags": vocab.NO_TRACK, "track_id": -1,
+             "innovation": np.nan, "innovation_covariance": np.nan}
+    out = {}
+    for key, fill in fills.items():
+        if key.startswith("innovation") and not innovations:
+            continue
+        parts = []
+        for scan in scans:
+            a = scan.get(key)
+            if a is None:  # a scan before any track: nothing updated
+                shape = (R, 0, 2) if key == "innovation" else (R, 0, 2, 2)
+                a = np.zeros(shape)
+            parts.append(_pad(a, slots, fill))
+        out[key] = np.stack(parts, axis=1)
+    return out
+
+
+# --------------------------------------------------------------------------- trackers
+
+
+PARAMS = (
+    Param("sigma_range_m", None, "m", "plot range noise the filter assumes"),
+    Param("sigma_bearing_deg", None, "deg", "plot bearing noise the filter assumes"),
+    Param("process_noise_m2ps3", 1.0, "m²/s³", "spectral density q of the white acceleration per axis", low=0.0),
+    Param("detection_probability", 0.9, "", "P_D: chance that a target gives a plot in a scan", low=0.0, high=1.0001),
+    Param("clutter_per_scan", 0.0, "plots", "mean number of clutter plots a scan over the surveillance region",
+          low=-1e-12),
+    Param("min_range_m", 1000.0, "m", "surveillance region: nearest range (clutter density)", low=-1e-12),
+    Param("max_range_m", 50000.0, "m", "surveillance region: farthest range (clutter density)", low=0.0),
+    Param("sector_half_width_deg", 60.0, "deg", "surveillance region: half width of the bearing sector", low=0.0,
+          high=180.0001),
+    Param("association_gate_probability", 0.9997, "", "P_G of the multi-target trackers' χ² gate (2 degrees of "
+          "freedom): the chance that a target's own plot falls inside it", low=0.0, high=1.0),
+    Param("initial_speed_sigma_mps", 150.0, "m/s", "velocity prior of a track started from one plot (std per axis)",
+          low=0.0),
+    Param("confirm_hits", 3, "scans", "M of M-of-N confirmation: a track is tentative until M of its first N "
+          "scans (its start included) had a plot"),
+    Param("confirm_window", 4, "scans", "N of M-of-N confirmation (a tentative track that cannot reach M is deleted)"),
+    Param("max_coasted_scans", 5, "scans", "a track that coasts this many scans in a row is deleted"),
+)
+
+
+def clutter_density(design: dict) -> float:
+    """Clutter plots per metre of range and radian of bearing: the mean count a scan spread
+    uniformly over the region's range and bearing extent (the measurement space the filter
+    weighs plots in)."""
+    extent = (float(design["max_range_m"]) - float(design["min_range_m"])) * 2.0 * np.deg2rad(
+        float(design["sector_half_width_deg"]))
+    return max(float(design["clutter_per_scan"]) / max(extent, 1e-300), MIN_CLUTTER_DENSITY)
+
+
+class _MultiTargetTracker(Tracker):
+    """A multi-target radar tracker: :func:`track_multi_target` with one association strategy."""
+
+    family = "radar-plots"
+    targets = "many"
+    params = PARAMS
+
+    def __init__(self, **design):
+        super().__init__(**design)
+        from pipeline.errors import InputError
+
+        if int(self.confirm_hits) < 1 or int(self.confirm_window) < int(self.confirm_hits):
+            raise InputError(f"{self.name}: confirmation needs 1 ≤ confirm_hits ≤ confirm_window (got "
+                             f"{self.confirm_hits} of {self.confirm_window})")
+        if float(self.max_range_m) <= float(self.min_range_m):
+            raise InputError(f"{self.name}: max_range_m ({self.max_range_m:g}) must exceed min_range_m "
+                             f"({self.min_range_m:g})")
+        p_gate = float(self.association_gate_probability)
+        self.tracker_design = MultiTargetDesign(
+            track_filter=PolarConstantVelocityEKF(
+                process_noise_m2ps3=float(self.process_noise_m2ps3), sigma_range_m=float(self.sigma_range_m),
+                sigma_bearing_rad=float(np.deg2rad(self.sigma_bearing_deg)),
+                initial_speed_sigma_mps=float(self.initial_speed_sigma_mps)),
+            detection_probability=min(float(self.detection_probability), 1.0),
+            clutter_density=clutter_density(self.design),
+            gate_chi2=float(-2.0 * np.log1p(-p_gate)),  # χ² quantile of 2 degrees of freedom
+            gate_probability=p_gate,
+            confirmation=ConfirmationRule(int(self.confirm_hits), int(self.confirm_window)),
+            ending=EndingRule(max_coasted_scans=int(self.max_coasted_scans)))
+
+    def track(self, plots):
+        return track_multi_target(plots.range_m, plots.bearing_rad, plots.counts, plots.times_s,
+                                  self.tracker_design, ASSOCIATIONS[self.name])
+
+
+class GnnTracker(_MultiTargetTracker):
+    """Global nearest neighbour: an optimal one-to-one assignment per scan, EKF per track."""
+
+    name = "gnn"
+    label = "GNN"
+
+
+class JpdaTracker(_MultiTargetTracker):
+    """JPDA: exact marginal association probabilities per cluster, PDA update, EKF per track."""
+
+    name = "jpda_mt"
+    label = "JPDA"
+
+
+TRACKERS = (GnnTracker, JpdaTracker)

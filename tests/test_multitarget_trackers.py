@@ -1,0 +1,167 @@
+"""The multi-target radar trackers (GNN, JPDA) and the pieces they are made of: the generalised
+JPDA core against a brute-force enumeration of joint events, the per-track filter against the
+plain Kalman filter, the clustering against transitive closure, and tracking that finds every
+target of a clean scene without an identity switch."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from pipeline.cores.association.gnn import gnn_assignment
+from pipeline.cores.association.jpda import (
+    association_marginals,
+    cluster_tracks,
+    gaussian_likelihood_ratio,
+    joint_association_probabilities,
+    pda_update,
+    pda_update_gaussian,
+)
+from pipeline.cores.filters.kalman import kalman_gain, kf_update
+from pipeline.cores.filters.track_filter import PolarConstantVelocityEKF, squared_distances
+
+
+def _closure_labels(gated):
+    """The clusters by transitive closure of the tracks-share-a-peak relation (the definition)."""
+    R, T, _ = gated.shape
+    out = np.zeros((R, T), np.int64)
+    for r in range(R):
+        share = (gated[r].astype(int) @ gated[r].T.astype(int) > 0) | np.eye(T, dtype=bool)
+        reach = share.copy()
+        for _ in range(T):
+            reach = (reach.astype(int) @ share.astype(int)) > 0
+        out[r] = np.argmax(reach, axis=1)
+    return out
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(1, 3), st.integers(1, 9), st.integers(0, 7), st.floats(0.05, 0.6), st.integers(0, 2**31))
+def test_clusters_are_the_transitive_closure(R, T, m, density, seed):
+    gated = np.random.default_rng(seed).random((R, T, m)) < density
+    assert np.array_equal(cluster_tracks(gated), _closure_labels(gated))
+
+
+def _brute_force_marginals(ratio, miss):
+    """β by enumerating every joint event (each track one plot or none, each plot at most one
+    track), the definition of the JPDA marginals."""
+    s, m = ratio.shape
+    beta, beta0, total = np.zeros((s, m)), np.zeros(s), 0.0
+    for choice in itertools.product(range(-1, m), repeat=s):
+        used = [c for c in choice if c >= 0]
+        if len(used) != len(set(used)):
+            continue
+        w = np.prod([ratio[t, c] if c >= 0 else miss[t] for t, c in enumerate(choice)])
+        total += w
+        for t, c in enumerate(choice):
+            if c >= 0:
+                beta[t, c] += w
+            else:
+                beta0[t] += w
+    return beta / total, beta0 / total
+
+
+def _radar_scene(seed, tracks, plots):
+    """Predicted radar tracks close together and plots around them, as the JPDA sees them."""
+    rng = np.random.default_rng(seed)
+    f = PolarConstantVelocityEKF(1.0, 20.0, np.deg2rad(0.2), 100.0)
+    x = np.zeros((1, tracks, 4))
+    x[..., 0] = 20e3 + rng.normal(0, 60, tracks)
+    x[..., 1] = 10e3 + rng.normal(0, 60, tracks)
+    P = np.broadcast_to(np.diag([900.0, 900.0, 100.0, 100.0]), (1, tracks, 4, 4)).copy()
+    z_pred, H, S = f.predict_measurement(x, P)
+    z = z_pred[:, rng.integers(0, tracks, plots)] + rng.normal(0, 1, (1, plots, 2)) * [40.0, np.deg2rad(0.3)]
+    nu = f.innovations(z, z_pred)
+    d2 = squared_distances(nu, S)
+    return f, x, P, H, S, nu, d2
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_radar_jpda_marginals_match_brute_force(seed):
+    f, x, P, H, S, nu, d2 = _radar_scene(seed, tracks=3 + seed % 2, plots=4)
+    gated = d2 <= 16.0
+    det = np.linalg.det(S)
+    ratio = gaussian_likelihood_ratio(d2, det, 0.9, 1e-4)
+    miss = np.full(gated.shape[:-1], 1 - 0.9 * 0.9997)
+    beta, beta0, split = joint_association_probabilities(ratio, miss, gated, x[..., 0], 12)
+    exact_beta, exact_beta0 = _brute_force_marginals(np.where(gated, ratio, 0.0)[0], miss[0])
+    assert not split.any()
+    np.testing.assert_allclose(beta[0], exact_beta, rtol=1e-10, atol=1e-14)
+    np.testing.assert_allclose(beta0[0], exact_beta0, rtol=1e-10, atol=1e-14)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_bearing_jpda_marginals_match_brute_force(seed):
+    rng = np.random.default_rng(seed)
+    ratio = rng.gamma(1.0, 2.0, (1, 4, 5)) * (rng.random((1, 4, 5)) < 0.7)
+    miss = rng.uniform(0.05, 0.5, (1, 4))
+    beta, beta0 = association_marginals(ratio, miss)
+    exact_beta, exact_beta0 = _brute_force_marginals(ratio[0], miss[0])
+    np.testing.assert_allclose(beta[0], exact_beta, rtol=1e-10, atol=1e-14)
+    np.testing.assert_allclose(beta0[0], exact_beta0, rtol=1e-10, atol=1e-14)
+
+
+def test_general_pda_update_is_the_bearing_one_in_one_dimension():
+    rng = np.random.default_rng(3)
+    B, W = 7, 5
+    A = rng.normal(size=(B, 2, 2))
+    P = A @ np.swapaxes(A, -1, -2) + np.eye(2)
+    x = rng.normal(size=(B, 2))
+    H = np.array([[1.0, 0.0]])
+    R = np.full((B, 1, 1), 0.3)
+    K, S = kalman_gain(P, H, R)
+    nu = rng.normal(size=(B, W))
+    gated = rng.random((B, W)) < 0.7
+    beta = rng.random((B, W)) * gated
+    beta0 = rng.random(B)
+    total = beta.sum(axis=1) + beta0
+    beta, beta0 = beta / total[:, None], beta0 / total
+    x1, P1, nu1 = pda_update(x, P.reshape(B, 4), K[..., 0], S[:, 0, 0], nu, gated, beta, beta0)
+    x2, P2, nu2 = pda_update_gaussian(x, P, K, S, nu[..., None], gated, beta, beta0)
+    np.testing.assert_allclose(x2, x1, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(P2.reshape(B, 4), P1, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(nu2[..., 0], nu1, rtol=1e-12, atol=1e-12)
+
+
+def test_pda_update_with_one_certain_plot_is_the_kalman_update():
+    f, x, P, H, S, nu, d2 = _radar_scene(1, tracks=2, plots=3)
+    K, _ = kalman_gain(P, H, f.measurement_covariance())
+    beta = np.zeros(d2.shape)
+    beta[0, 0, 1] = beta[0, 1, 2] = 1.0
+    x_pda, P_pda, _ = pda_update_gaussian(x, P, K, S, nu, np.ones(d2.shape, bool), beta, np.zeros((1, 2)))
+    x_kf, P_kf, _ = f.update(x, P, H, S, np.stack([nu[0, 0, 1], nu[0, 1, 2]])[None])
+    np.testing.assert_allclose(x_pda, x_kf, rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(P_pda, P_kf, rtol=1e-9, atol=1e-9)
+
+
+def test_ekf_update_is_the_one_kalman_update_on_the_linearised_model():
+    f, x, P, H, S, nu, _ = _radar_scene(2, tracks=3, plots=3)
+    picked = nu[:, :, 0]
+    x_post, P_post, _ = f.update(x, P, H, S, picked)
+    z = picked + np.einsum("...ij,...j->...i", H, x)  # the linear model's measurement
+    x_ref, P_ref, _, S_ref, _ = kf_update(x, P, z, H, f.measurement_covariance())
+    np.testing.assert_allclose(S, S_ref, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(x_post, x_ref, rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(P_post, P_ref, rtol=1e-9, atol=1e-9)
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.integers(1, 5), st.integers(0, 5), st.integers(0, 2**31))
+def test_gnn_assignment_is_the_cheapest_gated_assignment(T, W, seed):
+    rng = np.random.default_rng(seed)
+    cost = rng.uniform(0, 10, (1, T, W))
+    gated = rng.random((1, T, W)) < 0.6
+    miss = rng.uniform(2, 8, (1, T))
+    plot = gnn_assignment(cost, gated, miss)[0]
+    assert len(set(plot[plot >= 0])) == (plot >= 0).sum()
+    assert all(gated[0, t, p] for t, p in enumerate(plot) if p >= 0)
+
+    def total(choice):
+        return sum(cost[0, t, c] if c >= 0 else miss[0, t] for t, c in enumerate(choice))
+
+    best = min(total(c) for c in itertools.product(range(-1, W), repeat=T)
+               if len({x for x in c if x >= 0}) == sum(x >= 0 for x in c)
+               and all(x < 0 or gated[0, t, x] for t, x in enumerate(c)))
+    assert total(plot) == pytest.approx(best, rel=1e-12, abs=1e-12)
