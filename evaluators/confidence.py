@@ -69,17 +69,96 @@ def rms_interval(squared, axis: int = 0, prob: float = 0.95):
         return rms, se / (2 * rms), np.sqrt(np.maximum(lo, 0.0)), np.sqrt(hi)
 
 
-def wilson_interval(successes, trials, prob: float = 0.95):
-    """Wilson score interval of a proportion (well behaved at 0 and 1)."""
+def wilson_interval(successes, trials, prob: float = 0.95, quantile=None):
+    """Wilson score interval of a proportion: inside [0, 1], and well behaved at 0 and 1 where
+    the Wald interval ``p ± z√(p(1−p)/n)`` leaves [0, 1] or shrinks to a point.
+
+    ``quantile`` replaces the normal quantile z (e.g. by Student's t where the trials are an
+    effective number estimated with few degrees of freedom, :func:`proportion_intervals`).
+    """
     from scipy.special import ndtri  # the normal quantile, without importing scipy.stats
 
     k, n = np.asarray(successes, float), np.asarray(trials, float)
-    z = ndtri((1 + prob) / 2)
+    z = ndtri((1 + prob) / 2) if quantile is None else np.asarray(quantile, float)
     with np.errstate(invalid="ignore", divide="ignore"):
         p = k / n
         centre = (p + z * z / (2 * n)) / (1 + z * z / n)
         half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
     return centre - half, centre + half
+
+
+#: rates that are one outcome per Monte Carlo run (per track for the ``track=`` scopes): the
+#: interval is Wilson's with the runs as the trials (:func:`proportion_intervals`)
+RUN_PROPORTIONS = frozenset({"success_rate", "swap_rate", "loss_rate", "coalescence_rate",
+                             "held_rate", "swapped_rate", "lost_rate"})
+#: rates pooled over several outcomes per run (scans, epochs, cells): Wilson's interval with the
+#: effective number of trials that the spread over groups of runs implies
+POOLED_PROPORTIONS = frozenset({"converged_fraction", "flagged_fraction", "inside_50pct_position",
+                                "inside_50pct_velocity"})
+
+
+def proportion_intervals(metrics, value, se, n_runs: int, dof, prob: float = 0.95):
+    """Intervals inside [0, 1] for the rates among ``metrics``; ``(low, high)`` arrays, NaN for
+    every other metric (which keeps its t interval).
+
+    Runs are the independent units, so how the interval is built depends on what a rate counts:
+
+    * **one outcome per run** (:data:`RUN_PROPORTIONS`, e.g. the success rate): the number of
+      successes is binomial over the ``n_runs`` runs, and the interval is Wilson's on them.
+      A value that is not a whole number of runs (some runs missing) is taken as pooled;
+    * **several outcomes per run** (:data:`POOLED_PROPORTIONS`, e.g. a fraction over scans):
+      outcomes within a run may be correlated, so the binomial count of outcomes overstates
+      the information. The standard error ``se`` over groups of runs already holds that
+      correlation; it implies an effective number of trials ``n_eff = p(1 − p)/se²`` (the
+      outcomes divided by the design effect), and the interval is Clopper–Pearson's on
+      ``n_eff`` trials shrunk by ``(z/t_dof)²`` for the groups' few degrees of freedom (Korn &
+      Graubard 1998, *Survey Methodology* 24, 193–201; :func:`clopper_pearson_interval`).
+      Where ``se`` is 0 (every group at 0 or every group at 1), ``n_eff`` is the number of
+      runs: a run's outcomes count as one.
+
+    Both stay inside [0, 1] and contain the value.
+    """
+    names = np.asarray(list(metrics), dtype=object)
+    p, se = np.asarray(value, float), np.asarray(se, float)
+    low, high = np.full(p.shape, np.nan), np.full(p.shape, np.nan)
+    if not n_runs:
+        return low, high
+    run = np.isin(names, list(RUN_PROPORTIONS)) & np.isfinite(p)
+    whole = np.abs(p * n_runs - np.round(p * n_runs)) <= 1e-6
+    pooled = (np.isin(names, list(POOLED_PROPORTIONS)) | (run & ~whole)) & np.isfinite(p)
+    run &= whole
+    if run.any():
+        low[run], high[run] = wilson_interval(np.round(p[run] * n_runs), n_runs, prob)
+    if pooled.any():
+        q = np.clip(p[pooled], 0.0, 1.0)
+        s = se[pooled]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            n_eff = np.where(np.isfinite(s) & (s > 0), q * (1 - q) / (s * s), np.nan)
+        n_eff = np.where(np.isfinite(n_eff) & (n_eff > 0), n_eff, float(n_runs))
+        low[pooled], high[pooled] = clopper_pearson_interval(q * n_eff, n_eff, prob, dof)
+    low, high = np.clip(low, 0.0, 1.0), np.clip(high, 0.0, 1.0)
+    inside = np.isfinite(low)
+    # rounding alone can put the value a hair outside at 0 or 1
+    low[inside], high[inside] = np.minimum(low[inside], p[inside]), np.maximum(high[inside], p[inside])
+    return low, high
+
+
+def clopper_pearson_interval(successes, trials, prob: float = 0.95, dof=None):
+    """Clopper–Pearson interval of a proportion from (possibly fractional, effective)
+    ``successes`` out of ``trials``; with ``dof`` the Korn–Graubard form, whose trials are
+    first multiplied by ``(z/t_dof)²`` (an effective count estimated on ``dof`` degrees of
+    freedom). Inside [0, 1]; 0 and 1 are reached at no and at every success."""
+    from scipy.special import betaincinv, ndtri
+
+    k, n = np.asarray(successes, float), np.asarray(trials, float)
+    if dof is not None:
+        shrink = (ndtri((1 + prob) / 2) / t_quantile(dof, prob)) ** 2
+        k, n = k * shrink, n * shrink
+    alpha = 1 - prob
+    with np.errstate(invalid="ignore", divide="ignore"):
+        low = np.where(k > 0, betaincinv(np.maximum(k, 1e-300), n - k + 1, alpha / 2), 0.0)
+        high = np.where(k < n, betaincinv(k + 1, np.maximum(n - k, 1e-300), 1 - alpha / 2), 1.0)
+    return low, high
 
 
 def run_groups(n_runs: int, groups: int = JACKKNIFE_GROUPS) -> list[np.ndarray]:
@@ -297,5 +376,10 @@ def summary_intervals(score, runs_data: dict, n_runs: int, groups: int = 10, pro
         se = np.where(se <= ROUNDING_SPREAD * np.abs(value), 0.0, se)
     ok = np.isfinite(value) & np.all(np.isfinite(estimates), axis=0)
     half = t_quantile(G - 1, prob) * se
+    low, high = value - half, value + half
+    # rates: an interval inside [0, 1] that counts runs, not outcomes, as the independent units
+    rate_low, rate_high = proportion_intervals(summary["metric"].to_list(), value, se, n_runs, G - 1, prob)
+    rate = np.isfinite(rate_low)
+    low, high = np.where(rate, rate_low, low), np.where(rate, rate_high, high)
     column = lambda a: pl.Series(np.where(ok, a, np.nan)).fill_nan(None)
-    return per_scan, summary.with_columns(se=column(se), ci_low=column(value - half), ci_high=column(value + half))
+    return per_scan, summary.with_columns(se=column(se), ci_low=column(low), ci_high=column(high))

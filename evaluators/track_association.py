@@ -17,7 +17,10 @@ Run outcome (a partition of the runs, so the three rates sum to one):
 **success** = every track held; **swap** = some track swapped; **loss** = otherwise (some
 track lost, none swapped). ``coalescence_rate`` (a part of the swaps) counts runs whose final
 scan has two or more tracks on one target, the classic JPDA failure for similar targets. ``success_rate_stderr`` is the binomial standard error
-``√(p(1−p)/n)``; a difference between two trackers on the same runs is judged with the paired
+``√(p(1−p)/n)``; the interval of every rate is Wilson's with the runs as the trials (one outcome
+per run: :func:`evaluators.confidence.proportion_intervals`), which stays inside [0, 1] where
+``p ± 1.96·stderr`` does not (a loss rate of 0.01 over 100 runs: [0.002, 0.054], not
+[−0.010, 0.030]). A difference between two trackers on the same runs is judged with the paired
 standard error of the per-run success indicators (:func:`paired_difference`).
 
 Scopes in the summary: ``overall`` (run outcomes, headline) and ``track=<t>:<role>`` (per-track
@@ -198,15 +201,21 @@ def evaluate(times, tracks: dict, truth_bearing: np.ndarray | None, gate_rad: fl
 
 
 def success_table(summary: pl.DataFrame) -> str:
-    """Fig. 8 style text: success / swap / loss per tracker with a 95 % Monte Carlo interval."""
+    """Fig. 8 style text: success / swap / loss per tracker, the success rate with its 95 %
+    Wilson interval over runs (one outcome per run; inside 0–100 %)."""
+    from evaluators.confidence import wilson_interval
+
     ov = summary.filter(pl.col("scope") == "overall")
     if "success_rate" not in set(ov["metric"].to_list()):
         return ""
     wide = ov.pivot(on="metric", index="tracker", values="value", aggregate_function="first").sort("tracker")
     lines = ["track association (Park, Ryu & Lee 1994, Fig. 8): success = every track ends on its own target,",
-             "never on another; ± is 1.96 × binomial standard error",
-             f"{'tracker':<10} {'success':>16} {'swap':>8} {'loss':>8} {'runs':>6}"]
+             "never on another; in brackets its 95 % Wilson interval over runs",
+             f"{'tracker':<10} {'success':>22} {'swap':>8} {'loss':>8} {'runs':>6}"]
     for r in wide.iter_rows(named=True):
-        lines.append(f"{r['tracker']:<10} {100 * r['success_rate']:>8.1f} ± {196 * r['success_rate_stderr']:>4.1f} % "
-                     f"{100 * r['swap_rate']:>6.1f} % {100 * r['loss_rate']:>6.1f} % {int(r['runs']):>6d}")
+        runs = int(r["runs"])
+        low, high = wilson_interval(round(r["success_rate"] * runs), runs)
+        interval = f"[{100 * low:.1f}, {100 * high:.1f}]"
+        lines.append(f"{r['tracker']:<10} {100 * r['success_rate']:>6.1f} % {interval:>13} "
+                     f"{100 * r['swap_rate']:>6.1f} % {100 * r['loss_rate']:>6.1f} % {runs:>6d}")
     return "\n".join(lines)
