@@ -520,9 +520,24 @@ def compare_files(a_path, b_path, data_path=None, pairs=None, recover=False) -> 
     reference = stage_a.reference(ds, design)
     fixed = reference.get("fixed", {})
 
+    space = stage_a.standard_space(design, reference)
+
     def score(tracks, reference_runs):
+        """The family's own measures and the standard ones (which every tracker has, a
+        multi-target or plugged multi-slot one included) of one replay's trackers."""
+        from evaluators.standard import evaluate_standard
+
         result = {"times": result_a["times"], "tracks": tracks}
-        return stage_a.score({"runs": reference_runs, "fixed": fixed}, result, design)
+        ref = {"runs": reference_runs, "fixed": fixed}
+        per_scan, summary = stage_a.score(ref, result, design)
+        truth = stage_a.standard_truth(ref) if space is not None else None
+        if truth is None:
+            return per_scan, summary
+        truth_ids = stage_a.standard_truth_ids(ref)
+        trackers = {n: o for n, o in tracks.items() if "state" in o and "flags" in o}
+        _, standard = evaluate_standard(result_a["times"], trackers, truth, space, truth_ids=truth_ids)
+        standard = standard.with_columns(scope=pl.lit("standard measures"))
+        return per_scan, pl.concat([summary, standard.select(summary.columns)], how="diagonal_relaxed")
 
     table = paired_differences(score, result_a["tracks"], result_b["tracks"], reference["runs"], runs_a, pairs)
     return Comparison(table, stage_a, ds, result_a, result_b, pairs)

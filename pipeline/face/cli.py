@@ -373,6 +373,10 @@ def _print_summary(summary: pl.DataFrame, title: str) -> None:
         section=pl.when(pl.col("kind") == "standard").then(pl.lit("standard measures")).otherwise(pl.col("scope")))
     sections = summary["section"].unique(maintain_order=True).to_list()
     sections = [s for s in dict.fromkeys([*_declared_scopes(summary), *sections]) if s is not None]
+    if not (summary["kind"] == "family").any():
+        # no tracker the family's own measures apply to (multi-target trackers on a paper's
+        # family): its scopes would all print empty
+        sections = [s for s in sections if s in set(summary["section"].to_list())]
     sections.sort(key=lambda s: (s != "overall", s == "standard measures"))
     # a measure a tracker cannot have (NEES without a covariance) is shown as such, never as 0
     summary = summary.filter(pl.col("value").is_not_null() | pl.col("scope").str.starts_with("no "))

@@ -480,7 +480,7 @@ class Stage:
         truth = self.standard_truth(reference) if reference is not None else None
         truth_ids = self.standard_truth_ids(reference) if truth is not None else None
         std_scan, std_summary = evaluate_standard(result["times"], tracks, truth, space, innovations=innovations,
-                                                  **({} if truth_ids is None or "truth_ids" not in evaluate_standard.__code__.co_varnames else {"truth_ids": truth_ids}))  # TEMP until truth_ids lands
+                                                  truth_ids=truth_ids)
         if std_scan.height and per_scan.height and "scan" in per_scan.columns:
             extra = [c for c in std_scan.columns if c not in per_scan.columns or c in ("tracker", "scan")]
             per_scan = per_scan.join(std_scan.select(extra), on=["tracker", "scan"], how="left")

@@ -5,7 +5,7 @@ for a multi-target family, their identities (``target_id``). Evaluators take tru
 arrays ``(R, K, T, n)`` with ``truth_ids`` ``(R, K, T)`` (−1 where a slot is empty), the layout of
 the trackers' own track slots. :func:`identity_slots` gives each identity one slot for its whole
 life (interval colouring, smallest free slot first), so a slot's time series is one target's
-while it lives; a slot is reused only after its target's last scan.
+while it lives; a slot is reused only after its target's last scan and one empty scan.
 """
 
 from __future__ import annotations
@@ -66,7 +66,9 @@ def identity_slots(state, ids, counts, topic: str, path=None):
                 s = len(free_from)
                 free_from.append(0)
             slot_of[i] = s
-            free_from[s] = last[i] + 1
+            # one empty scan before the next identity: a slot's series breaks between targets
+            # (a drawn line, a per-slot metric never joins two of them)
+            free_from[s] = last[i] + 2
         slot[r, k_of, w_of] = slot_of[inverse]
         n_slots = max(n_slots, len(free_from))
     state_slots = np.full((R, K, n_slots) + state.shape[3:], np.nan)

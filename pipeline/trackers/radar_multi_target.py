@@ -332,7 +332,8 @@ def _stack_scans(scans: list, slots: int, innovations: bool) -> dict:
 PARAMS = (
     Param("sigma_range_m", None, "m", "plot range noise the filter assumes"),
     Param("sigma_bearing_deg", None, "deg", "plot bearing noise the filter assumes"),
-    Param("process_noise_m2ps3", 1.0, "m²/s³", "spectral density q of the white acceleration per axis", low=0.0),
+    Param("design_process_noise_m2ps3", 40.0, "m²/s³", "spectral density q of the white acceleration per axis "
+          "the filters assume (above the truth's own where targets turn)", low=0.0),
     Param("detection_probability", 0.9, "", "P_D: chance that a target gives a plot in a scan", low=0.0, high=1.0001),
     Param("clutter_per_scan", 0.0, "plots", "mean number of clutter plots a scan over the surveillance region",
           low=-1e-12),
@@ -380,7 +381,7 @@ class _MultiTargetTracker(Tracker):
         p_gate = float(self.association_gate_probability)
         self.tracker_design = MultiTargetDesign(
             track_filter=PolarConstantVelocityEKF(
-                process_noise_m2ps3=float(self.process_noise_m2ps3), sigma_range_m=float(self.sigma_range_m),
+                process_noise_m2ps3=float(self.design_process_noise_m2ps3), sigma_range_m=float(self.sigma_range_m),
                 sigma_bearing_rad=float(np.deg2rad(self.sigma_bearing_deg)),
                 initial_speed_sigma_mps=float(self.initial_speed_sigma_mps)),
             detection_probability=min(float(self.detection_probability), 1.0),
