@@ -119,7 +119,7 @@ class Family:
 FAMILIES = {
     f.name: f for f in (
         Family("radar-plots", (CHANNELS["radar_plots"],), CHANNELS["radar_truth"], "/tracks/radar/",
-               "[x, y, vx, vy] in m and m/s, one track per run", "position (m)"),
+               "[x, y, vx, vy] in m and m/s, one track per run or per track slot", "position (m)"),
         Family("bearing-peaks", (CHANNELS["xcorr_peaks"],), CHANNELS["xcorr_truth"], "/tracks/xcorr/",
                "[bearing, bearing rate] in rad and rad/s per track slot", "bearing (rad)"),
         Family("array-snapshots", (CHANNELS["array_snapshots"],), CHANNELS["array_truth"], "/tracks/array/",
@@ -157,7 +157,7 @@ OUTPUTS = {
         OutputArray("state", "(R, K, [T,] n)", "float64",
                     "posterior state estimate in the family's units; NaN only where flags say NO_TRACK "
                     "or NOT_ESTIMATED", required=True),
-        OutputArray("flags", "(R, K[, T])", "uint16", "bit mask of FLAGS", required=True),
+        OutputArray("flags", "(R, K[, T])", "uint32", "bit mask of FLAGS", required=True),
         OutputArray("covariance", "(R, K, [T,] n, n)", "float64",
                     "posterior covariance, symmetric positive definite where the state is finite"),
         OutputArray("track_id", "(R, K, T)", "int64",
@@ -173,7 +173,8 @@ REQUIRED_OUTPUTS = tuple(name for name, o in OUTPUTS.items() if o.required)
 
 
 # --------------------------------------------------------------------------- flags
-# One table of flag bits for every tracker and estimator. Outputs store them as uint16.
+# One table of flag bits for every tracker and estimator. Outputs store them as uint32 (32 bits:
+# room to grow; files written with uint16 flags read as before, their values unchanged).
 
 FLAGS = {
     "NO_TRACK": 1 << 0,         # no track in this slot at this scan (state is NaN)
@@ -193,7 +194,7 @@ FLAGS = {
     "FLOORED": 1 << 14,         # a variance was raised to its floor
     "LIMITED": 1 << 15,         # a coefficient was limited to its stable range
 }
-FLAG_DTYPE = "uint16"
+FLAG_DTYPE = "uint32"
 
 NO_TRACK = FLAGS["NO_TRACK"]
 INITIALISING = FLAGS["INITIALISING"]

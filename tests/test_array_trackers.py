@@ -48,7 +48,7 @@ def test_outputs_follow_the_vocabulary(small):
     assert out["covariance"].shape == (R, K, T, 2, 2)
     assert out["innovation"].shape == (R, K, T, 1) and out["innovation_covariance"].shape == (R, K, T, 1, 1)
     assert out["gain"].shape == (R, K, T, 2, 1)
-    assert out["flags"].dtype == np.uint16
+    assert out["flags"].dtype == np.dtype(vocab.FLAG_DTYPE)
     assert np.all(out["flags"][:, :2] & vocab.INITIALISING)
     assert np.all(out["flags"][:, 0] & vocab.NOT_ESTIMATED) and not np.any(out["flags"][:, 1:] & vocab.NOT_ESTIMATED)
     assert np.all(np.isnan(out["state"][:, 0, :, 1])) and np.all(np.isfinite(out["state"][:, 1:]))

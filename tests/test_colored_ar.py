@@ -98,7 +98,7 @@ def test_negative_discriminant_is_clamped_and_flagged():
     rng = np.random.default_rng(0)
     z = np.cumsum(np.cumsum(rng.standard_normal((3, 800, 1)), axis=1), axis=1)
     est = estimate_ar1(z, 0.99, 0.9)
-    assert est.flags.dtype == np.uint16
+    assert est.flags.dtype == np.dtype(vocab.FLAG_DTYPE)
     assert not np.any(est.flags & ~np.uint16(vocab.CLAMPED | vocab.LIMITED | vocab.FLOORED))
     flagged = (est.flags & vocab.CLAMPED) > 0
     assert flagged.any()
@@ -115,7 +115,7 @@ def test_scan_flags_fold_the_axes_and_mark_the_cold_scans():
     z[..., 1] = 10 * rng.standard_normal((2, 400))       # axis 1: white noise, rarely flagged
     est = estimate_ar1(z, 0.99, 0.9)
     f = scan_flags(est)
-    assert f.dtype == np.uint16 and f.shape == (2, 400)
+    assert f.dtype == np.dtype(vocab.FLAG_DTYPE) and f.shape == (2, 400)
     np.testing.assert_array_equal((f & vocab.NOT_WARM) > 0, np.broadcast_to(~est.warm, f.shape))
     for bit in (vocab.CLAMPED, vocab.LIMITED, vocab.FLOORED):
         np.testing.assert_array_equal((f & bit) > 0, np.any((est.flags & bit) > 0, axis=-1))

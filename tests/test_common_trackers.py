@@ -22,7 +22,7 @@ DATA = Path(__file__).resolve().parents[1] / "data"
 DEMO = {"radar-plots": "radar_tws_demo.mcap", "bearing-peaks": "xcorr_crossing_demo.mcap",
         "array-snapshots": "array_crossing_demo.mcap", "tdoa-fdoa": "tdoa_fdoa_demo.mcap",
         "colored-position": "colored_imm_demo.mcap"}
-ALL_FLAG_BITS = np.uint16(sum(vocab.FLAGS.values()))
+ALL_FLAG_BITS = np.dtype(vocab.FLAG_DTYPE).type(sum(vocab.FLAGS.values()))
 ENTRIES = sorted(available_trackers().values(), key=lambda e: (e.family, e.name))
 
 
@@ -54,7 +54,7 @@ def test_output_vocabulary(entry, tmp_path_factory):
     state, flags = out["state"], out["flags"]
     R, K = state.shape[:2]
     assert state.dtype == np.float64 and state.ndim in (3, 4)
-    assert flags.dtype == np.uint16 and flags.shape == state.shape[:-1]
+    assert flags.dtype == np.dtype(vocab.FLAG_DTYPE) and flags.shape == state.shape[:-1]
     assert not np.any(flags & ~ALL_FLAG_BITS), "flag bits outside vocabulary.FLAGS"
     n = state.shape[-1]
     expected = {"covariance": state.shape + (n,), "track_id": state.shape[:-1]}

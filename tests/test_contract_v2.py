@@ -460,12 +460,13 @@ def test_a_complete_scan_major_grid_is_a_read_only_view_of_the_same_values(path)
     from pipeline.contract import FIXED
 
     ds = read_dataset(path)
-    views = 0
+    views = candidates = 0
     for topic, ch in ds.channels.items():
         for name in ch.arrays:
             column = ch._column(name)
             if column is None or column.kind != FIXED or column.dtype.kind in "iub":
                 continue
+            candidates += 1
             grid = ch.grid(name)
             expected = np.full(grid.shape, np.nan, dtype=grid.dtype)
             expected[ch.run, ch.scan] = column.values
@@ -473,7 +474,9 @@ def test_a_complete_scan_major_grid_is_a_read_only_view_of_the_same_values(path)
             if ch._scan_major():
                 assert not grid.flags.writeable and np.shares_memory(grid, column.values)
                 views += 1
-    assert views  # every bundled data set has such a channel
+    # every bundled data set with a fixed-shape float channel reads it as a view (a multi-target
+    # data set's channels are all ragged lists)
+    assert views or not candidates
 
 
 

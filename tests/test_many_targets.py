@@ -197,3 +197,46 @@ def test_an_identity_twice_in_one_scan_is_refused_with_one_line(runner, tmp_path
     assert len(errors) == 1 and f"appears twice at run {r} scan {k}" in errors[0] and "Traceback" not in res.output
     assert (tmp_path / "twice.mcap").read_bytes() == before
     assert not Path("o").exists() or not any(Path("o").iterdir())
+
+
+BAD_IDS = '''
+import numpy as np
+from pipeline.trackers.interface import Tracker
+
+class _Base(Tracker):
+    family = "radar-plots"
+
+    def outputs(self, plots):
+        R, K = plots.counts.shape
+        state = np.zeros((R, K, 2, 4))
+        state[..., 0] = plots.range_m[..., :1] * np.cos(plots.bearing_rad[..., :1])
+        return {"state": state, "flags": np.zeros((R, K, 2), np.uint16)}
+
+class RepeatedId(_Base):
+    name = "repeated_id"
+
+    def track(self, plots):
+        out = self.outputs(plots)
+        out["track_id"] = np.zeros(out["flags"].shape, np.int64)  # both slots claim track 0
+        return out
+
+class FractionalId(_Base):
+    name = "fractional_id"
+
+    def track(self, plots):
+        out = self.outputs(plots)
+        out["track_id"] = np.broadcast_to(np.array([0.5, 1.5]), out["flags"].shape)
+        return out
+'''
+
+
+@pytest.mark.parametrize("cls, fragment", [("RepeatedId", "run 0 scan 0: track_id 0 is in two slots"),
+                                           ("FractionalId", "track_id must hold integers")])
+def test_bad_track_ids_get_one_line_and_the_others_are_written(runner, radar_small, tmp_path, cls, fragment):
+    (tmp_path / "bad_ids.py").write_text(BAD_IDS)
+    res = runner.invoke(main, [str(radar_small), "--tracker", f"bad_ids.py:{cls}", "--no-rrd", "--out", "o/t.mcap",
+                               "--figures", "none"])
+    assert res.exit_code == 2, res.output
+    errors = [line for line in res.stderr.splitlines() if line.startswith("replay: error: ")]
+    assert len(errors) == 1 and fragment in errors[0] and "Traceback" not in res.output
+    assert PREFIX + "kalman" in read_dataset(Path("o/t.mcap")).channels

@@ -34,7 +34,7 @@ def _n_tracks(out: dict, run: int) -> int:
     """Tracks of ``run``: the tracker's ``n_tracks``, else the slots holding a track after start-up."""
     if "n_tracks" in out:
         return int(out["n_tracks"][run, 0])
-    flags = np.asarray(out["flags"][run, min(STARTUP_SCANS - 1, out["flags"].shape[1] - 1)], np.uint16)
+    flags = np.asarray(out["flags"][run, min(STARTUP_SCANS - 1, out["flags"].shape[1] - 1)], vocab.FLAG_DTYPE)
     return int(np.sum((flags & vocab.NO_TRACK) == 0))
 
 

@@ -260,7 +260,7 @@ class Stage:
                 name = topic[len(self.output_prefix):]
                 tracks[name] = {k: ch.grid(k) for k in ch.arrays}
                 if "flags" in tracks[name]:
-                    tracks[name]["flags"] = np.nan_to_num(tracks[name]["flags"]).astype(np.uint16)
+                    tracks[name]["flags"] = np.nan_to_num(tracks[name]["flags"]).astype(vocab.FLAG_DTYPE)
                 times = ch.times()
         if not tracks:
             raise InputError(f"no {self.output_prefix}* channels: not a {self.name} replay output", out_dataset.path)

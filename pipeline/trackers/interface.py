@@ -328,7 +328,8 @@ def _first(mask) -> str:
 
 def validate_outputs(outputs: dict, n_runs: int, n_scans: int, name: str, where: str | None = None,
                      state_size: int | None = None) -> dict:
-    """Check a tracker's outputs against the vocabulary; return them with flags as uint16.
+    """Check a tracker's outputs against the vocabulary; return them with flags as
+    :data:`~pipeline.vocabulary.FLAG_DTYPE`.
 
     Checks: the required names; every array ``(runs, scans, ...)`` and numeric; ``flags``
     shaped like ``state`` without its last axis; NaN in ``state`` only where the flags say
@@ -360,9 +361,10 @@ def validate_outputs(outputs: dict, n_runs: int, n_scans: int, name: str, where:
     if flags.dtype.kind not in "iub" or flags.shape != state.shape[:-1]:
         raise TrackerError(f"tracker {name!r}: flags have shape {flags.shape} and dtype {flags.dtype}, expected "
                            f"integers of shape {state.shape[:-1]}", where)
-    if flags.size and (flags.min() < 0 or flags.max() > np.iinfo(np.uint16).max):
-        raise TrackerError(f"tracker {name!r}: flags outside 0..65535 (see vocabulary.FLAGS)", where)
-    flags = flags.astype(np.uint16)
+    top = np.iinfo(np.dtype(vocab.FLAG_DTYPE)).max
+    if flags.size and (flags.min() < 0 or flags.max() > top):
+        raise TrackerError(f"tracker {name!r}: flags outside 0..{top} (see vocabulary.FLAGS)", where)
+    flags = flags.astype(vocab.FLAG_DTYPE)
     out["flags"] = flags
     if np.isinf(state).any():
         raise TrackerError(f"tracker {name!r}: {_first(np.isinf(state).any(axis=-1))}: infinite state", where)
@@ -371,9 +373,34 @@ def validate_outputs(outputs: dict, n_runs: int, n_scans: int, name: str, where:
     if bad.any():
         raise TrackerError(f"tracker {name!r}: {_first(bad)}: NaN state without the NO_TRACK or NOT_ESTIMATED "
                            "flag", where)
+    if "track_id" in out:
+        out["track_id"] = _checked_track_ids(out["track_id"], flags, name, where)
     if "covariance" in out:
         _check_covariance(out["covariance"], state, name, where)
     return out
+
+
+def _checked_track_ids(ids, flags, name, where):
+    """``track_id``: whole numbers shaped like ``flags`` with track slots, ≥ −1, and no identity
+    twice in one scan of one run (two slots cannot hold the same track). Returned as int64."""
+    if ids.shape != flags.shape or ids.ndim != 3:
+        raise TrackerError(f"tracker {name!r}: track_id has shape {ids.shape}, expected (runs, scans, slots) "
+                           f"{flags.shape if flags.ndim == 3 else '(the shape of flags, with a slot axis)'}", where)
+    if ids.dtype.kind not in "iu":
+        whole = ids.dtype.kind == "f" and np.isfinite(ids).all() and (ids == np.round(ids)).all()
+        if not whole:
+            raise TrackerError(f"tracker {name!r}: track_id must hold integers (got {ids.dtype})", where)
+    ids = ids.astype(np.int64)
+    if ids.size and ids.min() < -1:
+        raise TrackerError(f"tracker {name!r}: {_first((ids < -1))}: track_id below −1 (−1 marks an empty slot)",
+                           where)
+    ordered = np.sort(ids, axis=-1)
+    twice = (ordered[..., 1:] == ordered[..., :-1]) & (ordered[..., 1:] >= 0)
+    if twice.any():
+        run, scan = (int(v[0]) for v in np.nonzero(twice.any(axis=-1)))
+        value = int(ordered[run, scan, 1:][twice[run, scan]][0])
+        raise TrackerError(f"tracker {name!r}: run {run} scan {scan}: track_id {value} is in two slots", where)
+    return ids
 
 
 COVARIANCE_CHECK_BLOCK = 32768  # matrices per block: a few MB of temporaries, whatever the run count
