@@ -127,8 +127,14 @@ TABLE_FORMATS: dict[str, TableFormat] = {f.family: f for f in (
             TableColumn("bearing_rad | bearing_deg", "rad | °", True,
                         "plot bearing, counter-clockwise from +x (x = r cos θ, y = r sin θ)"),
             *_truth_xy("true target"),
+            TableColumn("truth_id", "index", False,
+                        "identity of the target the row's truth columns describe (many targets: a long "
+                        "table, one row per plot and per target; a plot on the same row came from it)"),
         )},
         ("Several rows of one run and time are several plots of that scan.",
+         "With truth_id, the truth is a set of targets per scan: every row naming a target gives its state "
+         "(the same on every row of that target and scan); rows with range and bearing empty carry truth "
+         "alone, rows with the truth columns empty a plot alone (clutter, or of no known target).",
          "A row with range and bearing both empty marks a scan without plots (it may carry the truth); "
          "it may not share its scan with plots or with another such row.",
          "Refused: a negative range; a scan whose truth columns disagree between rows; with truth, a run "
@@ -569,7 +575,7 @@ def _group_of(t: _Rows, names: tuple[str, ...], what: str) -> bool:
 def _ragged(sc: _Scans, present: np.ndarray, arrays: dict) -> tuple[dict, np.ndarray]:
     """Items on the rows ``present`` → ``(runs, scans, width)`` arrays in file order and counts.
 
-    ``arrays``: name → (values per row, padding, dtype).
+    ``arrays``: name → (values per row (rows, ...), padding, dtype).
     """
     rows = np.flatnonzero(present)
     key = sc.key[rows]
@@ -582,15 +588,16 @@ def _ragged(sc: _Scans, present: np.ndarray, arrays: dict) -> tuple[dict, np.nda
     width = int(counts.max()) if counts.size else 0
     out = {}
     for name, (values, fill, dtype) in arrays.items():
-        a = np.full((sc.n_runs * sc.n_scans, width), fill, dtype=dtype)
+        a = np.full((sc.n_runs * sc.n_scans, width) + values.shape[1:], fill, dtype=dtype)
         a[key, slot] = values[rows]
-        out[name] = a.reshape(sc.n_runs, sc.n_scans, width)
+        out[name] = a.reshape((sc.n_runs, sc.n_scans, width) + values.shape[1:])
     return out, counts
 
 
-def _markers(t: _Rows, sc: _Scans, empties: dict[str, np.ndarray], item: str) -> np.ndarray:
+def _markers(t: _Rows, sc: _Scans, empties: dict[str, np.ndarray], item: str, several: bool = False) -> np.ndarray:
     """Rows whose measurement columns are all empty (a scan without items); refuse a row with
-    some empty, a marker beside items of its scan, and two markers for one scan."""
+    some empty, a marker beside items of its scan, and two markers for one scan (unless
+    ``several``: rows that carry something else, e.g. one target's truth each)."""
     masks = list(empties.values())
     every, some = np.logical_and.reduce(masks), np.logical_or.reduce(masks)
     partial = some & ~every
@@ -599,7 +606,7 @@ def _markers(t: _Rows, sc: _Scans, empties: dict[str, np.ndarray], item: str) ->
         empty = next(n for n, m in empties.items() if m[i])
         raise t.error(f"column {empty!r} is empty at data row {t.row(i)} while the row's other measurement columns "
                       f"are not (a row marking a scan without {item}s leaves them all empty)")
-    if every.any():
+    if every.any() and not several:
         key = sc.key
         size = sc.n_runs * sc.n_scans
         items = np.bincount(key[~every], minlength=size)
@@ -621,7 +628,8 @@ def _radar(t: _Rows) -> SimulatedData:
     sc = _scans(t)
     rng, rng_empty = t.floats("range_m")
     brg, brg_empty, bname = t.angle("bearing_rad")
-    marker = _markers(t, sc, {"range_m": rng_empty, bname: brg_empty}, "plot")
+    # a long table of many targets has rows of truth alone, any number in a scan
+    marker = _markers(t, sc, {"range_m": rng_empty, bname: brg_empty}, "plot", several=t.has("truth_id"))
     plot = ~marker
     spec = vocab.VALUES["radar_plots"]
     t.within("range_m", rng, spec["range_m"], plot)
@@ -629,6 +637,8 @@ def _radar(t: _Rows) -> SimulatedData:
     arrays, counts = _ragged(sc, plot, {"range_m": (rng, np.nan, np.float64), "bearing_rad": (brg, np.nan, np.float64)})
     data = SimulatedData(times=sc.times, ragged={_PLOTS: (arrays, counts)})
     _require_min_scans(t, sc, "radar-plots")
+    if t.has("truth_id"):
+        return _radar_truth_set(t, sc, data, plot)
     if _group_of(t, _TRUTH_XY, "truth"):
         values = [t.filled(n) for n in _TRUTH_XY]
         for n, v in zip(_TRUTH_XY, values):
@@ -638,6 +648,58 @@ def _radar(t: _Rows) -> SimulatedData:
                             "bearing empty marks a scan without plots")
         state = _per_scan(t, sc, list(_TRUTH_XY), values)
         data.fixed[_RADAR_TRUTH] = {"state": state.reshape(sc.n_runs, sc.n_scans, 4)}
+    return data
+
+
+def _radar_truth_set(t: _Rows, sc: _Scans, data: SimulatedData, plot: np.ndarray) -> SimulatedData:
+    """Truth as a set of targets per scan from a long table with ``truth_id``: each row naming a
+    target gives its state at that scan; a plot on such a row came from it (``origin``), a plot on
+    a row without one from no known target (−1)."""
+    named = ~t.floats("truth_id")[1]
+    ident = t.integers("truth_id", 0, vocab.VALUES["radar_truth"]["target_id"].high, "target identities",
+                       rows_mask=named)
+    values = []
+    for n in _TRUTH_XY:
+        v, empty = t.floats(n)
+        gap = named & empty
+        if gap.any():
+            i = int(np.argmax(gap))
+            raise t.error(f"column {n!r} is empty at data row {t.row(i)}, which names target {ident[i]} (a row with "
+                          "truth_id gives all four truth columns)")
+        stray = ~named & ~empty
+        if stray.any():
+            i = int(np.argmax(stray))
+            raise t.error(f"column {n!r} holds a value at data row {t.row(i)}, which names no target (truth_id is "
+                          "empty)")
+        t.within(n, v, vocab.VALUES["radar_truth"]["state"], named)
+        values.append(v)
+    rows = np.flatnonzero(named)
+    # one entry per (run, scan, target): rows repeating a target in its scan must agree
+    key = (sc.key[rows] * (int(ident[rows].max(initial=0)) + 1) + ident[rows]) if rows.size else rows
+    order = np.argsort(key, kind="stable")
+    first = np.r_[True, key[order][1:] != key[order][:-1]] if rows.size else np.zeros(0, bool)
+    for j, (name, v) in enumerate(zip(_TRUTH_XY, values)):
+        vs = v[rows][order]
+        differ = ~first[1:] & (vs[1:] != vs[:-1]) if rows.size else np.zeros(0, bool)
+        if differ.any():
+            p = int(np.argmax(differ))
+            a, b = int(rows[order][p]), int(rows[order][p + 1])
+            raise t.error(f"column {name!r} differs between data rows {t.row(a)} and {t.row(b)}, which give target "
+                          f"{ident[a]} at {sc.where(sc.run[a], sc.scan[a])}; a target has one state a scan")
+    unique = np.zeros(t.n, bool)
+    unique[rows[order][first]] = True
+    state = np.stack(values, axis=-1)
+    arrays, counts = _ragged(sc, unique, {"state": (state, np.nan, np.float64), "target_id": (ident, -1, np.int64)})
+    # targets in identity order within each scan, as the simulator writes them
+    by_id = np.argsort(np.where(arrays["target_id"] >= 0, arrays["target_id"], np.iinfo(np.int64).max), axis=-1,
+                       kind="stable")
+    arrays = {"state": np.take_along_axis(arrays["state"], by_id[..., None], axis=2),
+              "target_id": np.take_along_axis(arrays["target_id"], by_id, axis=2)}
+    data.ragged[_RADAR_TRUTH] = (arrays, counts)
+    origin = np.where(named, ident, -1)
+    plots, plot_counts = data.ragged[_PLOTS]
+    extra, _ = _ragged(sc, plot, {"origin": (origin, -1, np.int64)})
+    data.ragged[_PLOTS] = ({**plots, "origin": extra["origin"]}, plot_counts)
     return data
 
 
@@ -1061,11 +1123,10 @@ def convert_table(family: str, src, dst, overrides: dict | None = None, sensors_
     if sensors_src is not None:
         source["source_sensors_table"] = Path(sensors_src).name
     messages, params, notes = write_imported(family, data, dst, overrides, f"{family} table", source, src)
-    if data.ragged:
-        items = int(sum(int(c.sum()) for _, c in data.ragged.values()))
-    else:
-        items = int(rows.height)
-    truth = vocab.FAMILIES[family].truth in data.fixed
+    family_of = vocab.FAMILIES[family]
+    measured = [counts for topic, (_, counts) in data.ragged.items() if topic in family_of.inputs]
+    items = int(sum(int(c.sum()) for c in measured)) if measured else int(rows.height)
+    truth = family_of.truth in data.fixed or family_of.truth in data.ragged
     return ConvertReport(Path(dst), messages, data.n_runs, int(data.times.size), items, truth, params, notes)
 
 

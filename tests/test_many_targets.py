@@ -240,3 +240,56 @@ def test_bad_track_ids_get_one_line_and_the_others_are_written(runner, radar_sma
     errors = [line for line in res.stderr.splitlines() if line.startswith("replay: error: ")]
     assert len(errors) == 1 and fragment in errors[0] and "Traceback" not in res.output
     assert PREFIX + "kalman" in read_dataset(Path("o/t.mcap")).channels
+
+
+LONG_TABLE = """run,time_s,range_m,bearing_deg,truth_id,truth_x_m,truth_y_m,truth_vx_mps,truth_vy_mps
+0,0,10000,30,0,8660.254,5000,100,0
+0,0,20000,-10,1,19696.155,-3472.964,0,150
+0,0,15000,5,,,,,
+0,1,10010,30.5,0,8760.254,5000,100,0
+0,1,,,1,19696.155,-3322.964,0,150
+0,2,10020,31,0,8860.254,5000,100,0
+0,2,20050,-9.5,1,19696.155,-3172.964,0,150
+0,2,30000,45,,,,,
+0,3,,,,,,,
+"""
+
+
+def test_a_long_table_of_many_targets_converts_with_its_truth_set(runner, tmp_path):
+    (tmp_path / "many.csv").write_text(LONG_TABLE)
+    res = runner.invoke(main, ["convert", "plots", str(tmp_path / "many.csv"), "-o", "many.mcap",
+                               "--set", "sigma_range_m=20", "--set", "sigma_bearing_deg=0.5"])
+    assert res.exit_code == 0, res.output
+    assert "7 plots; with truth" in res.output
+    ds = read_dataset(Path("many.mcap"))
+    stage = stage_named("radar-tws")
+    state, ids = stage.decode_truth(ds)
+    assert stage.holds_many_targets(ds)
+    # scan 1: target 1 without a plot keeps its truth; scan 3: neither plots nor targets
+    np.testing.assert_array_equal(ids[0], [[0, 1], [0, 1], [0, 1], [-1, -1]])
+    np.testing.assert_allclose(state[0, 1, 1], [19696.155, -3322.964, 0, 150])
+    origin, counts = ds.channel("/radar/plots").ragged("origin")
+    np.testing.assert_array_equal(counts[0], [3, 1, 3, 0])
+    np.testing.assert_array_equal(origin[0, 0], [0, 1, -1])  # the plot without truth is nobody's
+    res = runner.invoke(main, ["many.mcap", "--no-rrd", "--figures", "none", "--out", "o/t.mcap"])
+    assert res.exit_code == 0, res.output
+    assert {PREFIX + "gnn", PREFIX + "jpda_mt"} <= set(read_dataset(Path("o/t.mcap")).channels)
+
+
+@pytest.mark.parametrize("edit, fragment", [
+    (lambda s: s.replace("0,1,10010,30.5,0,8760.254", "0,1,10010,30.5,0,8700.0"), None),
+    (lambda s: s.replace("0,2,10020,31,0,8860.254,5000,100,0", "0,2,10020,31,0,8860.254,5000,100,0\n"
+                         "0,2,,,0,8861.0,5000,100,0"), "a target has one state a scan"),
+    (lambda s: s.replace("0,0,15000,5,,,,,", "0,0,15000,5,,1.0,,,"), "names no target"),
+    (lambda s: s.replace("0,1,,,1,19696.155,-3322.964,0,150", "0,1,,,1,,-3322.964,0,150"), "names target 1"),
+], ids=["moved-target", "two-states", "truth-without-id", "id-without-truth"])
+def test_a_long_table_with_inconsistent_truth_is_refused_with_one_line(runner, tmp_path, edit, fragment):
+    (tmp_path / "many.csv").write_text(edit(LONG_TABLE))
+    res = runner.invoke(main, ["convert", "plots", str(tmp_path / "many.csv"), "-o", "many.mcap"])
+    if fragment is None:  # a target may move between scans: nothing to refuse
+        assert res.exit_code == 0, res.output
+        return
+    assert res.exit_code == 2, res.output
+    errors = [line for line in res.stderr.splitlines() if line.startswith("replay: error: ")]
+    assert len(errors) == 1 and fragment in errors[0] and "Traceback" not in res.output
+    assert not Path("many.mcap").exists()

@@ -126,6 +126,9 @@ class GlobalNearestNeighbour:
         log_det = np.log(np.where(det > 0, det, 1.0))
         plot = gnn_assignment(d2 + log_det[..., None], gated, design.gate_chi2 + log_det)
         hit = plot >= 0
+        if nu.shape[-2] == 0:  # a scan without plots: every track coasts
+            return ScanAssociation(x, P, hit, np.zeros(gated.shape[::2], bool), np.full(x.shape[:-1] + (2,), np.nan),
+                                   np.full(S.shape, np.nan), np.zeros(hit.shape, np.uint32))
         picked = np.take_along_axis(nu, np.maximum(plot, 0)[..., None, None], axis=-2)[..., 0, :]
         picked = np.where(hit[..., None], picked, 0.0)
         x_upd, P_upd, _ = f.update(x, P, H, S, picked)
