@@ -33,13 +33,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from evaluators.set_distances import optimal_assignment, pairwise_distance
+from evaluators.set_distances import assign_edges, close_pairs, optimal_assignment, pairwise_distance
 from pipeline.batched_linalg import all_finite
 
 #: the localisation thresholds α, built as TrackEval builds them (so every bit of α agrees)
 HOTA_ALPHAS = np.arange(0.05, 0.99, 0.05)
 _EPS = np.finfo(float).eps
 SUM_KEYS = ("tp", "fn", "fp", "loc_sum", "ass_sum", "ass_re_sum", "ass_pr_sum")
+#: from this many track–target pairs over all scans and runs on, :func:`hota_sums` takes the
+#: vectorised form (the plain one is the reference it is tested against)
+SPARSE_FROM_PAIRS = 1 << 16
 
 
 def point_similarity(distance, distance_scale: float):
@@ -48,7 +51,7 @@ def point_similarity(distance, distance_scale: float):
 
 
 def hota_sums(tracks, truths, distance_scale: float, track_ids=None, truth_ids=None, angular: bool = False,
-              alphas=HOTA_ALPHAS) -> dict:
+              alphas=HOTA_ALPHAS, method: str = "auto") -> dict:
     """Per-run sums from which HOTA and its parts are formed for any set of runs.
 
     Parameters
@@ -67,6 +70,10 @@ def hota_sums(tracks, truths, distance_scale: float, track_ids=None, truth_ids=N
         The components are angles (radians): differences wrap.
     alphas : ndarray (A,)
         Localisation thresholds.
+    method : {"auto", "plain", "sparse"}
+        ``"plain"``: run by run on dense similarity matrices, the definitions as written;
+        ``"sparse"``: all runs at once on the pairs with S > 0 only (the same sums up to
+        rounding, tested); ``"auto"``: sparse from :data:`SPARSE_FROM_PAIRS` pairs on.
 
     Returns
     -------
@@ -78,6 +85,10 @@ def hota_sums(tracks, truths, distance_scale: float, track_ids=None, truth_ids=N
     tracks, truths = np.asarray(tracks, float), np.asarray(truths, float)
     alphas = np.asarray(alphas, float)
     R = tracks.shape[0]
+    if method == "sparse" or (method == "auto" and truths[..., 0].size * tracks.shape[2] >= SPARSE_FROM_PAIRS):
+        out = _sums_sparse(tracks, truths, float(distance_scale), track_ids, truth_ids, angular, alphas)
+        out["alphas"] = alphas
+        return out
     out = {key: np.zeros((R, alphas.size)) for key in SUM_KEYS}
     for r in range(R):
         one = _one_run(tracks[r], truths[r], float(distance_scale), None if track_ids is None else track_ids[r],
@@ -145,6 +156,66 @@ def _one_run(tracks, truths, d0, track_ids, truth_ids, angular, alphas) -> dict:
         out["ass_sum"][a] = np.sum(tpa * (tpa / np.maximum(1.0, truth_count + track_count - tpa)))
         out["ass_re_sum"][a] = np.sum(tpa * (tpa / np.maximum(1.0, truth_count)))
         out["ass_pr_sum"][a] = np.sum(tpa * (tpa / np.maximum(1.0, track_count)))
+    return out
+
+
+def _global_identities(ids, present):
+    """Identities (R, K, n) numbered 0…N−1 across runs (the same identity in two runs is two),
+    −1 where absent; N; and the run of each."""
+    r, k, j = np.nonzero(present)
+    value = ids[r, k, j]
+    order = np.lexsort((value, r))
+    new = np.ones(order.size, bool)
+    new[1:] = (r[order][1:] != r[order][:-1]) | (value[order][1:] != value[order][:-1])
+    number = np.empty(order.size, np.int64)
+    number[order] = np.cumsum(new) - 1
+    out = np.full(present.shape, -1, np.int64)
+    out[r, k, j] = number
+    return out, int(new.sum()), r[order][new]
+
+
+def _sums_sparse(tracks, truths, d0, track_ids, truth_ids, angular, alphas) -> dict:
+    """:func:`hota_sums` for all runs at once from the pairs with S > 0 (d < d₀) alone."""
+    R, K, T = truths.shape[:3]
+    S = tracks.shape[2]
+    truth_id = np.broadcast_to(np.arange(T), (R, K, T)) if truth_ids is None else np.asarray(truth_ids)
+    track_id = np.broadcast_to(np.arange(S), (R, K, S)) if track_ids is None else np.asarray(track_ids)
+    vx = all_finite(truths) & (truth_id >= 0)
+    vy = all_finite(tracks) & (track_id >= 0)
+    g_id, n_g, g_run = _global_identities(truth_id, vx)
+    h_id, n_h, _ = _global_identities(track_id, vy)
+    truth_count = np.bincount(g_id[vx], minlength=n_g).astype(float)
+    track_count = np.bincount(h_id[vy], minlength=n_h).astype(float)
+    n_truth, n_track = vx.sum(axis=(1, 2)), vy.sum(axis=(1, 2))
+    X = np.where(vx[..., None], truths, np.nan).reshape(R * K, T, -1)
+    Y = np.where(vy[..., None], tracks, np.nan).reshape(R * K, S, -1)
+    p, i, j, d = close_pairs(X, Y, d0, angular)
+    sim = point_similarity(d, d0)
+    # 1. global alignment from each scan's normalised similarity
+    row_sum = np.bincount(p * T + i, weights=sim, minlength=R * K * T)
+    col_sum = np.bincount(p * S + j, weights=sim, minlength=R * K * S)
+    denom = row_sum[p * T + i] + col_sum[p * S + j] - sim
+    soft = np.where(denom > _EPS, sim / np.where(denom > _EPS, denom, 1.0), 0.0)
+    g, h = g_id.reshape(R * K, T)[p, i], h_id.reshape(R * K, S)[p, j]
+    pairs, pair = np.unique(g * max(n_h, 1) + h, return_inverse=True)
+    pair_g, pair_h = pairs // max(n_h, 1), pairs % max(n_h, 1)
+    potential = np.bincount(pair, weights=soft, minlength=pairs.size)
+    alignment = potential / (truth_count[pair_g] + track_count[pair_h] - potential)
+    # 2. every scan's assignment on A·S
+    chosen = assign_edges(p, i, j, alignment[pair] * sim, T, S)
+    sim_c, run_c, pair_c = sim[chosen], p[chosen] // K, pair[chosen]
+    pair_run = g_run[pair_g]
+    out = {key: np.zeros((R, alphas.size)) for key in SUM_KEYS}
+    for a, alpha in enumerate(alphas):
+        tp = sim_c >= alpha - _EPS
+        n_tp = np.bincount(run_c[tp], minlength=R)
+        out["tp"][:, a], out["fn"][:, a], out["fp"][:, a] = n_tp, n_truth - n_tp, n_track - n_tp
+        out["loc_sum"][:, a] = np.bincount(run_c[tp], weights=sim_c[tp], minlength=R)
+        tpa = np.bincount(pair_c[tp], minlength=pairs.size).astype(float)
+        out["ass_sum"][:, a] = np.bincount(pair_run, tpa * (tpa / np.maximum(
+            1.0, truth_count[pair_g] + track_count[pair_h] - tpa)), minlength=R)
+        out["ass_re_sum"][:, a] = np.bincount(pair_run, tpa * (tpa / np.maximum(1.0, truth_count[pair_g])), minlength=R)
+        out["ass_pr_sum"][:, a] = np.bincount(pair_run, tpa * (tpa / np.maximum(1.0, track_count[pair_h])), minlength=R)
     return out
 
 

@@ -386,3 +386,132 @@ def _half_switches(own, partner, present) -> np.ndarray:
     changed = same & started_before & (state != prev)
     halves = np.where(changed, np.where((state >= 0) & (prev >= 0), 2, 1), 0)
     return np.bincount(r * K + k, weights=halves, minlength=R * K).reshape(R, K).astype(np.int64)
+
+
+#: pairs per block of :func:`close_pairs`: its distances stay in the cache
+PAIR_BLOCK = 1 << 14
+
+
+def close_pairs(X, Y, radius: float, angular: bool = False):
+    """Every pair of present rows of ``X`` (P, m, d) and ``Y`` (P, n, d) of the same problem closer
+    than ``radius``; a row with a NaN is absent.
+
+    Targets and tracks are mostly far apart, so the few close pairs carry everything an
+    assignment needs (a pair at or beyond the cut-off costs as much as no pair). The distances
+    are computed in blocks of problems small enough to stay in the cache, then dropped.
+
+    Returns
+    -------
+    problem, i, j : ndarray of int (E,)
+        Problem, row of ``X`` and row of ``Y`` of each close pair, sorted by problem, ``i``, ``j``.
+    distance : ndarray (E,)
+        Their distances (bit for bit those of :func:`pairwise_distance`).
+    """
+    X, Y = np.asarray(X, float), np.asarray(Y, float)
+    P, m, n = X.shape[0], X.shape[1], Y.shape[1]
+    out = [[], [], [], []]
+    step = max(1, PAIR_BLOCK // max(m * n, 1))
+    for a in range(0, P, step):
+        d = pairwise_distance(X[a:a + step], Y[a:a + step], angular)
+        p, i, j = np.nonzero(d < radius)         # NaN (an absent row) is never closer
+        for part, v in zip(out, (p + a, i, j, d[p, i, j])):
+            part.append(v)
+    if not out[0]:
+        empty = np.zeros(0, np.intp)
+        return empty, empty, empty, np.zeros(0)
+    return tuple(np.concatenate(v) for v in out)
+
+
+def assign_edges(problem, row, col, weight, n_rows: int, n_cols: int) -> np.ndarray:
+    """Maximum-weight one-to-one matching of every problem's edges (weights > 0).
+
+    Each problem is a bipartite graph on ``n_rows`` rows and ``n_cols`` columns given by its edges;
+    a matching may leave any row or column out. An edge whose row and column have no other edge
+    is in every optimal matching; what is left of a problem is solved by trying every permutation
+    (:func:`_every_permutation`, all problems of one size at once) up to ``BRUTE_FORCE_MAX`` rows
+    and columns, else by ``scipy.optimize.linear_sum_assignment``.
+
+    Returns
+    -------
+    chosen : ndarray of bool (E,)
+        The edges of the matching.
+    """
+    problem, row, col = (np.asarray(a, np.int64) for a in (problem, row, col))
+    weight = np.asarray(weight, float)
+    E = problem.size
+    chosen = np.zeros(E, bool)
+    if E == 0:
+        return chosen
+    P = int(problem.max()) + 1
+    row_key, col_key = problem * n_rows + row, problem * n_cols + col
+    row_deg = np.bincount(row_key, minlength=P * n_rows)
+    col_deg = np.bincount(col_key, minlength=P * n_cols)
+    alone = (row_deg[row_key] == 1) & (col_deg[col_key] == 1)
+    chosen[alone] = weight[alone] > 0
+    rest = np.flatnonzero(~alone)
+    if rest.size == 0:
+        return chosen
+    # what is left falls apart into connected components, each its own (mostly small) problem
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    r_node, n_row_nodes = _compact(row_key[rest], P * n_rows)
+    c_node, n_col_nodes = _compact(col_key[rest], P * n_cols)
+    nodes = n_row_nodes + n_col_nodes
+    graph = coo_matrix((np.ones(rest.size, bool), (r_node, n_row_nodes + c_node)), shape=(nodes, nodes))
+    n_comp, label = connected_components(graph, directed=False)
+    prob = label[r_node]
+    # the rows and columns of each component, numbered from 0 (a component lies in one problem,
+    # so its rows and columns keep their problem's bounds)
+    r_local, n_r = _local_numbers(prob * n_rows + row[rest], n_comp, n_rows)
+    c_local, n_c = _local_numbers(prob * n_cols + col[rest], n_comp, n_cols)
+    size = np.maximum(n_r, n_c)                                   # (components,)
+    for s in np.unique(size[size > 0]):
+        if s <= BRUTE_FORCE_MAX:
+            of_size = size == s
+            slot = np.cumsum(of_size) - 1                         # problem → its place among them
+            e = np.flatnonzero(of_size[prob])
+            q = slot[prob[e]]
+            count = int(of_size.sum())
+            W = np.zeros((count, s, s))
+            index = np.full((count, s, s), -1)
+            W[q, r_local[e], c_local[e]] = weight[rest[e]]
+            index[q, r_local[e], c_local[e]] = rest[e]
+            _, perm = _every_permutation(-W)
+            picked = np.take_along_axis(index, perm[..., None], axis=2)[..., 0]
+            value = np.take_along_axis(W, perm[..., None], axis=2)[..., 0]
+            chosen[picked[(picked >= 0) & (value > 0)]] = True
+        else:
+            from scipy.optimize import linear_sum_assignment
+
+            e_all = np.flatnonzero(size[prob] == s)
+            e_all = e_all[np.argsort(prob[e_all], kind="stable")]
+            starts = np.flatnonzero(np.r_[True, prob[e_all][1:] != prob[e_all][:-1]])
+            for e in np.split(e_all, starts[1:]):
+                p = prob[e[0]]
+                W = np.zeros((n_r[p], n_c[p]))
+                index = np.full((n_r[p], n_c[p]), -1)
+                W[r_local[e], c_local[e]] = weight[rest[e]]
+                index[r_local[e], c_local[e]] = rest[e]
+                r, c = linear_sum_assignment(W, maximize=True)
+                ok = (index[r, c] >= 0) & (W[r, c] > 0)
+                chosen[index[r, c][ok]] = True
+    return chosen
+
+
+def _compact(keys, n: int):
+    """The distinct ``keys`` (< n) numbered 0… in increasing order, and how many there are."""
+    mark = np.zeros(n, bool)
+    mark[keys] = True
+    number = np.cumsum(mark) - 1
+    return number[keys], int(mark.sum())
+
+
+def _local_numbers(keys, P: int, n: int):
+    """Number the distinct ``keys`` (problem · n + element) from 0 within each problem: the
+    number of each key and the count per problem (P,)."""
+    mark = np.zeros(P * n, bool)
+    mark[keys] = True
+    per_problem = mark.reshape(P, n)
+    number = np.cumsum(per_problem, axis=1) - 1
+    return number.reshape(-1)[keys], per_problem.sum(axis=1)

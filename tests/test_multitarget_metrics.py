@@ -500,3 +500,40 @@ def test_switching_per_track_and_per_truth_differ_when_one_track_serves_two_targ
     ids, track_ids = np.broadcast_to(np.array([1, 2]), (1, 2, 2)), np.full((1, 2, 1), 5)
     assert gospa_switching(tracks, truths, 10.0, 2, 1.0, track_ids, ids, per="track")["half_switches"].sum() == 2
     assert gospa_switching(tracks, truths, 10.0, 2, 1.0, track_ids, ids, per="truth")["half_switches"].sum() == 1
+
+
+# ------------------------------------------------------------------ the fast forms equal the plain ones
+
+
+def test_hota_sparse_form_equals_the_plain_one(data):
+    tracks, track_ids, truths, truth_ids = data
+    for ids in ((track_ids, truth_ids), (None, None)):
+        plain = hota_sums(tracks, truths, HOTA_D0, *ids, method="plain")
+        sparse = hota_sums(tracks, truths, HOTA_D0, *ids, method="sparse")
+        for key in ("tp", "fn", "fp", "loc_sum", "ass_sum", "ass_re_sum", "ass_pr_sum"):
+            np.testing.assert_allclose(sparse[key], plain[key], rtol=1e-12, atol=1e-12, err_msg=key)
+
+
+def test_close_pairs_and_edge_matching_equal_the_dense_assignment():
+    from evaluators.set_distances import assign_edges, close_pairs, optimal_assignment
+
+    rng = np.random.default_rng(15)
+    for m, n in ((3, 9), (12, 12), (20, 7)):
+        X, Y = rng.uniform(0, 10, (60, m, 2)), rng.uniform(0, 10, (60, n, 2))
+        X[rng.random((60, m)) < 0.2] = np.nan
+        Y[rng.random((60, n)) < 0.2] = np.nan
+        c = 2.5
+        p, i, j, d = close_pairs(X, Y, c)
+        D = pairwise_distance(X, Y)
+        expected = np.nonzero(D < c)
+        for got, want in zip((p, i, j), expected):
+            np.testing.assert_array_equal(got, want)
+        np.testing.assert_array_equal(d, D[expected])
+        w = c ** 2 - d ** 2
+        chosen = assign_edges(p, i, j, w, m, n)
+        vx, vy = np.isfinite(X[..., 0]), np.isfinite(Y[..., 0])
+        total, _ = optimal_assignment(np.minimum(np.where(np.isfinite(D), D, c), c) ** 2, vx, vy, unmatched=c ** 2)
+        gain = np.bincount(p[chosen], weights=w[chosen], minlength=60)
+        np.testing.assert_allclose(np.maximum(vx.sum(1), vy.sum(1)) * c ** 2 - gain, total, rtol=1e-12)
+        for side in (i, j):                                              # one-to-one
+            assert len(set(zip(p[chosen], side[chosen]))) == chosen.sum()
