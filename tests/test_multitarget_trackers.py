@@ -165,3 +165,36 @@ def test_gnn_assignment_is_the_cheapest_gated_assignment(T, W, seed):
                if len({x for x in c if x >= 0}) == sum(x >= 0 for x in c)
                and all(x < 0 or gated[0, t, x] for t, x in enumerate(c)))
     assert total(plot) == pytest.approx(best, rel=1e-12, abs=1e-12)
+
+
+def test_ukf_measurement_prediction_tends_to_the_ekf_one_as_the_covariance_shrinks():
+    from pipeline.cores.filters.track_filter import PolarConstantVelocityUKF
+
+    f, x, P, H, S, nu, _ = _radar_scene(4, tracks=3, plots=1)
+    u = PolarConstantVelocityUKF(1.0, 20.0, np.deg2rad(0.2), 100.0)
+    R = f.measurement_covariance()
+    for scale, tol in ((1.0, 1e-3), (1e-4, 1e-6)):
+        z_e, H_e, S_e = f.predict_measurement(x, scale * P)
+        z_u, H_u, S_u = u.predict_measurement(x, scale * P)
+        np.testing.assert_allclose(z_u[..., 0], z_e[..., 0], rtol=tol)
+        np.testing.assert_allclose(z_u[..., 1], z_e[..., 1], rtol=tol, atol=tol * 1e-3)
+        # the spread part of S (S − R) agrees with the linearisation's to the same order, entry by
+        # entry relative to its diagonal (range and bearing differ by ten orders of magnitude)
+        spread_u, spread_e = S_u - R, S_e - R
+        d = np.sqrt(np.einsum("...ii->...i", spread_e))
+        norm = d[..., :, None] * d[..., None, :]
+        np.testing.assert_allclose(spread_u / norm, spread_e / norm, rtol=0, atol=tol * 10)
+
+
+def test_ukf_sigma_points_carry_the_mean_and_covariance_exactly_through_a_linear_map():
+    """On an (almost) linear stretch of the measurement function the unscented transform is exact:
+    a target far out, a tiny covariance — the UKF's statistical linearisation is then the Jacobian."""
+    from pipeline.cores.filters.track_filter import PolarConstantVelocityUKF
+
+    u = PolarConstantVelocityUKF(1.0, 20.0, np.deg2rad(0.2), 100.0)
+    f = PolarConstantVelocityEKF(1.0, 20.0, np.deg2rad(0.2), 100.0)
+    x = np.array([[[3e6, 4e6, 10.0, -5.0]]])
+    P = np.diag([1.0, 2.0, 0.5, 0.5])[None, None]
+    _, H_u, _ = u.predict_measurement(x, P)
+    _, H_e, _ = f.predict_measurement(x, P)
+    np.testing.assert_allclose(H_u, H_e, rtol=1e-5, atol=1e-15)

@@ -45,6 +45,7 @@ from pipeline.cores.association.track_management import ConfirmationRule, Ending
 from pipeline.cores.filters.kalman import kalman_gain
 from pipeline.cores.filters.track_filter import (
     PolarConstantVelocityEKF,
+    PolarConstantVelocityUKF,
     TrackFilter,
     squared_distances,
     symmetric_2x2_inverse,
@@ -365,11 +366,14 @@ def clutter_density(design: dict) -> float:
 
 
 class _MultiTargetTracker(Tracker):
-    """A multi-target radar tracker: :func:`track_multi_target` with one association strategy."""
+    """A multi-target radar tracker: :func:`track_multi_target` with one association strategy
+    and one per-track filter class."""
 
     family = "radar-plots"
     targets = "many"
     params = PARAMS
+    association = ""                         # a key of ASSOCIATIONS
+    track_filter = PolarConstantVelocityEKF  # the per-track filter class
 
     def __init__(self, **design):
         super().__init__(**design)
@@ -383,7 +387,7 @@ class _MultiTargetTracker(Tracker):
                              f"({self.min_range_m:g})")
         p_gate = float(self.association_gate_probability)
         self.tracker_design = MultiTargetDesign(
-            track_filter=PolarConstantVelocityEKF(
+            track_filter=self.track_filter(
                 process_noise_m2ps3=float(self.design_process_noise_m2ps3), sigma_range_m=float(self.sigma_range_m),
                 sigma_bearing_rad=float(np.deg2rad(self.sigma_bearing_deg)),
                 initial_speed_sigma_mps=float(self.initial_speed_sigma_mps)),
@@ -396,7 +400,7 @@ class _MultiTargetTracker(Tracker):
 
     def track(self, plots):
         return track_multi_target(plots.range_m, plots.bearing_rad, plots.counts, plots.times_s,
-                                  self.tracker_design, ASSOCIATIONS[self.name])
+                                  self.tracker_design, ASSOCIATIONS[self.association])
 
 
 class GnnTracker(_MultiTargetTracker):
@@ -404,6 +408,7 @@ class GnnTracker(_MultiTargetTracker):
 
     name = "gnn"
     label = "GNN"
+    association = "gnn"
 
 
 class JpdaTracker(_MultiTargetTracker):
@@ -411,6 +416,17 @@ class JpdaTracker(_MultiTargetTracker):
 
     name = "jpda_mt"
     label = "JPDA"
+    association = "jpda_mt"
 
 
-TRACKERS = (GnnTracker, JpdaTracker)
+class UkfGnnTracker(_MultiTargetTracker):
+    """GNN with an unscented Kalman filter per track: the per-track filter is the only change
+    (:class:`~pipeline.cores.filters.track_filter.PolarConstantVelocityUKF`); the loop is the same."""
+
+    name = "ukf"
+    label = "UKF (GNN)"
+    association = "gnn"
+    track_filter = PolarConstantVelocityUKF
+
+
+TRACKERS = (GnnTracker, JpdaTracker, UkfGnnTracker)

@@ -165,3 +165,41 @@ def squared_distances(innovation, S):
     else:
         S_inv = np.linalg.inv(S)
     return np.einsum("...wi,...ij,...wj->...w", innovation, S_inv, innovation)
+
+
+@dataclass(frozen=True)
+class PolarConstantVelocityUKF(PolarConstantVelocityEKF):
+    """The same target and plots, filtered by an unscented Kalman filter (Julier & Uhlmann 2004).
+
+    Only the measurement prediction differs from :class:`PolarConstantVelocityEKF`: the 2n
+    symmetric sigma points ``x ± √(n P)`` columns (weights 1/2n) go through the range-bearing
+    function, giving ``ẑ``, ``S = P_zz + R`` and the cross-covariance ``P_xz``. The loop's Jacobian
+    is the statistical linearisation ``H = P_xzᵀ P⁻¹``, so the gain ``K = P Hᵀ S⁻¹ = P_xz S⁻¹`` is
+    the UKF's, and the update is ``P⁺ = P − K S Kᵀ``. The motion model is linear, so the
+    prediction is the Kalman filter's.
+    """
+
+    def predict_measurement(self, x, P):
+        n = x.shape[-1]
+        L = np.linalg.cholesky(n * P)                               # (..., n, n)
+        spread = np.concatenate([np.swapaxes(L, -1, -2), -np.swapaxes(L, -1, -2)], axis=-2)  # (..., 2n, n)
+        points = x[..., None, :] + spread
+        r = np.hypot(points[..., 0], points[..., 1])
+        b = np.arctan2(points[..., 1], points[..., 0])
+        centre = np.arctan2(x[..., 1], x[..., 0])
+        # bearings averaged as deviations from the centre's, so the mean never straddles ±π wrongly
+        deviation = wrap_angle(b - centre[..., None])
+        z_points = np.stack([r, deviation], axis=-1)                # (..., 2n, 2)
+        z_mean = z_points.mean(axis=-2)
+        dz = z_points - z_mean[..., None, :]
+        S = np.einsum("...ki,...kj->...ij", dz, dz) / (2 * n) + self.measurement_covariance()
+        P_xz = np.einsum("...ki,...kj->...ij", spread, dz) / (2 * n)  # (..., n, 2)
+        H = np.swapaxes(np.linalg.solve(P, P_xz), -1, -2)            # P_xzᵀ P⁻¹ (P symmetric)
+        z_pred = np.stack([z_mean[..., 0], wrap_angle(centre + z_mean[..., 1])], axis=-1)
+        return z_pred, H, 0.5 * (S + np.swapaxes(S, -1, -2))
+
+    def update(self, x, P, H, S, innovation):
+        K = np.swapaxes(np.linalg.solve(S, H @ P), -1, -2)          # P Hᵀ S⁻¹ = P_xz S⁻¹
+        x_post = x + np.einsum("...ij,...j->...i", K, innovation)
+        P_post = P - K @ S @ np.swapaxes(K, -1, -2)
+        return x_post, 0.5 * (P_post + np.swapaxes(P_post, -1, -2)), K
