@@ -262,20 +262,27 @@ def track_multi_target(range_m, bearing_rad, counts, times, design: MultiTargetD
         claimed = np.zeros((R, w), bool)
         ending = np.zeros(alive.shape, bool)
         if alive.any():
-            x, P = f.predict(slots.x, slots.P, float(times[k] - times[k - 1]))
+            # new tracks take the lowest free slots, so the live ones sit below the highest one
+            # alive: the filter works on those, not on every slot a busier scan once needed
+            top = int(np.flatnonzero(alive.any(axis=0))[-1]) + 1
+            live = alive[:, :top]
+            x, P = f.predict(slots.x[:, :top], slots.P[:, :top], float(times[k] - times[k - 1]))
             z_pred, H, S = f.predict_measurement(x, P)
             nu = f.innovations(np.where(valid[..., None], z, 0.0), z_pred)
             d2 = squared_distances(nu, S)
-            gated = alive[..., None] & valid[:, None, :] & (d2 <= design.gate_chi2)
+            gated = live[..., None] & valid[:, None, :] & (d2 <= design.gate_chi2)
             step = association.associate(design, x, P, H, S, nu, d2, gated)
-            slots.x = np.where(alive[..., None], step.x, slots.x)
-            slots.P = np.where(alive[..., None, None], step.P, slots.P)
-            flags |= np.where(alive, step.flags, 0).astype(np.uint32)
+            slots.x[:, :top] = np.where(live[..., None], step.x, slots.x[:, :top])
+            slots.P[:, :top] = np.where(live[..., None, None], step.P, slots.P[:, :top])
+            hit = _pad(step.hit & live, alive.shape[1], False)
+            flags |= _pad(np.where(live, step.flags, 0).astype(np.uint32), alive.shape[1], 0)
             claimed = step.claimed
-            innovation, covariance = step.innovation, step.innovation_covariance
+            innovation = None if step.innovation is None else _pad(step.innovation, alive.shape[1], np.nan)
+            covariance = None if step.innovation_covariance is None else _pad(step.innovation_covariance,
+                                                                               alive.shape[1], np.nan)
             position_variance = slots.P[..., 0, 0] + slots.P[..., 1, 1]
-            tentative, ending = slots.life.step(step.hit & alive, slots.x[..., 0], position_variance)
-            flags |= np.where(alive & ~step.hit & ~ending, vocab.COASTED, 0).astype(np.uint32)
+            tentative, ending = slots.life.step(hit, slots.x[..., 0], position_variance)
+            flags |= np.where(alive & ~hit & ~ending, vocab.COASTED, 0).astype(np.uint32)
         # plots no track claimed start tentative tracks, in slots free before this scan
         run, plot = np.nonzero(valid & ~claimed)
         free = ~alive

@@ -26,6 +26,7 @@ State ``[x, y, ẋ, ẏ]`` (m, m/s); measurement ``[r, θ]`` (m, rad), θ counte
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -113,10 +114,9 @@ class PolarConstantVelocityEKF(TrackFilter):
 
     def motion_model(self, dt: float):
         """``F``, ``Q`` ``(4, 4)`` for state ``[x, y, ẋ, ẏ]``: the per-axis continuous white-noise
-        model of :func:`~pipeline.cores.filters.kalman.continuous_white_noise_model`, both axes."""
-        F1, Q1 = continuous_white_noise_model(float(dt), self.process_noise_m2ps3, 2)
-        eye = np.eye(2)
-        return np.kron(F1, eye), np.kron(Q1, eye)
+        model of :func:`~pipeline.cores.filters.kalman.continuous_white_noise_model`, both axes.
+        Built once per scan interval (a recording's scans are mostly evenly spaced)."""
+        return _cv_model(float(dt), self.process_noise_m2ps3)
 
     def predict(self, x, P, dt: float):
         F, Q = self.motion_model(dt)
@@ -156,6 +156,15 @@ class PolarConstantVelocityEKF(TrackFilter):
         P[..., 0, 1] = P[..., 1, 0] = (along - cross) * c * s
         P[..., 2, 2] = P[..., 3, 3] = self.initial_speed_sigma_mps ** 2
         return x, P
+
+
+@lru_cache(maxsize=64)
+def _cv_model(dt: float, q: float):
+    F1, Q1 = continuous_white_noise_model(dt, q, 2)
+    eye = np.eye(2)
+    F, Q = np.kron(F1, eye), np.kron(Q1, eye)
+    F.flags.writeable = Q.flags.writeable = False
+    return F, Q
 
 
 def squared_distances(innovation, S):
