@@ -293,3 +293,13 @@ def test_a_long_table_with_inconsistent_truth_is_refused_with_one_line(runner, t
     errors = [line for line in res.stderr.splitlines() if line.startswith("replay: error: ")]
     assert len(errors) == 1 and fragment in errors[0] and "Traceback" not in res.output
     assert not Path("many.mcap").exists()
+
+
+def test_a_plugged_two_slot_tracker_sweeps_beside_the_multi_target_ones(runner, two_slots):
+    res = runner.invoke(main, ["sweep", "radar-multi", "--param", "clutter_per_scan=0,20", "--runs", "3",
+                               "--set", "n_scans=20", "-o", "sw", "--tracker", "two_slots.py:TwoSlots"])
+    assert res.exit_code == 0, res.output
+    table = pl.read_parquet("sw/sweep.parquet")
+    assert {"gnn", "jpda_mt", "ukf", "two_slots"} <= set(table["tracker"].to_list())
+    mota = table.filter(pl.col("metric") == "mota")
+    assert mota.height == 8 and mota["value"].is_finite().all()
