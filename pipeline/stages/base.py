@@ -484,6 +484,10 @@ class Stage:
         if std_scan.height and per_scan.height and "scan" in per_scan.columns:
             extra = [c for c in std_scan.columns if c not in per_scan.columns or c in ("tracker", "scan")]
             per_scan = per_scan.join(std_scan.select(extra), on=["tracker", "scan"], how="left")
+        elif std_scan.height and not per_scan.height:
+            # no tracker the family's own measures apply to (multi-target trackers): the standard
+            # per-scan measures are the table
+            per_scan = std_scan
         return per_scan, pl.concat([summary.with_columns(kind=pl.lit("family")),
                                     std_summary.with_columns(kind=pl.lit("standard")), lives], how="diagonal_relaxed")
 
