@@ -42,7 +42,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from evaluators.set_distances import BRUTE_FORCE_MAX, optimal_assignment, pairwise_distance
+from evaluators.set_distances import (BRUTE_FORCE_MAX, assign_edges, close_pairs, global_identities,
+                                      optimal_assignment, pairwise_distance)
 from pipeline.batched_linalg import all_finite
 
 MOSTLY_TRACKED = 0.8
@@ -113,7 +114,7 @@ def scan_matches(tracks, truths, gate: float, angular: bool = False, track_ids=N
     vy = all_finite(Y)
     if keep_previous:
         ids = slot_identities(Y) if track_ids is None else np.asarray(track_ids)
-        return _matches_keeping_previous(X, Y, vx, vy, tid, ids, gate, angular)
+        return _matches_keeping_previous(X, Y, vx, vy & (ids >= 0), tid, ids, gate, angular)
     R, K, T = vx.shape
     S = vy.shape[-1]
     match = np.empty((R, K, T), np.intp)
@@ -142,33 +143,51 @@ def _scan_block(X, Y, vx, vy, gate, angular):
     return np.where(ok, match, -1), np.where(ok, dist, np.nan)
 
 
-def _matches_keeping_previous(X, Y, vx, vy, tid, ids, gate, angular):
-    """:func:`scan_matches` with ``keep_previous``: scan by scan, every run at once."""
+def _gated_pairs(truths, tracks, present, track_present, gate, angular):
+    """Every (run · K + scan, truth slot, track slot, distance) of a present target and a
+    present track closer than the gate."""
+    R, K, T = present.shape
+    S = track_present.shape[-1]
+    X = np.where(present[..., None], truths, np.nan).reshape(R * K, T, -1)
+    Y = np.where(track_present[..., None], tracks, np.nan).reshape(R * K, S, -1)
+    return close_pairs(X, Y, gate, angular)
+
+
+def _matches_keeping_previous(X, Y, vx, vy, tid, ids, gate, angular, pairs=None):
+    """:func:`scan_matches` with ``keep_previous``: scan by scan, every run at once, on the pairs
+    closer than the gate alone (:func:`_gated_pairs`, or ``pairs`` when already found)."""
     R, K, T = vx.shape
     S = vy.shape[-1]
     match = np.full((R, K, T), -1, np.intp)
     dist = np.full((R, K, T), np.nan)
-    carried_id = np.full((R, T), -1, np.int64)   # track identity matched to each truth slot at k − 1
-    for k in range(K):
-        d = pairwise_distance(np.where(vx[:, k, :, None], X[:, k], 0.0), np.where(vy[:, k, :, None], Y[:, k], 0.0),
-                              angular)                                             # (R, T, S)
-        close = vx[:, k, :, None] & vy[:, k, None, :] & (d < gate)
-        if k:
-            # the previous match follows the target's identity, which may have changed slot
-            same = (tid[:, k, :, None] == tid[:, k - 1, None, :]) & (tid[:, k, :, None] >= 0)
-            wanted = np.where(same, carried_id[:, None, :], -1).max(axis=2)           # (R, T)
-            kept = close & (wanted[..., None] >= 0) & (ids[:, k, None, :] == wanted[..., None])
-        else:
-            kept = np.zeros((R, T, S), bool)
-        kept_rows, kept_cols = kept.any(axis=2), kept.any(axis=1)
-        _, m = optimal_assignment(np.minimum(d, gate) ** 2, vx[:, k] & ~kept_rows, vy[:, k] & ~kept_cols,
-                                  unmatched=gate ** 2)
-        m = np.where(kept_rows, kept.argmax(axis=2), m)
-        md = np.take_along_axis(d, np.maximum(m, 0)[..., None], axis=-1)[..., 0]
-        ok = (m >= 0) & (md < gate)
-        match[:, k] = np.where(ok, m, -1)
-        dist[:, k] = np.where(ok, md, np.nan)
-        carried_id = np.where(ok, np.take_along_axis(ids[:, k], np.maximum(m, 0), axis=-1), -1)
+    p, t, s, d = _gated_pairs(X, Y, vx, vy, gate, angular) if pairs is None else pairs
+    r, k = p // K, p % K
+    weight = gate ** 2 - d ** 2           # the assignment minimises Σ min(d, gate)²
+    target, _, _ = global_identities(tid, vx)
+    u, v = target[r, k, t], np.asarray(ids)[r, k, s]
+    by_scan = np.argsort(k, kind="stable")
+    bounds = np.searchsorted(k[by_scan], np.arange(K + 1))
+    n_targets = int(target.max()) + 1 if target.size else 0
+    last_track = np.full(n_targets, -1, np.int64)      # each target's track at its last match
+    last_scan = np.full(n_targets, -2, np.int64)       # and that scan
+    for scan in range(K):
+        e = by_scan[bounds[scan]:bounds[scan + 1]]
+        if e.size == 0:
+            continue
+        # a pair matched at the previous scan and still within the gate stays matched
+        kept = (last_scan[u[e]] == scan - 1) & (last_track[u[e]] == v[e])
+        free = ~kept
+        if kept.any():
+            row_used, col_used = np.zeros((R, T), bool), np.zeros((R, S), bool)
+            row_used[r[e[kept]], t[e[kept]]] = True
+            col_used[r[e[kept]], s[e[kept]]] = True
+            free &= ~row_used[r[e], t[e]] & ~col_used[r[e], s[e]]
+        rest = e[free]
+        chosen = np.concatenate([e[kept], rest[assign_edges(r[rest], t[rest], s[rest], weight[rest], T, S)]])
+        match[r[chosen], scan, t[chosen]] = s[chosen]
+        dist[r[chosen], scan, t[chosen]] = d[chosen]
+        last_track[u[chosen]] = v[chosen]
+        last_scan[u[chosen]] = scan
     return match, dist
 
 
@@ -207,12 +226,19 @@ def assignment_metrics(tracks, truths, gate: float, track_ids=None, angular: boo
         raise ValueError(f"convention must be one of {CONVENTIONS}, not {convention!r}")
     tracks, truths = np.asarray(tracks, float), np.asarray(truths, float)
     ids = slot_identities(tracks) if track_ids is None else np.asarray(track_ids)
-    if matches is None:
-        matches = scan_matches(tracks, truths, gate, angular, ids, truth_ids, keep_previous=convention == "trackeval")
+    pairs = None
+    if matches is None and convention == "trackeval":
+        # the pairs within the gate serve both the matching and the identity pairing
+        present, tid = _truth_identities(truths, truth_ids)
+        vy = all_finite(tracks)
+        pairs = _gated_pairs(truths, tracks, present, vy & (ids >= 0), gate, angular)
+        matches = _matches_keeping_previous(truths, tracks, present, vy, tid, ids, gate, angular, pairs)
+    elif matches is None:
+        matches = scan_matches(tracks, truths, gate, angular, ids, truth_ids, keep_previous=False)
     if truth_ids is None and convention == "per-scan":
         out = _slot_metrics(ids, truths, matches)
     else:
-        out = _identity_metrics(tracks, truths, gate, ids, truth_ids, matches, convention, angular)
+        out = _identity_metrics(tracks, truths, gate, ids, truth_ids, matches, convention, angular, pairs)
     with np.errstate(invalid="ignore", divide="ignore"):
         out["mota"] = 1 - (out["misses"] + out["false_positives"] + out["id_switches"]) / out["presences"]
         out["motp"] = out["distance_sum"] / out["matches"]
@@ -262,7 +288,7 @@ def _slot_metrics(ids, truths, matches) -> dict:
     return out
 
 
-def _identity_metrics(tracks, truths, gate, ids, truth_ids, matches, convention, angular) -> dict:
+def _identity_metrics(tracks, truths, gate, ids, truth_ids, matches, convention, angular, pairs=None) -> dict:
     """The counts per truth identity, from histories sorted by (run, identity, scan)."""
     match, dist = matches
     R, K, T = match.shape
@@ -272,9 +298,10 @@ def _identity_metrics(tracks, truths, gate, ids, truth_ids, matches, convention,
     matched_id = np.where(matched, np.take_along_axis(ids, np.maximum(match, 0), axis=-1), -1)
 
     # one event per target presence, in the order (run, identity, scan): each identity's history
-    r, k, t = np.nonzero(present)
-    u, v = tid[r, k, t], matched_id[r, k, t]
-    order = np.lexsort((k, u, r))
+    r, k, t = np.nonzero(present)                                  # in (run, scan) order
+    number, _, _ = global_identities(tid, present)                  # in (run, identity) order
+    u, v = number[r, k, t], matched_id[r, k, t]
+    order = np.argsort(u, kind="stable")                            # scans stay in order
     r, k, u, v = r[order], k[order], u[order], v[order]
     n = r.size
     first = np.ones(n, bool)
@@ -315,45 +342,58 @@ def _identity_metrics(tracks, truths, gate, ids, truth_ids, matches, convention,
         "distance_sum": np.nansum(np.where(matched, dist, np.nan), axis=(1, 2)),
     }
     out["partially_tracked"] = out["targets"] - out["mostly_tracked"] - out["mostly_lost"]
-    out.update(_identity_pairing(tracks, truths, gate, ids, tid, present, match, matched_id, convention, angular))
+    out.update(_identity_pairing(tracks, truths, gate, ids, tid, present, match, matched_id, convention, angular,
+                                 pairs))
     return out
 
 
-def _identity_pairing(tracks, truths, gate, ids, tid, present, match, matched_id, convention, angular) -> dict:
+def _identity_pairing(tracks, truths, gate, ids, tid, present, match, matched_id, convention, angular,
+                      pairs=None) -> dict:
     """IDTP/IDFP/IDFN per run from one global pairing of truth and track identities (Ristani et
     al. 2016), and the false tracks (track identities never matched at any scan)."""
     from scipy.optimize import linear_sum_assignment  # imported where needed: 0.25 s
 
-    R = ids.shape[0]
+    R, K, T = tid.shape
+    S = ids.shape[-1]
     track_present = ids >= 0
-    idtp, false_tracks = np.zeros(R, np.int64), np.zeros(R, np.int64)
-    for r in range(R):
-        track_uniq = np.unique(ids[r][track_present[r]])
-        truth_uniq = np.unique(tid[r][present[r]])
-        if track_uniq.size == 0:
-            continue
-        matched_uniq = np.unique(matched_id[r][matched_id[r] >= 0])
-        false_tracks[r] = track_uniq.size - matched_uniq.size
-        if truth_uniq.size == 0:
-            continue
-        if convention == "trackeval":
-            # every scan at which both identities are present within the gate counts, whatever the
-            # scan's assignment chose: the global pairing decides (Ristani et al. 2016, §4)
-            X, Y = truths[r], tracks[r]
-            vx, vy = present[r], all_finite(Y) & track_present[r]
-            d = pairwise_distance(np.where(vx[..., None], X, 0.0), np.where(vy[..., None], Y, 0.0), angular)
-            kk, tt, ss = np.nonzero(vx[:, :, None] & vy[:, None, :] & (d < gate))
-        else:
-            kk, tt = np.nonzero(matched_id[r] >= 0)
-            ss = match[r][kk, tt]
-        u = np.searchsorted(truth_uniq, tid[r][kk, tt])
-        v = np.searchsorted(track_uniq, ids[r][kk, ss])
-        weight = np.bincount(u * track_uniq.size + v, minlength=truth_uniq.size * track_uniq.size)
-        weight = weight.reshape(truth_uniq.size, track_uniq.size)
-        rows, cols = linear_sum_assignment(-weight)
-        idtp[r] = weight[rows, cols].sum()
+    target, n_targets, target_run = global_identities(tid, present)
+    track, n_tracks, track_run = global_identities(ids, track_present)
+    if convention == "trackeval":
+        # every scan at which both identities are present within the gate counts, whatever the
+        # scan's assignment chose: the global pairing decides (Ristani et al. 2016, §4)
+        if pairs is None:
+            pairs = _gated_pairs(truths, tracks, present, track_present & all_finite(tracks), gate, angular)
+        p, t, s, _ = pairs
+        r, k = p // K, p % K
+    else:
+        r, k, t = np.nonzero(matched_id >= 0)
+        s = match[r, k, t]
+    pairs, count = np.unique(target[r, k, t] * max(n_tracks, 1) + track[r, k, s], return_counts=True)
+    pair_target, pair_track = pairs // max(n_tracks, 1), pairs % max(n_tracks, 1)
+    pair_run = target_run[pair_target]
+    first_target = np.searchsorted(target_run, np.arange(R))
+    first_track = np.searchsorted(track_run, np.arange(R))
+    n_target_run = np.bincount(target_run, minlength=R)
+    n_track_run = np.bincount(track_run, minlength=R)
+    bounds = np.searchsorted(pair_run, np.arange(R + 1))          # pairs are in run order
+    idtp = np.zeros(R, np.int64)
+    for run in np.flatnonzero(bounds[1:] > bounds[:-1]):
+        b = slice(bounds[run], bounds[run + 1])
+        weight = np.zeros((n_target_run[run], n_track_run[run]), np.int64)
+        weight[pair_target[b] - first_target[run], pair_track[b] - first_track[run]] = count[b]
+        rows, cols = linear_sum_assignment(weight, maximize=True)
+        idtp[run] = weight[rows, cols].sum()
+    # false tracks: identities of a run never matched at any scan
+    matched_tracks = _matched_tracks(track, match, matched_id)
+    false_tracks = n_track_run - np.bincount(track_run[matched_tracks], minlength=R)
     return {"idtp": idtp, "idfp": track_present.sum(axis=(1, 2)) - idtp, "idfn": present.sum(axis=(1, 2)) - idtp,
             "false_tracks": false_tracks}
+
+
+def _matched_tracks(track, match, matched_id):
+    """The global numbers of the track identities matched at some scan."""
+    r, k, t = np.nonzero(matched_id >= 0)
+    return np.unique(track[r, k, match[r, k, t]])
 
 
 def _identity_counts(ids, matched_id, present, track_present) -> dict:

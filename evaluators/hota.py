@@ -33,7 +33,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from evaluators.set_distances import assign_edges, close_pairs, optimal_assignment, pairwise_distance
+from evaluators.set_distances import (assign_edges, close_pairs, global_identities, optimal_assignment,
+                                      pairwise_distance)
 from pipeline.batched_linalg import all_finite
 
 #: the localisation thresholds α, built as TrackEval builds them (so every bit of α agrees)
@@ -159,21 +160,6 @@ def _one_run(tracks, truths, d0, track_ids, truth_ids, angular, alphas) -> dict:
     return out
 
 
-def _global_identities(ids, present):
-    """Identities (R, K, n) numbered 0…N−1 across runs (the same identity in two runs is two),
-    −1 where absent; N; and the run of each."""
-    r, k, j = np.nonzero(present)
-    value = ids[r, k, j]
-    order = np.lexsort((value, r))
-    new = np.ones(order.size, bool)
-    new[1:] = (r[order][1:] != r[order][:-1]) | (value[order][1:] != value[order][:-1])
-    number = np.empty(order.size, np.int64)
-    number[order] = np.cumsum(new) - 1
-    out = np.full(present.shape, -1, np.int64)
-    out[r, k, j] = number
-    return out, int(new.sum()), r[order][new]
-
-
 def _sums_sparse(tracks, truths, d0, track_ids, truth_ids, angular, alphas) -> dict:
     """:func:`hota_sums` for all runs at once from the pairs with S > 0 (d < d₀) alone."""
     R, K, T = truths.shape[:3]
@@ -182,8 +168,8 @@ def _sums_sparse(tracks, truths, d0, track_ids, truth_ids, angular, alphas) -> d
     track_id = np.broadcast_to(np.arange(S), (R, K, S)) if track_ids is None else np.asarray(track_ids)
     vx = all_finite(truths) & (truth_id >= 0)
     vy = all_finite(tracks) & (track_id >= 0)
-    g_id, n_g, g_run = _global_identities(truth_id, vx)
-    h_id, n_h, _ = _global_identities(track_id, vy)
+    g_id, n_g, g_run = global_identities(truth_id, vx)
+    h_id, n_h, _ = global_identities(track_id, vy)
     truth_count = np.bincount(g_id[vx], minlength=n_g).astype(float)
     track_count = np.bincount(h_id[vy], minlength=n_h).astype(float)
     n_truth, n_track = vx.sum(axis=(1, 2)), vy.sum(axis=(1, 2))

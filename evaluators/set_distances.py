@@ -331,18 +331,22 @@ def gospa_switching(tracks, truths, cutoff: float, order: float = 2.0, switch_pe
     X, Y = np.asarray(tracks, float), np.asarray(truths, float)
     R, K, m = X.shape[:3]
     n = Y.shape[2]
-    # the assignment of every scan, in blocks of (run, scan) problems (each is its own problem)
     flat = lambda a: a.reshape((R * K,) + a.shape[2:])
     Xf, Yf = flat(X), flat(Y)
-    parts, match = None, np.empty((R * K, m), np.intp)
-    step = max(1, SWITCHING_BLOCK // max(m * n, 1))
-    for a in range(0, R * K, step):
-        block = slice(a, a + step)
-        p, match[block] = _gospa_and_assignment(Xf[block], Yf[block], cutoff, order, angular)
-        if parts is None:
-            parts = {key: np.empty((R * K,), v.dtype) for key, v in p.items()}
-        for key, v in p.items():
-            parts[key][block] = v
+    if max(m, n) > BRUTE_FORCE_MAX:
+        parts, match = _gospa_sparse(Xf, Yf, cutoff, order, angular)
+    else:
+        # small sets: :func:`gospa`'s own assignment (bit for bit its values), in blocks of
+        # (run, scan) problems (each is its own problem)
+        parts, match = None, np.empty((R * K, m), np.intp)
+        step = max(1, SWITCHING_BLOCK // max(m * n, 1))
+        for a in range(0, R * K, step):
+            block = slice(a, a + step)
+            p, match[block] = _gospa_and_assignment(Xf[block], Yf[block], cutoff, order, angular)
+            if parts is None:
+                parts = {key: np.empty((R * K,), v.dtype) for key, v in p.items()}
+            for key, v in p.items():
+                parts[key][block] = v
     parts = {key: v.reshape(R, K) for key, v in parts.items()}
     match = match.reshape(R, K, m)
 
@@ -364,6 +368,52 @@ def gospa_switching(tracks, truths, cutoff: float, order: float = 2.0, switch_pe
     parts["switching"] = term ** (1 / order)
     parts["gospa_switching"] = (parts["gospa"] ** order + term) ** (1 / order)
     return parts
+
+
+def _gospa_sparse(X, Y, cutoff, order, angular):
+    """:func:`gospa`'s parts and assignment of every problem (P, m, d), (P, n, d) from the pairs
+    closer than c alone (:func:`close_pairs`, :func:`assign_edges`): GOSPA^p is
+    ``max(|X|, |Y|)·c^p − Σ (c^p − d^p)`` over the assigned pairs, less ``(c^p/2)·||X| − |Y||``."""
+    P, m = X.shape[:2]
+    cp = cutoff ** order
+    p, i, j, d = close_pairs(X, Y, cutoff, angular)
+    dp = d ** order
+    chosen = assign_edges(p, i, j, cp - dp, m, Y.shape[1])
+    pc = p[chosen]
+    m_count, n_count = all_finite(X).sum(axis=-1), all_finite(Y).sum(axis=-1)
+    assigned = np.bincount(pc, minlength=P)
+    loc = np.bincount(pc, weights=dp[chosen], minlength=P)
+    big = np.maximum(m_count, n_count)
+    total = big * cp - np.bincount(pc, weights=cp - dp[chosen], minlength=P)
+    g = np.maximum(total - cp / 2 * np.abs(m_count - n_count), 0.0) ** (1 / order)
+    ospa = np.where(big > 0, (np.maximum(total, 0.0) / np.maximum(big, 1)) ** (1 / order), 0.0)
+    match = np.full((P, m), -1, np.intp)
+    match[pc, i[chosen]] = j[chosen]
+    return {"gospa": g, "localisation": loc ** (1 / order), "missed": n_count - assigned,
+            "false": m_count - assigned, "ospa": ospa, "assigned": assigned}, match
+
+
+def global_identities(ids, present):
+    """Identities (R, K, n) numbered 0…N−1 across runs in (run, identity) order (the same
+    identity in two runs is two), −1 where not ``present``; N; and the run of each."""
+    r, k, j = np.nonzero(present)
+    value = np.asarray(ids)[r, k, j].astype(np.int64)
+    out = np.full(present.shape, -1, np.int64)
+    if value.size == 0:
+        return out, 0, np.zeros(0, np.int64)
+    low = value.min()
+    span = int(value.max() - low) + 1
+    # (run, identity) as one integer: numbered by marking when the range is small
+    key = r.astype(np.int64) * span + (value - low)
+    if present.shape[0] * span <= 1 << 26:
+        mark = np.zeros(present.shape[0] * span, bool)
+        mark[key] = True
+        number = np.cumsum(mark) - 1
+        out[r, k, j] = number[key]
+        return out, int(mark.sum()), np.flatnonzero(mark) // span
+    uniq, inverse = np.unique(key, return_inverse=True)
+    out[r, k, j] = inverse
+    return out, uniq.size, uniq // span
 
 
 def _half_switches(own, partner, present) -> np.ndarray:
@@ -412,9 +462,11 @@ def close_pairs(X, Y, radius: float, angular: bool = False):
     out = [[], [], [], []]
     step = max(1, PAIR_BLOCK // max(m * n, 1))
     for a in range(0, P, step):
-        d = pairwise_distance(X[a:a + step], Y[a:a + step], angular)
-        p, i, j = np.nonzero(d < radius)         # NaN (an absent row) is never closer
-        for part, v in zip(out, (p + a, i, j, d[p, i, j])):
+        d = pairwise_distance(X[a:a + step], Y[a:a + step], angular).reshape(-1)
+        flat = np.flatnonzero(d < radius)       # NaN (an absent row) is never closer
+        p, ij = np.divmod(flat, m * n)
+        i, j = np.divmod(ij, n)
+        for part, v in zip(out, (p + a, i, j, d[flat])):
             part.append(v)
     if not out[0]:
         empty = np.zeros(0, np.intp)
@@ -461,18 +513,23 @@ def assign_edges(problem, row, col, weight, n_rows: int, n_cols: int) -> np.ndar
     graph = coo_matrix((np.ones(rest.size, bool), (r_node, n_row_nodes + c_node)), shape=(nodes, nodes))
     n_comp, label = connected_components(graph, directed=False)
     prob = label[r_node]
-    # the rows and columns of each component, numbered from 0 (a component lies in one problem,
-    # so its rows and columns keep their problem's bounds)
-    r_local, n_r = _local_numbers(prob * n_rows + row[rest], n_comp, n_rows)
-    c_local, n_c = _local_numbers(prob * n_cols + col[rest], n_comp, n_cols)
+    # the rows and columns of each component, numbered from 0
+    r_number, n_r = _rank_within(label[:n_row_nodes], n_comp)
+    c_number, n_c = _rank_within(label[n_row_nodes:], n_comp)
+    r_local, c_local = r_number[r_node], c_number[c_node]
     size = np.maximum(n_r, n_c)                                   # (components,)
-    for s in np.unique(size[size > 0]):
+    # the edges left, by the size of their component, then by component: one pass sorts them
+    by = np.lexsort((prob, size[prob]))
+    edge_size = size[prob[by]]
+    sizes = np.unique(edge_size)
+    cuts = np.searchsorted(edge_size, np.append(sizes, edge_size[-1] + 1))
+    for s, lo, hi in zip(sizes, cuts[:-1], cuts[1:]):
+        e = by[lo:hi]
         if s <= BRUTE_FORCE_MAX:
-            of_size = size == s
-            slot = np.cumsum(of_size) - 1                         # problem → its place among them
-            e = np.flatnonzero(of_size[prob])
-            q = slot[prob[e]]
-            count = int(of_size.sum())
+            # every component of this size at once
+            first = np.r_[True, prob[e][1:] != prob[e][:-1]]
+            q = np.cumsum(first) - 1
+            count = int(q[-1]) + 1
             W = np.zeros((count, s, s))
             index = np.full((count, s, s), -1)
             W[q, r_local[e], c_local[e]] = weight[rest[e]]
@@ -484,15 +541,13 @@ def assign_edges(problem, row, col, weight, n_rows: int, n_cols: int) -> np.ndar
         else:
             from scipy.optimize import linear_sum_assignment
 
-            e_all = np.flatnonzero(size[prob] == s)
-            e_all = e_all[np.argsort(prob[e_all], kind="stable")]
-            starts = np.flatnonzero(np.r_[True, prob[e_all][1:] != prob[e_all][:-1]])
-            for e in np.split(e_all, starts[1:]):
-                p = prob[e[0]]
+            starts = np.flatnonzero(np.r_[True, prob[e][1:] != prob[e][:-1]])
+            for part in np.split(e, starts[1:]):
+                p = prob[part[0]]
                 W = np.zeros((n_r[p], n_c[p]))
                 index = np.full((n_r[p], n_c[p]), -1)
-                W[r_local[e], c_local[e]] = weight[rest[e]]
-                index[r_local[e], c_local[e]] = rest[e]
+                W[r_local[part], c_local[part]] = weight[rest[part]]
+                index[r_local[part], c_local[part]] = rest[part]
                 r, c = linear_sum_assignment(W, maximize=True)
                 ok = (index[r, c] >= 0) & (W[r, c] > 0)
                 chosen[index[r, c][ok]] = True
@@ -507,11 +562,11 @@ def _compact(keys, n: int):
     return number[keys], int(mark.sum())
 
 
-def _local_numbers(keys, P: int, n: int):
-    """Number the distinct ``keys`` (problem · n + element) from 0 within each problem: the
-    number of each key and the count per problem (P,)."""
-    mark = np.zeros(P * n, bool)
-    mark[keys] = True
-    per_problem = mark.reshape(P, n)
-    number = np.cumsum(per_problem, axis=1) - 1
-    return number.reshape(-1)[keys], per_problem.sum(axis=1)
+def _rank_within(group, n_groups: int):
+    """Each element's place (0…) among the elements of its group, and the size of every group."""
+    order = np.argsort(group, kind="stable")
+    count = np.bincount(group, minlength=n_groups)
+    first = np.cumsum(count) - count
+    rank = np.empty(group.size, np.int64)
+    rank[order] = np.arange(group.size) - first[group[order]]
+    return rank, count

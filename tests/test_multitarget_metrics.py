@@ -537,3 +537,15 @@ def test_close_pairs_and_edge_matching_equal_the_dense_assignment():
         np.testing.assert_allclose(np.maximum(vx.sum(1), vy.sum(1)) * c ** 2 - gain, total, rtol=1e-12)
         for side in (i, j):                                              # one-to-one
             assert len(set(zip(p[chosen], side[chosen]))) == chosen.sum()
+
+
+def test_gospa_switching_parts_on_large_sets_equal_gospa(data):
+    # beyond the brute-force size gospa_switching assigns on the pairs closer than c alone
+    tracks, track_ids, truths, truth_ids = data
+    assert max(tracks.shape[2], truths.shape[2]) > 6
+    for p in (1, 2):
+        ours = gospa_switching(tracks, truths, 30.0, p, 0.0, track_ids, truth_ids)
+        dense = gospa(tracks, truths, 30.0, p)
+        for key in ("gospa", "localisation", "missed", "false", "ospa", "assigned"):
+            np.testing.assert_allclose(ours[key], dense[key], rtol=1e-9, atol=1e-9, err_msg=key)
+        np.testing.assert_array_equal(ours["gospa_switching"], ours["gospa"])     # γ = 0
