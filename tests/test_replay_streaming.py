@@ -23,7 +23,7 @@ def _all_at_once(path):
     """The tables of the path before streaming: every tracker run, then all scored together."""
     ds = read_dataset(path)
     stages = applicable_stages(ds.channels)
-    chosen = select_trackers(stages)
+    chosen = select_trackers(stages, dataset=ds)  # the trackers replay() picks for this scene
     per_scan, summary, results = [], [], {}
     for stage in stages:
         design = stage.design(ds, None, chosen[stage.name])
