@@ -191,17 +191,24 @@ def _sums_sparse(tracks, truths, d0, track_ids, truth_ids, angular, alphas) -> d
     chosen = assign_edges(p, i, j, alignment[pair] * sim, T, S)
     sim_c, run_c, pair_c = sim[chosen], p[chosen] // K, pair[chosen]
     pair_run = g_run[pair_g]
-    out = {key: np.zeros((R, alphas.size)) for key in SUM_KEYS}
-    for a, alpha in enumerate(alphas):
-        tp = sim_c >= alpha - _EPS
-        n_tp = np.bincount(run_c[tp], minlength=R)
-        out["tp"][:, a], out["fn"][:, a], out["fp"][:, a] = n_tp, n_truth - n_tp, n_track - n_tp
-        out["loc_sum"][:, a] = np.bincount(run_c[tp], weights=sim_c[tp], minlength=R)
-        tpa = np.bincount(pair_c[tp], minlength=pairs.size).astype(float)
-        out["ass_sum"][:, a] = np.bincount(pair_run, tpa * (tpa / np.maximum(
-            1.0, truth_count[pair_g] + track_count[pair_h] - tpa)), minlength=R)
-        out["ass_re_sum"][:, a] = np.bincount(pair_run, tpa * (tpa / np.maximum(1.0, truth_count[pair_g])), minlength=R)
-        out["ass_pr_sum"][:, a] = np.bincount(pair_run, tpa * (tpa / np.maximum(1.0, track_count[pair_h])), minlength=R)
+    # a TP at α is one at every smaller α: count each by the number of α it passes, then add up
+    level = np.searchsorted(np.asarray(alphas) - _EPS, sim_c, side="right")
+    A = alphas.size
+
+    def over_alphas(group, n_groups, weights=None):
+        """Σ over the TPs of each group at each α (n_groups, A)."""
+        h = np.bincount(group * (A + 1) + level, weights, minlength=n_groups * (A + 1)).reshape(n_groups, A + 1)
+        return np.cumsum(h[:, ::-1], axis=1)[:, ::-1][:, 1:]
+
+    n_tp = over_alphas(run_c, R)
+    tpa = over_alphas(pair_c, pairs.size).astype(float)                      # (pairs, A)
+    g_count, h_count = truth_count[pair_g][:, None], track_count[pair_h][:, None]
+    per_run = lambda v: np.stack([np.bincount(pair_run, v[:, a], minlength=R) for a in range(A)], axis=1)  # noqa: E731
+    out = {"tp": n_tp.astype(float), "fn": (n_truth[:, None] - n_tp).astype(float),
+           "fp": (n_track[:, None] - n_tp).astype(float), "loc_sum": over_alphas(run_c, R, sim_c),
+           "ass_sum": per_run(tpa * (tpa / np.maximum(1.0, g_count + h_count - tpa))),
+           "ass_re_sum": per_run(tpa * (tpa / np.maximum(1.0, g_count))),
+           "ass_pr_sum": per_run(tpa * (tpa / np.maximum(1.0, h_count)))}
     return out
 
 

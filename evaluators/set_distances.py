@@ -420,9 +420,10 @@ def _half_switches(own, partner, present) -> np.ndarray:
     """Half switches charged per (run, scan) (R, K) from each present identity's partner
     history (see :func:`gospa_switching`)."""
     R, K = present.shape[:2]
-    r, k, j = np.nonzero(present)
-    ident, state = own[r, k, j], partner[r, k, j]
-    order = np.lexsort((k, ident, r))
+    r, k, j = np.nonzero(present)                                   # in (run, scan) order
+    number, _, _ = global_identities(own, present)                  # in (run, identity) order
+    ident, state = number[r, k, j], partner[r, k, j]
+    order = np.argsort(ident, kind="stable")                        # scans stay in order
     r, k, ident, state = r[order], k[order], ident[order], state[order]
     same = np.zeros(r.size, bool)
     same[1:] = (r[1:] == r[:-1]) & (ident[1:] == ident[:-1])
@@ -438,8 +439,8 @@ def _half_switches(own, partner, present) -> np.ndarray:
     return np.bincount(r * K + k, weights=halves, minlength=R * K).reshape(R, K).astype(np.int64)
 
 
-#: pairs per block of :func:`close_pairs`: its distances stay in the cache
-PAIR_BLOCK = 1 << 14
+#: pairs per block of :func:`close_pairs`: its squared distances stay in the cache
+PAIR_BLOCK = 1 << 16
 
 
 def close_pairs(X, Y, radius: float, angular: bool = False):
@@ -447,8 +448,9 @@ def close_pairs(X, Y, radius: float, angular: bool = False):
     than ``radius``; a row with a NaN is absent.
 
     Targets and tracks are mostly far apart, so the few close pairs carry everything an
-    assignment needs (a pair at or beyond the cut-off costs as much as no pair). The distances
-    are computed in blocks of problems small enough to stay in the cache, then dropped.
+    assignment needs (a pair at or beyond the cut-off costs as much as no pair). The squared
+    distances are summed a component at a time in buffers of :data:`PAIR_BLOCK` pairs that stay
+    in the cache, and only the close pairs get a square root.
 
     Returns
     -------
@@ -459,19 +461,35 @@ def close_pairs(X, Y, radius: float, angular: bool = False):
     """
     X, Y = np.asarray(X, float), np.asarray(Y, float)
     P, m, n = X.shape[0], X.shape[1], Y.shape[1]
-    out = [[], [], [], []]
     step = max(1, PAIR_BLOCK // max(m * n, 1))
+    # a little above radius²: the exact test is on the distance itself below
+    wide = radius * radius * (1 + 8 * np.finfo(float).eps)
+    Xc = [np.ascontiguousarray(X[..., c]) for c in range(X.shape[-1])]
+    Yc = [np.ascontiguousarray(Y[..., c]) for c in range(Y.shape[-1])]
+    total, part = np.empty((step, m, n)), np.empty((step, m, n))
+    found, squares = [], []
     for a in range(0, P, step):
-        d = pairwise_distance(X[a:a + step], Y[a:a + step], angular).reshape(-1)
-        flat = np.flatnonzero(d < radius)       # NaN (an absent row) is never closer
-        p, ij = np.divmod(flat, m * n)
-        i, j = np.divmod(ij, n)
-        for part, v in zip(out, (p + a, i, j, d[flat])):
-            part.append(v)
-    if not out[0]:
-        empty = np.zeros(0, np.intp)
-        return empty, empty, empty, np.zeros(0)
-    return tuple(np.concatenate(v) for v in out)
+        b = min(step, P - a)
+        t, u = total[:b], part[:b]
+        t.fill(0.0)
+        for xc, yc in zip(Xc, Yc):
+            np.subtract(xc[a:a + b, :, None], yc[a:a + b, None, :], out=u)
+            if angular:
+                u += np.pi
+                np.mod(u, 2 * np.pi, out=u)
+                u -= np.pi
+            np.multiply(u, u, out=u)
+            t += u
+        flat = np.flatnonzero(t.reshape(-1) < wide)   # NaN (an absent row) is never closer
+        found.append(flat + a * m * n)
+        squares.append(t.reshape(-1)[flat])
+    flat = np.concatenate(found) if found else np.zeros(0, np.intp)
+    d = np.sqrt(np.concatenate(squares)) if squares else np.zeros(0)
+    keep = d < radius
+    flat, d = flat[keep], d[keep]
+    p, ij = np.divmod(flat, m * n)
+    i, j = np.divmod(ij, n)
+    return p, i, j, d
 
 
 def assign_edges(problem, row, col, weight, n_rows: int, n_cols: int) -> np.ndarray:
