@@ -43,9 +43,9 @@ class Drift:
 
     def describe(self) -> str:
         if self.value is None:
-            return f"{self.tracker} {self.metric} [{self.scope}]: missing (baseline {self.baseline:.6g})"
+            return f"{self.tracker} {self.metric} [{self.scope}]: missing (baseline {_number(self.baseline)})"
         if self.baseline is None:
-            return f"{self.tracker} {self.metric} [{self.scope}]: not in baseline (value {self.value:.6g})"
+            return f"{self.tracker} {self.metric} [{self.scope}]: not in baseline (value {_number(self.value)})"
         moved = self.value - self.baseline
         text = (f"{self.tracker} {self.metric} [{self.scope}]: {self.baseline:.6g} -> {self.value:.6g} "
                 f"(moved {moved:+.3g}, tolerance ±{self.tolerance:.3g}")
@@ -53,6 +53,11 @@ class Drift:
             # what Monte Carlo chance alone moves a metric by is a few of these
             text += f"; {moved / self.se:+.2f} standard errors"
         return text + ")"
+
+
+def _number(value) -> str:
+    """A value as a drift line prints it; a metric without one (NaN, null) says so."""
+    return "none" if value is None else f"{value:.6g}"
 
 
 def baseline_path(data_dir: str | Path, name: str) -> Path:

@@ -31,9 +31,13 @@ from evaluators.hota import SUM_KEYS as HOTA_SUMS, hota_sums, pooled_hota
 from evaluators.set_distances import gospa_switching
 from evaluators.tracking_metrics import nanmean
 from pipeline.batched_linalg import sum_squares
-from pipeline.vocabulary import DELETED, NO_TRACK
+from pipeline.vocabulary import DELETED, INITIALISING, NO_TRACK
 
-NOT_A_TRACK = NO_TRACK | DELETED  # NOT_ESTIMATED marks NaN components, which count as absent by themselves
+# What a tracker reports is its confirmed tracks: a tentative track (INITIALISING) is a hypothesis
+# under test, not yet an estimate a user would see, and scoring it would charge a multi-target
+# tracker a false track for every clutter plot it starts from. NOT_ESTIMATED marks NaN
+# components, which count as absent by themselves.
+NOT_A_TRACK = NO_TRACK | DELETED | INITIALISING
 
 
 @dataclass(frozen=True)
@@ -257,7 +261,8 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
         compared = _components(state, comps)
         true_positions = _components(tr, pos)
         ids = out.get("track_id")
-        ids = None if ids is None else _as_slots(ids[..., None], 1)[..., 0]
+        # a slot's identity counts only while it holds a reported track (as its state does)
+        ids = None if ids is None else np.where(absent, -1, _as_slots(ids[..., None], 1)[..., 0].astype(np.int64))
 
         def sets_and_matches(part):
             """OSPA/GOSPA per run and scan, the matches of every scan and the assignment metrics
