@@ -198,3 +198,26 @@ def test_ukf_sigma_points_carry_the_mean_and_covariance_exactly_through_a_linear
     _, H_u, _ = u.predict_measurement(x, P)
     _, H_e, _ = f.predict_measurement(x, P)
     np.testing.assert_allclose(H_u, H_e, rtol=1e-5, atol=1e-15)
+
+
+def test_squared_distances_written_out_equal_the_general_contraction():
+    from pipeline.cores.filters.track_filter import _squared_distances_2x2
+
+    _, _, _, _, S, nu, _ = _radar_scene(5, tracks=6, plots=9)
+    general = np.einsum("...wi,...ij,...wj->...w", nu, np.linalg.inv(S), nu)
+    np.testing.assert_allclose(_squared_distances_2x2(nu, S), general, rtol=1e-9)
+
+
+def test_innovation_bearings_are_wrapped_as_wrap_angle_does():
+    from pipeline.cores.filters.track_filter import wrap_angle
+
+    f = PolarConstantVelocityEKF(1.0, 20.0, np.deg2rad(0.2), 100.0)
+    rng = np.random.default_rng(8)
+    z = np.stack([rng.uniform(1e3, 5e4, (1, 40)), rng.uniform(-np.pi, np.pi, (1, 40))], axis=-1)
+    z[0, :4, 1] = [np.pi, -np.pi, np.pi - 1e-12, -np.pi + 1e-12]
+    z_pred = np.stack([rng.uniform(1e3, 5e4, (1, 30)), rng.uniform(-np.pi, np.pi, (1, 30))], axis=-1)
+    z_pred[0, :2, 1] = [np.pi, -np.pi]
+    nu = f.innovations(z, z_pred)
+    expected = wrap_angle(z[..., None, :, 1] - z_pred[..., :, None, 1])
+    np.testing.assert_allclose(nu[..., 1], expected, rtol=0, atol=1e-12)
+    assert np.all(nu[..., 1] >= -np.pi) and np.all(nu[..., 1] < np.pi)

@@ -140,7 +140,11 @@ class PolarConstantVelocityEKF(TrackFilter):
 
     def innovations(self, z, z_pred):
         nu = z[..., None, :, :] - z_pred[..., :, None, :]
-        nu[..., 1] = wrap_angle(nu[..., 1])
+        # both bearings lie in [−π, π], so their difference is within one turn of [−π, π): one
+        # correction wraps it, as wrap_angle would, without a floating-point remainder
+        turn = nu[..., 1]
+        turn -= (2.0 * np.pi) * (turn >= np.pi)
+        turn += (2.0 * np.pi) * (turn < -np.pi)
         return nu
 
     def start(self, z):
@@ -170,10 +174,18 @@ def _cv_model(dt: float, q: float):
 def squared_distances(innovation, S):
     """``νᵀ S⁻¹ ν`` of every track-plot pair: ``innovation`` ``(..., S, W, m)``, ``S`` ``(..., S, m, m)``."""
     if S.shape[-1] == 2:
-        S_inv, _ = symmetric_2x2_inverse(S)
-    else:
-        S_inv = np.linalg.inv(S)
-    return np.einsum("...wi,...ij,...wj->...w", innovation, S_inv, innovation)
+        return _squared_distances_2x2(innovation, S)
+    return np.einsum("...wi,...ij,...wj->...w", innovation, np.linalg.inv(S), innovation)
+
+
+def _squared_distances_2x2(innovation, S):
+    """:func:`squared_distances` for two measurement components, written out element by element
+    (``(d ν₀² − 2 b ν₀ν₁ + a ν₁²) / (a d − b²)`` for ``S = [[a, b], [b, d]]``): a few passes over
+    the track-plot pairs instead of a generic contraction (tests/test_multitarget_trackers.py
+    holds it against the general form)."""
+    a, b, d = S[..., 0, 0, None], S[..., 0, 1, None], S[..., 1, 1, None]
+    n0, n1 = innovation[..., 0], innovation[..., 1]
+    return (d * n0 * n0 - 2.0 * b * n0 * n1 + a * n1 * n1) / (a * d - b * b)
 
 
 @dataclass(frozen=True)
