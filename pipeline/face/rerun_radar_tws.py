@@ -28,6 +28,27 @@ def blueprint(stage, trackers, dataset=None, run: int = 0):
             bounds = north_up_bounds(lo, hi, pad)
     hidden = rrb.PlotLegend(visible=False)
     shown = rrb.PlotLegend(corner=rrb.Corner2D.RightTop, visible=True)
+    if dataset is not None and stage.holds_many_targets(dataset):
+        # a scene of many targets: how many tracks and targets there are, and the set errors
+        return rrb.Blueprint(
+            rrb.Horizontal(
+                rrb.Spatial2DView(origin="/xy", name=f"x / y (run {run}): tracks by identity", visual_bounds=bounds),
+                rrb.Vertical(
+                    rrb.TimeSeriesView(origin="/counts/confirmed", name="confirmed tracks", plot_legend=shown),
+                    rrb.TimeSeriesView(origin="/counts/tentative", name="tentative tracks", plot_legend=hidden),
+                    rrb.TimeSeriesView(origin="/counts/targets", name="true targets", plot_legend=hidden),
+                ),
+                rrb.Vertical(
+                    rrb.TimeSeriesView(origin="/errors/gospa_m", name="GOSPA (m), mean over runs", plot_legend=shown),
+                    rrb.TimeSeriesView(origin="/errors/gospa_missed", name="missed targets (GOSPA)",
+                                       plot_legend=hidden),
+                    rrb.TimeSeriesView(origin="/errors/gospa_false", name="false tracks (GOSPA)", plot_legend=hidden),
+                ),
+                column_shares=[2, 1.2, 1.2],
+            ),
+            rrb.TimePanel(state="collapsed"),
+            collapse_panels=True,
+        )
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Spatial2DView(origin="/xy", name=f"x / y (run {run})", visual_bounds=bounds),
@@ -71,6 +92,8 @@ def log_rerun(stage, rec, dataset, result: dict, per_scan, run: int = 0) -> None
     for name, out in result["tracks"].items():
         if np.ndim(out["state"]) == 4:  # track slots: every track in its identity's colour
             _log_slots(rec, name, out, run, scans, times)
+            log_metric_series(rec, per_scan, name, ("gospa_m", "gospa_missed", "gospa_false"),
+                              lambda m: f"/errors/{m}")
             continue
         ok = radar_eval.filtered_mask(out["flags"][run])
         xy = np.where(ok[:, None], out["state"][run, :, :2], np.nan)
@@ -99,8 +122,10 @@ def _log_slots(rec, name: str, out: dict, run: int, scans, times) -> None:
     exists = (flags & (vocab.NO_TRACK | vocab.DELETED)) == 0
     tentative = exists & ((flags & vocab.INITIALISING) > 0)
     confirmed = exists & ~tentative
+    # identities on hover: fifty targets' labels from three trackers would hide the scene (the
+    # truth's labels stay shown)
     log_identified(rec, f"{XY}/tracks/{name}", scans, times, state[..., :2], np.where(confirmed, ids, -1),
-                   f"{name} ")
+                   f"{name} ", show_labels=False)
     log_points(rec, f"{XY}/tracks/{name}/tentative", scans, times,
                [state[k, tentative[k], :2] for k in range(len(scans))], color(name), radius=-2.0)
     log_series(rec, f"/counts/confirmed/{name}", scans, times, confirmed.sum(axis=1), f"{name} confirmed")

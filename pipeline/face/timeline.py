@@ -125,11 +125,11 @@ def identity_color(identity) -> np.ndarray:
 
 
 def log_identified(rec, entity: str, scans, times, xy, ids, prefix: str, radius: float = -4.0,
-                   paths: bool = True) -> None:
+                   paths: bool = True, show_labels: bool = True) -> None:
     """Objects with identities in slots, one run: ``xy`` (K, S, 2) NaN where a slot is empty,
     ``ids`` (K, S) (−1 empty). Per scan, the points coloured and labelled by identity
-    (``prefix`` + id); with ``paths``, each identity's whole trajectory as a static line in its
-    colour."""
+    (``prefix`` + id; drawn, or shown on hover only without ``show_labels``); with ``paths``,
+    each identity's whole trajectory as a static line in its colour."""
     xy, ids = np.asarray(xy, float), np.asarray(ids, np.int64)
     present = (ids >= 0) & np.all(np.isfinite(xy), axis=-1)
     lengths = present.sum(axis=1).astype(np.int64)
@@ -140,6 +140,8 @@ def log_identified(rec, entity: str, scans, times, xy, ids, prefix: str, radius:
     cols = rr.Points2D.columns(positions=xy[k_of, s_of], colors=identity_color(who),
                                radii=np.full(who.size, radius, np.float32),
                                labels=[f"{prefix}{i}" for i in who.tolist()])
+    if not show_labels:
+        rec.log(entity + "/now", rr.Points2D.from_fields(show_labels=False), static=True)
     rr.send_columns(entity + "/now", indexes=_indexes(scans, times), columns=cols.partition(lengths), recording=rec)
     if not paths:
         return
