@@ -14,6 +14,13 @@ unit give each column of the family's canonical table (``recorders.tables.TABLE_
     bearing_rad = { field = "azimuth", unit = "deg" }
     run = "/run_id"                # optional; "/" starts at the message, not the item
 
+A radar-plots mapping may add a ``[truth]`` table (the same keys; columns ``truth_id`` and the
+four truth columns, optionally ``run``): a truth list of many targets, one truth-only row of the
+plots table per target, matched to the plots message of the same time (within
+:data:`SAME_SCAN_S`; a time no plots message has is a scan without plots). For radar plots and
+peaks, a message whose item list is empty still makes its scan (a row with the measurement
+empty, see :class:`_Collector`).
+
 The messages are decoded by the MCAP ecosystem's decoders chosen by the channel's encoding
 (``cdr`` with a ``ros2msg`` schema: ``mcap_ros2``; ``protobuf``: ``mcap_protobuf``; ``json``: the
 standard library, a whole batch of messages in one call), their fields gathered column by column
@@ -195,6 +202,18 @@ def _is_list(obj) -> bool:
 
 TABLE_KEYS = ("topic", "time", "items")
 TIME_COLUMN = "time_s"
+# [truth]: a list of targets with identities per message (many targets), for the radar family;
+# its rows are truth-only rows of the plots table (range and bearing empty)
+TRUTH_TABLE = "truth"
+TRUTH_FAMILIES = ("radar-plots",)
+TRUTH_COLUMNS = ("truth_id", "truth_x_m", "truth_y_m", "truth_vx_mps", "truth_vy_mps")
+# families whose message with an empty item list is still a scan (a row with these columns
+# empty marks a scan without plots, or peaks)
+EMPTY_SCAN_COLUMNS = {"radar-plots": ("range_m", "bearing_rad", "bearing_deg"),
+                      "bearing-peaks": ("bearing_rad", "bearing_deg", "amplitude", "origin")}
+# a truth time this close to a plots message's time is that scan's time (the same instant,
+# written in another form: a stamp here, milliseconds there)
+SAME_SCAN_S = 1e-6
 
 
 @dataclass(frozen=True)
@@ -237,6 +256,8 @@ def _formats() -> dict:
 def _table_columns(family: str, table: str) -> list:
     """Every column name the family's ``table`` accepts, as regular expressions read from
     ``TABLE_FORMATS`` (``truth<t>_bearing_rad`` stands for ``truth0_bearing_rad``, …)."""
+    if table == TRUTH_TABLE:
+        return [re.compile(re.escape(c) + "$") for c in ("run", *TRUTH_COLUMNS)]
     out = []
     for col in _formats()[family].tables[table]:
         for name in col.name.split("|"):
@@ -246,6 +267,8 @@ def _table_columns(family: str, table: str) -> list:
 
 
 def _column_names(family: str, table: str) -> list[str]:
+    if table == TRUTH_TABLE:
+        return ["run", *TRUTH_COLUMNS]
     return [c.name.replace(" | ", "|") for c in _formats()[family].tables[table]]
 
 
@@ -288,7 +311,11 @@ def load_mapping(path: str | Path) -> Mapping:
         raise InputError(f"missing key 'family' (one of: {', '.join(formats)})", path)
     if family not in formats:
         raise InputError(f"family {family!r} has no table format (have: {', '.join(formats)})", path)
-    tables = _tables_of(family)
+    tables = _tables_of(family) + ((TRUTH_TABLE,) if family in TRUTH_FAMILIES else ())
+    if TRUTH_TABLE in doc and TRUTH_TABLE not in tables:
+        raise InputError(f"[truth] (a list of targets with identities) belongs to "
+                         f"{' or '.join(TRUTH_FAMILIES)} mappings; a {family} mapping carries its truth in the "
+                         "columns of [measurements]", path)
     unknown = [k for k in doc if k not in ("family", *tables)]
     if unknown:
         raise InputError(f"unknown key {unknown[0]!r} (a mapping of {family} has: family, "
@@ -301,7 +328,27 @@ def load_mapping(path: str | Path) -> Mapping:
             specs[table] = _table_spec(family, table, doc[table], path)
     if "sensors" in tables and "sensors" not in specs:
         raise InputError(f"missing table [sensors] (a {family} mapping reads the sensors too)", path)
+    if TRUTH_TABLE in specs:
+        _check_truth_spec(specs, path)
     return Mapping(family, specs, path)
+
+
+def _check_truth_spec(specs: dict, path) -> None:
+    """[truth] gives an identity and the whole state of every target; the truth then comes from
+    there alone, and both tables say the run or neither does."""
+    have = {c.name for c in specs[TRUTH_TABLE].columns}
+    missing = [c for c in TRUTH_COLUMNS if c not in have]
+    if missing:
+        raise InputError(f"[truth]: missing column(s) {', '.join(missing)} (each target of a truth list gives "
+                         f"{', '.join(TRUTH_COLUMNS)})", path)
+    meas = {c.name for c in specs["measurements"].columns}
+    twice = [c for c in TRUTH_COLUMNS if c in meas]
+    if twice:
+        raise InputError(f"[measurements] {twice[0]}: with a [truth] table the truth comes from there alone (map it "
+                         "in [truth])", path)
+    if ("run" in meas) != ("run" in have):
+        one, other = ("measurements", "truth") if "run" in meas else ("truth", "measurements")
+        raise InputError(f"[{one}] maps run but [{other}] does not: map the run in both tables or in neither", path)
 
 
 def _table_spec(family: str, table: str, doc, path) -> TableSpec:
@@ -397,7 +444,7 @@ def _data_errors():
 class _Collector:
     """Gathers one table's rows, batch by batch, as numpy columns."""
 
-    def __init__(self, spec: TableSpec, src: Path):
+    def __init__(self, spec: TableSpec, src: Path, item_columns: tuple = ()):
         self.spec, self.src = spec, src
         self.log_times: list[np.ndarray] = []
         self.times: list[np.ndarray] = []
@@ -406,6 +453,16 @@ class _Collector:
         self.messages = 0
         self.getters: dict | None = None
         self.stamp = None
+        # a message whose item list is empty is still a scan (without plots or peaks) when every
+        # other column than the item's own measurement (``item_columns``) comes from the message
+        # or is a constant: its row then carries those and leaves the measurement empty
+        self.marks_empty = bool(item_columns) and spec.items is not None and all(
+            c.name in item_columns or c.field is None or c.field.from_message for c in spec.columns)
+        self.item_columns = item_columns
+        self.message_values: dict[str, list[np.ndarray]] = {
+            c.name: [] for c in spec.columns if self.marks_empty and c.field is not None and c.name not in item_columns}
+        self.empty_rows: tuple | None = None  # (message indices, columns) of the empty messages, after frame()
+        self.message_times: np.ndarray | None = None  # every message's time (log-time order), after frame()
 
     def where(self, index: int, log_time: int | None = None) -> str:
         at = "" if log_time is None else f", log time {log_time / 1e9:.9f} s"
@@ -445,6 +502,8 @@ class _Collector:
             if c.field.from_message or self.items is None:
                 raw = self._gather(self.getters[c.name], decoded, c.field, first, decoded)
                 vals = self._numbers(raw, c, first, None)
+                if c.name in self.message_values:
+                    self.message_values[c.name].append(vals)
                 if counts is not None:
                     vals = np.repeat(vals, counts)
             else:
@@ -530,6 +589,7 @@ class _Collector:
         log_times = np.concatenate(self.log_times)
         cols = {name: np.concatenate(parts) for name, parts in self.values.items()}
         msg = np.repeat(np.arange(counts.size), counts)
+        per_message = {name: np.concatenate(parts) for name, parts in self.message_values.items()}
         if np.any(np.diff(log_times) < 0):  # MCAP allows messages out of log-time order in the file
             order = np.argsort(log_times, kind="stable")
             rank = np.empty_like(order)
@@ -538,12 +598,27 @@ class _Collector:
             cols = {k: v[rows] for k, v in cols.items()}
             msg = rank[msg][rows]
             times, log_times, counts = times[order], log_times[order], counts[order]
+            per_message = {k: v[order] for k, v in per_message.items()}
         total = msg.size
         for c in s.columns:
             if c.field is None:
                 cols[c.name] = np.full(total, c.value * c.factor if c.factor != 1.0 else c.value)
-        self._check_times(times, log_times, msg, cols.get("run"))
+        check_msg, check_run = msg, cols.get("run")
+        if self.marks_empty:
+            empty = np.flatnonzero(counts == 0)
+            marks = {}
+            for c in s.columns:
+                if c.name in self.item_columns:
+                    continue
+                marks[c.name] = (per_message[c.name][empty] if c.field is not None else
+                                 np.full(empty.size, c.value * c.factor if c.factor != 1.0 else c.value))
+            self.empty_rows = (empty, marks)
+            if empty.size:  # an empty message is a scan too: its time must step like the others'
+                check_msg = np.concatenate([msg, empty])
+                check_run = None if check_run is None else np.concatenate([check_run, marks["run"]])
+        self._check_times(times, log_times, check_msg, check_run)
         self.row_message = msg
+        self.message_times = times
         first = [c for c in ("run",) if c in cols]
         return {**{c: cols[c] for c in first}, TIME_COLUMN: times[msg], **{k: v for k, v in cols.items() if k not in first}}
 
@@ -592,6 +667,11 @@ class ForeignTables:
     tables: dict  # table -> polars.DataFrame
     messages: dict  # table -> messages read
     row_message: dict  # table -> (rows,) index of the message (in log-time order) each row came from
+    # table -> (message indices, {column: values}) of the messages whose item list is empty, for
+    # the families where such a message is a scan without plots (or peaks)
+    empty_rows: dict = field(default_factory=dict)
+    message_times: dict = field(default_factory=dict)  # table -> (messages,) time of every message, s
+    notes: list = field(default_factory=list)  # what the user should know (scans without plots, …)
 
 
 def read_foreign_mcap(src: str | Path, mapping: Mapping) -> ForeignTables:
@@ -621,7 +701,8 @@ def read_foreign_mcap(src: str | Path, mapping: Mapping) -> ForeignTables:
 
     src = Path(src)
     _check_mcap(src)
-    collectors = {t: _Collector(spec, src) for t, spec in mapping.tables.items()}
+    collectors = {t: _Collector(spec, src, EMPTY_SCAN_COLUMNS.get(mapping.family, ()) if t == "measurements" else ())
+                  for t, spec in mapping.tables.items()}
     by_topic: dict[str, list] = {}
     for c in collectors.values():
         by_topic.setdefault(c.spec.topic, []).append(c)
@@ -646,7 +727,9 @@ def read_foreign_mcap(src: str | Path, mapping: Mapping) -> ForeignTables:
             raise InputError(f"topic {topic!r} holds no messages", src)
     tables = {t: pl.DataFrame(c.frame()) for t, c in collectors.items()}
     return ForeignTables(mapping.family, tables, {t: c.messages for t, c in collectors.items()},
-                         {t: c.row_message for t, c in collectors.items()})
+                         {t: c.row_message for t, c in collectors.items()},
+                         {t: c.empty_rows for t, c in collectors.items() if c.empty_rows is not None},
+                         {t: c.message_times for t, c in collectors.items()})
 
 
 def _check_mcap(src: Path) -> None:
@@ -747,18 +830,131 @@ def dataset_from_foreign(src: str | Path, mapping: Mapping):
     from recorders.tables import dataset_from_table
 
     got = read_foreign_mcap(src, mapping)
+    rows, origin = _measurement_rows(got, mapping, Path(src))
     try:
-        data = dataset_from_table(mapping.family, got.tables["measurements"], Path(src),
+        data = dataset_from_table(mapping.family, rows, Path(src),
                                   sensors=got.tables.get("sensors"),
                                   sensors_path=Path(src) if "sensors" in got.tables else None)
     except InputError as exc:
-        raise InputError(_with_message(exc.problem, got, mapping), exc.path) from None
+        raise InputError(_with_message(exc.problem, got, mapping, origin), exc.path) from None
     return data, got
 
 
-def _with_message(problem: str, got: ForeignTables, mapping: Mapping) -> str:
+def _measurement_rows(got: ForeignTables, mapping: Mapping, src: Path):
+    """The measurements table the family's validation reads, and where each of its rows came
+    from (``None``: the measurements table itself, row for row).
+
+    Beside the rows of the items it holds a row with the measurement empty for every message
+    whose item list is empty (a scan without plots or peaks), and with [truth] one truth-only
+    row per target (range and bearing empty, ``truth_id`` and the state), its time matched to
+    the plots message of the same time (within :data:`SAME_SCAN_S`; a time no plots message
+    has is a scan without plots). Rows are in time order, plots before truth at one time.
+    """
+    import polars as pl
+
+    meas = got.tables["measurements"]
+    empty = got.empty_rows.get("measurements")
+    truth = got.tables.get(TRUTH_TABLE)
+    has_empty = empty is not None and empty[0].size > 0
+    if not has_empty and truth is None:
+        return meas, None
+    meas_spec = mapping.tables["measurements"]
+    parts, tables, messages = [meas], [np.zeros(meas.height, np.int8)], [got.row_message["measurements"]]
+    items = [_item_of(got.row_message["measurements"])]
+    if has_empty:
+        idx, cols = empty
+        run = {"run": cols["run"]} if "run" in cols else {}
+        parts.append(pl.DataFrame({**run, TIME_COLUMN: got.message_times["measurements"][idx],
+                                   **{k: v for k, v in cols.items() if k != "run"}}))
+        tables.append(np.zeros(idx.size, np.int8))
+        messages.append(idx)
+        items.append(np.full(idx.size, -1, np.int64))
+        what = "peaks" if mapping.family == "bearing-peaks" else "plots"
+        got.notes.append(f"{idx.size} message(s) on {meas_spec.topic} with an empty {meas_spec.items.text} list: "
+                         f"scans without {what}")
+    if truth is not None:
+        truth = _matched_truth(got, mapping, pl.concat(parts, how="diagonal_relaxed"), src)
+        parts.append(truth)
+        tables.append(np.ones(truth.height, np.int8))
+        messages.append(got.row_message[TRUTH_TABLE])
+        items.append(_item_of(got.row_message[TRUTH_TABLE]))
+    rows = pl.concat(parts, how="diagonal_relaxed")
+    table, message, item = np.concatenate(tables), np.concatenate(messages), np.concatenate(items)
+    order = np.lexsort((np.arange(rows.height), table, rows[TIME_COLUMN].to_numpy()))
+    return rows[order], (table[order], message[order], item[order])
+
+
+def _item_of(row_message: np.ndarray) -> np.ndarray:
+    """Each row's place in its message's item list (rows of one message are consecutive)."""
+    return np.arange(row_message.size) - np.searchsorted(row_message, row_message, side="left")
+
+
+def _matched_truth(got: ForeignTables, mapping: Mapping, plots, src: Path):
+    """The truth rows with each time set to the plots message's time it matches; refuses a
+    target named twice in one scan; notes the truth times no plots message has."""
+    import polars as pl
+
+    spec, meas_spec = mapping.tables[TRUTH_TABLE], mapping.tables["measurements"]
+    truth = got.tables[TRUTH_TABLE]
+    msg = got.row_message[TRUTH_TABLE]
+    t = truth[TIME_COLUMN].to_numpy().copy()
+    scan_times = np.unique(got.message_times["measurements"])
+    if t.size and scan_times.size:
+        i = np.searchsorted(scan_times, t)
+        below, above = scan_times[np.maximum(i - 1, 0)], scan_times[np.minimum(i, scan_times.size - 1)]
+        near = np.where(t - below <= above - t, below, above)
+        t = np.where(np.abs(near - t) <= SAME_SCAN_S, near, t)
+    truth = truth.with_columns(pl.Series(TIME_COLUMN, t))
+    run = truth["run"].to_numpy() if "run" in truth.columns else np.zeros(truth.height, np.int64)
+    ident = truth["truth_id"].to_numpy()
+    # a target once a scan: the first repeat (in row order) is named with its message
+    keys = pl.DataFrame({"run": run, "t": t, "id": ident, "row": np.arange(truth.height)})
+    first = keys.group_by(["run", "t", "id"], maintain_order=True).agg(pl.col("row").first().alias("first"))
+    again = (keys.join(first, on=["run", "t", "id"], how="left").filter(pl.col("row") != pl.col("first"))
+             .sort("row"))
+    if again.height:
+        b, a = int(again["row"][0]), int(again["first"][0])
+        item = _item_of(msg)
+        where = f"topic {spec.topic}, message {msg[b]}"
+        twice = (f"item {item[b]} of {spec.items.text} names target {_n_id(ident[b])} again (item {item[a]})"
+                 if msg[a] == msg[b] and spec.items is not None else
+                 f"target {_n_id(ident[b])} is also given by message {msg[a]} at the same scan time")
+        run_txt = f" of run {_n_id(run[b])}" if "run" in truth.columns else ""
+        raise InputError(f"{where}: {twice}, time {float(t[b])!r} s{run_txt}; a truth list names each target once a "
+                         "scan", src)
+    # the truth times that are no plots message's: scans without plots
+    plot_keys = pl.DataFrame({"run": plots["run"].to_numpy() if "run" in plots.columns else
+                              np.zeros(plots.height, np.int64), "t": plots[TIME_COLUMN].to_numpy()}).unique()
+    alone = (keys.select("run", "t", "row").with_columns(pl.col("run").cast(plot_keys["run"].dtype, strict=False))
+             .join(plot_keys, on=["run", "t"], how="anti").sort("row"))
+    if alone.height:
+        scans = alone.unique(["run", "t"]).height
+        i = int(alone["row"][0])
+        run_txt = f" of run {_n_id(run[i])}" if "run" in truth.columns else ""
+        got.notes.append(f"{scans} truth time(s) on {spec.topic} match no message on {meas_spec.topic} (within "
+                         f"{SAME_SCAN_S:g} s): each is a scan without plots (the first: message {msg[i]}, time "
+                         f"{float(t[i])!r} s{run_txt})")
+    return truth
+
+
+def _n_id(v) -> str:
+    """An identity or run as written: 3, not 3.0."""
+    f = float(v)
+    return str(int(f)) if f.is_integer() else repr(f)
+
+
+def _with_message(problem: str, got: ForeignTables, mapping: Mapping, origin=None) -> str:
     """The table validator counts rows; say which message a row came from."""
     m = re.search(r"data row (\d+)", problem)
+    if origin is not None:
+        table, message, item = origin
+        if m is None or not 1 <= int(m.group(1)) <= message.size:
+            return problem
+        i = int(m.group(1)) - 1
+        spec = mapping.tables[TRUTH_TABLE if table[i] else "measurements"]
+        what = (f", [{spec.table}] item {item[i]} of {spec.items.text}" if spec.items is not None and item[i] >= 0 else
+                f", [{spec.table}]" if table[i] else ", its empty list" if item[i] < 0 else "")
+        return f"{problem} (row {m.group(1)}: topic {spec.topic}, message {message[i]}{what})"
     table = "sensors" if "sensors" in problem and "sensors" in got.tables else "measurements"
     rows = got.row_message[table]
     if m is None or not 1 <= int(m.group(1)) <= rows.size:
@@ -793,4 +989,4 @@ def convert_foreign_mcap(src, mapping_path, dst, overrides: dict | None = None) 
                                         {"source_mcap": Path(src).name, "mapping": Path(mapping_path).name}, src)
     return {"family": mapping.family, "messages_in": got.messages,
             "rows": {t: df.height for t, df in got.tables.items()}, "messages_out": n,
-            "topics": {t: s.topic for t, s in mapping.tables.items()}, "notes": notes}
+            "topics": {t: s.topic for t, s in mapping.tables.items()}, "notes": [*got.notes, *notes]}
