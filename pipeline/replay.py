@@ -432,17 +432,29 @@ def _outputs_of(ds, out_path, recover=False):
     return stage, result, provenance
 
 
-def evaluate_files(data_path, out_path=None, recover=False, tracker_specs=()) -> ReplayResult:
+def evaluate_files(data_path, out_path=None, recover=False, tracker_specs=(), evaluation_overrides=None) -> ReplayResult:
     """Metrics of a data set: from a replay output file if given, else by replaying in memory
     (with the plugged trackers ``tracker_specs`` beside the built-ins; their failures are in
-    the result's ``failures``)."""
+    the result's ``failures``). ``evaluation_overrides`` change the evaluation's own design
+    values (``Stage.evaluation_defaults``: matching gate, GOSPA cut-off and order, …); a
+    tracker's design value is refused for an output file, whose trackers already ran."""
     if out_path is None:
-        return replay(data_path, recover=recover, tracker_specs=tracker_specs)
+        return replay(data_path, recover=recover, tracker_specs=tracker_specs, design_overrides=evaluation_overrides)
     if tracker_specs:
         raise InputError("--tracker applies when eval replays in memory; an output file's trackers already ran")
     ds = read_dataset(data_path, recover=recover)
     stage, result, provenance = _outputs_of(ds, out_path, recover)
     design = _used_design(stage, ds, provenance)
+    if evaluation_overrides:
+        from recorders.scenarios import coerce
+
+        allowed = stage.evaluation_defaults
+        for key, value in evaluation_overrides.items():
+            if key not in allowed:
+                raise InputError(f"--set {key}: with an output file only the evaluation's design values change "
+                                 f"({', '.join(allowed)}); replay again to change a tracker's")
+            design = {**design, key: coerce(key, value, allowed[key])}
+        stage.check_design(design)
     p, s = stage.measure(ds, result, design)
     return ReplayResult(ds, p.with_columns(pl.lit(stage.name).alias("stage")),
                         s.with_columns(pl.lit(stage.name).alias("stage")), {stage.name: result})

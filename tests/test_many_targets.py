@@ -303,3 +303,25 @@ def test_a_plugged_two_slot_tracker_sweeps_beside_the_multi_target_ones(runner, 
     assert {"gnn", "jpda_mt", "ukf", "two_slots"} <= set(table["tracker"].to_list())
     mota = table.filter(pl.col("metric") == "mota")
     assert mota.height == 8 and mota["value"].is_finite().all()
+
+
+def test_eval_takes_evaluation_design_values_and_a_tracker_subset(runner):
+    data = Path(__file__).resolve().parents[1] / "data" / "radar_multi_demo.mcap"
+    res = runner.invoke(main, [str(data), "--no-rrd", "--figures", "none", "--out", "o/t.mcap", "--trackers", "gnn"])
+    assert res.exit_code == 0, res.output
+
+    def values(*extra):
+        r = runner.invoke(main, ["eval", str(data), "o/t.mcap", "--json", *extra])
+        assert r.exit_code == 0, r.output
+        return {(x["tracker"], x["metric"]): x["value"] for x in json.loads(r.stdout) if x["scope"] == "overall"}
+
+    default, tight = values(), values("--set", "assignment_gate_m=30")
+    # a 30 m gate is below the tracks' typical error (σ_r = 20 m, 0.2° at tens of km): matches are
+    # lost, so MOTA falls and MOTP (the matched distance) shrinks
+    assert tight[("gnn", "mota")] < default[("gnn", "mota")]
+    assert tight[("gnn", "motp_m")] < default[("gnn", "motp_m")]
+    res = runner.invoke(main, ["eval", str(data), "o/t.mcap", "--set", "confirm_hits=2"])
+    assert res.exit_code == 2 and "only the evaluation's design values change" in res.output
+    res = runner.invoke(main, ["eval", str(data), "--trackers", "ukf", "--json"])
+    assert res.exit_code == 0, res.output
+    assert {r["tracker"] for r in json.loads(res.stdout) if r.get("tracker")} == {"ukf"}

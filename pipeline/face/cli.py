@@ -997,22 +997,30 @@ def convert_group():
 @click.option("--export", "export_dir", type=click.Path(file_okay=False, path_type=Path),
               help="Also write CSV/Parquet tables and PNG plots into this folder (their paths are printed).")
 @click.option("--recover", is_flag=True, help="Accept truncated MCAP files.")
+@click.option("--trackers", help="Comma-separated subset of trackers (replaying in memory).")
+@click.option("--set", "sets", multiple=True, metavar="NAME=VALUE",
+              help="Override a design value: an evaluation value (assignment_gate_m, ospa_cutoff_m, ospa_order, "
+                   "hota_distance_m, …) for any OUTPUTS, a tracker's too when replaying in memory.")
 @tracker_option
-def eval_cmd(data, outputs, as_json, per_scan, export_dir, recover, tracker_specs):
+def eval_cmd(data, outputs, as_json, per_scan, export_dir, recover, trackers, sets, tracker_specs):
     """Metrics of a data set, from a replay output file or by replaying in memory.
 
-    Replaying in memory (no OUTPUTS), --tracker adds a plugged tracker; an output file's
-    metrics cover the trackers it holds, plugged ones included.
+    Replaying in memory (no OUTPUTS), --tracker adds a plugged tracker and --trackers picks some;
+    an output file's metrics cover the trackers it holds, plugged ones included. --set changes
+    a design value: with OUTPUTS only the evaluation's own (the matching gate, the GOSPA
+    cut-off and order, HOTA's distance scale), since the trackers already ran.
 
     \b
     Example:
       replay eval radar.mcap replay-out/radar/tracks.mcap --json
-      replay eval radar.mcap --tracker my_trackers.py:ConstantVelocity
+      replay eval radar.mcap replay-out/radar/tracks.mcap --set assignment_gate_m=2000
+      replay eval radar.mcap --tracker my_trackers.py:ConstantVelocity --trackers kalman,constant_velocity
       replay eval radar.mcap --export tables/
     """
     import polars as pl
 
     from pipeline.replay import evaluate_files, replay
+    from recorders.scenarios import parse_assignments
 
     if tracker_specs and outputs is not None:
         raise InputError("--tracker applies when eval replays in memory (no OUTPUTS); the trackers of "
@@ -1020,12 +1028,18 @@ def eval_cmd(data, outputs, as_json, per_scan, export_dir, recover, tracker_spec
     if export_dir:
         refuse_input_overwrite([data, outputs], [export_dir / n for n in REPORT_FILES])
     specs = resolve_tracker_specs(tracker_specs)
+    overrides = parse_assignments(sets)
+    if trackers and outputs is not None:
+        raise InputError(f"--trackers applies when eval replays in memory (no OUTPUTS); {outputs} holds the "
+                         "trackers that ran")
     if outputs is None:  # replay in memory, phase by phase
+        wanted = [t.strip() for t in trackers.split(",")] if trackers else None
         with progress.Phases(f"evaluating {data.name}", ("filter", "evaluate")) as phases:
-            res = replay(data, recover=recover, tracker_specs=specs, progress=phases.step)
+            res = replay(data, wanted, recover=recover, tracker_specs=specs, progress=phases.step,
+                         design_overrides=overrides)
     else:
         with progress.bar(1, f"evaluating {outputs.name}") as bar, progress.timed("evaluate"):
-            res = evaluate_files(data, outputs, recover=recover)
+            res = evaluate_files(data, outputs, recover=recover, evaluation_overrides=overrides)
             bar.update(1)
     if as_json:
         records = res.summary.to_dicts()
