@@ -358,10 +358,40 @@ def _metrics_title(data: Path, dataset) -> str:
     return f"metrics for {Path(data).name} ({runs} runs)"
 
 
-def _print_summary(summary: pl.DataFrame, title: str) -> None:
-    """One table per scope (and one for the standard measures): metrics down, trackers across;
-    a table wider than TABLE_WIDTH is split into several with the metric column repeated, and
-    a scope without values says so."""
+def _headline_metrics(res) -> tuple:
+    """The first measure each stage's report shows (e.g. the radar position RMSE), for the
+    verdict lines."""
+    from pipeline.stages import stage_named
+
+    return tuple(m for name in res.results for m in stage_named(name).report_metrics[:1])
+
+
+def _print_verdicts(summary: pl.DataFrame, family_metrics=()) -> None:
+    """The verdict before the detail: one line per tracker with its headline measures (± half
+    their interval) and its consistency verdict (:mod:`evaluators.verdicts`)."""
+    from evaluators.verdicts import tracker_verdicts
+
+    table = tracker_verdicts(summary, family_metrics)
+    if table.height == 0:
+        return
+    width = max(len(t) for t in table["tracker"].to_list())
+    click.echo("verdict per tracker (consistency from the time-averaged NEES, or NIS without truth):")
+    for r in table.iter_rows(named=True):
+        verdict = r["verdict"] + (f" ({r['tested_by']})" if r["tested_by"] else "")
+        line = f"  {r['tracker']:<{width}}  {verdict:<19}"
+        for i, m in enumerate(r["measures"]):  # as many measures as fit the tables' width
+            item = f"{',' if i else ''} {m['metric']} {_cell(m['value'], m['ci_low'], m['ci_high'])}"
+            if len(line) + len(item) > TABLE_WIDTH:
+                break
+            line += item
+        click.echo(line)
+    click.echo("")
+
+
+def _print_summary(summary: pl.DataFrame, title: str, family_metrics=()) -> None:
+    """The verdict lines (:func:`_print_verdicts`), then one table per scope (and one for the
+    standard measures): metrics down, trackers across; a table wider than TABLE_WIDTH is split
+    into several with the metric column repeated, and a scope without values says so."""
     import polars as pl
 
     for c in ("ci_low", "ci_high"):
@@ -386,6 +416,9 @@ def _print_summary(summary: pl.DataFrame, title: str) -> None:
     # rather than printed as a row of dashes
     summary = summary.filter(pl.col("value").is_null() | pl.col("value").is_not_nan().any().over("section", "metric"))
     click.echo(title + "   (± half the 95 % interval over Monte Carlo runs)")
+    if summary.height:
+        click.echo("")
+        _print_verdicts(summary, family_metrics)
     if summary.height == 0:
         click.echo("\n(no metric has a value: nothing to show)")
         return
@@ -808,7 +841,7 @@ def _run(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, sets
         res.timings["total_s"] += t_read
         if res.dataset.recovered_messages is not None:
             click.echo(f"recovered {res.dataset.recovered_messages} messages from complete chunks of {data}")
-        _print_summary(_table_summary(res), _metrics_title(data, res.dataset))
+        _print_summary(_table_summary(res), _metrics_title(data, res.dataset), _headline_metrics(res))
         _print_stage_reports(res)
         if figures_mode == "auto":  # a converted foreign file lives only as long as this call
             figures_mode = "background" if sys.stdout.isatty() and map_path is None else "now"
@@ -1050,7 +1083,7 @@ def eval_cmd(data, outputs, as_json, per_scan, export_dir, recover, trackers, se
             records += long.select("tracker", "metric", "scope", "value", "stage").to_dicts()
         click.echo(json.dumps([{k: _json_value(v) for k, v in r.items()} for r in records]))
     else:
-        _print_summary(_table_summary(res), _metrics_title(data, res.dataset))
+        _print_summary(_table_summary(res), _metrics_title(data, res.dataset), _headline_metrics(res))
         _print_stage_reports(res)
     if export_dir:
         with progress.timed("export"):

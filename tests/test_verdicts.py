@@ -1,0 +1,51 @@
+"""The verdict line per tracker: the consistency verdict follows the interval test, and the CLI
+prints it before the tables."""
+
+from __future__ import annotations
+
+import math
+
+import polars as pl
+import pytest
+
+from evaluators.verdicts import consistency_verdict, tracker_verdicts
+
+
+@pytest.mark.parametrize("value, low, high, verdict", [
+    (4.0, 3.5, 4.5, "consistent"), (3.5, 3.5, 4.5, "consistent"), (4.6, 3.5, 4.5, "optimistic"),
+    (3.4, 3.5, 4.5, "pessimistic"), (None, 3.5, 4.5, "untestable"), (4.0, math.nan, 4.5, "untestable"),
+])
+def test_consistency_verdict_is_the_interval_test(value, low, high, verdict):
+    assert consistency_verdict(value, low, high) == verdict
+
+
+def _rows(tracker, **values):
+    return [{"tracker": tracker, "metric": m, "scope": "overall", "value": v, "ci_low": None, "ci_high": None}
+            for m, v in values.items()]
+
+
+def test_nees_decides_before_nis_and_a_tracker_without_either_is_untestable():
+    summary = pl.DataFrame(
+        _rows("a", nees_time_average=9.0, nees_time_average_low=3.5, nees_time_average_high=4.5,
+              nis_time_average=2.0, nis_time_average_low=1.8, nis_time_average_high=2.2, mota=0.9)
+        + _rows("b", nis_time_average=1.5, nis_time_average_low=1.8, nis_time_average_high=2.2, mota=0.8)
+        + _rows("c", mota=0.7) + _rows("side_output", alpha=0.9))
+    table = {r["tracker"]: r for r in tracker_verdicts(summary).iter_rows(named=True)}
+    assert (table["a"]["verdict"], table["a"]["tested_by"]) == ("optimistic", "NEES")
+    assert (table["b"]["verdict"], table["b"]["tested_by"]) == ("pessimistic", "NIS")
+    assert table["c"]["verdict"] == "untestable" and [m["metric"] for m in table["c"]["measures"]] == ["mota"]
+    assert "side_output" not in table
+
+
+def test_replay_prints_the_verdicts_first(runner, demo_mcap):
+    from pipeline.face.cli import main
+
+    res = runner.invoke(main, [str(demo_mcap), "--no-rrd", "--figures", "none", "--out", "o/t.mcap"])
+    assert res.exit_code == 0, res.output
+    lines = res.output.splitlines()
+    first = next(i for i, line in enumerate(lines) if line.startswith("verdict per tracker"))
+    table = next(i for i, line in enumerate(lines) if line.startswith("["))
+    assert first < table
+    for tracker in ("fixed", "approximate", "exact", "kalman"):
+        line = next(line for line in lines[first:table] if line.strip().startswith(tracker))
+        assert any(v in line for v in ("consistent", "optimistic", "pessimistic")) and "rmse_position_m" in line
