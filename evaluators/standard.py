@@ -115,6 +115,21 @@ def _as_slots(a, extra_dims: int):
     return a if a.ndim == 3 + extra_dims else a[:, :, None]
 
 
+def as_slots_with_ids(out: dict, absent_flags: int, position_components):
+    """A tracker's reported positions ``(R, K, S, d)`` (NaN where a slot reports no track: its
+    flags carry one of ``absent_flags``) and track identities ``(R, K, S)`` (−1 there), from
+    ``track_id`` or, without it, the slot index."""
+    state = _as_slots(out["state"], 1)
+    absent = (_as_slots(out["flags"], 0).astype(np.int64) & absent_flags) > 0
+    positions = np.where(absent[..., None], np.nan, _components(state, list(position_components)))
+    if "track_id" in out:
+        ids = _as_slots(np.asarray(out["track_id"])[..., None], 1)[..., 0].astype(np.int64)
+    else:
+        ids = np.broadcast_to(np.arange(state.shape[2]), state.shape[:3])
+    absent |= ~np.isfinite(positions).all(axis=-1)
+    return positions, np.where(absent, -1, ids)
+
+
 def _with_ci(name: str, metric: str, value, se, lo, hi, scope: str = "overall") -> dict:
     """A summary record; an interval that does not exist (a bound, a count with no spread over
     runs) is null rather than NaN, so that it reads as absent."""

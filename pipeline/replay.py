@@ -33,6 +33,8 @@ class ReplayResult:
     rrd_path: Path | None = None
     timings: dict = field(default_factory=dict)
     failures: list = field(default_factory=list)  # TrackerErrors of trackers left out
+    targets: pl.DataFrame | None = None      # one row per true target and tracker (evaluators.life_tables)
+    track_lives: pl.DataFrame | None = None  # one row per track
 
 
 def select_trackers(stages, names=None, specs=(), dataset=None) -> dict:
@@ -151,7 +153,7 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
         # later calls of stage.design(ds) (Rerun logging, figures) see the values this run used
         ds.cache[("design", stage.name)] = design
         designs[stage.name] = design
-    results, per_scan, summary, failures = {}, [], [], []
+    results, per_scan, summary, failures, life_parts = {}, [], [], [], []
     with _OutputWriter(out_path, lambda n_runs: _provenance(ds, n_runs, stages, designs, tracker_specs)) as writer:
         for stage in stages:
             design = designs[stage.name]
@@ -172,6 +174,9 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
                     failures += errors
                     if scored:
                         tables.append((scored, p, s))
+                        lives = stage.life_tables(ds, {"times": times, "tracks": {n: unit[n] for n in scored}}, design)
+                        if lives is not None:
+                            life_parts.append(lives)
                     timings["evaluate_s"] += time.perf_counter() - t2
                     writer.wait()
                     keep = None if stage.views_read_all_runs else keep_runs
@@ -198,6 +203,9 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
         step(1, timings[phase], "beside evaluate" if phase == "write_s" and writer.seconds_beside else None)
     res = ReplayResult(ds, pl.concat(per_scan, how="diagonal"), pl.concat(summary, how="diagonal"), results,
                        timings=timings)
+    if life_parts:
+        res.targets = pl.concat([t for t, _ in life_parts])
+        res.track_lives = pl.concat([t for _, t in life_parts])
     if out_path is not None:
         res.out_path = Path(out_path)
     if rrd_path is not None:

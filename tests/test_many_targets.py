@@ -325,3 +325,41 @@ def test_eval_takes_evaluation_design_values_and_a_tracker_subset(runner):
     res = runner.invoke(main, ["eval", str(data), "--trackers", "ukf", "--json"])
     assert res.exit_code == 0, res.output
     assert {r["tracker"] for r in json.loads(res.stdout) if r.get("tracker")} == {"ukf"}
+
+
+def test_life_tables_follow_a_hand_made_swap():
+    """Two targets on parallel lines 1 km apart; track 7 follows target 0 for 3 scans, then jumps
+    to target 1 (and track 9 the other way round): each target is tracked throughout by two
+    identities with one switch, each track spends 3 of its 6 scans on each target."""
+    from evaluators.life_tables import life_tables
+
+    K = 6
+    times = np.arange(K, dtype=float)
+    truth = np.zeros((1, K, 2, 2))
+    truth[0, :, 0] = np.stack([np.arange(K) * 10.0, np.zeros(K)], axis=-1)
+    truth[0, :, 1] = np.stack([np.arange(K) * 10.0, np.full(K, 1000.0)], axis=-1)
+    truth_ids = np.broadcast_to([0, 1], (1, K, 2)).copy()
+    tracks = truth.copy() + 3.0
+    tracks[0, 3:] = tracks[0, 3:, ::-1]  # the swap: slot 0 jumps to target 1 from scan 3 on
+    track_ids = np.broadcast_to([7, 9], (1, K, 2)).copy()
+    targets, lives = life_tables("t", times, tracks, track_ids, truth, truth_ids, gate=100.0)
+    for row in targets.iter_rows(named=True):
+        assert row["tracks"] == 2 and row["switches"] == 1 and row["tracked_fraction"] == 1.0
+        assert row["rmse"] == pytest.approx(np.sqrt(18.0))
+        assert (row["first_tracked_s"], row["last_tracked_s"]) == (0.0, 5.0)
+    by_id = {r["track_id"]: r for r in lives.iter_rows(named=True)}
+    for track in (7, 9):  # 3 scans on each target: a tie, the lower identity named
+        assert by_id[track]["scans"] == 6 and by_id[track]["matched_fraction"] == 0.5
+        assert by_id[track]["target_id"] == 0
+
+
+def test_replay_writes_the_target_and_track_tables(runner):
+    data = Path(__file__).resolve().parents[1] / "data" / "radar_multi_demo.mcap"
+    res = runner.invoke(main, [str(data), "--no-rrd", "--figures", "none", "--out", "o/t.mcap", "--trackers", "gnn"])
+    assert res.exit_code == 0, res.output
+    targets, lives = pl.read_parquet("o/targets.parquet"), pl.read_parquet("o/track_lives.parquet")
+    truth = stage_named("radar-tws").decode_truth(read_dataset(data))[1]
+    assert targets.height == sum(np.unique(truth[r][truth[r] >= 0]).size for r in range(truth.shape[0]))
+    assert targets["tracked_fraction"].is_between(0, 1).all() and (lives["scans"] > 0).all()
+    # a track is reported once confirmed: never before its target appeared
+    assert (lives["first_s"] >= 0).all() and set(lives["target_id"].to_list()) <= set(targets["target_id"]) | {-1}

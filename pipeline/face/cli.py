@@ -268,7 +268,8 @@ def main():
 
 
 # what a replay writes beside tracks.mcap (checked against the inputs before anything is written)
-REPORT_FILES = ("metrics.csv", "metrics.parquet", "per_scan.csv", "per_scan.parquet", "report.txt", "report.png",
+REPORT_FILES = ("metrics.csv", "metrics.parquet", "per_scan.csv", "per_scan.parquet", "targets.csv", "targets.parquet",
+                "track_lives.csv", "track_lives.parquet", "report.txt", "report.png",
                 "consistency.png", "errors.png", "fig7.png", "tracks.png", "positions.png")
 
 
@@ -622,7 +623,11 @@ def _export_tables(res, out_dir: Path) -> list[Path]:
 
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
-    for name, df in (("metrics", res.summary), ("per_scan", res.per_scan)):
+    tables = [("metrics", res.summary), ("per_scan", res.per_scan)]
+    for name, df in (("targets", res.targets), ("track_lives", res.track_lives)):
+        if df is not None and df.height:  # per true target and per track (evaluators.life_tables)
+            tables.append((name, df))
+    for name, df in tables:
         for ext in ("csv", "parquet"):
             p = out_dir / f"{name}.{ext}"
             with atomic_output(p) as f:

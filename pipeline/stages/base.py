@@ -491,6 +491,30 @@ class Stage:
         return per_scan, pl.concat([summary.with_columns(kind=pl.lit("family")),
                                     std_summary.with_columns(kind=pl.lit("standard")), lives], how="diagonal_relaxed")
 
+    def life_tables(self, dataset, result: dict, design: dict):
+        """``(targets, tracks)`` tables of :mod:`evaluators.life_tables` for the trackers of
+        ``result`` (first runs only), or None where the family has no truth space or the data
+        set no truth."""
+        from evaluators.consistency import whitened_innovations
+        from evaluators.life_tables import LIFE_TABLE_RUNS, tables_for
+
+        try:
+            reference = self.cached_reference(dataset, design)
+        except NotImplementedError:
+            return None
+        space = self.standard_space(design, reference)
+        truth = self.standard_truth(reference) if space is not None else None
+        if truth is None:
+            return None
+        # the first runs only, sliced before anything is computed on them
+        first = slice(0, LIFE_TABLE_RUNS)
+        tracks = {n: {k: (v[first] if isinstance(v, np.ndarray) and v.ndim else v) for k, v in o.items()}
+                  for n, o in result["tracks"].items() if "state" in o and "flags" in o}
+        innovations = {n: whitened_innovations(o) for n, o in tracks.items()}
+        ids = self.standard_truth_ids(reference)
+        return tables_for(result["times"], tracks, np.asarray(truth)[first], None if ids is None else ids[first],
+                          space, innovations)
+
     def holds_many_targets(self, dataset) -> bool:
         """Whether ``dataset`` is a scene of many targets (its truth is a set with identities),
         for which the family's multi-target trackers run by default."""
