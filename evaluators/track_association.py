@@ -6,10 +6,12 @@ is started on target t; ``h = V/2`` is half the gate; the judge is the truth bea
 
 * Track t is **on** target u at scan k when target u is the target nearest to the track's
   bearing estimate and ``|θ̂_t(k) − θ_u(k)| ≤ h``.
-* A scan is **resolvable** when every pair of targets is more than a full gate V apart (no
-  peak can fall in both targets' gates, so which target a track follows is unambiguous).
-* Track t is **swapped** if it is on another target at the final scan, or at any resolvable
-  scan (this includes coalescence: two tracks ending on one target).
+* Target u is **resolvable** at a scan when it is more than a full gate V from every other
+  target (no peak can fall in its gate and another target's, so a track on it follows it
+  unambiguously). With the paper's two targets this is "the scan is resolvable": the two are
+  more than a gate apart. Any number of targets is judged the same way, target by target.
+* Track t is **swapped** if it is on another target at the final scan, or on another target
+  while that target is resolvable (this includes coalescence: two tracks ending on one target).
 * Track t is **held** if it is on its own target at the final scan and not swapped.
 * Track t is **lost** if it is neither: at the final scan no target is within h of it.
 
@@ -66,6 +68,16 @@ def resolvable_scans(truth: np.ndarray, gate: float) -> np.ndarray:
     return np.min(d, axis=(-1, -2)) > gate
 
 
+def resolvable_targets(truth: np.ndarray, gate: float) -> np.ndarray:
+    """Targets more than a gate from every other target; truth (..., U) → (..., U) (one target:
+    always). For two targets each is resolvable exactly where :func:`resolvable_scans` holds."""
+    U = truth.shape[-1]
+    if U < 2:
+        return np.ones(truth.shape, bool)
+    d = np.where(np.eye(U, dtype=bool), np.inf, np.abs(truth[..., :, None] - truth[..., None, :]))
+    return np.min(d, axis=-1) > gate
+
+
 def track_outcomes(estimate: np.ndarray, truth: np.ndarray, gate: float):
     """Per-track held / swapped / lost.
 
@@ -87,8 +99,9 @@ def track_outcomes(estimate: np.ndarray, truth: np.ndarray, gate: float):
     own = np.arange(T)
     final = on[:, -1]
     elsewhere = (on >= 0) & (on != own)
-    resolvable = resolvable_scans(truth, gate)  # (R, K)
-    swapped = (final >= 0) & (final != own) | np.any(elsewhere & resolvable[..., None], axis=1)
+    # on another target while that target is resolvable (two targets: while the scan is)
+    resolvable = np.take_along_axis(resolvable_targets(truth, gate), np.maximum(on, 0), axis=-1)  # (R, K, T)
+    swapped = (final >= 0) & (final != own) | np.any(elsewhere & resolvable, axis=1)
     held = (final == own) & ~swapped
     lost = ~held & ~swapped
     return held, swapped, lost
@@ -104,6 +117,18 @@ def coalesced(estimate: np.ndarray, truth: np.ndarray, gate: float) -> np.ndarra
     final = on_target(estimate[:, -1], truth[:, -1], gate / 2)  # (R, T)
     same = (final[:, :, None] == final[:, None, :]) & (final[:, :, None] >= 0)
     return np.any(same & ~np.eye(final.shape[1], dtype=bool), axis=(1, 2))
+
+
+def separation_deg(truth: np.ndarray) -> np.ndarray:
+    """Smallest bearing separation (deg) between two targets per scan, truth (K, U) → (K,);
+    NaN with one target."""
+    U = truth.shape[-1]
+    if U < 2:
+        return np.full(truth.shape[0], np.nan)
+    if U == 2:
+        return np.rad2deg(np.abs(truth[:, 0] - truth[:, -1]))
+    d = np.where(np.eye(U, dtype=bool), np.inf, np.abs(truth[:, :, None] - truth[:, None, :]))
+    return np.rad2deg(np.min(d, axis=(-1, -2)))
 
 
 def paired_difference(success_a: np.ndarray, success_b: np.ndarray) -> tuple[float, float]:
@@ -177,7 +202,7 @@ def evaluate(times, tracks: dict, truth_bearing: np.ndarray | None, gate_rad: fl
             on = on_target(est, truth_bearing, gate_rad / 2)
             cols["rmse_bearing_deg"] = rms(err, axis=(0, 2))
             cols["on_own_target_fraction"] = np.mean(on == np.arange(T), axis=(0, 2))
-            cols["separation_deg"] = np.rad2deg(np.abs(truth_bearing[0, :, 0] - truth_bearing[0, :, -1]))
+            cols["separation_deg"] = separation_deg(truth_bearing[0])
             held_err = np.where(held[:, None, :], err, np.nan)
             row.update(success_rate=p, swap_rate=float(np.mean(outcome == SWAP)),
                        loss_rate=float(np.mean(outcome == LOSS)),

@@ -14,7 +14,12 @@ Each scan of each run yields a set of peaks ``(z_p, z_a)`` (bearing in radians, 
   Poisson with mean ``λV`` of its role (strong 2, weak 3), away from targets Poisson(2), as in
   the paper's table; positions are uniform; amplitudes are one-sided exponential ``α e^{−α z}``.
 
-Geometry (bearing–time plane with 1° ≙ 1 s, centred on ``center_bearing_deg``):
+Geometry (bearing–time plane with 1° ≙ 1 s, centred on ``center_bearing_deg``). The targets
+come in pairs, each pair the paper's two targets; ``n_targets`` (default 2, the paper's) lays
+⌈n/2⌉ pairs side by side, pair j (targets 2j, 2j+1) centred ``(j − (P−1)/2)·pair_spacing_deg``
+from ``center_bearing_deg`` (P pairs); with an odd count the last pair has only its first
+target (for one target: a single straight track through the centre). Target t's strength role
+is the ``roles`` pattern cycled (:mod:`pipeline.trackers.peak_roles`).
 
 * ``crossing``: targets move at ``±tan(ψ/2)`` °/s and cross at mid-run with angle ψ
   (``crossing_angle_deg``); the run starts and ends with the targets ``end_separation_deg``
@@ -50,6 +55,9 @@ ORIGIN_CLUTTER = -1
 ROLES = ("strong", "weak")
 GEOMETRIES = ("crossing", "maneuver")
 MAX_SCANS = 20000
+MAX_TARGETS = 100
+DEFAULT_N_TARGETS = 2  # the paper's pair; data sets recorded before n_targets existed hold two
+DEFAULT_PAIR_SPACING_DEG = 20.0
 
 
 def role_model(p: dict, role: str) -> dict:
@@ -80,29 +88,48 @@ def _turn_profile(u: np.ndarray, tau: float) -> np.ndarray:
     return np.where(a <= tau / 2, u * u / tau, a - tau / 4)
 
 
+def n_targets(p: dict) -> int:
+    """Targets of the scenario (``n_targets``; 2, the paper's pair, where a record lacks it)."""
+    return int(p.get("n_targets", DEFAULT_N_TARGETS))
+
+
+def pair_centres_deg(p: dict) -> np.ndarray:
+    """Bearing (deg) of the centre of each pair of targets: ⌈n/2⌉ pairs spaced
+    ``pair_spacing_deg`` apart around ``center_bearing_deg`` (one pair: the centre itself)."""
+    pairs = (n_targets(p) + 1) // 2
+    spacing = float(p.get("pair_spacing_deg", DEFAULT_PAIR_SPACING_DEG))
+    return float(p["center_bearing_deg"]) + (np.arange(pairs) - (pairs - 1) / 2) * spacing
+
+
 def target_bearings(p: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Scan times and the targets' true bearings and bearing rates.
 
     Returns
     -------
     times : ndarray (scans,)
-    bearing_rad, rate_radps : ndarray (scans, 2)
+    bearing_rad, rate_radps : ndarray (scans, n_targets)
+        Targets 2j and 2j+1 are pair j (:func:`pair_centres_deg`), moving as the paper's two.
     """
     T = float(p["scan_period_s"])
     n = int(np.floor(_duration_s(p) / T + 1e-9)) + 1
     times = np.arange(n) * T
     u = times - times[-1] / 2  # closest approach at mid-run
-    centre = float(p["center_bearing_deg"])
-    if p["geometry"] == "crossing":
-        rate = np.tan(np.deg2rad(p["crossing_angle_deg"]) / 2)
-        b = np.stack([centre + rate * u, centre - rate * u], axis=1)
-        r = np.broadcast_to(np.array([rate, -rate]), b.shape).copy()
-    else:
-        rate, tau, L = float(p["approach_rate_deg_per_s"]), float(p["turn_duration_s"]), float(p["min_distance_deg"])
-        h = rate * _turn_profile(u, tau)
-        dh = rate * (np.clip(2 * u / tau, -1, 1) if tau > 0 else np.sign(u))
-        b = np.stack([centre + L / 2 + h, centre - L / 2 - h], axis=1)
-        r = np.stack([dh, -dh], axis=1)
+    bearings, rates = [], []
+    for centre in pair_centres_deg(p):
+        centre = float(centre)
+        if p["geometry"] == "crossing":
+            rate = np.tan(np.deg2rad(p["crossing_angle_deg"]) / 2)
+            bearings += [centre + rate * u, centre - rate * u]
+            rates += [np.full(n, rate), np.full(n, -rate)]
+        else:
+            rate, tau, L = float(p["approach_rate_deg_per_s"]), float(p["turn_duration_s"]), float(p["min_distance_deg"])
+            h = rate * _turn_profile(u, tau)
+            dh = rate * (np.clip(2 * u / tau, -1, 1) if tau > 0 else np.sign(u))
+            bearings += [centre + L / 2 + h, centre - L / 2 - h]
+            rates += [dh, -dh]
+    N = n_targets(p)
+    b = np.stack(bearings[:N], axis=1)
+    r = np.stack(rates[:N], axis=1)
     return times, np.deg2rad(b), np.deg2rad(r)
 
 
@@ -112,6 +139,11 @@ def validate(p: dict) -> None:
         raise InputError(f"geometry must be one of {', '.join(GEOMETRIES)} (got {p.get('geometry')!r})")
     require_finite_params(p)
     track_roles(p)
+    N = p.get("n_targets", DEFAULT_N_TARGETS)
+    check_all([(isinstance(N, (int, np.integer)) and not isinstance(N, bool) and 1 <= N <= MAX_TARGETS,
+                f"n_targets must be a whole number in 1…{MAX_TARGETS} (got {N!r})"),
+               (N <= 2 or float(p.get("pair_spacing_deg", DEFAULT_PAIR_SPACING_DEG)) > 0,
+                "pair_spacing_deg must be > 0 (the bearing between neighbouring pairs of targets)")])
     checks = [
         (p["scan_period_s"] > 0, "scan_period_s must be > 0"),
         (p["gate_deg"] > 0, "gate_deg must be > 0"),
@@ -150,8 +182,9 @@ def validate(p: dict) -> None:
     _, b, _ = target_bearings(p)
     lo, hi = np.deg2rad(p["field_min_deg"]), np.deg2rad(p["field_max_deg"])
     if b.min() < lo or b.max() > hi:
+        more = "" if N <= 2 else ", pair_spacing_deg or n_targets"
         raise InputError(f"the targets leave the field [{p['field_min_deg']}, {p['field_max_deg']}]°; "
-                         "widen the field or reduce end_separation_deg")
+                         f"widen the field or reduce end_separation_deg{more}")
 
 
 def _truncated_normal(u: np.ndarray, mean, std) -> np.ndarray:
@@ -211,7 +244,7 @@ def simulate(p: dict, runs: int, seed: int) -> SimulatedData:
     rng = np.random.default_rng(seed)
     times, bearing, rate = target_bearings(p)
     K, T = bearing.shape
-    models = [role_model(p, role) for role in track_roles(p)]
+    models = [role_model(p, role) for role in track_roles(p, T)]
     gate = np.deg2rad(p["gate_deg"])
     lo, hi = np.deg2rad(p["field_min_deg"]), np.deg2rad(p["field_max_deg"])
     sigma_p = np.array([m["sigma_p_rad"] for m in models])

@@ -26,8 +26,9 @@ Labels (``origin``): the peak nearest to target t's true lag, if within
 The signals are generated in the frequency domain (complex Gaussian spectra in the source
 band, delays as phase ramps, so fractional delays are exact for the circular window), turned
 into time series by an inverse FFT and correlated from those time series. Random numbers are
-drawn block by block in a fixed order, so a seed fixes every byte. Geometry and the filter
-design keys are those of :mod:`recorders.xcorr_peaks`.
+drawn block by block in a fixed order, so a seed fixes every byte. Geometry (``n_targets``
+targets in crossing pairs, default the paper's two), the strength roles (``roles`` cycled, else
+``pair``) and the filter design keys are those of :mod:`recorders.xcorr_peaks`.
 """
 
 from __future__ import annotations
@@ -113,7 +114,7 @@ def simulate(p: dict, runs: int, seed: int) -> SimulatedData:
     rng = np.random.default_rng(seed)
     times, bearing, rate = target_bearings(p)
     K, T = bearing.shape
-    roles = track_roles(p)
+    roles = track_roles(p, T)  # the roles pattern cycled over the n_targets targets
     fs, N = float(p["sample_rate_hz"]), int(p["window_samples"])
     d, C = float(p["sensor_spacing_m"]), float(p["sound_speed_mps"])
     lo, hi = np.deg2rad(p["field_min_deg"]), np.deg2rad(p["field_max_deg"])

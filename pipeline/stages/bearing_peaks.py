@@ -22,10 +22,11 @@ from pipeline.stages.base import Stage
 from evaluators.standard import bearing_space
 from pipeline.trackers.bearing_peaks import design_from
 from pipeline.trackers.interface import BearingPeaks, call_tracker
-from pipeline.trackers.peak_roles import roles_for, track_roles
+from pipeline.trackers.peak_roles import roles_for
 
 PEAKS = vocab.CHANNELS["xcorr_peaks"]
 TRUTH = vocab.CHANNELS["xcorr_truth"]
+MAX_TRACKS = 100  # tracks started on data without truth or labels (n_targets)
 
 
 def recorded_float(dataset, key: str, default: float) -> float:
@@ -142,18 +143,21 @@ def read_truth_rate(dataset, bearing: np.ndarray | None) -> np.ndarray | None:
     return rate
 
 
-def n_targets(peaks: dict, truth: np.ndarray | None, path, pair: str | None = None) -> int:
+def n_targets(peaks: dict, truth: np.ndarray | None, path, design: dict | None = None) -> int:
     """Track slots to fill: the targets of the truth, else the labels of the peaks, else the
-    roles of the design's ``pair`` (a recording: as many tracks as it names)."""
+    design's ``n_targets`` (a recording: as many tracks as it asks for; 2 by default)."""
     if truth is not None:
         return int(truth.shape[2])
     n = int(peaks["origin"].max()) + 1 if peaks["origin"].size else 0
     if n >= 1:
         return n
-    if pair is None:
-        raise InputError(f"{PEAKS} carries no labelled true peaks and there is no {TRUTH}: set pair= to say how "
-                         "many tracks to start", path)
-    return len(track_roles({"pair": pair}))
+    wanted = (design or {}).get("n_targets")
+    if wanted is None:
+        raise InputError(f"{PEAKS} carries no labelled true peaks and there is no {TRUTH}: set n_targets= to say "
+                         "how many tracks to start", path)
+    if isinstance(wanted, bool) or int(wanted) != wanted or not 1 <= int(wanted) <= MAX_TRACKS:
+        raise InputError(f"n_targets must be a whole number in 1…{MAX_TRACKS} (got {wanted!r})", path)
+    return int(wanted)
 
 
 class BearingPeaksStage(Stage):
@@ -161,8 +165,9 @@ class BearingPeaksStage(Stage):
     truth_channel = TRUTH  # without it, replay lists run 0's bearings per scan
     family = "bearing-peaks"
     scenario = "xcorr-crossing"
-    # what the evaluator needs: the gate (judge of "on target") and the targets' roles
-    design_keys = ("gate_deg", "pair")
+    # what the evaluator needs: the gate (judge of "on target") and the targets' roles; the
+    # tracks to start on data without truth or labels
+    design_keys = ("gate_deg", "pair", "roles", "n_targets")
 
     def decode(self, dataset, design: dict | None = None) -> BearingPeaks:
         """The peaks as :class:`~pipeline.trackers.interface.BearingPeaks`, checked (decoded
@@ -175,7 +180,7 @@ class BearingPeaksStage(Stage):
             dataset.cache["bearing_peaks"] = BearingPeaks(
                 bearing_rad=bearing, amplitude=amplitude, origin=origin, counts=counts, times_s=peaks["times"],
                 field_rad=tuple(float(v) for v in np.deg2rad(field_deg(dataset))),
-                n_targets=n_targets(peaks, truth, dataset.path, (design or self.design(dataset)).get("pair")),
+                n_targets=n_targets(peaks, truth, dataset.path, design or self.design(dataset)),
                 truth_bearing_rad=truth, truth_rate_radps=rate)
         return dataset.cache["bearing_peaks"]
 

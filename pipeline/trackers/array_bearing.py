@@ -35,7 +35,9 @@ Outputs (vocabulary of :data:`pipeline.vocabulary.OUTPUTS`, T track slots):
 ``state`` (R, K, T, 2) ``[θ, θ̇]`` in rad and rad/s (scan 0 has no rate: ``NOT_ESTIMATED``),
 ``covariance`` (R, K, T, 2, 2) from scan 1 on, ``innovation`` (R, K, T, 1) the angular innovation
 δθ, ``innovation_covariance`` (R, K, T, 1, 1), ``gain`` (R, K, T, 2, 1), ``flags`` (R, K, T)
-(``INITIALISING`` on scans 0 and 1, ``COASTED``, ``NO_TRACK``). The paper's extras:
+(``INITIALISING`` on scans 0 and 1, ``COASTED``, ``NO_TRACK``), ``track_id`` (R, K, T): the
+slots are fixed (one per target found at start-up, in angle order) and never restarted, so slot
+j holds track j wherever it holds a track and −1 elsewhere. The paper's extras:
 ``predicted_rad`` (R, K, T) θ̂(k|k−1); ``n_tracks``, ``source_count`` (R, K) the run's N and
 its MDL/AIC count at scan 1; ``subspace_error_rad`` (R, K); and the cost of each scan's
 innovation step (section IV): ``innovation_flops_model`` (the paper's analytic model),
@@ -410,7 +412,9 @@ def track_bearings(snapshots: np.ndarray, design: SubspaceTrackerDesign, strateg
     if design.n_sources > min(M - 1, Ns):
         raise ValueError(f"n_sources = {design.n_sources} exceeds M − 1 = {M - 1} or Ns = {Ns}")
     fe = shared_front_end(snapshots, design)
-    width = fe.start.theta_0.shape[1]
+    # one slot at least: where no run found a source the outputs hold one empty (NO_TRACK) slot,
+    # which every reader takes, rather than none
+    width = max(fe.start.theta_0.shape[1], 1)
     nan = np.nan
     whole = len(fe.groups) == 1 and len(fe.groups[0][0]) == B and fe.groups[0][1] == width
     out = {} if whole else {  # one group of every run and all slots: its arrays are the outputs
@@ -433,6 +437,9 @@ def track_bearings(snapshots: np.ndarray, design: SubspaceTrackerDesign, strateg
                           ("steering_flops_counted", "steering")):
             flops[key][sel, STARTUP_SCANS:] = cost[name]
     out.update(flops)
+    # fixed slots, never restarted: slot j is track j wherever it holds one (flags without NO_TRACK)
+    held = (out["flags"].astype(np.int64) & vocab.NO_TRACK) == 0
+    out["track_id"] = np.where(held, np.arange(width, dtype=np.int64), np.int64(-1))
     out["n_tracks"] = np.broadcast_to(fe.start.n_tracks[:, None], (B, K)).astype(np.int32)
     out["source_count"] = np.broadcast_to(fe.start.source_counts[:, 1][:, None], (B, K)).astype(np.int32)
     out["subspace_error_rad"] = fe.subspace_error.copy()

@@ -34,7 +34,12 @@ A track started from peaks is tentative (``INITIALISING``) until ``confirm_hits`
 track ends when it leaves the field by more than half a gate or coasts ``max_coasted_scans``
 scans in a row (:mod:`pipeline.cores.association.track_management`).
 
+Any number of tracks T (the targets of the data); their strength roles are the design's
+``roles`` pattern (or ``pair``'s) cycled over them (:mod:`pipeline.trackers.peak_roles`).
+
 Outputs (:data:`pipeline.vocabulary.OUTPUTS`): ``state`` (R, K, T, 2), ``covariance``,
+``track_id`` (R, K, T: slot j is track j wherever it holds one, −1 elsewhere; a slot is never
+restarted),
 ``flags`` (``NO_TRACK | INITIALISING`` before the start scan, whose state is NaN;
 ``INITIALISING`` at the start scan, which holds the start values; then ``COASTED`` where no
 peak fell in the gate and ``CLUSTER_SPLIT`` where a cluster was cut), ``innovation`` (the
@@ -68,7 +73,10 @@ PARAMS = (
     Param("design_detection_probability", None, "", "P_D the filters assume"),
     Param("design_clutter_per_gate", None, "", "clutter count λV per gate the filters assume (before the threshold)"),
     Param("clutter_alpha", None, "1/amplitude", "α of the clutter amplitude density α e^{−α z_a}"),
-    Param("pair", None, "", "roles of the targets in order: strong-weak | strong-strong | weak-weak"),
+    Param("pair", None, "", "roles of the targets in order: strong-weak | strong-strong | weak-weak (cycled over "
+          "more targets; used where roles is 'pair')"),
+    Param("roles", "pair", "", "strength roles cycled over the tracks, strong/weak joined by '-' (strong-weak-weak: "
+          "track t takes the (t mod 3)-th); pair: pair's"),
     Param("strong_sigma_p_deg", None, "deg", "bearing noise σ_p of a strong track's true peak"),
     Param("strong_amplitude_mean", None, "", "expected amplitude ẑ_a of a strong track's true peak"),
     Param("strong_amplitude_std", None, "", "amplitude spread σ_a of a strong track's true peak"),
@@ -107,12 +115,12 @@ def core_design(design: dict, n_tracks: int) -> BearingTrackerDesign:
     design : dict
         Values of :data:`PARAMS` by name (degrees in the ``_deg`` ones).
     n_tracks : int
-        Targets in the data; ``pair`` must describe as many.
+        Targets in the data; the roles pattern (``roles``, else ``pair``) is cycled over them.
 
     Raises
     ------
     InputError
-        A role count other than ``n_tracks`` or a design value out of range.
+        An unknown role or a design value out of range.
     """
     roles = roles_for(design, n_tracks)
     per = lambda key: np.array([float(design[f"{r}_{key}"]) for r in roles])
@@ -130,7 +138,7 @@ def core_design(design: dict, n_tracks: int) -> BearingTrackerDesign:
 
 def check_design(design: dict) -> None:
     """Range checks of the design values that do not depend on the data (first failure raised)."""
-    roles = sorted(set(track_roles(design)))
+    roles = sorted(set(track_roles(design)))  # also refuses a bad roles / pair value
     role_values = [float(design[f"{r}_{k}"]) for r in roles for k in ("sigma_p_deg", "amplitude_std")]
     check_all([(design["gate_deg"] > 0, "gate_deg must be > 0"), (design["q_deg2"] >= 0, "q_deg2 must be ≥ 0"),
                (0 < design["design_detection_probability"] <= 1, "design_detection_probability must be in (0, 1]"),
@@ -275,7 +283,18 @@ class _JpdaTracker(Tracker):
         if resolved_start(peaks, self.track_start) != "truth":  # from measurements: tentative until M-of-N
             d = replace(d, confirmation=ConfirmationRule(int(self.confirm_hits), int(self.confirm_window)))
         scans = scans_from_padded(peaks.bearing_rad, peaks.amplitude, peaks.counts)
-        return track_bearing_peaks(scans, x0, P0, d, STRATEGIES[self.name], start)
+        out = track_bearing_peaks(scans, x0, P0, d, STRATEGIES[self.name], start)
+        out["track_id"] = slot_track_ids(out["flags"])
+        return out
+
+
+def slot_track_ids(flags: np.ndarray) -> np.ndarray:
+    """``track_id`` (R, K, T) of trackers with fixed slots: slot j holds track j wherever it holds a
+    track (flags without ``NO_TRACK``), −1 elsewhere. A slot is never restarted after its track
+    ends, so identity j is one track for the whole run."""
+    flags = np.asarray(flags)
+    held = (flags.astype(np.int64) & vocab.NO_TRACK) == 0
+    return np.where(held, np.arange(flags.shape[-1], dtype=np.int64), np.int64(-1))
 
 
 class JPDA(_JpdaTracker):
