@@ -52,8 +52,13 @@ def fit_dataset(path, reference: str = "auto", gate_deg: float | None = None, th
     field = tuple(math.radians(float(v)) for v in field_deg(ds))
     fit = fit_peak_model(peaks["bearing"], peaks["amplitude"], peaks["run"], peaks["scan"], ref, gate, threshold,
                          field, name)
-    pair = str(params.get("pair", "strong-weak")).split("-")
-    roles = pair if len(pair) == len(fit.tracks) else [f"track{t}" for t in range(len(fit.tracks))]
+    from pipeline.trackers.peak_roles import roles_for
+
+    # the recorded roles cycled over the data's targets (a recording without them: track0, …)
+    roles = (list(roles_for(params, len(fit.tracks))) if "pair" in params or "roles" in params
+             else [f"track{t}" for t in range(len(fit.tracks))])
+    if len(set(roles)) < len(roles):  # a role shared by several targets: name them apart
+        roles = [f"track{t}:{role}" for t, role in enumerate(roles)]
     return fit, roles
 
 
