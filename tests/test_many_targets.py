@@ -363,3 +363,20 @@ def test_replay_writes_the_target_and_track_tables(runner):
     assert targets["tracked_fraction"].is_between(0, 1).all() and (lives["scans"] > 0).all()
     # a track is reported once confirmed: never before its target appeared
     assert (lives["first_s"] >= 0).all() and set(lives["target_id"].to_list()) <= set(targets["target_id"]) | {-1}
+
+
+def test_a_plugged_two_slot_tracker_in_check(runner, radar_small, two_slots):
+    import shutil
+
+    Path("d/baselines").mkdir(parents=True)
+    shutil.copy(radar_small, "d/radar_small.mcap")
+    res = runner.invoke(main, ["check", "d", "--update", "--tracker", "two_slots.py:TwoSlots"])
+    assert res.exit_code == 0, res.output
+    baseline = json.loads(Path("d/baselines/radar_small.json").read_text())
+    assert {"mota", "gospa_mean_m", "hota"} <= {m["metric"] for m in baseline["metrics"] if m["tracker"] == "two_slots"}
+    res = runner.invoke(main, ["check", "d", "--tracker", "two_slots.py:TwoSlots"])
+    assert res.exit_code == 0, res.output
+    # moved 500 m off the plots: its set measures drift and the check fails on them
+    Path("moved.py").write_text(TWO_SLOTS.replace('Param("offset_m", 0.0', 'Param("offset_m", 500.0'))
+    res = runner.invoke(main, ["check", "d", "--tracker", "moved.py:TwoSlots"])
+    assert res.exit_code == 1 and "two_slots gospa_mean_m" in res.stdout, res.output
