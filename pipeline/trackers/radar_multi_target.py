@@ -130,15 +130,16 @@ class GlobalNearestNeighbour:
         if nu.shape[-2] == 0:  # a scan without plots: every track coasts
             return ScanAssociation(x, P, hit, np.zeros(gated.shape[::2], bool), np.full(x.shape[:-1] + (2,), np.nan),
                                    np.full(S.shape, np.nan), np.zeros(hit.shape, np.uint32))
-        picked = np.take_along_axis(nu, np.maximum(plot, 0)[..., None, None], axis=-2)[..., 0, :]
-        picked = np.where(hit[..., None], picked, 0.0)
-        x_upd, P_upd, _ = f.update(x, P, H, S, picked)
-        x = np.where(hit[..., None], x_upd, x)
-        P = np.where(hit[..., None, None], P_upd, P)
-        claimed = np.zeros(gated.shape[::2], bool)
         run, slot = np.nonzero(hit)
+        picked = nu[run, slot, plot[run, slot]]                   # (hits, m): each hit track's plot
+        # the update of the tracks that took a plot only (the others coast on their prediction)
+        x_upd, P_upd, _ = f.update(x[run, slot], P[run, slot], H[run, slot], S[run, slot], picked)
+        x, P = x.copy(), P.copy()
+        x[run, slot], P[run, slot] = x_upd, P_upd
+        claimed = np.zeros(gated.shape[::2], bool)
         claimed[run, plot[run, slot]] = True
-        innovation = np.where(hit[..., None], picked, np.nan)
+        innovation = np.full(x.shape[:-1] + (picked.shape[-1],), np.nan)
+        innovation[run, slot] = picked
         covariance = np.where(hit[..., None, None], S, np.nan)
         return ScanAssociation(x, P, hit, claimed, innovation, covariance, np.zeros(hit.shape, np.uint32))
 
@@ -158,13 +159,16 @@ class JointProbabilistic:
         # the order in which a cluster too large to solve whole is cut: around the radar, by bearing
         order = np.arctan2(x[..., 1], x[..., 0])
         beta, beta0, split = joint_association_probabilities(ratio, miss, gated, order, design.max_cluster_tracks)
-        # a hit when a plot is more likely than not the track's own: a lost track whose gate has
-        # grown over clutter keeps coasting towards deletion instead of living on clutter
+        # every track with a plot in its gate takes the PDA update (weighted by its β); for its
+        # life, a hit only when a plot is more likely than not its own: a lost track whose gate
+        # has grown over clutter keeps coasting towards deletion instead of living on clutter
+        run, slot = np.nonzero(gated.any(axis=-1))
         hit = gated.any(axis=-1) & (beta0 < 0.5)
-        K, _ = kalman_gain(P, H, f.measurement_covariance(x))
-        x_upd, P_upd, _ = pda_update_gaussian(x, P, K, S, nu, gated, beta, beta0)
-        x = np.where(hit[..., None], x_upd, x)
-        P = np.where(hit[..., None, None], P_upd, P)
+        K, _ = kalman_gain(P[run, slot], H[run, slot], f.measurement_covariance(x))
+        x_upd, P_upd, _ = pda_update_gaussian(x[run, slot], P[run, slot], K, S[run, slot], nu[run, slot],
+                                              gated[run, slot], beta[run, slot], beta0[run, slot])
+        x, P = x.copy(), P.copy()
+        x[run, slot], P[run, slot] = x_upd, P_upd
         flags = np.where(split, vocab.CLUSTER_SPLIT, 0).astype(np.uint32)
         return ScanAssociation(x, P, hit, gated.any(axis=-2), None, None, flags)
 
