@@ -316,10 +316,11 @@ def _others(n: int) -> np.ndarray:
 def cluster_tracks(gated: np.ndarray) -> np.ndarray:
     """Connected components of the tracks-share-a-gated-peak graph.
 
-    Tracks and peaks of every run are the nodes of one bipartite graph, a gated pair its edge;
-    its connected components (:func:`scipy.sparse.csgraph.connected_components`, linear in the
-    gated pairs) are the clusters. Each track is labelled with the smallest track index of its
-    cluster, run by run.
+    Every track starts with its own index as label; a peak takes the smallest label of the tracks
+    gating it, a track the smallest label of its peaks (and its own), until nothing changes: the
+    labels spread along the graph one track-peak-track step per round, so the rounds are as many as
+    the longest chain of tracks sharing peaks (one or two in practice), each a few array passes
+    over every run at once.
 
     Parameters
     ----------
@@ -330,20 +331,17 @@ def cluster_tracks(gated: np.ndarray) -> np.ndarray:
     labels : ndarray of int (R, T)
         The smallest track index of each track's cluster.
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     R, T, m = gated.shape
-    run, track, peak = np.nonzero(gated)
-    n = R * (T + m)
-    # node numbers: run r's tracks r·T + t, then every run's peaks after all tracks
-    rows, cols = run * T + track, R * T + run * m + peak
-    graph = coo_matrix((np.ones(rows.size, np.int8), (rows, cols)), shape=(n, n))
-    _, component = connected_components(graph, directed=False)
-    component = component[:R * T]
-    smallest = np.full(n, T, np.int64)
-    np.minimum.at(smallest, component, np.tile(np.arange(T), R))
-    return smallest[component].reshape(R, T)
+    labels = np.broadcast_to(np.arange(T), (R, T)).copy()
+    if m == 0 or T < 2:
+        return labels
+    no_label = T  # larger than every track index
+    while True:
+        peak_label = np.where(gated, labels[:, :, None], no_label).min(axis=1)           # (R, m)
+        spread = np.minimum(labels, np.where(gated, peak_label[:, None, :], no_label).min(axis=2))
+        if np.array_equal(spread, labels):
+            return labels
+        labels = spread
 
 
 def joint_association_probabilities(ratio: np.ndarray, miss: np.ndarray, gated: np.ndarray,
