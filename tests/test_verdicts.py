@@ -44,6 +44,7 @@ def test_replay_prints_the_verdicts_first(runner, demo_mcap):
     assert res.exit_code == 0, res.output
     lines = res.output.splitlines()
     first = next(i for i, line in enumerate(lines) if line.startswith("verdict per tracker"))
+    assert "(NEES)" in res.output  # with truth, the NEES decides
     table = next(i for i, line in enumerate(lines) if line.startswith("["))
     assert first < table
     for tracker in ("fixed", "approximate", "exact", "kalman"):

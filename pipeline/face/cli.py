@@ -376,7 +376,7 @@ def _print_verdicts(summary: pl.DataFrame, family_metrics=()) -> None:
     if table.height == 0:
         return
     width = max(len(t) for t in table["tracker"].to_list())
-    click.echo("verdict per tracker (consistency from the time-averaged NEES, or NIS without truth):")
+    click.echo("verdict per tracker (filter consistency, and what tested it):")
     for r in table.iter_rows(named=True):
         verdict = r["verdict"] + (f" ({r['tested_by']})" if r["tested_by"] else "")
         line = f"  {r['tracker']:<{width}}  {verdict:<19}"
