@@ -35,10 +35,26 @@ from pathlib import Path
 
 import numpy as np
 
+
+def _single_target_samples():
+    """The generator of the single-target samples beside this file: the RadarScan message
+    definition and the recordings' first stamp are shared, not written twice."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("make_foreign_samples", Path(__file__).with_name(
+        "make_foreign_samples.py"))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+_BASE = _single_target_samples()
+RADAR_SCAN_MSGDEF = _BASE.RADAR_SCAN_MSGDEF
+EPOCH_S = _BASE.EPOCH_S  # the recordings' first stamp (a fixed instant, not the wall clock)
+
 SCAN_TOPIC = "/radar/scan"
 TRUTH_TOPIC = "/radar/truth"
 JSON_TOPIC = "/radar/frame"
-EPOCH_S = 1_700_000_000  # the recordings' first stamp (a fixed instant, not the wall clock)
 PERIOD_S = 5.0
 SIGMA_RANGE_M, SIGMA_BEARING_DEG = 100.0, 1.0
 DETECTION_PROBABILITY = 0.85
@@ -53,21 +69,6 @@ TARGETS = (
     (21, 9, 99, 30000.0, 10000.0, -80.0, -20.0),
     (40, 12, 22, 15000.0, 20000.0, 30.0, -70.0),
 )
-
-RADAR_SCAN_MSGDEF = """std_msgs/Header header
-RadarReturn[] returns
-================================================================================
-MSG: std_msgs/Header
-builtin_interfaces/Time stamp
-string frame_id
-================================================================================
-MSG: demo_radar_msgs/RadarReturn
-float64 range
-float64 azimuth
-float64 elevation
-float64 doppler_velocity
-float64 amplitude
-"""
 
 TARGET_ARRAY_MSGDEF = """std_msgs/Header header
 Target[] targets
