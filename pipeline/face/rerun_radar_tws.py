@@ -26,47 +26,34 @@ def blueprint(stage, trackers, dataset=None, run: int = 0):
             lo, hi = xy.min(axis=0), xy.max(axis=0)
             pad = 0.08 * float(max(hi - lo)) + 1.0
             bounds = north_up_bounds(lo, hi, pad)
-    hidden = rrb.PlotLegend(visible=False)
-    shown = rrb.PlotLegend(corner=rrb.Corner2D.RightTop, visible=True)
     if dataset is not None and stage.holds_many_targets(dataset):
         # a scene of many targets: how many tracks and targets there are, and the set errors
-        return rrb.Blueprint(
-            rrb.Horizontal(
-                rrb.Spatial2DView(origin="/xy", name=f"x / y (run {run}): tracks by identity", visual_bounds=bounds),
-                rrb.Vertical(
-                    rrb.TimeSeriesView(origin="/counts/confirmed", name="confirmed tracks", plot_legend=shown),
-                    rrb.TimeSeriesView(origin="/counts/tentative", name="tentative tracks", plot_legend=hidden),
-                    rrb.TimeSeriesView(origin="/counts/targets", name="true targets", plot_legend=hidden),
-                ),
-                rrb.Vertical(
-                    rrb.TimeSeriesView(origin="/errors/gospa_m", name="GOSPA (m), mean over runs", plot_legend=shown),
-                    rrb.TimeSeriesView(origin="/errors/gospa_missed", name="missed targets (GOSPA)",
-                                       plot_legend=hidden),
-                    rrb.TimeSeriesView(origin="/errors/gospa_false", name="false tracks (GOSPA)", plot_legend=hidden),
-                ),
-                column_shares=[2, 1.2, 1.2],
-            ),
-            rrb.TimePanel(state="collapsed"),
-            collapse_panels=True,
-        )
+        return _layout(f"x / y (run {run}): tracks by identity", bounds,
+                       [("/counts/confirmed", "confirmed tracks"), ("/counts/tentative", "tentative tracks"),
+                        ("/counts/targets", "true targets")],
+                       [("/errors/gospa_m", "GOSPA (m), mean over runs"),
+                        ("/errors/gospa_missed", "missed targets (GOSPA)"), ("/errors/gospa_false", "false tracks (GOSPA)")])
+    return _layout(f"x / y (run {run})", bounds,
+                   [("/gains/alpha_cross", "α cross-range"), ("/gains/beta_cross", "β cross-range"),
+                    ("/gains/lambda_cross", "λ_k cross-range")],
+                   [("/errors/rmse_position_m", "position RMSE (m)"), ("/errors/rmse_velocity_mps", "velocity RMSE (m/s)"),
+                    ("/errors/npe", "NPE")])
+
+
+def _layout(title: str, bounds, middle, right):
+    """x/y | a column of time series | another; each column's first series shows the legend."""
+    def column(series):
+        return rrb.Vertical(*(rrb.TimeSeriesView(origin=origin, name=name, plot_legend=rrb.PlotLegend(
+            corner=rrb.Corner2D.RightTop, visible=True) if i == 0 else rrb.PlotLegend(visible=False))
+            for i, (origin, name) in enumerate(series)))
+
     return rrb.Blueprint(
-        rrb.Horizontal(
-            rrb.Spatial2DView(origin="/xy", name=f"x / y (run {run})", visual_bounds=bounds),
-            rrb.Vertical(
-                rrb.TimeSeriesView(origin="/gains/alpha_cross", name="α cross-range", plot_legend=shown),
-                rrb.TimeSeriesView(origin="/gains/beta_cross", name="β cross-range", plot_legend=hidden),
-                rrb.TimeSeriesView(origin="/gains/lambda_cross", name="λ_k cross-range", plot_legend=hidden),
-            ),
-            rrb.Vertical(
-                rrb.TimeSeriesView(origin="/errors/rmse_position_m", name="position RMSE (m)", plot_legend=shown),
-                rrb.TimeSeriesView(origin="/errors/rmse_velocity_mps", name="velocity RMSE (m/s)", plot_legend=hidden),
-                rrb.TimeSeriesView(origin="/errors/npe", name="NPE", plot_legend=hidden),
-            ),
-            column_shares=[2, 1.2, 1.2],
-        ),
+        rrb.Horizontal(rrb.Spatial2DView(origin="/xy", name=title, visual_bounds=bounds), column(middle), column(right),
+                       column_shares=[2, 1.2, 1.2]),
         rrb.TimePanel(state="collapsed"),
         collapse_panels=True,
     )
+
 
 def log_rerun(stage, rec, dataset, result: dict, per_scan, run: int = 0) -> None:
     times = result["times"]
