@@ -106,6 +106,8 @@ class Family:
         The state vector's components and units.
     space : str
         The space the generic evaluators compare tracks and truth in.
+    former_output_prefixes : tuple of str
+        Prefixes earlier versions wrote the family's outputs on (their files still read).
     """
 
     name: str
@@ -114,6 +116,12 @@ class Family:
     output_prefix: str
     state: str
     space: str
+    former_output_prefixes: tuple[str, ...] = ()
+
+    @property
+    def output_prefixes(self) -> tuple[str, ...]:
+        """Every prefix the family's outputs are read from: today's first."""
+        return (self.output_prefix, *self.former_output_prefixes)
 
 
 FAMILIES = {
@@ -125,8 +133,9 @@ FAMILIES = {
         Family("array-snapshots", (CHANNELS["array_snapshots"],), CHANNELS["array_truth"], "/tracks/array/",
                "[bearing, bearing rate] in rad and rad/s per track slot", "bearing (rad)"),
         Family("tdoa-fdoa", (CHANNELS["emitter_measurements"], CHANNELS["emitter_sensors"]),
-               CHANNELS["emitter_truth"], "/emitter/estimates/",
-               "[x, y, vx, vy] in m and m/s, one estimate per epoch", "position (m)"),
+               CHANNELS["emitter_truth"], "/tracks/emitter/",
+               "[x, y, vx, vy] in m and m/s, one estimate per epoch", "position (m)",
+               former_output_prefixes=("/emitter/estimates/",)),
         Family("colored-position", (CHANNELS["colored_measurements"],), CHANNELS["colored_truth"],
                "/tracks/colored/", "[p, v, a] in m, m/s, m/s² per axis, axes concatenated",
                "position (m)"),

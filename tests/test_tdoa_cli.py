@@ -1,6 +1,7 @@
 """TDOA/FDOA as a user runs it: simulate with presets, replay, eval, crlb, cep-plane, bad input."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -122,7 +123,7 @@ def test_estimators_are_trackers_and_the_bound_travels_in_the_outputs(triangle3,
     bound = tracks["crlb"]
     assert bound["whitened_jacobian_joint"].shape == (300, 1, 6, 4)
     assert bound["crlb_covariance_tdoa"].shape == (300, 1, 2, 2)
-    back = read_dataset(out).channel("/emitter/estimates/crlb")
+    back = read_dataset(out).channel("/tracks/emitter/crlb")
     for key, a in bound.items():
         np.testing.assert_array_equal(back.grid(key), a, err_msg=key)
     tdoa = tracks["tdoa"]
@@ -252,3 +253,26 @@ def test_cep_plane_command_writes_png_and_recording(runner, tmp_path):
     assert res.exit_code == 0 and (tmp_path / "line.png").exists() and not (tmp_path / "line.rrd").exists()
     bad = invoke(runner, "cep-plane", "--step-m", "0")
     assert bad.exit_code == 2 and "positive" in bad.output
+
+
+def test_outputs_written_before_tracks_emitter_still_read(tmp_path):
+    """The emitter family wrote /emitter/estimates/<estimator> before its outputs moved under
+    /tracks/emitter/ like every family's: such a file still reads, the same arrays."""
+    from types import SimpleNamespace
+
+    from pipeline.replay import replay
+    from pipeline.stages import stage_for_outputs
+
+    data = Path(__file__).resolve().parents[1] / "data" / "tdoa_fdoa_demo.mcap"
+    replay(data, out_path=tmp_path / "tracks.mcap")
+    out = read_dataset(tmp_path / "tracks.mcap")
+    assert any(t.startswith("/tracks/emitter/") for t in out.channels)
+    old = SimpleNamespace(path=out.path, channels={t.replace("/tracks/emitter/", "/emitter/estimates/"): ch
+                                                   for t, ch in out.channels.items()})
+    stage = stage_for_outputs(old.channels)
+    assert stage is not None and stage.family == "tdoa-fdoa"
+    now, before = stage.outputs_from_dataset(out), stage.outputs_from_dataset(old)
+    assert set(now["tracks"]) == set(before["tracks"]) and now["tracks"]
+    for name in now["tracks"]:
+        for key in now["tracks"][name]:
+            np.testing.assert_array_equal(now["tracks"][name][key], before["tracks"][name][key])

@@ -51,8 +51,8 @@ def applicable_stages(topics) -> list:
 def stage_for_outputs(topics):
     """The stage that wrote a replay output file (from its output channels)."""
     for name, family, _ in STAGE_CLASSES:
-        prefix = vocab.FAMILIES[family].output_prefix
-        if any(t.startswith(prefix) for t in topics):
+        prefixes = vocab.FAMILIES[family].output_prefixes
+        if any(t.startswith(prefixes) for t in topics):
             return stage_named(name)
     return None
 

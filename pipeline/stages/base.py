@@ -255,9 +255,11 @@ class Stage:
     def outputs_from_dataset(self, out_dataset) -> dict:
         """Rebuild :meth:`run`'s result from a replay output file."""
         tracks, times = {}, None
+        prefixes = vocab.FAMILIES[self.family].output_prefixes  # files of earlier versions too
         for topic, ch in out_dataset.channels.items():
-            if topic.startswith(self.output_prefix):
-                name = topic[len(self.output_prefix):]
+            prefix = next((p for p in prefixes if topic.startswith(p)), None)
+            if prefix is not None:
+                name = topic[len(prefix):]
                 tracks[name] = {k: ch.grid(k) for k in ch.arrays}
                 if "flags" in tracks[name]:
                     tracks[name]["flags"] = np.nan_to_num(tracks[name]["flags"]).astype(vocab.FLAG_DTYPE)

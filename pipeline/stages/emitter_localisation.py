@@ -6,9 +6,9 @@ Input channels: ``/emitter/measurements`` (``tdoa_s``, ``fdoa_hz``, ``sigma_tdoa
 (``state``: the initial guess) and ``/emitter/truth`` (``state``). They are decoded once into a
 :class:`~pipeline.trackers.interface.TdoaFdoa` (with the truth beside it, for the bound).
 
-Outputs on ``/emitter/estimates/<estimator>``: see :mod:`pipeline.trackers.emitter` (the
+Outputs on ``/tracks/emitter/<estimator>``: see :mod:`pipeline.trackers.emitter` (the
 ``joint``, ``tdoa`` and ``fdoa`` estimators, or any plugged tracker of the ``tdoa-fdoa``
-family). Beside them (:meth:`EmitterLocalisationStage.extras`), ``/emitter/estimates/crlb``
+family). Beside them (:meth:`EmitterLocalisationStage.extras`), ``/tracks/emitter/crlb``
 holds the CRLB at the true state for every estimator kind (eq. 18; ``crlb_covariance_<kind>``,
 ``whitened_jacobian_<kind>``, ``crlb_singular_<kind>``, from
 :func:`pipeline.cores.localisation.tdoa_fdoa_crlb.truth_bounds`), which the evaluator's run
