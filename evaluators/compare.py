@@ -26,9 +26,12 @@ KEY = ["tracker", "metric", "scope"]
 
 # metric-name patterns where lower is better / higher is better (first match wins)
 LOWER_IS_BETTER = re.compile(r"(rmse|rms_|ospa|gospa|npe|miss|false|break|switch|lost|swap|cep|bias|error|"
-                             r"mostly_lost|partially_tracked|clamped|coasted|diverged|failed)")
+                             r"mostly_lost|partially_tracked|clamped|coasted|diverged|failed|"
+                             r"^siap_ambiguity$|^siap_spuriousness$|^siap_position_accuracy|"
+                             r"^siap_velocity_accuracy|^siap_track_number_change_rate$)")
 HIGHER_IS_BETTER = re.compile(r"(mota|idf1|^idp$|^idr$|^hota$|^deta$|^assa$|^loca$|held|success|efficiency|"
-                              r"mostly_tracked|inside_fraction|converged)")
+                              r"mostly_tracked|inside_fraction|converged|^siap_completeness$|"
+                              r"^siap_longest_track_segment$)")
 # the TDOA/FDOA family's efficiency_position/_velocity are RMSE over the bound (≥ 1, lower is
 # better), the other families' *_efficiency the bound over the RMSE (≤ 1, higher is better)
 RMSE_OVER_BOUND = re.compile(r"^efficiency_")

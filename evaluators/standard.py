@@ -29,6 +29,7 @@ from evaluators.consistency import (consistency_summary, innovation_whiteness, n
                                    whitened_innovations)
 from evaluators.hota import SUM_KEYS as HOTA_SUMS, hota_sums, pooled_hota
 from evaluators.set_distances import gospa_switching
+from evaluators.siap import SUM_KEYS as SIAP_SUMS, pooled_siap, siap_sums
 from evaluators.tracking_metrics import nanmean
 from pipeline.batched_linalg import sum_squares
 from pipeline.vocabulary import DELETED, INITIALISING, NO_TRACK
@@ -68,6 +69,12 @@ class EvaluationSpace:
     gospa_switch_penalty : float, optional
         γ of the per-scan GOSPA switching term (:func:`evaluators.set_distances.gospa_switching`);
         default ``cutoff``.
+    siap_gate : float, optional
+        Largest distance of a SIAP track-to-target association (:mod:`evaluators.siap`); default
+        ``gate``.
+    velocity_components : tuple of int, optional
+        Components holding the velocities of the positions (the SIAP velocity accuracy); None
+        where the space has none.
     """
 
     truth_components: tuple
@@ -80,6 +87,19 @@ class EvaluationSpace:
     scale: float = 1.0
     hota_distance: float | None = None
     gospa_switch_penalty: float | None = None
+    siap_gate: float | None = None
+    velocity_components: tuple | None = None
+
+
+def _velocity_components(truth_components, position_components):
+    """The velocity of each position component: the next component in a state laid out per axis
+    ([p, v, a] per axis), else the block after the positions ([x, y, vx, vy]); None when the
+    truth has neither."""
+    truth, positions = tuple(truth_components), tuple(position_components)
+    for velocities in (tuple(c + 1 for c in positions), tuple(c + len(positions) for c in positions)):
+        if all(v in truth and v not in positions for v in velocities):
+            return velocities
+    return None
 
 
 def position_space(design: dict, truth_components, position_components) -> EvaluationSpace:
@@ -89,7 +109,9 @@ def position_space(design: dict, truth_components, position_components) -> Evalu
                            angular=False, cutoff=float(design["ospa_cutoff_m"]),
                            gate=float(design["assignment_gate_m"]), order=float(design["ospa_order"]),
                            hota_distance=_optional(design, "hota_distance_m"),
-                           gospa_switch_penalty=_optional(design, "gospa_switch_penalty_m"))
+                           gospa_switch_penalty=_optional(design, "gospa_switch_penalty_m"),
+                           siap_gate=_optional(design, "siap_gate_m"),
+                           velocity_components=_velocity_components(truth_components, position_components))
 
 
 def _optional(design: dict, key: str, scale: float = 1.0):
@@ -105,7 +127,8 @@ def bearing_space(design: dict) -> EvaluationSpace:
                            gate=float(np.deg2rad(design["assignment_gate_deg"])), order=float(design["ospa_order"]),
                            unit="deg", scale=float(np.rad2deg(1.0)),
                            hota_distance=_optional(design, "hota_distance_deg", np.deg2rad(1.0)),
-                           gospa_switch_penalty=_optional(design, "gospa_switch_penalty_deg", np.deg2rad(1.0)))
+                           gospa_switch_penalty=_optional(design, "gospa_switch_penalty_deg", np.deg2rad(1.0)),
+                           siap_gate=_optional(design, "siap_gate_deg", np.deg2rad(1.0)))
 
 def _as_slots(a, extra_dims: int):
     """(R, K, n...) → (R, K, 1, n...) for single-track families; slot families pass through.
@@ -294,11 +317,18 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
                                    truth_ids=part_truth_ids)
             d0 = space.cutoff if space.hota_distance is None else space.hota_distance
             h = hota_sums(X, Y, d0, part_ids, part_truth_ids, space.angular)
-            return g, match, a, {key: h[key] for key in HOTA_SUMS}
+            siap_gate = space.gate if space.siap_gate is None else space.siap_gate
+            vel = (None, None) if velocity is None else (_components(compared[part], velocity),
+                                                         _components(tr[part], velocity))
+            si = siap_sums(X, Y, siap_gate, times, part_ids, part_truth_ids, space.angular, *vel)
+            return g, match, a, {key: h[key] for key in HOTA_SUMS}, {key: si[key] for key in SIAP_SUMS}
 
         # a block of runs at a time: the assignments' temporaries stay a few MB at any number of runs
         truth_slot_ids = None if truth_ids is None else _as_slots(np.asarray(truth_ids)[..., None], 1)[..., 0]
-        g, match, a, h = _in_run_blocks(sets_and_matches, R, K * S * tr.shape[2])
+        velocity = None
+        if space.velocity_components is not None and all(c in comps for c in space.velocity_components):
+            velocity = [comps.index(c) for c in space.velocity_components]
+        g, match, a, h, si = _in_run_blocks(sets_and_matches, R, K * S * tr.shape[2])
         u, scale = space.unit, space.scale
         # ---- OSPA / GOSPA per run and scan
         for key in ("ospa", "gospa", "localisation"):
@@ -329,6 +359,18 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
         hota_ci = jackknife(lambda runs: [pooled_hota(h, runs)[key] for key in parts], R, 10)
         for i, key in enumerate(parts):
             rows.append(_with_ci(name, key, *(v[i] for v in hota_ci)))
+        # ---- SIAP (evaluators/siap.py): sums over runs, the same grouped jackknife as HOTA
+        siap_rows = {"completeness": "siap_completeness", "ambiguity": "siap_ambiguity",
+                     "spuriousness": "siap_spuriousness", "position_accuracy": f"siap_position_accuracy_{u}",
+                     "velocity_accuracy": f"siap_velocity_accuracy_{u}/s",
+                     "track_number_change_rate": "siap_track_number_change_rate",
+                     "longest_track_segment": "siap_longest_track_segment"}
+        if velocity is None:
+            del siap_rows["velocity_accuracy"]
+        siap_ci = jackknife(lambda runs: [pooled_siap(si, runs)[key] for key in siap_rows], R, 10)
+        for i, (key, metric) in enumerate(siap_rows.items()):
+            factor = scale if key == "position_accuracy" else 1.0
+            rows.append(_with_ci(name, metric, *(factor * v[i] for v in siap_ci)))
         # ---- NEES on matched pairs
         if "covariance" in out:
             P = _as_slots(out["covariance"], 2)                                     # (R, K, S, c, c)
