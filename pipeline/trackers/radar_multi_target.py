@@ -8,10 +8,11 @@ loop (:func:`track_multi_target`) serves both; what differs is a small **associa
              :func:`pipeline.cores.association.gnn.gnn_assignment`); a Kalman update with the
              assigned plot.
 ``jpda_mt``  joint probabilistic data association (Fortmann, Bar-Shalom & Scheffe 1983): the
-             marginal association probabilities of every track and gated plot from the project's
-             one JPDA core (:func:`pipeline.cores.association.jpda.joint_association_probabilities`,
+             marginal association probabilities of every confirmed track and gated plot from the
+             project's one JPDA core (:func:`pipeline.cores.association.jpda.joint_association_probabilities`,
              exact per cluster of tracks sharing plots), then the PDA update
-             (:func:`pipeline.cores.association.jpda.pda_update_gaussian`).
+             (:func:`pipeline.cores.association.jpda.pda_update_gaussian`); tentative tracks take,
+             by nearest neighbour, only plots outside every confirmed gate (a separate initiator).
 
 Each track is filtered by a **per-track filter** object
 (:class:`pipeline.cores.filters.track_filter.PolarConstantVelocityEKF`: nearly-constant-velocity
@@ -19,7 +20,8 @@ motion, range-bearing EKF), which owns prediction, predicted measurement, innova
 and update; the gate is the χ² quantile of the innovation's two degrees of freedom.
 
 Track life is the shared mechanism of :mod:`pipeline.cores.association.track_management`: a plot
-that no track claimed (GNN: not assigned; JPDA: inside no gate) starts a tentative track
+that no track claimed (GNN: not assigned; JPDA: inside no confirmed gate and not taken by a
+tentative track) starts a tentative track
 (``INITIALISING``) at the plot with a zero-mean velocity prior; it is confirmed when
 ``confirm_hits`` of its first ``confirm_window`` scans had a plot in its gate, and deleted
 (``DELETED | NO_TRACK``) after ``max_coasted_scans`` scans in a row without one, or at once when it
@@ -121,36 +123,57 @@ class GlobalNearestNeighbour:
     name = "gnn"
     reports_innovation = True
 
-    def associate(self, design: MultiTargetDesign, x, P, H, S, nu, d2, gated) -> ScanAssociation:
-        f = design.track_filter
-        _, det = symmetric_2x2_inverse(S) if S.shape[-1] == 2 else (None, np.linalg.det(S))
-        log_det = np.log(np.where(det > 0, det, 1.0))
-        plot = gnn_assignment(d2 + log_det[..., None], gated, design.gate_chi2 + log_det)
-        hit = plot >= 0
-        if nu.shape[-2] == 0:  # a scan without plots: every track coasts
-            return ScanAssociation(x, P, hit, np.zeros(gated.shape[::2], bool), np.full(x.shape[:-1] + (2,), np.nan),
-                                   np.full(S.shape, np.nan), np.zeros(hit.shape, np.uint32))
-        run, slot = np.nonzero(hit)
-        picked = nu[run, slot, plot[run, slot]]                   # (hits, m): each hit track's plot
-        # the update of the tracks that took a plot only (the others coast on their prediction)
-        x_upd, P_upd, _ = f.update(x[run, slot], P[run, slot], H[run, slot], S[run, slot], picked)
-        x, P = x.copy(), P.copy()
-        x[run, slot], P[run, slot] = x_upd, P_upd
-        claimed = np.zeros(gated.shape[::2], bool)
-        claimed[run, plot[run, slot]] = True
-        innovation = np.full(x.shape[:-1] + (picked.shape[-1],), np.nan)
-        innovation[run, slot] = picked
-        covariance = np.where(hit[..., None, None], S, np.nan)
-        return ScanAssociation(x, P, hit, claimed, innovation, covariance, np.zeros(hit.shape, np.uint32))
+    def associate(self, design: MultiTargetDesign, x, P, H, S, nu, d2, gated, tentative) -> ScanAssociation:
+        return _nearest_neighbour_update(design, x, P, H, S, nu, d2, gated)
+
+
+def _nearest_neighbour_update(design: MultiTargetDesign, x, P, H, S, nu, d2, gated) -> ScanAssociation:
+    """The GNN assignment of ``gated`` pairs and the Kalman update of the tracks that took a plot."""
+    f = design.track_filter
+    _, det = symmetric_2x2_inverse(S) if S.shape[-1] == 2 else (None, np.linalg.det(S))
+    log_det = np.log(np.where(det > 0, det, 1.0))
+    plot = gnn_assignment(d2 + log_det[..., None], gated, design.gate_chi2 + log_det)
+    hit = plot >= 0
+    if nu.shape[-2] == 0:  # a scan without plots: every track coasts
+        return ScanAssociation(x, P, hit, np.zeros(gated.shape[::2], bool), np.full(x.shape[:-1] + (2,), np.nan),
+                               np.full(S.shape, np.nan), np.zeros(hit.shape, np.uint32))
+    run, slot = np.nonzero(hit)
+    picked = nu[run, slot, plot[run, slot]]                   # (hits, m): each hit track's plot
+    # the update of the tracks that took a plot only (the others coast on their prediction)
+    x_upd, P_upd, _ = f.update(x[run, slot], P[run, slot], H[run, slot], S[run, slot], picked)
+    x, P = x.copy(), P.copy()
+    x[run, slot], P[run, slot] = x_upd, P_upd
+    claimed = np.zeros(gated.shape[::2], bool)
+    claimed[run, plot[run, slot]] = True
+    innovation = np.full(x.shape[:-1] + (picked.shape[-1],), np.nan)
+    innovation[run, slot] = picked
+    covariance = np.where(hit[..., None, None], S, np.nan)
+    return ScanAssociation(x, P, hit, claimed, innovation, covariance, np.zeros(hit.shape, np.uint32))
 
 
 class JointProbabilistic:
-    """JPDA: marginal association probabilities per cluster from the one JPDA core, PDA update."""
+    """JPDA: marginal association probabilities per cluster from the one JPDA core, PDA update,
+    for the confirmed tracks; tentative ones by nearest neighbour on the plots left over."""
 
     name = "jpda_mt"
     reports_innovation = False
 
-    def associate(self, design: MultiTargetDesign, x, P, H, S, nu, d2, gated) -> ScanAssociation:
+    def associate(self, design: MultiTargetDesign, x, P, H, S, nu, d2, gated, tentative) -> ScanAssociation:
+        # Confirmed tracks share the plots in their gates by JPDA; tentative tracks (hypotheses
+        # from plots no track claimed, most of them clutter) take, by nearest neighbour, only
+        # plots outside every confirmed gate, as a separate initiator would: they never pull a
+        # confirmed track's probabilities, and clusters stay the size of real crossings.
+        confirmed_gated = gated & ~tentative[..., None]
+        step = self._jpda(design, x, P, H, S, nu, d2, confirmed_gated)
+        free = ~step.claimed
+        starting = gated & tentative[..., None] & free[:, None, :]
+        if not starting.any():
+            return step
+        nn = _nearest_neighbour_update(design, step.x, step.P, H, S, nu, d2, starting)
+        return ScanAssociation(nn.x, nn.P, step.hit | nn.hit, step.claimed | nn.claimed, None, None, step.flags)
+
+    def _jpda(self, design: MultiTargetDesign, x, P, H, S, nu, d2, gated) -> ScanAssociation:
+        """JPDA marginals of the tracks in ``gated`` and their PDA update."""
         f = design.track_filter
         _, det = symmetric_2x2_inverse(S) if S.shape[-1] == 2 else (None, np.linalg.det(S))
         ratio = gaussian_likelihood_ratio(d2, np.where(det > 0, det, 1.0), design.detection_probability,
@@ -275,7 +298,7 @@ def track_multi_target(range_m, bearing_rad, counts, times, design: MultiTargetD
             nu = f.innovations(np.where(valid[..., None], z, 0.0), z_pred)
             d2 = squared_distances(nu, S)
             gated = live[..., None] & valid[:, None, :] & (d2 <= design.gate_chi2)
-            step = association.associate(design, x, P, H, S, nu, d2, gated)
+            step = association.associate(design, x, P, H, S, nu, d2, gated, slots.life.tentative[:, :top])
             slots.x[:, :top] = np.where(live[..., None], step.x, slots.x[:, :top])
             slots.P[:, :top] = np.where(live[..., None, None], step.P, slots.P[:, :top])
             hit = _pad(step.hit & live, alive.shape[1], False)
