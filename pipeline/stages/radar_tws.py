@@ -93,9 +93,10 @@ class RadarTwsStage(Stage):
         state, ids = identity_slots(state, ids, counts, TRUTH, dataset.path)
         return _fit_runs_scans(state, plot_counts.shape), _fit_runs_scans(ids, plot_counts.shape, -1)
 
-    # HOTA's distance scale d₀ and GOSPA's switch penalty γ default to the cut-off c
+    # HOTA's distance scale d₀ and GOSPA's switch penalty γ default to the cut-off c, the SIAP
+    # gate to the assignment gate
     evaluation_defaults = {"ospa_cutoff_m": 1000.0, "ospa_order": 2.0, "assignment_gate_m": 500.0,
-                           "hota_distance_m": 1000.0, "gospa_switch_penalty_m": 1000.0}
+                           "hota_distance_m": 1000.0, "gospa_switch_penalty_m": 1000.0, "siap_gate_m": 500.0}
     report_metrics = ("rmse_position_m", "rmse_velocity_mps", "npe", "alpha_cross")
     report_lines = {"npe": [1.0]}  # NPE ≥ 1: no better than the raw plots
 
