@@ -28,7 +28,6 @@ numpy and the mcap packages.
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 from pathlib import Path
@@ -202,16 +201,8 @@ def write_json_radar_many(path: Path) -> int:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parents[1] / "data" / "samples",
-                    help="folder to write into (default: data/samples)")
-    args = ap.parse_args()
-    args.out.mkdir(parents=True, exist_ok=True)
-    for name, write in (("ros2_radar_many.mcap", write_ros2_radar_many),
-                        ("json_radar_many.mcap", write_json_radar_many)):
-        n = write(args.out / name)
-        print(f"wrote {args.out / name}: {n} messages")
-    return 0
+    return _BASE.write_samples(__doc__.split("\n")[0], (("ros2_radar_many.mcap", write_ros2_radar_many),
+                                                        ("json_radar_many.mcap", write_json_radar_many)))
 
 
 if __name__ == "__main__":

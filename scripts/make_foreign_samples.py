@@ -125,17 +125,23 @@ def write_json_positions(path: Path) -> int:
     return len(rows)
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+def write_samples(description: str, writers) -> int:
+    """The command line of a sample generator: ``--out FOLDER`` (default data/samples), then each
+    ``(file name, writer)`` of ``writers`` writes its file there and says how many messages."""
+    ap = argparse.ArgumentParser(description=description)
     ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parents[1] / "data" / "samples",
                     help="folder to write into (default: data/samples)")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
-    n = write_ros2_radar(args.out / "ros2_radar.mcap")
-    print(f"wrote {args.out / 'ros2_radar.mcap'}: {n} messages")
-    n = write_json_positions(args.out / "json_positions.mcap")
-    print(f"wrote {args.out / 'json_positions.mcap'}: {n} messages")
+    for name, write in writers:
+        n = write(args.out / name)
+        print(f"wrote {args.out / name}: {n} messages")
     return 0
+
+
+def main() -> int:
+    return write_samples(__doc__.split("\n")[0], (("ros2_radar.mcap", write_ros2_radar),
+                                                  ("json_positions.mcap", write_json_positions)))
 
 
 if __name__ == "__main__":

@@ -109,3 +109,25 @@ def replay_without_truth(tmp_path):
     """``replay_without_truth(scenario, seed, options)`` → ``(result, tracks.mcap)`` of replaying a
     simulated data set with its truth left out."""
     return lambda scenario, seed, options=(): _replay_without_truth(tmp_path, scenario, seed, options)
+
+
+def assert_mapped_recording_refused(folder, how: str, case: str, named: str, fragments) -> None:
+    """``in.mcap`` with ``map.toml`` in ``folder`` (the working folder), converted (``how`` =
+    "convert") or replayed ("replay"), is refused with one line ``replay: error: <named>: …``
+    holding every fragment, exit 2, no traceback, the inputs unchanged and no output written."""
+    from click.testing import CliRunner
+
+    from pipeline.face.cli import main
+
+    before = {p.name: p.read_bytes() for p in folder.iterdir() if p.is_file()}
+    args = (["convert", "mcap", "in.mcap", "--map", "map.toml", "-o", "out.mcap"] if how == "convert"
+            else ["in.mcap", "--map", "map.toml", "--no-rrd"])
+    res = CliRunner().invoke(main, args)
+    errors = [line for line in res.stderr.splitlines() if line.strip()]
+    assert res.exit_code == 2, (case, res.output)
+    assert len(errors) == 1 and errors[0].startswith(f"replay: error: {named}: "), (case, res.stderr)
+    for fragment in fragments:
+        assert fragment in errors[0], (case, errors[0])
+    assert "Traceback" not in res.output and isinstance(res.exception, SystemExit)
+    assert {p.name: p.read_bytes() for p in folder.iterdir() if p.is_file()} == before  # inputs kept, no output
+    assert not (folder / "replay-out").exists() or not any((folder / "replay-out").rglob("tracks.mcap"))
