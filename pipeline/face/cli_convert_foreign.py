@@ -49,8 +49,10 @@ def convert_mcap_cmd(src, map_path, output, sets, force):
     item of `items` (or from the message when there is none). Units: m km cm mm ft nmi mi,
     rad mrad deg, s ms us ns, Hz kHz MHz GHz, m/s km/h kn ft/s, m/s2 ft/s2 g, rad/s deg/s, 1;
     values are converted to the column's unit (its name's suffix). Each message is one scan
-    of its run, so times must increase from message to message. Decoders: cdr with a ros2msg
-    schema (mcap_ros2), protobuf (mcap_protobuf), json. See docs/importers.md.
+    of its run, so times must increase from message to message. A radar recording of many
+    targets adds a [truth] table (its own topic, time and items; truth_id and the four truth_*
+    columns), matched to the scans by time. Decoders: cdr with a ros2msg schema (mcap_ros2),
+    protobuf (mcap_protobuf), json. See docs/importers.md.
 
     \b
     Example:
