@@ -221,3 +221,19 @@ def test_innovation_bearings_are_wrapped_as_wrap_angle_does():
     expected = wrap_angle(z[..., None, :, 1] - z_pred[..., :, None, 1])
     np.testing.assert_allclose(nu[..., 1], expected, rtol=0, atol=1e-12)
     assert np.all(nu[..., 1] >= -np.pi) and np.all(nu[..., 1] < np.pi)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_clustered_marginals_equal_the_joint_recursion_over_every_track_and_peak(seed):
+    """The clustered path's fast forms (a lone track in closed form; each cluster on its own
+    peaks) against the plain recursion over all tracks and all peaks of the scan at once."""
+    rng = np.random.default_rng(seed)
+    R, T, m = 4, 8, 14
+    ratio = rng.exponential(1.0, (R, T, m))
+    gated = rng.random((R, T, m)) < 0.12               # sparse: singletons, pairs, a few larger clusters
+    miss = rng.uniform(0.05, 1.0, (R, T))
+    beta, beta0, split = joint_association_probabilities(ratio, miss, gated, rng.random((R, T)), 12, clustering=True)
+    plain, plain0 = association_marginals(np.where(gated, ratio, 0.0), miss)
+    assert not split.any()
+    np.testing.assert_allclose(beta, plain, rtol=1e-10, atol=1e-13)
+    np.testing.assert_allclose(beta0, plain0, rtol=1e-10, atol=1e-13)
