@@ -21,7 +21,7 @@ from pipeline.cores.association.jpda import (
     pda_update_gaussian,
 )
 from pipeline.cores.filters.kalman import kalman_gain, kf_update
-from pipeline.cores.filters.track_filter import PolarConstantVelocityEKF, squared_distances
+from pipeline.cores.filters.track_filter import PolarConstantVelocityEKF, squared_distances, wrap_angle
 
 
 def _closure_labels(gated):
@@ -148,13 +148,14 @@ def test_ekf_update_is_the_one_kalman_update_on_the_linearised_model():
 
 
 @settings(max_examples=80, deadline=None)
-@given(st.integers(1, 5), st.integers(0, 5), st.integers(0, 2**31))
-def test_gnn_assignment_is_the_cheapest_gated_assignment(T, W, seed):
+@given(T=st.integers(1, 5), W=st.integers(0, 5), seed=st.integers(0, 2**31))
+@pytest.mark.parametrize("sparse", [True, False])
+def test_gnn_assignment_is_the_cheapest_gated_assignment(T, W, seed, sparse):
     rng = np.random.default_rng(seed)
     cost = rng.uniform(0, 10, (1, T, W))
     gated = rng.random((1, T, W)) < 0.6
     miss = rng.uniform(2, 8, (1, T))
-    plot = gnn_assignment(cost, gated, miss)[0]
+    plot = gnn_assignment(cost, gated, miss, sparse=sparse)[0]
     assert len(set(plot[plot >= 0])) == (plot >= 0).sum()
     assert all(gated[0, t, p] for t, p in enumerate(plot) if p >= 0)
 
@@ -201,11 +202,11 @@ def test_ukf_sigma_points_carry_the_mean_and_covariance_exactly_through_a_linear
 
 
 def test_squared_distances_written_out_equal_the_general_contraction():
-    from pipeline.cores.filters.track_filter import _squared_distances_2x2
+    from pipeline.cores.filters.track_filter import _squared_distance_2x2
 
     _, _, _, _, S, nu, _ = _radar_scene(5, tracks=6, plots=9)
     general = np.einsum("...wi,...ij,...wj->...w", nu, np.linalg.inv(S), nu)
-    np.testing.assert_allclose(_squared_distances_2x2(nu, S), general, rtol=1e-9)
+    np.testing.assert_allclose(_squared_distance_2x2(nu, S[..., None, :, :]), general, rtol=1e-9)
 
 
 def test_innovation_bearings_are_wrapped_as_wrap_angle_does():
@@ -237,3 +238,91 @@ def test_clustered_marginals_equal_the_joint_recursion_over_every_track_and_peak
     assert not split.any()
     np.testing.assert_allclose(beta, plain, rtol=1e-10, atol=1e-13)
     np.testing.assert_allclose(beta0, plain0, rtol=1e-10, atol=1e-13)
+
+
+class _Cartesian(PolarConstantVelocityEKF):
+    """The same filter with its windows along range, a component that does not wrap."""
+
+    window_component = 0
+    window_period = None
+
+
+@settings(max_examples=80, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), runs=st.integers(1, 4), tracks=st.integers(0, 12),
+       plots=st.integers(0, 30), spread_rad=st.sampled_from([1e-4, 0.05, 1.0, 3.0, 10.0]),
+       near_the_cut=st.booleans(), cartesian=st.booleans())
+def test_gating_through_windows_gives_every_pair_the_definition_gives(seed, runs, tracks, plots, spread_rad,
+                                                                     near_the_cut, cartesian):
+    """The coarse windows (sorted plots, a binary search per track, wrapping at ±π) find exactly
+    the pairs of every track against every plot, in the same order, with the same d²; gates
+    from slivers to wider than the circle, bearings on both sides of ±π, empty slots and padding."""
+    from pipeline.cores.association.gating import gate_pairs
+
+    rng = np.random.default_rng(seed)
+    f = (_Cartesian if cartesian else PolarConstantVelocityEKF)(1.0, 20.0, np.deg2rad(0.2), 100.0)
+    centre = np.pi if near_the_cut else 0.0
+    z = np.stack([rng.uniform(1e3, 3e3, (runs, plots)),
+                  wrap_angle(centre + rng.uniform(-0.2, 0.2, (runs, plots)))], axis=-1)
+    valid = rng.random((runs, plots)) < 0.8
+    z = np.where(valid[..., None], z, np.nan)
+    z_pred = np.stack([rng.uniform(1e3, 3e3, (runs, tracks)),
+                       wrap_angle(centre + rng.uniform(-0.2, 0.2, (runs, tracks)))], axis=-1)
+    sd = np.stack([rng.uniform(10, 800, (runs, tracks)), rng.uniform(0.1, 1.0, (runs, tracks)) * spread_rad],
+                  axis=-1)
+    rho = rng.uniform(-0.9, 0.9, (runs, tracks))
+    S = np.empty((runs, tracks, 2, 2))
+    S[..., 0, 0], S[..., 1, 1] = sd[..., 0] ** 2, sd[..., 1] ** 2
+    S[..., 0, 1] = S[..., 1, 0] = rho * sd[..., 0] * sd[..., 1]
+    live = rng.random((runs, tracks)) < 0.85
+    plain = gate_pairs(f, z, valid, z_pred, S, 16.0, live, windows=False)
+    fast = gate_pairs(f, z, valid, z_pred, S, 16.0, live, windows=True)
+    np.testing.assert_array_equal(fast.plot, plain.plot)
+    np.testing.assert_array_equal(fast.squared_distance, plain.squared_distance)
+    np.testing.assert_array_equal(fast.innovation, plain.innovation)
+    assert fast.plots == plain.plots == plots
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), runs=st.integers(1, 4), tracks=st.integers(1, 10), peaks=st.integers(0, 14),
+       density=st.sampled_from([0.05, 0.15, 0.4]), max_cluster=st.integers(2, 12))
+def test_jpda_from_pairs_equals_the_dense_layout(seed, runs, tracks, peaks, density, max_cluster):
+    """The pair-driven JPDA (sparse components, each group on its own peaks) gives the β, β₀ and
+    cut flags of the dense ``(R, T, m)`` clustered path, clusters cut or whole."""
+    from pipeline.cores.association.jpda import pair_association_probabilities
+
+    rng = np.random.default_rng(seed)
+    ratio = rng.exponential(1.0, (runs, tracks, peaks))
+    gated = rng.random((runs, tracks, peaks)) < density
+    miss = rng.uniform(0.05, 1.0, (runs, tracks))
+    bearing = rng.random((runs, tracks))
+    beta, beta0, split = joint_association_probabilities(ratio, miss, gated, bearing, max_cluster, clustering=True)
+    run, trk, peak = np.nonzero(gated)
+    b, b0, cut = pair_association_probabilities(ratio[run, trk, peak], run * tracks + trk, run * peaks + peak,
+                                                miss.ravel(), bearing.ravel(), max_cluster)
+    np.testing.assert_allclose(b, beta[run, trk, peak], rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(b0.reshape(runs, tracks), beta0, rtol=1e-12, atol=1e-15)
+    np.testing.assert_array_equal(cut.reshape(runs, tracks), split)
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), runs=st.integers(1, 5), tracks=st.integers(0, 12), plots=st.integers(0, 12),
+       density=st.sampled_from([0.05, 0.2, 0.6]))
+def test_gnn_assignment_on_the_gated_pairs_equals_one_dense_problem_per_run(seed, runs, tracks, plots, density):
+    """The sparse form (lone pairs settled at once, the rest one matching over every run) picks
+    what linear_sum_assignment on each run's full matrix picks (costs of either sign)."""
+    rng = np.random.default_rng(seed)
+    cost = rng.uniform(-5, 10, (runs, tracks, plots))
+    gated = rng.random((runs, tracks, plots)) < density
+    miss = rng.uniform(-2, 8, (runs, tracks))
+    np.testing.assert_array_equal(gnn_assignment(cost, gated, miss, sparse=True),
+                                  gnn_assignment(cost, gated, miss, sparse=False))
+
+
+def test_covariance_prediction_as_one_product_equals_F_P_Ft():
+    from pipeline.cores.filters.track_filter import _congruence, _cv_model
+
+    rng = np.random.default_rng(3)
+    F, _ = _cv_model(0.7, 5.0)
+    A = rng.normal(size=(3, 7, 4, 4))
+    P = A @ np.swapaxes(A, -1, -2)
+    np.testing.assert_allclose(_congruence(F, P), F @ P @ F.T, rtol=1e-13, atol=1e-13)

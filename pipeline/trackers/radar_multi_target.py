@@ -37,10 +37,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline import vocabulary as vocab
-from pipeline.cores.association.gnn import gnn_assignment
+from pipeline.cores.association.gating import GatedPairs, gate_pairs
+from pipeline.cores.association.gnn import pair_assignment
 from pipeline.cores.association.jpda import (
     gaussian_likelihood_ratio,
-    joint_association_probabilities,
+    pair_association_probabilities,
     pda_update_gaussian,
 )
 from pipeline.cores.association.track_management import ConfirmationRule, EndingRule, TrackLife
@@ -49,8 +50,8 @@ from pipeline.cores.filters.track_filter import (
     PolarConstantVelocityEKF,
     PolarConstantVelocityUKF,
     TrackFilter,
-    squared_distances,
     symmetric_2x2_inverse,
+    wrap_angle,
 )
 from pipeline.trackers.interface import Param, Tracker
 
@@ -116,6 +117,12 @@ class ScanAssociation:
     flags: np.ndarray
 
 
+def _det(S):
+    """``|S|`` of every track's innovation covariance (1 where not positive: an empty slot)."""
+    det = symmetric_2x2_inverse(S)[1] if S.shape[-1] == 2 else np.linalg.det(S)
+    return np.where(det > 0, det, 1.0)
+
+
 class GlobalNearestNeighbour:
     """GNN: the assignment minimising Σ νᵀS⁻¹ν + ln|S| over the pairs it makes plus, for a track
     left without a plot, the gate plus ln|S| (so a pair is taken only inside the gate)."""
@@ -123,29 +130,32 @@ class GlobalNearestNeighbour:
     name = "gnn"
     reports_innovation = True
 
-    def associate(self, design: MultiTargetDesign, x, P, H, S, nu, d2, gated, tentative) -> ScanAssociation:
-        return _nearest_neighbour_update(design, x, P, H, S, nu, d2, gated)
+    def associate(self, design: MultiTargetDesign, x, P, H, S, pairs: GatedPairs, tentative) -> ScanAssociation:
+        return _nearest_neighbour_update(design, x, P, H, S, pairs, pairs.inside)
 
 
-def _nearest_neighbour_update(design: MultiTargetDesign, x, P, H, S, nu, d2, gated) -> ScanAssociation:
-    """The GNN assignment of ``gated`` pairs and the Kalman update of the tracks that took a plot."""
+def _nearest_neighbour_update(design: MultiTargetDesign, x, P, H, S, pairs: GatedPairs, usable) -> ScanAssociation:
+    """The GNN assignment of the ``usable`` pairs and the Kalman update of the tracks that took a plot."""
     f = design.track_filter
-    _, det = symmetric_2x2_inverse(S) if S.shape[-1] == 2 else (None, np.linalg.det(S))
-    log_det = np.log(np.where(det > 0, det, 1.0))
-    plot = gnn_assignment(d2 + log_det[..., None], gated, design.gate_chi2 + log_det)
-    hit = plot >= 0
-    if nu.shape[-2] == 0:  # a scan without plots: every track coasts
-        return ScanAssociation(x, P, hit, np.zeros(gated.shape[::2], bool), np.full(x.shape[:-1] + (2,), np.nan),
-                               np.full(S.shape, np.nan), np.zeros(hit.shape, np.uint32))
-    run, slot = np.nonzero(hit)
-    picked = nu[run, slot, plot[run, slot]]                   # (hits, m): each hit track's plot
+    R, slots = x.shape[:2]
+    log_det = np.log(_det(S))
+    run, slot, k = np.nonzero(usable)
+    # the run axis folded into the track and plot indices: one problem, runs never sharing a plot
+    chosen = pair_assignment(pairs.squared_distance[run, slot, k] + log_det[run, slot], run * slots + slot,
+                             run * pairs.plots + pairs.plot[run, slot, k], (design.gate_chi2 + log_det).ravel())
+    run, slot, k = run[chosen], slot[chosen], k[chosen]
+    hit = np.zeros((R, slots), bool)
+    hit[run, slot] = True
+    claimed = np.zeros((R, pairs.plots), bool)
+    claimed[run, pairs.plot[run, slot, k]] = True
+    innovation = np.full(x.shape[:-1] + (f.measurement_size,), np.nan)
+    if run.size == 0:  # every track coasts
+        return ScanAssociation(x, P, hit, claimed, innovation, np.full(S.shape, np.nan), np.zeros(hit.shape, np.uint32))
+    picked = pairs.innovation[run, slot, k]                  # (hits, m): each hit track's plot
     # the update of the tracks that took a plot only (the others coast on their prediction)
     x_upd, P_upd, _ = f.update(x[run, slot], P[run, slot], H[run, slot], S[run, slot], picked)
     x, P = x.copy(), P.copy()
     x[run, slot], P[run, slot] = x_upd, P_upd
-    claimed = np.zeros(gated.shape[::2], bool)
-    claimed[run, plot[run, slot]] = True
-    innovation = np.full(x.shape[:-1] + (picked.shape[-1],), np.nan)
     innovation[run, slot] = picked
     covariance = np.where(hit[..., None, None], S, np.nan)
     return ScanAssociation(x, P, hit, claimed, innovation, covariance, np.zeros(hit.shape, np.uint32))
@@ -158,42 +168,54 @@ class JointProbabilistic:
     name = "jpda_mt"
     reports_innovation = False
 
-    def associate(self, design: MultiTargetDesign, x, P, H, S, nu, d2, gated, tentative) -> ScanAssociation:
+    def associate(self, design: MultiTargetDesign, x, P, H, S, pairs: GatedPairs, tentative) -> ScanAssociation:
         # Confirmed tracks share the plots in their gates by JPDA; tentative tracks (hypotheses
         # from plots no track claimed, most of them clutter) take, by nearest neighbour, only
         # plots outside every confirmed gate, as a separate initiator would: they never pull a
         # confirmed track's probabilities, and clusters stay the size of real crossings.
-        confirmed_gated = gated & ~tentative[..., None]
-        step = self._jpda(design, x, P, H, S, nu, d2, confirmed_gated)
-        free = ~step.claimed
-        starting = gated & tentative[..., None] & free[:, None, :]
+        step = self._jpda(design, x, P, H, S, pairs, pairs.inside & ~tentative[..., None])
+        free = ~step.claimed[np.arange(x.shape[0])[:, None, None], np.maximum(pairs.plot, 0)]
+        starting = pairs.inside & tentative[..., None] & free
         if not starting.any():
             return step
-        nn = _nearest_neighbour_update(design, step.x, step.P, H, S, nu, d2, starting)
+        nn = _nearest_neighbour_update(design, step.x, step.P, H, S, pairs, starting)
         return ScanAssociation(nn.x, nn.P, step.hit | nn.hit, step.claimed | nn.claimed, None, None, step.flags)
 
-    def _jpda(self, design: MultiTargetDesign, x, P, H, S, nu, d2, gated) -> ScanAssociation:
-        """JPDA marginals of the tracks in ``gated`` and their PDA update."""
+    def _jpda(self, design: MultiTargetDesign, x, P, H, S, pairs: GatedPairs, usable) -> ScanAssociation:
+        """JPDA marginals of the ``usable`` pairs and the PDA update of their tracks."""
         f = design.track_filter
-        _, det = symmetric_2x2_inverse(S) if S.shape[-1] == 2 else (None, np.linalg.det(S))
-        ratio = gaussian_likelihood_ratio(d2, np.where(det > 0, det, 1.0), design.detection_probability,
-                                          design.clutter_density)
-        miss = np.full(gated.shape[:-1], 1.0 - design.detection_probability * design.gate_probability)
-        # the order in which a cluster too large to solve whole is cut: around the radar, by bearing
-        order = np.arctan2(x[..., 1], x[..., 0])
-        beta, beta0, split = joint_association_probabilities(ratio, miss, gated, order, design.max_cluster_tracks)
+        R, slots = x.shape[:2]
+        ratio = gaussian_likelihood_ratio(pairs.squared_distance, _det(S),
+                                          design.detection_probability, design.clutter_density)
+        run, slot, k = np.nonzero(usable)
+        plot = pairs.plot[run, slot, k]
+        # the run axis folded into the track and plot indices: one problem, runs never sharing a plot
+        beta_flat, beta0_flat, split_flat = pair_association_probabilities(
+            ratio[run, slot, k], run * slots + slot, run * pairs.plots + plot,
+            np.full(R * slots, 1.0 - design.detection_probability * design.gate_probability),
+            # the order in which a cluster too large to solve whole is cut: around the radar, by bearing
+            np.arctan2(x[..., 1], x[..., 0]).ravel(), design.max_cluster_tracks)
+        beta = np.zeros(usable.shape)
+        beta[run, slot, k] = beta_flat
+        beta0 = beta0_flat.reshape(R, slots)
         # every track with a plot in its gate takes the PDA update (weighted by its β); for its
         # life, a hit only when a plot is more likely than not its own: a lost track whose gate
         # has grown over clutter keeps coasting towards deletion instead of living on clutter
-        run, slot = np.nonzero(gated.any(axis=-1))
-        hit = gated.any(axis=-1) & (beta0 < 0.5)
+        in_gate = usable.any(axis=-1)
+        hit = in_gate & (beta0 < 0.5)
+        claimed = np.zeros((R, pairs.plots), bool)
+        claimed[run, plot] = True
+        flags = np.where(split_flat.reshape(R, slots), vocab.CLUSTER_SPLIT, 0).astype(np.uint32)
+        if not in_gate.any():
+            return ScanAssociation(x, P, hit, claimed, None, None, flags)
+        run, slot = np.nonzero(in_gate)
         K, _ = kalman_gain(P[run, slot], H[run, slot], f.measurement_covariance(x))
-        x_upd, P_upd, _ = pda_update_gaussian(x[run, slot], P[run, slot], K, S[run, slot], nu[run, slot],
-                                              gated[run, slot], beta[run, slot], beta0[run, slot])
+        x_upd, P_upd, _ = pda_update_gaussian(x[run, slot], P[run, slot], K, S[run, slot],
+                                              pairs.innovation[run, slot], usable[run, slot], beta[run, slot],
+                                              beta0[run, slot])
         x, P = x.copy(), P.copy()
         x[run, slot], P[run, slot] = x_upd, P_upd
-        flags = np.where(split, vocab.CLUSTER_SPLIT, 0).astype(np.uint32)
-        return ScanAssociation(x, P, hit, gated.any(axis=-2), None, None, flags)
+        return ScanAssociation(x, P, hit, claimed, None, None, flags)
 
 
 ASSOCIATIONS = {a.name: a for a in (GlobalNearestNeighbour(), JointProbabilistic())}
@@ -277,6 +299,7 @@ def track_multi_target(range_m, bearing_rad, counts, times, design: MultiTargetD
     """
     f = design.track_filter
     R, K = counts.shape
+    bearing_rad = wrap_angle(bearing_rad)  # a recording's bearings may run over [0, 2π) or beyond
     slots = _Slots(R, design)
     scans = []
     for k in range(K):
@@ -295,10 +318,8 @@ def track_multi_target(range_m, bearing_rad, counts, times, design: MultiTargetD
             live = alive[:, :top]
             x, P = f.predict(slots.x[:, :top], slots.P[:, :top], float(times[k] - times[k - 1]))
             z_pred, H, S = f.predict_measurement(x, P)
-            nu = f.innovations(np.where(valid[..., None], z, 0.0), z_pred)
-            d2 = squared_distances(nu, S)
-            gated = live[..., None] & valid[:, None, :] & (d2 <= design.gate_chi2)
-            step = association.associate(design, x, P, H, S, nu, d2, gated, slots.life.tentative[:, :top])
+            pairs = gate_pairs(f, z, valid, z_pred, S, design.gate_chi2, live)
+            step = association.associate(design, x, P, H, S, pairs, slots.life.tentative[:, :top])
             slots.x[:, :top] = np.where(live[..., None], step.x, slots.x[:, :top])
             slots.P[:, :top] = np.where(live[..., None, None], step.P, slots.P[:, :top])
             hit = _pad(step.hit & live, alive.shape[1], False)

@@ -13,9 +13,11 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import min_weight_full_bipartite_matching
 
 
-def gnn_assignment(cost, gated, miss_cost):
+def gnn_assignment(cost, gated, miss_cost, sparse: bool = True):
     """The GNN assignment of one scan, for every leading batch element (e.g. every run).
 
     Parameters
@@ -26,6 +28,11 @@ def gnn_assignment(cost, gated, miss_cost):
         Pairs allowed (plot inside the track's gate).
     miss_cost : float or ndarray (..., T)
         Cost of track t taking no plot.
+    sparse : bool
+        Solve every batch element at once on the gated pairs alone
+        (:func:`_gnn_assignment_sparse`, the same assignment); False solves each batch element
+        with :func:`scipy.optimize.linear_sum_assignment` on its tracks × (plots + misses)
+        matrix, as written below.
 
     Returns
     -------
@@ -36,32 +43,87 @@ def gnn_assignment(cost, gated, miss_cost):
     gated = np.asarray(gated, bool)
     lead, (T, W) = cost.shape[:-2], cost.shape[-2:]
     miss = np.broadcast_to(np.asarray(miss_cost, float), lead + (T,))
-    plot = np.full(lead + (T,), -1, np.int64)
     if T == 0 or W == 0:
-        return plot
-    flat_cost, flat_gated = cost.reshape(-1, T, W), gated.reshape(-1, T, W)
-    flat_miss, flat_plot = miss.reshape(-1, T), plot.reshape(-1, T)
-    # a track with one gated plot that no other track gates takes it when cheaper than a miss:
-    # no assignment problem to solve (the common case away from crossings and clutter)
-    per_track, per_plot = flat_gated.sum(axis=2), flat_gated.sum(axis=1)
-    for b in range(flat_cost.shape[0]):
-        rows = np.flatnonzero(per_track[b] > 0)
-        if rows.size == 0:
-            continue
-        g = flat_gated[b][rows]
-        cols = np.flatnonzero(g.any(axis=0))
-        g = g[:, cols]
-        c = flat_cost[b][np.ix_(rows, cols)]
-        if (per_track[b][rows] == 1).all() and (per_plot[b][cols] == 1).all():
-            j = np.argmax(g, axis=1)
-            take = c[np.arange(rows.size), j] < flat_miss[b][rows]
-            flat_plot[b, rows[take]] = cols[j[take]]
-            continue
-        n = rows.size
-        big = np.full((n, cols.size + n), np.inf)
-        big[:, :cols.size] = np.where(g, c, np.inf)
-        big[np.arange(n), cols.size + np.arange(n)] = flat_miss[b][rows]
+        return np.full(lead + (T,), -1, np.int64)
+    if sparse:
+        return _gnn_assignment_sparse(cost.reshape(-1, T, W), gated.reshape(-1, T, W), miss.reshape(-1, T)).reshape(
+            lead + (T,))
+    plot = np.full(lead + (T,), -1, np.int64)
+    flat_plot = plot.reshape(-1, T)
+    for b, (c, g, m) in enumerate(zip(cost.reshape(-1, T, W), gated.reshape(-1, T, W), miss.reshape(-1, T))):
+        big = np.full((T, W + T), np.inf)
+        big[:, :W] = np.where(g, c, np.inf)
+        big[np.arange(T), W + np.arange(T)] = m
         r, k = linear_sum_assignment(big)
-        real = k < cols.size
-        flat_plot[b, rows[r[real]]] = cols[k[real]]
+        real = k < W
+        flat_plot[b, r[real]] = k[real]
     return plot
+
+
+def _gnn_assignment_sparse(cost, gated, miss):
+    """:func:`gnn_assignment` of ``(B, T, W)`` problems through their gated pairs only
+    (:func:`pair_assignment`, the batch axis folded into the track and plot indices)."""
+    B, T, W = cost.shape
+    plot = np.full((B, T), -1, np.int64)
+    b, t, w = np.nonzero(gated)
+    chosen = pair_assignment(cost[b, t, w], b * T + t, b * W + w, miss.reshape(-1))
+    plot[b[chosen], t[chosen]] = w[chosen]
+    return plot
+
+
+def pair_assignment(cost, track, plot, miss):
+    """The GNN assignment from the gated track–plot pairs alone.
+
+    A track whose one gated plot no other track gates is a problem of its own: it takes the plot
+    when cheaper than a miss. The other tracks form one sparse bipartite graph (their gated
+    pairs, plus one "miss" column per track) whose minimum-weight matching of every track
+    (:func:`scipy.sparse.csgraph.min_weight_full_bipartite_matching`) is the assignment; separate
+    problems (runs) share no vertex, so one matching solves them all. Costs are shifted per track
+    to be positive (a sparse graph has no zero-weight edge); a constant added to all of one
+    track's options changes no optimum, as the track takes exactly one of them.
+
+    Parameters
+    ----------
+    cost : ndarray (E,)
+        Cost of each gated pair.
+    track : ndarray of int (E,)
+        Its track, 0 … N − 1.
+    plot : ndarray of int (E,)
+        Its plot (any non-negative integers; a plot shared by tracks has one number).
+    miss : ndarray (N,)
+        Cost of each track taking no plot.
+
+    Returns
+    -------
+    chosen : ndarray of bool (E,)
+        The pairs of the assignment.
+    """
+    cost, track, plot = np.asarray(cost, float), np.asarray(track, np.int64), np.asarray(plot, np.int64)
+    chosen = np.zeros(cost.size, bool)
+    if cost.size == 0:
+        return chosen
+    _, plot = np.unique(plot, return_inverse=True)
+    plot = plot.ravel()
+    alone = (np.bincount(track)[track] == 1) & (np.bincount(plot)[plot] == 1)
+    chosen[alone] = cost[alone] < miss[track[alone]]
+    rest = np.flatnonzero(~alone)
+    if rest.size == 0:
+        return chosen
+    rows, row = np.unique(track[rest], return_inverse=True)
+    cols, col = np.unique(plot[rest], return_inverse=True)
+    n, row, col, c = rows.size, row.ravel(), col.ravel(), cost[rest]
+    row_miss = miss[rows]
+    low = row_miss.copy()
+    np.minimum.at(low, row, c)
+    shift = 1.0 - low
+    graph = csr_matrix((np.concatenate([c + shift[row], row_miss + shift]),
+                        (np.concatenate([row, np.arange(n)]), np.concatenate([col, cols.size + np.arange(n)]))),
+                       shape=(n, cols.size + n))
+    r, k = min_weight_full_bipartite_matching(graph)
+    real = k < cols.size
+    # the edge of each matched (row, column): rows of a matching are distinct, so one per row
+    match_col = np.full(n, -1, np.int64)
+    match_col[r[real]] = k[real]
+    mine = match_col[row] == col
+    chosen[rest[mine]] = True
+    return chosen

@@ -387,16 +387,16 @@ def joint_association_probabilities(ratio: np.ndarray, miss: np.ndarray, gated: 
                                                        predicted_bearing, max_cluster_tracks, clustering)
         full[..., somewhere] = b
         return full, b0, split
+    g = gated
     if m > COMPRESS_PEAKS:
         # Only peaks inside some gate matter: move them to the front and drop the rest, so
         # hundreds of peaks in a scan cost what the few gated ones cost.
         any_gate = gated.any(axis=1)
         width = int(any_gate.sum(axis=1).max())
-        cols = np.argsort(~any_gate, axis=1, kind="stable")[:, :width]
-        g = np.take_along_axis(gated, cols[:, None, :], axis=2)
-        r = np.take_along_axis(r, cols[:, None, :], axis=2)
-    else:
-        g = gated
+        if width < m:  # (with every peak in some gate of every run there is nothing to drop)
+            cols = np.argsort(~any_gate, axis=1, kind="stable")[:, :width]
+            g = np.take_along_axis(gated, cols[:, None, :], axis=2)
+            r = np.take_along_axis(r, cols[:, None, :], axis=2)
     if clustering is None:
         clustering = T > min(JOINT_WITHOUT_CLUSTERING, max_cluster_tracks)
     if not clustering and T <= max_cluster_tracks:
@@ -407,6 +407,102 @@ def joint_association_probabilities(ratio: np.ndarray, miss: np.ndarray, gated: 
         return b_c, beta0, split
     beta = np.zeros((R, T, m))
     np.put_along_axis(beta, np.broadcast_to(cols[:, None, :], b_c.shape), b_c, axis=2)
+    return beta, beta0, split
+
+
+def pair_association_probabilities(ratio, track, peak, miss, predicted_bearing, max_cluster_tracks: int = 12):
+    """:func:`joint_association_probabilities` from the gated track–peak pairs alone.
+
+    Many tracks, peaks and runs make the dense ``(R, T, m)`` layout mostly empty: each track
+    gates a few of a scan's peaks. Here only the gated pairs are given; tracks and peaks carry
+    global indices (fold a run axis in: ``run · T + track``). Clusters are the connected
+    components of the tracks-share-a-peak graph (:func:`scipy.sparse.csgraph.connected_components`),
+    cut as :func:`joint_association_probabilities` cuts them (in ``predicted_bearing`` order, at
+    most ``max_cluster_tracks`` tracks a group, flagged), and each group is solved by the same
+    recursion (:func:`association_marginals`) on its own peaks, all groups of one size in one
+    batch. tests/test_multitarget_trackers.py holds the two equal.
+
+    Parameters
+    ----------
+    ratio : ndarray (E,)
+        Likelihood ratio of each gated pair.
+    track, peak : ndarray of int (E,)
+        The pair's track (0 … N − 1) and peak (any non-negative integers).
+    miss : ndarray (N,)
+    predicted_bearing : ndarray (N,)
+        Orders the tracks of a cluster that has to be cut.
+    max_cluster_tracks : int
+
+    Returns
+    -------
+    beta : ndarray (E,)
+        β of each pair.
+    beta0 : ndarray (N,)
+    split : ndarray of bool (N,)
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    N = miss.shape[0]
+    beta, beta0, split = np.zeros(ratio.shape), np.ones(N), np.zeros(N, bool)
+    if ratio.size == 0:
+        return beta, beta0, split
+    peaks, peak_local = np.unique(peak, return_inverse=True)
+    peak_local = peak_local.ravel()
+    # tracks are nodes 0 … N − 1, peaks N … N + M − 1; an edge per gated pair
+    M = peaks.size
+    graph = coo_matrix((np.ones(ratio.size), (track, N + peak_local)), shape=(N + M, N + M))
+    _, label = connected_components(graph, directed=False)
+    tracks = np.unique(track)
+    # order the tracks of each cluster as the dense form does: by predicted bearing, then index
+    order = tracks[np.lexsort((tracks, predicted_bearing[tracks], label[tracks]))]
+    cluster = label[order]
+    new_cluster = np.r_[True, cluster[1:] != cluster[:-1]]
+    cluster_start = np.flatnonzero(new_cluster)
+    cluster_id = np.cumsum(new_cluster) - 1
+    cluster_size = np.diff(np.r_[cluster_start, order.size])
+    rank = np.arange(order.size) - cluster_start[cluster_id]
+    too_big = cluster_size[cluster_id] > max_cluster_tracks
+    split[order[too_big]] = True
+    new_group = new_cluster | (too_big & (rank % max_cluster_tracks == 0))
+    group_start = np.flatnonzero(new_group)
+    group_size = np.diff(np.r_[group_start, order.size])
+    group_of = np.empty(N, np.int64)
+    group_of[order] = np.cumsum(new_group) - 1
+    slot_in_group = np.empty(N, np.int64)
+    slot_in_group[order] = np.arange(order.size) - group_start[group_of[order]]
+    # each group's own peaks, in peak order, numbered from 0
+    g = group_of[track]
+    by = np.lexsort((peak_local, g))
+    first_of_peak = np.r_[True, (g[by][1:] != g[by][:-1]) | (peak_local[by][1:] != peak_local[by][:-1])]
+    peak_number = np.cumsum(first_of_peak) - 1
+    group_first_peak = np.zeros(group_start.size, np.int64)
+    starts = np.r_[True, g[by][1:] != g[by][:-1]]
+    group_first_peak[g[by][starts]] = peak_number[starts]
+    column = np.empty(ratio.size, np.int64)
+    column[by] = peak_number - group_first_peak[g[by]]
+    width = np.zeros(group_start.size, np.int64)
+    np.maximum.at(width, g, column + 1)
+    for s in np.unique(group_size):
+        groups = np.flatnonzero(group_size == s)
+        index = np.full(group_start.size, -1, np.int64)
+        index[groups] = np.arange(groups.size)
+        w = int(width[groups].max())
+        mine = index[g] >= 0
+        r = np.zeros((groups.size, s, w))
+        r[index[g[mine]], slot_in_group[track[mine]], column[mine]] = ratio[mine]
+        members = order[group_start[groups][:, None] + np.arange(s)]      # (batch, s) tracks
+        mm = miss[members]
+        if s == 1:  # a track alone: β_j = r_j / (miss + Σ r), β₀ = miss / (miss + Σ r), no recursion
+            Z = mm + r.sum(axis=-1)
+            ok = Z > 0
+            Zs = np.where(ok, Z, 1.0)
+            bb = np.where(ok[..., None], r / Zs[..., None], 0.0)
+            b0 = np.where(ok, mm / Zs, 1.0)
+        else:
+            bb, b0 = association_marginals(r, mm)
+        beta[mine] = bb[index[g[mine]], slot_in_group[track[mine]], column[mine]]
+        beta0[members] = b0
     return beta, beta0, split
 
 
