@@ -326,3 +326,30 @@ def test_covariance_prediction_as_one_product_equals_F_P_Ft():
     A = rng.normal(size=(3, 7, 4, 4))
     P = A @ np.swapaxes(A, -1, -2)
     np.testing.assert_allclose(_congruence(F, P), F @ P @ F.T, rtol=1e-13, atol=1e-13)
+
+
+@pytest.mark.parametrize("name", ["gnn", "jpda_mt"])
+def test_bearings_given_over_zero_to_two_pi_track_as_the_same_plots_in_minus_pi_to_pi(name):
+    """A recording may give bearings over [0, 2π), or a turn beyond: the trackers see the same
+    plots and give the same tracks as with bearings in [−π, π)."""
+    from pipeline.trackers.interface import RadarPlots
+    from pipeline.trackers.radar_multi_target import TRACKERS
+    from recorders.radar_multi import simulate
+    from recorders.scenarios import load_scenario
+    from pipeline import vocabulary as vocab
+
+    params = dict(load_scenario("radar-multi").params, n_scans=25, sector_half_width_deg=180.0)
+    data = simulate(params, 2, 5)
+    values, counts = data.ragged[vocab.CHANNELS["radar_plots"]]
+    rng, brg = values["range_m"], values["bearing_rad"]
+    times = data.times_s if hasattr(data, "times_s") else np.arange(counts.shape[1]) * params["scan_period_s"]
+    tracker = {c.name: c for c in TRACKERS}[name](sigma_range_m=params["sigma_range_m"],
+                                                   sigma_bearing_deg=params["sigma_bearing_deg"],
+                                                   clutter_per_scan=params["clutter_per_scan"],
+                                                   sector_half_width_deg=180.0)
+    plain = tracker.track(RadarPlots(range_m=rng, bearing_rad=brg, counts=counts, times_s=times))
+    turned = np.where(brg < 0, brg + 2 * np.pi, brg + 4 * np.pi * (brg > 1.0))  # over [0, 2π) and turns beyond
+    assert (turned < 0).sum() == 0 and (turned > 4 * np.pi).any()
+    other = tracker.track(RadarPlots(range_m=rng, bearing_rad=turned, counts=counts, times_s=times))
+    np.testing.assert_array_equal(other["track_id"], plain["track_id"])
+    np.testing.assert_allclose(other["state"], plain["state"], rtol=1e-9, atol=1e-6)

@@ -5,14 +5,19 @@ loop (:func:`track_multi_target`) serves both; what differs is a small **associa
 
 ``gnn``      one optimal one-to-one assignment of tracks to plots per scan inside the χ² gates,
              "not detected" an option for every track (Blackman & Popoli 1999, ch. 6;
-             :func:`pipeline.cores.association.gnn.gnn_assignment`); a Kalman update with the
+             :func:`pipeline.cores.association.gnn.pair_assignment`); a Kalman update with the
              assigned plot.
 ``jpda_mt``  joint probabilistic data association (Fortmann, Bar-Shalom & Scheffe 1983): the
              marginal association probabilities of every confirmed track and gated plot from the
-             project's one JPDA core (:func:`pipeline.cores.association.jpda.joint_association_probabilities`,
-             exact per cluster of tracks sharing plots), then the PDA update
+             project's one JPDA core (:func:`pipeline.cores.association.jpda.pair_association_probabilities`:
+             exact per cluster of tracks sharing plots, from the gated pairs), then the PDA update
              (:func:`pipeline.cores.association.jpda.pda_update_gaussian`); tentative tracks take,
              by nearest neighbour, only plots outside every confirmed gate (a separate initiator).
+
+Both see a scan as the track–plot pairs inside the gates
+(:func:`pipeline.cores.association.gating.gate_pairs`), never as a dense track × plot matrix:
+hundreds of tracks meet hundreds of plots in a busy scan, yet each gates a few, and every run of
+a Monte Carlo set is one more block of the same sparse problem.
 
 Each track is filtered by a **per-track filter** object
 (:class:`pipeline.cores.filters.track_filter.PolarConstantVelocityEKF`: nearly-constant-velocity
