@@ -87,7 +87,7 @@ def _load_file_module(path: Path, spec: str):
     sys.modules[mod_name] = module
     try:
         module_spec.loader.exec_module(module)
-    except Exception as exc:
+    except (Exception, SystemExit) as exc:  # sys.exit() at import is the file's failure, not the tool's exit
         del sys.modules[mod_name]
         raise InputError(f"importing it raised {type(exc).__name__}: {exc}", path) from None
     return module
@@ -104,7 +104,7 @@ def load_spec(spec: str) -> type:
     else:
         try:
             module = importlib.import_module(target)
-        except Exception as exc:
+        except (Exception, SystemExit) as exc:
             raise InputError(f"--tracker {spec!r}: cannot import {target!r} ({type(exc).__name__}: {exc})") from None
         where = target
     if not hasattr(module, attr):
@@ -138,7 +138,7 @@ def _entry_point_entries() -> list[TrackerEntry]:
         where = f"entry point {ep.name} ({ep.value})"
         try:
             obj = ep.load()
-        except Exception as exc:
+        except (Exception, SystemExit) as exc:
             raise InputError(f"{where}: loading raised {type(exc).__name__}: {exc}") from None
         for cls in (obj if isinstance(obj, (list, tuple)) else [obj]):
             cls = _check_class(cls, where)

@@ -138,12 +138,20 @@ class Stage:
                 out[k] = _recorded_value(k, recorded[k], default) if k in recorded else default
             except InputError as exc:  # the file's metadata, not the command line, is at fault
                 raise InputError(f"scenario record: {exc.problem}", dataset.path) from None
+        derived = self.evaluation_defaults_from_data(dataset, out)
+        out.update({k: v for k, v in derived.items() if k not in recorded})
         for k, v in (overrides or {}).items():
             if k not in defaults:
                 raise InputError(f"unknown tracker parameter {k!r} (known: {', '.join(defaults)})")
             out[k] = coerce(k, v, defaults[k])
         self.check_design(out)
         return out
+
+    def evaluation_defaults_from_data(self, dataset, design: dict) -> dict:
+        """Evaluation design values that follow from the data set (its noise and geometry), in
+        place of the fixed :attr:`evaluation_defaults`; a value the file records or the command
+        line sets wins. None here: a family whose stage knows better says so."""
+        return {}
 
     # ranges (low, high), both exclusive, of the design values the stage itself uses; the
     # trackers check their own parameters
@@ -176,7 +184,7 @@ class Stage:
             return entry.cls(**values)
         except InputError:
             raise
-        except Exception as exc:
+        except (Exception, SystemExit) as exc:  # a tracker's sys.exit() is its failure, not the tool's exit
             raise TrackerError(f"tracker {entry.name!r}: constructing it raised {type(exc).__name__}: {exc}",
                                entry.source) from None
 

@@ -290,7 +290,7 @@ def call_tracker(tracker: Tracker, measurements, source: str | None = None) -> d
         for i in range(R):
             try:
                 out = tracker.track_run(measurements.run(i))
-            except Exception as exc:
+            except (Exception, SystemExit) as exc:  # sys.exit() in a tracker is its failure, not the tool's exit
                 raise TrackerError(f"tracker {name!r}: run {i}: raised {type(exc).__name__}: {exc}"
                                    f"{_where_raised(exc)}", where) from None
             if not isinstance(out, dict):
@@ -311,7 +311,7 @@ def call_tracker(tracker: Tracker, measurements, source: str | None = None) -> d
     else:
         try:
             outputs = tracker.track(measurements)
-        except Exception as exc:
+        except (Exception, SystemExit) as exc:  # sys.exit() in a tracker is its failure, not the tool's exit
             raise TrackerError(f"tracker {name!r}: raised {type(exc).__name__}: {exc}{_where_raised(exc)}",
                                where) from None
         if not isinstance(outputs, dict):

@@ -1,0 +1,55 @@
+"""A plugged tracker cannot decide the tool's exit (issue 30): ``sys.exit()`` in ``track()``, in
+its constructor or at import is that tracker's failure like any exception, one line and exit 2,
+and the built-ins' outputs are still written."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from pipeline.contract import read_dataset
+from pipeline.face.cli import main
+
+EXITING = '''
+import sys
+from pipeline.trackers.interface import Tracker
+
+class ExitsInTrack(Tracker):
+    name, family = "exits_in_track", "radar-plots"
+
+    def track(self, plots):
+        sys.exit({code})
+
+class ExitsWhenBuilt(Tracker):
+    name, family = "exits_when_built", "radar-plots"
+
+    def __init__(self, **design):
+        super().__init__(**design)
+        sys.exit({code})
+
+    def track(self, plots):
+        raise AssertionError("never reached")
+'''
+
+
+@pytest.mark.parametrize("code", [0, 3, "'bye'"])
+@pytest.mark.parametrize("cls", ["ExitsInTrack", "ExitsWhenBuilt"])
+def test_sys_exit_in_a_tracker_is_its_failure_and_the_others_are_written(runner, radar_small, tmp_path, cls, code):
+    (tmp_path / "exiting.py").write_text(EXITING.format(code=code))
+    res = runner.invoke(main, [str(radar_small), "--tracker", f"exiting.py:{cls}", "--no-rrd", "--out", "o/t.mcap",
+                               "--figures", "none"])
+    assert res.exit_code == 2, res.output
+    errors = [line for line in res.stderr.splitlines() if line.startswith("replay: error: ")]
+    assert len(errors) == 1 and "SystemExit" in errors[0] and "Traceback" not in res.output, res.output
+    assert "/tracks/radar/kalman" in read_dataset(Path("o/t.mcap")).channels
+
+
+@pytest.mark.parametrize("code", [0, 3])
+def test_sys_exit_at_import_is_one_line_naming_the_file(runner, radar_small, tmp_path, code):
+    (tmp_path / "exits_at_import.py").write_text(f"import sys\nsys.exit({code})\n")
+    res = runner.invoke(main, [str(radar_small), "--tracker", "exits_at_import.py:Nothing", "--no-rrd", "--out",
+                               "o/t.mcap", "--figures", "none"])
+    assert res.exit_code == 2, res.output
+    errors = [line for line in res.stderr.splitlines() if line.startswith("replay: error: ")]
+    assert len(errors) == 1 and "exits_at_import.py" in errors[0] and "SystemExit" in errors[0], res.output
