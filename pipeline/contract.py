@@ -67,6 +67,7 @@ import mcap.writer
 from mcap.writer import CompressionType, Writer
 
 from pipeline import __version__
+from pipeline import vocabulary as vocab
 from pipeline.errors import InputError
 
 CONTRACT_V1 = "replay.v1"
@@ -1677,6 +1678,8 @@ class _Collector:
         for topic in sorted(self.order, key=lambda t: channel_ids.get(t, 1 << 16)):
             out[topic] = self._v2(topic) if topic in self.v2 else self._v1(topic)
             _check_density(out[topic])
+            if topic in vocab.TIME_ORDERED:
+                _check_time_order(out[topic])
         return out
 
     def _v1(self, topic: str) -> ChannelData:
@@ -1705,6 +1708,19 @@ class _Collector:
         if index is not None:
             return ChannelData.of_blocks(index, columns, topic=topic, path=str(self.path))
         return ChannelData(run, scan, t, columns, topic=topic, path=str(self.path))
+
+
+def _check_time_order(ch: ChannelData) -> None:
+    """Refuse scan times that do not increase from scan to scan (a tracker's time step would be
+    zero or negative; the table importers refuse the same). Scans a channel does not hold are
+    skipped."""
+    t = ch.times()
+    t = t[np.isfinite(t)]
+    back = np.flatnonzero(np.diff(t) <= 0)
+    if back.size:
+        k = int(back[0])
+        raise InputError(f"{ch.topic}: scan times must increase, but a scan at {t[k + 1]:g} s follows one at "
+                         f"{t[k]:g} s", ch.path)
 
 
 def _check_density(ch: ChannelData) -> None:

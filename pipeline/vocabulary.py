@@ -33,6 +33,14 @@ CHANNELS = {
 }
 
 
+#: channels whose scans are instants of one recording, so their times must increase (a filter
+#: steps from one to the next); the emitter family's epochs each stand alone (a noise study's
+#: "scans" are noise levels at one instant) and may share a time
+TIME_ORDERED = frozenset(CHANNELS[k] for k in ("radar_plots", "radar_truth", "xcorr_peaks", "xcorr_truth",
+                                               "array_snapshots", "array_truth", "colored_measurements",
+                                               "colored_truth"))
+
+
 # --------------------------------------------------------------------------- values
 # What every input array may hold, declared once per channel and checked when a file is read
 # (pipeline.contract.check_values): the number kind (f float, c complex, i integer; a boolean

@@ -1,6 +1,7 @@
-"""A plugged tracker cannot decide the tool's exit (issue 30): ``sys.exit()`` in ``track()``, in
-its constructor or at import is that tracker's failure like any exception, one line and exit 2,
-and the built-ins' outputs are still written."""
+"""Nothing decided by accident (issue 30). A plugged tracker cannot decide the tool's exit:
+``sys.exit()`` in ``track()``, in its constructor or at import is that tracker's failure like any
+exception, one line and exit 2, and the built-ins' outputs are still written. Scan times that
+stall or go back are refused."""
 
 from __future__ import annotations
 
@@ -53,3 +54,28 @@ def test_sys_exit_at_import_is_one_line_naming_the_file(runner, radar_small, tmp
     assert res.exit_code == 2, res.output
     errors = [line for line in res.stderr.splitlines() if line.startswith("replay: error: ")]
     assert len(errors) == 1 and "exits_at_import.py" in errors[0] and "SystemExit" in errors[0], res.output
+
+
+@pytest.mark.parametrize("step", [0.0, -2.5])
+def test_scan_times_that_do_not_increase_are_refused_with_one_line(runner, tmp_path, step):
+    """A recording whose scan times stall or go back is refused as the importers refuse it: a
+    filter's time step would be zero or negative (issue 30: it was accepted silently)."""
+    import dataclasses
+
+    from pipeline.contract import scenario_metadata
+    from recorders.radar_tws import simulate
+    from recorders.scenarios import load_scenario
+    from recorders.simulated import write_simulated
+
+    params = load_scenario("radar-tws").params
+    data = simulate(params, 2, 1)
+    times = data.times.copy()
+    times[5] = times[4] + step
+    path = tmp_path / "back.mcap"
+    write_simulated(path, dataclasses.replace(data, times=times), scenario_metadata("radar-tws", params, 1))
+    before = path.read_bytes()
+    res = runner.invoke(main, [str(path), "--no-rrd", "--out", "o/t.mcap", "--figures", "none"])
+    assert res.exit_code == 2, res.output
+    errors = [line for line in res.stderr.splitlines() if line.startswith("replay: error: ")]
+    assert len(errors) == 1 and "back.mcap" in errors[0] and "scan times must increase" in errors[0], res.output
+    assert path.read_bytes() == before and not Path("o").exists()
