@@ -299,6 +299,17 @@ def test_colored_noise_missing_truth_frame_is_an_error(tmp_path, colored_frames)
     assert_one_line_error(invoke(p, "--no-rrd"), p, "/colored/truth has no frame for run 1 scan 5")
 
 
+def test_array_missing_truth_frame_is_named_as_such(tmp_path):
+    """A truth frame the file lacks is named as a missing frame, not as NaN values (issue 30)."""
+    from recorders.array_snapshots import simulate
+
+    params = dict(load_scenario("array-crossing").params, n_scans=12)
+    ch = frames_from_simulated(simulate(params, 2, 0))
+    ch["/array/truth"] = [f for f in ch["/array/truth"] if (f[0], f[1]) != (1, 5)]
+    p = write_frames(tmp_path / "gap.mcap", ch, scenario_metadata("array-crossing", params, 0))
+    assert_one_line_error(invoke(p, "--no-rrd"), p, "/array/truth has no frame for run 1 scan 5")
+
+
 @pytest.mark.parametrize("name", ["state", "alpha"])
 def test_colored_noise_nonfinite_truth(tmp_path, colored_frames, name):
     frames, params = colored_frames

@@ -91,6 +91,7 @@ class ArrayBearingStage(Stage):
         angles = truth.grid("angle_rad")
         if angles.shape[:2] != shape:
             raise InputError(f"{TRUTH} covers {angles.shape[:2]} run×scan, snapshots {shape}", dataset.path)
+        truth.require_every_frame(*shape)  # a gap is a missing frame, named as such
         require_finite(f"{TRUTH} angle_rad", angles, dataset.path)
         snr = truth.grid("snr_db")[:, 0] if "snr_db" in truth.arrays else None
         return angles, snr

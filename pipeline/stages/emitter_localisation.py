@@ -110,6 +110,8 @@ def read_observations(dataset) -> dict:
 def _state_channel(dataset, topic: str, shape) -> np.ndarray:
     """``state`` of a truth or prior channel as (runs, epochs, 4), checked against ``shape``."""
     state = dataset.channels[topic].grid("state")
+    if state.shape[:2] == shape:
+        dataset.channels[topic].require_every_frame(*shape)  # a gap is a missing frame, named as such
     if state.shape[:2] != shape:
         raise InputError(f"{topic} covers {state.shape[:2]} run×epoch, measurements {shape}", dataset.path)
     if state.shape[2:] != (4,):
