@@ -52,63 +52,140 @@ def life_tables(name: str, times, positions, track_ids, truths, truth_ids, gate:
     Returns
     -------
     targets, tracks : polars.DataFrame
+
+    Notes
+    -----
+    Each identity's history is one stretch of a single sort of every (run, identity, scan), so
+    the counts come from group-wise sums rather than a pass per identity; the means are numpy's
+    own of each stretch, bit for bit those of a loop per identity (which
+    ``tests/test_evaluator_speed_equivalence.py`` keeps as the reference).
     """
     times = np.asarray(times, float)
+    track_ids, truth_ids = np.asarray(track_ids), np.asarray(truth_ids)
     match, dist = scan_matches(positions, truths, gate, angular, track_ids, truth_ids)
     matched_id = np.where(match >= 0, np.take_along_axis(track_ids, np.maximum(match, 0), axis=-1), -1)
-    target_rows, track_rows = [], []
-    R = positions.shape[0]
-    for r in range(R):
-        # ---- targets: every (scan, slot) of an identity, in scan order
-        k, t = np.nonzero(truth_ids[r] >= 0)
-        who = truth_ids[r][k, t]
-        order = np.lexsort((k, who))
-        k, t, who = k[order], t[order], who[order]
-        for ident in np.unique(who):
-            sel = who == ident
-            ks, ts = k[sel], t[sel]
-            got = matched_id[r][ks, ts]
-            hit = got >= 0
-            seq = got[hit]
-            d = dist[r][ks, ts][hit]
-            target_rows.append({
-                "tracker": name, "run": r, "target_id": int(ident), "first_s": float(times[ks[0]]),
-                "last_s": float(times[ks[-1]]),
-                "first_tracked_s": float(times[ks[hit][0]]) if hit.any() else None,
-                "last_tracked_s": float(times[ks[hit][-1]]) if hit.any() else None,
-                "tracked_fraction": float(hit.mean()), "tracks": int(np.unique(seq).size),
-                "switches": int(np.count_nonzero(seq[1:] != seq[:-1])),
-                "rmse": float(np.sqrt(np.mean(d * d))) if d.size else None})
-        # ---- tracks: every (scan, slot) of an identity; the target matched to it there
-        k, s = np.nonzero(track_ids[r] >= 0)
-        tid = track_ids[r][k, s]
-        followed = np.full(k.size, -1, np.int64)
-        km, tm = np.nonzero(match[r] >= 0)
-        owner = {(int(a), int(match[r][a, b])): int(truth_ids[r][a, b]) for a, b in zip(km, tm)}
-        for i, (a, b) in enumerate(zip(k, s)):
-            followed[i] = owner.get((int(a), int(b)), -1)
-        order = np.lexsort((k, tid))
-        k, s, tid, followed = k[order], s[order], tid[order], followed[order]
-        for ident in np.unique(tid):
-            sel = tid == ident
-            ks, fs = k[sel], followed[sel]
-            on = fs[fs >= 0]
-            values, counts = np.unique(on, return_counts=True)
-            best = int(values[np.argmax(counts)]) if values.size else -1
-            row_nis = None
-            if nis is not None:
-                v = nis[r][ks, s[sel]]
-                v = v[np.isfinite(v)]
-                row_nis = float(v.mean()) if v.size else None
-            track_rows.append({
-                "tracker": name, "run": r, "track_id": int(ident), "first_s": float(times[ks[0]]),
-                "last_s": float(times[ks[-1]]), "scans": int(ks.size), "target_id": best,
-                "matched_fraction": float(counts.max() / ks.size) if values.size else 0.0, "mean_nis": row_nis})
-    return pl.DataFrame(target_rows, schema=TARGET_SCHEMA), pl.DataFrame(track_rows, schema=TRACK_SCHEMA)
+    targets = _target_rows(name, times, truth_ids, matched_id, dist)
+    # the target each reported track slot was matched to at each scan (−1 for none)
+    followed = np.full(track_ids.shape, -1, np.int64)
+    r, k, t = np.nonzero(match >= 0)
+    followed[r, k, match[r, k, t]] = truth_ids[r, k, t]
+    tracks = _track_rows(name, times, track_ids, followed, nis)
+    return pl.DataFrame(targets, schema=TARGET_SCHEMA), pl.DataFrame(tracks, schema=TRACK_SCHEMA)
+
+
+def _histories(ids):
+    """Every (run, scan, slot) of ``ids`` (R, K, slots) holding an identity (≥ 0), in the order
+    (run, identity, scan): each identity's history in one stretch.
+
+    Returns
+    -------
+    r, k, slot : ndarray of int (E,)
+    group : ndarray of int (E,)
+        The (run, identity) stretch of each, numbered 0… in order.
+    first, last : ndarray of int (G,)
+        Where each stretch starts and ends (inclusive).
+    """
+    r, k, slot = np.nonzero(ids >= 0)
+    who = ids[r, k, slot]
+    order = np.lexsort((k, who, r))          # stable: an identity twice in a scan keeps slot order
+    r, k, slot, who = r[order], k[order], slot[order], who[order]
+    new = np.ones(r.size, bool)
+    new[1:] = (r[1:] != r[:-1]) | (who[1:] != who[:-1])
+    group = np.cumsum(new) - 1
+    first = np.flatnonzero(new)
+    last = np.append(first[1:], r.size)[:first.size] - 1
+    return r, k, slot, group, first, last
+
+
+def _group_means(values, bounds) -> list:
+    """``np.mean`` of each stretch ``values[a:b]`` for ``(a, b)`` in ``bounds`` (None when empty):
+    numpy's own pairwise sum of each stretch, so bit for bit the mean of the stretch alone."""
+    return [float(np.mean(values[a:b])) if b > a else None for a, b in bounds]
+
+
+def _target_rows(name, times, truth_ids, matched_id, dist) -> dict:
+    """The columns of the targets table: one row per (run, target identity), in that order."""
+    r, k, t, group, first, last = _histories(truth_ids)
+    got = matched_id[r, k, t]
+    hit = got >= 0
+    seen = last - first + 1
+    hits = np.bincount(group[hit], minlength=first.size)
+    # the matched events alone, still in (run, identity, scan) order
+    h_group, h_k, h_got = group[hit], k[hit], got[hit]
+    h_first = np.searchsorted(h_group, np.arange(first.size), side="left")
+    h_end = h_first + hits
+    tracked = hits > 0
+    # distinct track identities matched to a target, and changes from one match to the next
+    same_target = np.zeros(h_group.size, bool)
+    same_target[1:] = h_group[1:] == h_group[:-1]
+    changed = same_target & (h_got != np.roll(h_got, 1))
+    switches = np.bincount(h_group[changed], minlength=first.size)
+    pair = np.lexsort((h_got, h_group))
+    distinct = np.ones(h_group.size, bool)
+    distinct[1:] = (h_group[pair][1:] != h_group[pair][:-1]) | (h_got[pair][1:] != h_got[pair][:-1])
+    n_tracks = np.bincount(h_group[pair][distinct], minlength=first.size)
+    d = dist[r[hit], h_k, t[hit]]
+    squares = d * d
+    rmse = [None if m is None else float(np.sqrt(m)) for m in _group_means(squares, zip(h_first, h_end))]
+    # the scan of each target's first and last match (any scan where it has none: not shown)
+    h_time = times[np.append(h_k, 0)]
+    return {
+        "tracker": [name] * first.size, "run": r[first].tolist(),
+        "target_id": truth_ids[r[first], k[first], t[first]].tolist(),
+        "first_s": times[k[first]].tolist(), "last_s": times[k[last]].tolist(),
+        "first_tracked_s": _where_present(h_time[h_first], tracked),
+        "last_tracked_s": _where_present(h_time[h_end - 1], tracked),
+        # hit.mean(): the count of matches over the count of scans, both exact in floats
+        "tracked_fraction": (hits / seen).tolist(), "tracks": n_tracks.tolist(), "switches": switches.tolist(),
+        "rmse": rmse}
+
+
+def _track_rows(name, times, track_ids, followed, nis) -> dict:
+    """The columns of the tracks table: one row per (run, track identity), in that order."""
+    r, k, s, group, first, last = _histories(track_ids)
+    scans = last - first + 1
+    on = followed[r, k, s]
+    # the target each track followed most: the most frequent target of its matches, the
+    # smallest identity among equally frequent ones (np.unique's order and argmax's first)
+    m_group, m_target = group[on >= 0], on[on >= 0]
+    pair = np.lexsort((m_target, m_group))
+    m_group, m_target = m_group[pair], m_target[pair]
+    start = np.ones(m_group.size, bool)
+    start[1:] = (m_group[1:] != m_group[:-1]) | (m_target[1:] != m_target[:-1])
+    at = np.flatnonzero(start)
+    count = np.diff(np.append(at, m_group.size))
+    pair_group, pair_target = m_group[at], m_target[at]
+    # per group, the largest count first and the smallest target among equals
+    best = np.lexsort((pair_target, -count, pair_group))
+    lead = np.ones(best.size, bool)
+    lead[1:] = pair_group[best][1:] != pair_group[best][:-1]
+    best = best[lead]
+    target = np.full(first.size, -1, np.int64)
+    top = np.zeros(first.size, np.int64)
+    target[pair_group[best]] = pair_target[best]
+    top[pair_group[best]] = count[best]
+    fraction = np.where(target >= 0, top / scans, 0.0)
+    if nis is None:
+        mean_nis = [None] * first.size
+    else:
+        v = np.asarray(nis)[r, k, s]
+        finite = np.isfinite(v)
+        kept = np.cumsum(np.concatenate([[0], finite]))          # finite values before each event
+        mean_nis = _group_means(v[finite], zip(kept[first], kept[last + 1]))
+    return {
+        "tracker": [name] * first.size, "run": r[first].tolist(),
+        "track_id": track_ids[r[first], k[first], s[first]].tolist(),
+        "first_s": times[k[first]].tolist(), "last_s": times[k[last]].tolist(), "scans": scans.tolist(),
+        "target_id": target.tolist(), "matched_fraction": fraction.tolist(), "mean_nis": mean_nis}
+
+
+def _where_present(values, present) -> list:
+    """``values`` as floats, None where not ``present``."""
+    return [float(v) if ok else None for v, ok in zip(values.tolist(), present.tolist())]
 
 
 #: runs the tables cover (the first ones): a table of every target of 10,000 Monte Carlo runs is
-#: more than anyone reads, and costs a Python pass per run
+#: more than anyone reads
 LIFE_TABLE_RUNS = 100
 
 

@@ -439,7 +439,7 @@ def _half_switches(own, partner, present) -> np.ndarray:
     return np.bincount(r * K + k, weights=halves, minlength=R * K).reshape(R, K).astype(np.int64)
 
 
-#: pairs per block of :func:`close_pairs`: its squared distances stay in the cache
+#: pairs per block of :func:`_close_pairs_dense`: its squared distances stay in the cache
 PAIR_BLOCK = 1 << 16
 
 
@@ -448,9 +448,10 @@ def close_pairs(X, Y, radius: float, angular: bool = False):
     than ``radius``; a row with a NaN is absent.
 
     Targets and tracks are mostly far apart, so the few close pairs carry everything an
-    assignment needs (a pair at or beyond the cut-off costs as much as no pair). The squared
-    distances are summed a component at a time in buffers of :data:`PAIR_BLOCK` pairs that stay
-    in the cache, and only the close pairs get a square root.
+    assignment needs (a pair at or beyond the cut-off costs as much as no pair). The pairs are
+    those of :func:`_close_pairs_dense`, which tries every pair (the plain form, and the reference
+    the fast one is tested against); :func:`_close_pairs_windowed` finds the same pairs from the
+    rows within ``radius`` along one component, and is used wherever a window can be set.
 
     Returns
     -------
@@ -458,6 +459,22 @@ def close_pairs(X, Y, radius: float, angular: bool = False):
         Problem, row of ``X`` and row of ``Y`` of each close pair, sorted by problem, ``i``, ``j``.
     distance : ndarray (E,)
         Their distances (bit for bit those of :func:`pairwise_distance`).
+    """
+    X, Y = np.asarray(X, float), np.asarray(Y, float)
+    d = min(X.shape[-1], Y.shape[-1])
+    # a window needs a finite radius whose square is a normal number (a square of a component
+    # then never rounds below it) and a component to slide along; on a circle it must be
+    # shorter than a turn, so that a row of Y falls in it once at most
+    windowed = (WINDOW_RADIUS_MIN <= radius < np.inf and d > 0
+                and (not angular or radius < WINDOW_ANGULAR_MAX))
+    return (_close_pairs_windowed if windowed else _close_pairs_dense)(X, Y, radius, angular)
+
+
+def _close_pairs_dense(X, Y, radius: float, angular: bool = False):
+    """:func:`close_pairs` by trying every pair of every problem: the plain form.
+
+    The squared distances are summed a component at a time in buffers of :data:`PAIR_BLOCK`
+    pairs that stay in the cache, and only the close pairs get a square root.
     """
     X, Y = np.asarray(X, float), np.asarray(Y, float)
     P, m, n = X.shape[0], X.shape[1], Y.shape[1]
@@ -490,6 +507,129 @@ def close_pairs(X, Y, radius: float, angular: bool = False):
     p, ij = np.divmod(flat, m * n)
     i, j = np.divmod(ij, n)
     return p, i, j, d
+
+
+
+
+#: the largest radius (radians) :func:`_close_pairs_windowed` takes on a circle: its window
+#: (radius and a margin either side) stays shorter than a turn
+WINDOW_ANGULAR_MAX = 3.0
+#: the smallest radius it takes: below, the square of a difference may underflow
+WINDOW_RADIUS_MIN = float(np.sqrt(np.finfo(float).tiny))
+
+
+def _close_pairs_windowed(X, Y, radius: float, angular: bool = False):
+    """:func:`close_pairs` from the rows of ``Y`` within a window along one component.
+
+    A pair closer than ``radius`` is closer than ``radius`` along every component, so the rows
+    of ``Y`` are sorted along one (the one they spread most along: fewest candidates) and each
+    row of ``X`` takes those of its problem within ``radius`` of it there, by binary search;
+    only these candidates get a distance, summed component by component with the very
+    operations of :func:`_close_pairs_dense` and kept by the same two tests, so the pairs and
+    the distances are bit for bit the same. Problems go through in blocks of
+    :data:`WINDOW_BLOCK_ROWS` rows (see :func:`_window_block`).
+    """
+    P, m, n = X.shape[0], X.shape[1], Y.shape[1]
+    d = min(X.shape[-1], Y.shape[-1])
+    X, Y = X[..., :d], Y[..., :d]
+    step = max(1, WINDOW_BLOCK_ROWS // max(m, n, 1))
+    parts = []
+    for a in range(0, P, step):
+        p, i, j, dist = _window_block(X[a:a + step], Y[a:a + step], radius, angular)
+        parts.append((p + a, i, j, dist))
+    if not parts:
+        return _no_pairs()
+    return tuple(np.concatenate(column) for column in zip(*parts))
+
+
+#: rows of a block of problems of :func:`_close_pairs_windowed`: its keys stay exact to far
+#: below the window's margin, and its candidates take some tens of MB
+WINDOW_BLOCK_ROWS = 1 << 18
+
+
+def _window_block(X, Y, radius, angular):
+    """:func:`_close_pairs_windowed` on one block of problems (P, m, d), (P, n, d).
+
+    All problems share one sorted order: the key of a row is ``problem · spacing + position``
+    along the window's component, and the spacing leaves more than a window between two
+    problems. The window is widened by a margin far above the rounding of the keys and of the
+    differences (2⁻³⁰ of the largest key against 2⁻⁵³), so it holds every pair the exact test
+    keeps. On a circle the positions are first brought to [−π, π) and every row of ``Y`` also
+    stands one turn below and one above (three copies), so a window near ±π reaches across;
+    the window, shorter than a turn, holds one copy of a row at most.
+    """
+    P, m, n = X.shape[0], X.shape[1], Y.shape[1]
+    d = X.shape[-1]
+    px, ix = np.nonzero(all_finite(X))
+    py, jy = np.nonzero(all_finite(Y))
+    if px.size == 0 or py.size == 0:
+        return _no_pairs()
+    xs = [X[px, ix, c] for c in range(d)]                          # present rows, a component each
+    ys = [Y[py, jy, c] for c in range(d)]
+    turn = 2 * np.pi
+    if angular:
+        x_at = np.mod(xs[0] + np.pi, turn) - np.pi
+        y_once = np.mod(ys[0] + np.pi, turn) - np.pi
+        y_at = np.concatenate([y_once - turn, y_once, y_once + turn])
+        y_row, y_problem = np.tile(np.arange(py.size), 3), np.tile(py, 3)
+        # the reduction to [−π, π) rounds relative to the raw angles
+        raw = max(float(np.max(np.abs(xs[0]))), float(np.max(np.abs(ys[0])))) + turn
+    else:
+        axis = int(np.argmax([np.ptp(v) for v in ys]))
+        x_at, y_at = xs[axis], ys[axis]
+        y_row, y_problem = np.arange(py.size), py
+        raw = 0.0
+    low = min(float(x_at.min()), float(y_at.min()))
+    extent = max(float(x_at.max()), float(y_at.max())) - low
+    spacing = 2 * (extent + 2 * radius)
+    margin = 2.0 ** -30 * (P * spacing + radius) + 2.0 ** -40 * raw
+    width = radius + margin
+    if margin >= extent + 3 * radius or (angular and width >= np.pi):
+        # a margin too wide for the spacing or a window as long as a turn: every pair instead
+        return _close_pairs_dense(X, Y, radius, angular)
+    y_key = y_problem * spacing + (y_at - low)
+    x_key = px * spacing + (x_at - low)
+    by_key = np.argsort(y_key)
+    y_key = y_key[by_key]
+    # the rows of X in key order too: the binary searches then walk the keys of Y in order
+    x_order = np.argsort(x_key)
+    x_key = x_key[x_order]
+    start = np.searchsorted(y_key, x_key - width, side="left")
+    count = np.searchsorted(y_key, x_key + width, side="right") - start
+    total = int(count.sum())
+    if total == 0:
+        return _no_pairs()
+    # the candidates: each row of X with every row of Y in its window
+    row = np.repeat(x_order, count)
+    at = np.arange(total) + np.repeat(start - (np.cumsum(count) - count), count)
+    other = y_row[by_key[at]]
+    # the squared distance a component at a time, as _close_pairs_dense sums it
+    t = np.zeros(total)
+    for xc, yc in zip(xs, ys):
+        u = xc[row] - yc[other]
+        if angular:
+            u += np.pi
+            np.mod(u, 2 * np.pi, out=u)
+            u -= np.pi
+        np.multiply(u, u, out=u)
+        t += u
+    wide = radius * radius * (1 + 8 * np.finfo(float).eps)
+    near = np.flatnonzero(t < wide)
+    dist = np.sqrt(t[near])
+    keep = dist < radius
+    near, dist = near[keep], dist[keep]
+    flat = (px[row[near]] * m + ix[row[near]]) * n + jy[other[near]]
+    by = np.argsort(flat, kind="stable")
+    flat, dist = flat[by], dist[by]
+    p, ij = np.divmod(flat, m * n)
+    i, j = np.divmod(ij, n)
+    return p, i, j, dist
+
+
+def _no_pairs():
+    """:func:`close_pairs`'s answer when no pair is close."""
+    empty = np.zeros(0, np.intp)
+    return empty, empty.copy(), empty.copy(), np.zeros(0)
 
 
 def assign_edges(problem, row, col, weight, n_rows: int, n_cols: int) -> np.ndarray:

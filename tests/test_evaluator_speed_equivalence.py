@@ -1,0 +1,302 @@
+"""The evaluators' fast forms give bit for bit what the plain forms they replace give.
+
+* :func:`evaluators.set_distances.close_pairs` through its window along one component
+  (:func:`~evaluators.set_distances._close_pairs_windowed`) against every pair of every problem
+  (:func:`~evaluators.set_distances._close_pairs_dense`): the same pairs in the same order and
+  the same distances, with absent rows, empty sets, pairs at the radius to the last bit,
+  bearings wrapping at ±π and many problems in several blocks;
+* :func:`evaluators.life_tables.life_tables`, grouped with sorts and counts, against the
+  per-identity loop it replaced (kept below as the reference).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import polars as pl
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from evaluators import set_distances
+from evaluators.assignment_metrics import scan_matches
+from evaluators.life_tables import TARGET_SCHEMA, TRACK_SCHEMA, life_tables
+from evaluators.set_distances import _close_pairs_dense, _close_pairs_windowed, close_pairs, pairwise_distance
+
+# ------------------------------------------------------------------ close pairs
+
+
+def assert_same_pairs(got, want):
+    """Same problems, rows and distances, in the same order, to the bit and the dtype."""
+    assert len(got) == len(want) == 4
+    for g, w, name in zip(got, want, ("problem", "i", "j", "distance")):
+        assert g.dtype == w.dtype and g.shape == w.shape, name
+        assert g.tobytes() == w.tobytes(), name
+
+
+def padded_sets(seed, problems, m, n, d, scale, absent, lattice, angular):
+    """``X`` (P, m, d) and ``Y`` (P, n, d) with NaN rows (absent) and, on a lattice, many pairs
+    exactly at integer distances (3-4-5 triangles) so that the radius test is met with equality;
+    bearings gather near ±π, some a turn or two away from (−π, π]."""
+    rng = np.random.default_rng(seed)
+    if angular:
+        def draw(shape):
+            near_edge = np.pi - rng.uniform(0, 0.2, shape)
+            value = np.where(rng.random(shape) < 0.5, near_edge * rng.choice([-1.0, 1.0], shape),
+                             rng.uniform(-np.pi, np.pi, shape))
+            return value + 2 * np.pi * rng.integers(-2, 3, shape) * (rng.random(shape) < 0.2)
+    elif lattice:
+        def draw(shape):
+            return rng.integers(-6, 7, shape).astype(float) * scale
+    else:
+        def draw(shape):
+            return rng.uniform(-1, 1, shape) * scale
+    X, Y = draw((problems, m, d)), draw((problems, n, d))
+    X[rng.random((problems, m)) < absent] = np.nan
+    Y[rng.random((problems, n)) < absent] = np.nan
+    # a single NaN component makes a row absent too
+    if m and problems:
+        X[rng.random((problems, m)) < absent / 2, rng.integers(0, d)] = np.nan
+    return X, Y
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**16), problems=st.integers(0, 40), m=st.integers(0, 12), n=st.integers(0, 12),
+       d=st.integers(1, 3), scale=st.sampled_from([1e-3, 1.0, 7.0, 1e5]), absent=st.sampled_from([0.0, 0.3, 1.0]),
+       lattice=st.booleans(), radius=st.sampled_from([0.5, 1.0, 5.0, 5.000000000000001, 4.999999999999999, 30.0]))
+def test_windowed_close_pairs_equal_every_pair(seed, problems, m, n, d, scale, absent, lattice, radius):
+    X, Y = padded_sets(seed, problems, m, n, d, scale, absent, lattice, angular=False)
+    r = radius * scale
+    want = _close_pairs_dense(X, Y, r)
+    assert_same_pairs(_close_pairs_windowed(X, Y, r), want)
+    assert_same_pairs(close_pairs(X, Y, r), want)
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**16), problems=st.integers(0, 40), m=st.integers(0, 12), n=st.integers(0, 12),
+       d=st.integers(1, 2), absent=st.sampled_from([0.0, 0.3]),
+       radius=st.sampled_from([1e-3, 0.05, 0.3, 1.0, 2.5, 2.999]))
+def test_windowed_close_pairs_on_bearings_equal_every_pair(seed, problems, m, n, d, absent, radius):
+    # bearings near ±π are close across the wrap; raw angles a turn away are the same bearing
+    X, Y = padded_sets(seed, problems, m, n, d, 1.0, absent, False, angular=True)
+    want = _close_pairs_dense(X, Y, radius, angular=True)
+    assert_same_pairs(_close_pairs_windowed(X, Y, radius, angular=True), want)
+    assert_same_pairs(close_pairs(X, Y, radius, angular=True), want)
+
+
+def test_close_pairs_across_the_wrap_are_found():
+    X = np.array([[[np.pi - 0.01]], [[-np.pi + 0.002]], [[3 * np.pi - 0.01]]])
+    Y = np.array([[[-np.pi + 0.01]], [[np.pi - 0.003]], [[-np.pi + 0.01]]])
+    p, i, j, d = close_pairs(X, Y, 0.03, angular=True)
+    np.testing.assert_array_equal(p, [0, 1, 2])
+    np.testing.assert_array_equal(d, pairwise_distance(X, Y, angular=True)[p, i, j])
+
+
+def test_windowed_close_pairs_in_many_blocks(monkeypatch):
+    # blocks of a few problems each: the problems' offsets and the joined order are right
+    X, Y = padded_sets(7, 300, 9, 11, 2, 10.0, 0.2, False, angular=False)
+    want = _close_pairs_dense(X, Y, 3.0)
+    monkeypatch.setattr(set_distances, "WINDOW_BLOCK_ROWS", 40)
+    assert_same_pairs(_close_pairs_windowed(X, Y, 3.0), want)
+    Xa, Ya = padded_sets(8, 300, 9, 11, 1, 1.0, 0.2, False, angular=True)
+    assert_same_pairs(_close_pairs_windowed(Xa, Ya, 0.2, angular=True), _close_pairs_dense(Xa, Ya, 0.2, angular=True))
+
+
+def test_windowed_close_pairs_on_many_problems_equal_every_pair():
+    # many scans of many targets and tracks, mostly far apart: the case the window is for
+    rng = np.random.default_rng(3)
+    truth = rng.uniform(0, 5e4, (500, 60, 2))
+    X = truth + rng.normal(scale=300.0, size=truth.shape)
+    X = np.concatenate([X, rng.uniform(0, 5e4, (500, 40, 2))], axis=1)
+    X[rng.random(X.shape[:2]) < 0.3] = np.nan
+    for radius in (500.0, 1000.0):
+        want = _close_pairs_dense(X, truth, radius)
+        assert want[0].size > 1000
+        assert_same_pairs(close_pairs(X, truth, radius), want)
+        np.testing.assert_array_equal(want[3], pairwise_distance(X, truth)[want[:3]])
+
+
+@pytest.mark.parametrize("radius", [0.0, -1.0, np.inf, np.nan, 1e-200, 1e-160, 3.0, 4.0, 10.0])
+@pytest.mark.parametrize("angular", [False, True])
+def test_close_pairs_at_odd_radii_equal_every_pair(radius, angular):
+    X, Y = padded_sets(11, 20, 7, 8, 1, 1.0, 0.2, False, angular)
+    X[0, :3] = Y[0, :3]                                   # pairs at distance 0
+    X[1, 0] = Y[1, 0] + 1e-170 if np.isfinite(Y[1, 0, 0]) else X[1, 0]
+    assert_same_pairs(close_pairs(X, Y, radius, angular), _close_pairs_dense(X, Y, radius, angular))
+
+
+@pytest.mark.parametrize("shape", [((0, 3, 2), (0, 4, 2)), ((5, 0, 2), (5, 4, 2)), ((5, 3, 2), (5, 0, 2)),
+                                   ((5, 3, 0), (5, 4, 0))])
+def test_close_pairs_of_empty_sets(shape):
+    X, Y = np.zeros(shape[0]), np.ones(shape[1])
+    for radius in (0.5, 2.0):
+        assert_same_pairs(close_pairs(X, Y, radius), _close_pairs_dense(X, Y, radius))
+
+
+def test_close_pairs_when_every_row_is_absent():
+    X, Y = np.full((4, 3, 2), np.nan), np.zeros((4, 5, 2))
+    assert_same_pairs(close_pairs(X, Y, 1.0), _close_pairs_dense(X, Y, 1.0))
+    assert_same_pairs(close_pairs(Y, X, 1.0), _close_pairs_dense(Y, X, 1.0))
+
+
+def test_windowed_close_pairs_with_huge_raw_bearings_fall_back_to_every_pair():
+    # angles 10¹⁵ rad from (−π, π]: the margin of their rounding is wider than the window
+    # can hold, and every pair is tried instead
+    X, Y = padded_sets(5, 10, 6, 6, 1, 1.0, 0.0, False, angular=True)
+    X[:, 0] += 2 * np.pi * 1.6e14
+    assert_same_pairs(_close_pairs_windowed(X, Y, 0.5, angular=True), _close_pairs_dense(X, Y, 0.5, angular=True))
+
+
+# ------------------------------------------------------------------ life tables
+
+
+def life_tables_reference(name, times, positions, track_ids, truths, truth_ids, gate, angular=False, nis=None):
+    """The tables by a loop per run and identity (the form :func:`life_tables` replaced)."""
+    times = np.asarray(times, float)
+    match, dist = scan_matches(positions, truths, gate, angular, track_ids, truth_ids)
+    matched_id = np.where(match >= 0, np.take_along_axis(track_ids, np.maximum(match, 0), axis=-1), -1)
+    target_rows, track_rows = [], []
+    for r in range(positions.shape[0]):
+        k, t = np.nonzero(truth_ids[r] >= 0)
+        who = truth_ids[r][k, t]
+        order = np.lexsort((k, who))
+        k, t, who = k[order], t[order], who[order]
+        for ident in np.unique(who):
+            sel = who == ident
+            ks, ts = k[sel], t[sel]
+            got = matched_id[r][ks, ts]
+            hit = got >= 0
+            seq = got[hit]
+            d = dist[r][ks, ts][hit]
+            target_rows.append({
+                "tracker": name, "run": r, "target_id": int(ident), "first_s": float(times[ks[0]]),
+                "last_s": float(times[ks[-1]]),
+                "first_tracked_s": float(times[ks[hit][0]]) if hit.any() else None,
+                "last_tracked_s": float(times[ks[hit][-1]]) if hit.any() else None,
+                "tracked_fraction": float(hit.mean()), "tracks": int(np.unique(seq).size),
+                "switches": int(np.count_nonzero(seq[1:] != seq[:-1])),
+                "rmse": float(np.sqrt(np.mean(d * d))) if d.size else None})
+        k, s = np.nonzero(track_ids[r] >= 0)
+        tid = track_ids[r][k, s]
+        followed = np.full(k.size, -1, np.int64)
+        km, tm = np.nonzero(match[r] >= 0)
+        owner = {(int(a), int(match[r][a, b])): int(truth_ids[r][a, b]) for a, b in zip(km, tm)}
+        for i, (a, b) in enumerate(zip(k, s)):
+            followed[i] = owner.get((int(a), int(b)), -1)
+        order = np.lexsort((k, tid))
+        k, s, tid, followed = k[order], s[order], tid[order], followed[order]
+        for ident in np.unique(tid):
+            sel = tid == ident
+            ks, fs = k[sel], followed[sel]
+            on = fs[fs >= 0]
+            values, counts = np.unique(on, return_counts=True)
+            best = int(values[np.argmax(counts)]) if values.size else -1
+            row_nis = None
+            if nis is not None:
+                v = nis[r][ks, s[sel]]
+                v = v[np.isfinite(v)]
+                row_nis = float(v.mean()) if v.size else None
+            track_rows.append({
+                "tracker": name, "run": r, "track_id": int(ident), "first_s": float(times[ks[0]]),
+                "last_s": float(times[ks[-1]]), "scans": int(ks.size), "target_id": best,
+                "matched_fraction": float(counts.max() / ks.size) if values.size else 0.0, "mean_nis": row_nis})
+    return pl.DataFrame(target_rows, schema=TARGET_SCHEMA), pl.DataFrame(track_rows, schema=TRACK_SCHEMA)
+
+
+def assert_same_table(got: pl.DataFrame, want: pl.DataFrame):
+    """Same schema, rows in the same order, every value to the last bit (nulls where nulls)."""
+    assert got.schema == want.schema
+    assert got.equals(want, null_equal=True)
+    for column in got.columns:
+        if got[column].dtype == pl.Float64:
+            a, b = got[column].to_numpy(), want[column].to_numpy()
+            assert a.tobytes() == b.tobytes(), column
+    assert got.write_csv() == want.write_csv()
+
+
+def many_target_run(seed, runs, scans, targets, tracks, spread, miss, clutter, nis_kind, id_pool):
+    """Truths and tracks of a few runs: targets born and dying, identities moving between slots
+    and reused, tracks following targets with noise, swapping, dropping out, and clutter."""
+    rng = np.random.default_rng(seed)
+    T, S = targets, tracks
+    walk = np.cumsum(rng.normal(scale=3.0, size=(runs, scans, T, 2)), axis=1)
+    truths = rng.uniform(0, spread, (runs, 1, T, 2)) + walk
+    alive = rng.random((runs, scans, T)) > 0.2
+    truth_ids = np.full((runs, scans, T), -1, np.int64)
+    for r in range(runs):
+        for k in range(scans):
+            truth_ids[r, k] = rng.permutation(max(T, id_pool))[:T]
+    truth_ids = np.where(alive, truth_ids, -1)
+    truths = np.where(alive[..., None], truths, np.nan)
+    positions = np.full((runs, scans, S, 2), np.nan)
+    track_ids = np.full((runs, scans, S), -1, np.int64)
+    for r in range(runs):
+        for k in range(scans):
+            slots = rng.permutation(S)
+            for t in range(min(T, S)):
+                if rng.random() < miss:
+                    continue
+                positions[r, k, slots[t]] = truths[r, k, t] + rng.normal(scale=spread / 20, size=2)
+                track_ids[r, k, slots[t]] = (t + (rng.random() < 0.1)) % (T + 2)
+            for slot in slots[min(T, S):]:
+                if rng.random() < clutter:
+                    positions[r, k, slot] = rng.uniform(0, spread, 2)
+                    track_ids[r, k, slot] = T + 2 + rng.integers(0, 4)
+    # an identity once per scan (the slots hold different tracks)
+    for r in range(runs):
+        for k in range(scans):
+            ids = track_ids[r, k]
+            seen = set()
+            for slot in range(S):
+                if ids[slot] >= 0 and ids[slot] in seen:
+                    ids[slot] = -1
+                seen.add(int(ids[slot]))
+    positions = np.where((track_ids >= 0)[..., None], positions, np.nan)
+    nis = None
+    if nis_kind != "none":
+        nis = rng.chisquare(2, (runs, scans, S))
+        if nis_kind == "gaps":
+            nis[rng.random(nis.shape) < 0.4] = np.nan
+        if nis_kind == "none-finite":
+            nis[:] = np.nan
+    times = np.cumsum(rng.uniform(0.5, 2.0, scans))
+    return times, positions, track_ids, truths, truth_ids, nis
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**16), runs=st.integers(1, 3), scans=st.integers(1, 40), targets=st.integers(1, 7),
+       tracks=st.integers(1, 9), spread=st.sampled_from([50.0, 400.0]), miss=st.sampled_from([0.0, 0.3, 1.0]),
+       clutter=st.sampled_from([0.0, 0.5]), nis_kind=st.sampled_from(["none", "full", "gaps", "none-finite"]),
+       id_pool=st.integers(1, 12), angular=st.booleans())
+def test_life_tables_equal_the_loop_per_identity(seed, runs, scans, targets, tracks, spread, miss, clutter, nis_kind,
+                                                  id_pool, angular):
+    times, positions, track_ids, truths, truth_ids, nis = many_target_run(
+        seed, runs, scans, targets, tracks, spread, miss, clutter, nis_kind, id_pool)
+    gate = 30.0
+    if angular:
+        # bearings: a component a turn wide, wrapping
+        positions, truths, gate = positions[..., :1] / spread * 6.0 - 3.0, truths[..., :1] / spread * 6.0 - 3.0, 0.3
+    got = life_tables("t", times, positions, track_ids, truths, truth_ids, gate, angular, nis)
+    want = life_tables_reference("t", times, positions, track_ids, truths, truth_ids, gate, angular, nis)
+    for g, w in zip(got, want):
+        assert_same_table(g, w)
+
+
+def test_life_tables_of_long_histories_equal_the_loop():
+    # hundreds of matches per target: the RMSE's mean is numpy's pairwise sum of the stretch
+    times, positions, track_ids, truths, truth_ids, nis = many_target_run(4, 2, 700, 5, 8, 400.0, 0.1, 0.5, "gaps", 9)
+    got = life_tables("t", times, positions, track_ids, truths, truth_ids, 30.0, False, nis)
+    want = life_tables_reference("t", times, positions, track_ids, truths, truth_ids, 30.0, False, nis)
+    for g, w in zip(got, want):
+        assert_same_table(g, w)
+
+
+def test_life_tables_without_targets_or_tracks():
+    times = np.arange(4.0)
+    empty_ids = np.full((2, 4, 3), -1, np.int64)
+    positions = np.full((2, 4, 3, 2), np.nan)
+    for args in ((positions, empty_ids, positions, empty_ids),):
+        got = life_tables("t", times, *args, 10.0)
+        want = life_tables_reference("t", times, *args, 10.0)
+        for g, w in zip(got, want):
+            assert g.height == 0
+            assert_same_table(g, w)
