@@ -77,7 +77,8 @@ def evaluate(times, tracks: dict, truth_state, truth_alpha, measurement_variance
         Trace of the position (velocity) block of the posterior Cramér–Rao bound per scan
         (Tichavský, Muravchik & Nehorai 1998; ``docs/evaluation.md``): reported per scan as
         ``pcrb_position_m`` / ``pcrb_velocity_mps`` and, per scope, as the bound's RMS over the
-        scope's scans and the efficiency bound RMS / RMSE (≤ 1 for an unbiased tracker).
+        scope's scans and ``<kind>_efficiency`` = bound RMS / RMSE (≤ 1 up to Monte Carlo error,
+        higher is better: the efficiency of every family, ``docs/evaluation.md``).
 
     Returns
     -------

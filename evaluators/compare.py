@@ -32,15 +32,10 @@ LOWER_IS_BETTER = re.compile(r"(rmse|rms_|ospa|gospa|npe|miss|false|break|switch
 HIGHER_IS_BETTER = re.compile(r"(mota|idf1|^idp$|^idr$|^hota$|^deta$|^assa$|^loca$|held|success|efficiency|"
                               r"mostly_tracked|inside_fraction|converged|^siap_completeness$|"
                               r"^siap_longest_track_segment$)")
-# the TDOA/FDOA family's efficiency_position/_velocity are RMSE over the bound (≥ 1, lower is
-# better), the other families' *_efficiency the bound over the RMSE (≤ 1, higher is better)
-RMSE_OVER_BOUND = re.compile(r"^efficiency_")
 
 
 def direction(metric: str) -> int:
     """−1 where lower is better, +1 where higher is better, 0 where the metric has no direction."""
-    if RMSE_OVER_BOUND.search(metric):
-        return -1
     if HIGHER_IS_BETTER.search(metric):
         return 1
     if LOWER_IS_BETTER.search(metric):

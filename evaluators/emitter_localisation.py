@@ -16,8 +16,10 @@ Every (run, epoch) estimate is put in exactly one class before anything is avera
 ``unclassified``    no truth, or the CRLB at the truth does not exist (e.g. emitter collinear
                     with the sensors), so closeness to the truth cannot be judged.
 
-RMSE, efficiency (RMSE / √trace(CRLB block)) and the fraction inside the 50 % error ellipse are
-computed over the ``truth`` class only; the counts of every class are reported next to them.
+RMSE, ``<block>_efficiency`` (√trace(CRLB block) / RMSE: the statistical efficiency, ≤ 1 up to
+Monte Carlo error and higher is better, as in every family; see ``docs/evaluation.md``) and the
+fraction inside the 50 % error ellipse are computed over the ``truth`` class only; the counts of
+every class are reported next to them.
 d² is ‖A e‖² with A the whitened Jacobian at the truth, so no information matrix is inverted.
 
 Kim et al. (2013) report RMSE against the CRLB (eqs. 18–22, Figs. 5–7) over all runs; see
@@ -119,16 +121,19 @@ def inside_ellipse(error2, cov2, probability=0.5):
 
 
 def _block_metrics(err, cov, sel, comps, prefix, unit):
-    """RMSE, √trace(CRLB block), efficiency and inside-50 % fraction over the selected cells."""
+    """RMSE, √trace(CRLB block), efficiency (bound / RMSE) and inside-50 % fraction over the
+    selected cells."""
     if not sel.any() or not np.all(np.isfinite(err[sel][..., comps])):
         return {f"rmse_{prefix}_{unit}": np.nan, f"crlb_{prefix}_{unit}": np.nan,
-                f"efficiency_{prefix}": np.nan, f"inside_50pct_{prefix}": np.nan}
+                f"{prefix}_efficiency": np.nan, f"inside_50pct_{prefix}": np.nan}
     e = err[sel][..., comps]
     c = cov[sel][..., comps[:, None], comps[None, :]]
-    mse = float(np.mean(np.sum(e * e, axis=-1)))
-    bound = float(np.mean(np.trace(c, axis1=-2, axis2=-1)))
-    return {f"rmse_{prefix}_{unit}": np.sqrt(mse), f"crlb_{prefix}_{unit}": np.sqrt(bound),
-            f"efficiency_{prefix}": np.sqrt(mse / bound),
+    mse = np.mean(np.sum(e * e, axis=-1))
+    bound = np.mean(np.trace(c, axis1=-2, axis2=-1))
+    with np.errstate(divide="ignore", invalid="ignore"):  # an error of exactly 0: inf (0 / 0: NaN)
+        efficiency = float(np.sqrt(bound / mse))
+    return {f"rmse_{prefix}_{unit}": float(np.sqrt(mse)), f"crlb_{prefix}_{unit}": float(np.sqrt(bound)),
+            f"{prefix}_efficiency": efficiency,
             f"inside_50pct_{prefix}": float(np.mean(inside_ellipse(e, c)))}
 
 
@@ -231,22 +236,24 @@ def classes_of(tracks_out: dict, crlb: dict, name: str, truth_state) -> np.ndarr
 
 
 def report(summary: pl.DataFrame, per_scan: pl.DataFrame) -> str:
-    """The paper's layouts: run classes and efficiency per estimator; RMSE per iteration; Fig. 7."""
+    """The paper's layouts: run classes and efficiency (√tr CRLB / RMSE) per estimator; RMSE per
+    iteration; Fig. 7."""
     def get(tracker, metric, scope="overall"):
         v = summary.filter((pl.col("tracker") == tracker) & (pl.col("metric") == metric) & (pl.col("scope") == scope))["value"]
         return float(v[0]) if len(v) else float("nan")
 
     trackers = list(dict.fromkeys(summary["tracker"].to_list()))
-    lines = ["TDOA/FDOA Gauss-Newton (Kim et al. 2013): runs by class; RMSE and efficiency over 'truth' runs only",
+    lines = ["TDOA/FDOA Gauss-Newton (Kim et al. 2013): runs by class; RMSE and efficiency (eff = √trCRLB / RMSE, "
+             "≤ 1 up to Monte Carlo error) over 'truth' runs only",
              f"{'estimator':<10}{'truth':>7}{'elsewhere':>10}{'diverged':>9}{'not conv':>9}{'undeterm':>9}"
              f"{'RMSE pos m':>12}{'√trCRLB':>9}{'eff':>7}{'in 50%':>8}{'RMSE vel':>10}{'√trCRLB':>9}{'eff':>7}{'in 50%':>8}"]
     for t in trackers:
         lines.append(
             f"{t:<10}{get(t, 'runs_truth'):>7.0f}{get(t, 'runs_elsewhere'):>10.0f}{get(t, 'runs_diverged'):>9.0f}"
             f"{get(t, 'runs_not_converged'):>9.0f}{get(t, 'runs_underdetermined'):>9.0f}"
-            f"{get(t, 'rmse_position_m'):>12.3f}{get(t, 'crlb_position_m'):>9.3f}{get(t, 'efficiency_position'):>7.3f}"
+            f"{get(t, 'rmse_position_m'):>12.3f}{get(t, 'crlb_position_m'):>9.3f}{get(t, 'position_efficiency'):>7.3f}"
             f"{get(t, 'inside_50pct_position'):>8.3f}{get(t, 'rmse_velocity_mps'):>10.3f}{get(t, 'crlb_velocity_mps'):>9.3f}"
-            f"{get(t, 'efficiency_velocity'):>7.3f}{get(t, 'inside_50pct_velocity'):>8.3f}")
+            f"{get(t, 'velocity_efficiency'):>7.3f}{get(t, 'inside_50pct_velocity'):>8.3f}")
     its = {int(s.split("=")[1]): s for s in summary["scope"].to_list() if s.startswith("iteration=")}
     if its:
         shown = sorted(its)

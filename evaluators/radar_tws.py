@@ -49,7 +49,8 @@ def evaluate(times, tracks: dict, measured_xy, truth_state=None, cross_range_std
     pcrb_position_var : ndarray (scans,), optional
         Trace of the position block of the posterior Cramér–Rao bound per scan (Tichavský,
         Muravchik & Nehorai 1998): reported as ``pcrb_position_m`` and, over the filtered
-        scans, as ``position_efficiency`` = bound RMS / RMSE (≤ 1 for an unbiased tracker).
+        scans, as ``position_efficiency`` = bound RMS / RMSE (≤ 1 up to Monte Carlo error, higher
+        is better: the efficiency of every family, ``docs/evaluation.md``).
     groups : int, optional
         Also return the summary of each of ``groups`` round-robin groups of runs
         (:func:`evaluators.confidence.run_groups`), as this function would give it on the

@@ -4,11 +4,13 @@ eval`, `replay compare`, `replay check`, and the posterior Cramér–Rao bound."
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import polars as pl
 import pytest
 
+from evaluators.compare import direction
 from pipeline.cores.filters.kalman import kf_predict, kf_update
 from pipeline.cores.filters.pcrb import pcrb_recursion
 from pipeline.face.cli import main
@@ -75,6 +77,37 @@ def test_pcrb_bounds_every_radar_tracker(demo_result):
     assert s.height == 4
     # an efficiency above 1 would mean an error below the bound (beyond Monte Carlo error)
     assert (s["ci_low"] < 1.0).all() and (s["value"] > 0).all()
+
+
+EFFICIENCY_NAME = r"^[a-z_]+_efficiency$"
+
+
+@pytest.mark.parametrize("dataset", ["radar_tws_demo", "colored_imm_demo", "tdoa_fdoa_demo"])
+def test_efficiency_is_one_convention_in_every_family(dataset, demo_result, demo_mcap):
+    """Every family names its efficiency ``<kind>_efficiency`` and means the same by it: the
+    bound (CRLB or PCRB, as an RMS) over the RMSE of the same table row, ≤ 1 up to Monte Carlo
+    error, higher is better (``docs/evaluation.md``)."""
+    path = demo_mcap.parent / f"{dataset}.mcap"
+    s = demo_result.summary if path == demo_mcap else replay(path).summary
+    names = set(s.filter(pl.col("metric").str.contains("efficiency"))["metric"])
+    assert names, dataset
+    assert all(re.match(EFFICIENCY_NAME, m) and not m.startswith("efficiency_") for m in names), names
+    assert all(direction(m) == 1 for m in names)
+    rows: dict = {}  # (stage, kind, tracker, scope) → {metric: value}: one row of the wide table
+    for r in s.iter_rows(named=True):
+        rows.setdefault((r["stage"], r["kind"], r["tracker"], r["scope"]), {})[r["metric"]] = r["value"]
+    checked = 0
+    for where, row in rows.items():
+        for metric in sorted(names & set(row)):
+            eff, block = row[metric], metric.removesuffix("_efficiency")
+            rmse = next(v for m, v in row.items() if m.startswith(f"rmse_{block}_"))
+            bound = next(v for m, v in row.items() if m.startswith((f"crlb_{block}_", f"pcrb_{block}_")))
+            if np.isnan(eff):  # no run at the truth (e.g. an estimator that cannot estimate the block)
+                assert np.isnan(rmse) and np.isnan(bound), (where, metric)
+                continue
+            assert eff == pytest.approx(bound / rmse, rel=1e-12), (where, metric)
+            checked += 1
+    assert checked >= 2
 
 
 def test_eval_json_carries_the_intervals(runner, demo_mcap):

@@ -94,7 +94,7 @@ def test_replay_classifies_runs_and_eval_matches_the_output_file(runner, triangl
         assert sum(get[(t, f"runs_{c}", "overall")] for c in classes) == 300
     assert get[("joint", "runs_elsewhere", "overall")] > 20
     assert get[("fdoa", "runs_underdetermined", "overall")] == 300  # 2 FDOA equations, 4 unknowns
-    eff = get[("joint", "efficiency_position", "overall")]
+    eff = get[("joint", "position_efficiency", "overall")]
     assert 0.85 < eff < 1.15 and 0.4 < get[("joint", "inside_50pct_position", "overall")] < 0.6
 
 
@@ -130,7 +130,7 @@ def test_estimators_are_trackers_and_the_bound_travels_in_the_outputs(triangle3,
     assert np.all(np.isnan(tdoa["state"][..., 2:])) and np.all(tdoa["flags"] & NOT_ESTIMATED)
     s = res.summary.filter(res.summary["scope"] == "overall")
     get = {(r["tracker"], r["metric"]): r["value"] for r in s.to_dicts()}
-    for metric in ("runs_truth", "runs_elsewhere", "rmse_position_m", "efficiency_position"):
+    for metric in ("runs_truth", "runs_elsewhere", "rmse_position_m", "position_efficiency"):
         assert get[("my_joint", metric)] == get[("joint", metric)], metric
 
 
@@ -150,7 +150,7 @@ def test_grid_start_needs_no_prior(runner, tmp_path):
                   "--noise-scales", "0.1", "-o", "g.mcap").exit_code == 0
     res = replay(tmp_path / "g.mcap", trackers=["joint"], design_overrides={"initial_guess": "grid"})
     s = {r["metric"]: r["value"] for r in res.summary.filter(res.summary["scope"] == "overall").to_dicts()}
-    assert s["runs_truth"] >= 190 and 0.8 < s["efficiency_position"] < 1.2
+    assert s["runs_truth"] >= 190 and 0.8 < s["position_efficiency"] < 1.2
 
 
 def test_fig7_noise_study_joint_beats_single_measurement_types(runner, tmp_path):
@@ -177,7 +177,7 @@ def test_collinear_emitter_is_flagged_never_scored(runner, tmp_path):
     s = {r["metric"]: r["value"] for r in res.summary.filter(res.summary["scope"] == "overall").to_dicts()}
     assert s["crlb_singular_cells"] == 50 and s["runs_truth"] == 0
     assert s["runs_unclassified"] + s["runs_diverged"] + s["runs_not_converged"] == 50
-    assert np.isnan(s["efficiency_position"])
+    assert np.isnan(s["position_efficiency"])
 
 
 def test_underdetermined_pairs_are_a_clear_error(runner):
