@@ -43,7 +43,8 @@ def select_trackers(stages, names=None, specs=(), dataset=None) -> dict:
 
     Without ``names``, a built-in tracker runs when it is made for the data set's kind of
     scene (``Tracker.targets``): the multi-target ones where :meth:`Stage.holds_many_targets`
-    says ``dataset`` holds many targets, the single-target ones (the papers') elsewhere.
+    says ``dataset`` holds many targets, the single-target ones (the papers') elsewhere; a
+    variant that does not run by default (``Tracker.runs_by_default``) runs when named.
     Plugged trackers always run; ``names`` picks any.
 
     Raises
@@ -70,7 +71,8 @@ def select_trackers(stages, names=None, specs=(), dataset=None) -> dict:
         # (entry-point) ones by name
         chosen[stage.name] = [e for e in table.values() if e.family == stage.family and
                               (e.name in plugged or (e.name in names if names else
-                                                     e.builtin and getattr(e.cls, "targets", "one") == scene))]
+                                                     e.builtin and getattr(e.cls, "targets", "one") == scene
+                                                     and getattr(e.cls, "runs_by_default", True)))]
     if names:
         have = {e.name for pool in chosen.values() for e in pool}
         unknown = [n for n in names if n not in have]
@@ -503,9 +505,58 @@ class Comparison:
     result_a: dict
     result_b: dict
     pairs: list
+    #: the evaluation design values both sides were scored with (name → value), and the names
+    #: of those ``--set`` changed
+    evaluation: dict = field(default_factory=dict)
+    evaluation_set: tuple = ()
 
 
-def compare_files(a_path, b_path, data_path=None, pairs=None, recover=False) -> Comparison:
+def evaluation_catalogue(stages=None) -> dict:
+    """Stage name → its evaluation design values (name → default, :attr:`Stage.evaluation_defaults`):
+    the values ``--set`` changes on ``replay compare``, ``check`` and ``sweep``."""
+    if stages is None:
+        from pipeline.stages import STAGES as stages
+    return {s.name: dict(s.evaluation_defaults) for s in stages}
+
+
+def format_evaluation_values(values: dict) -> str:
+    """``name=value, ...`` of some evaluation design values (numbers in their shortest form)."""
+    return ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in values.items())
+
+
+def evaluation_overrides(stage, overrides: dict | None, command: str) -> dict:
+    """``overrides`` (name → text or number) as ``stage``'s evaluation design values: parsed to
+    the type of their defaults and checked against their ranges.
+
+    Raises
+    ------
+    InputError
+        One line: a name that is a tracker's design value (the trackers already ran: replay
+        again) or no design value at all, listing the stage's evaluation values; or a value
+        out of its range.
+    """
+    from recorders.scenarios import coerce
+
+    allowed = stage.evaluation_defaults
+    known = ", ".join(allowed)
+    out = {}
+    for key, value in (overrides or {}).items():
+        if key not in allowed:
+            try:
+                tracker_value = key in stage.parameter_defaults()
+            except InputError:
+                tracker_value = False
+            if tracker_value:
+                raise InputError(f"--set {key}: {command} scores output files whose trackers already ran, so only "
+                                 f"the evaluation's design values change (of {stage.name}: {known}); replay "
+                                 "again to change a tracker's")
+            raise InputError(f"--set {key}: not an evaluation design value of {stage.name} (known: {known})")
+        out[key] = coerce(key, value, allowed[key])
+    stage.check_design(out)
+    return out
+
+
+def compare_files(a_path, b_path, data_path=None, pairs=None, recover=False, evaluation=None) -> Comparison:
     """Paired comparison of two replay outputs of the same data set (see :mod:`evaluators.compare`).
 
     Parameters
@@ -517,6 +568,10 @@ def compare_files(a_path, b_path, data_path=None, pairs=None, recover=False) -> 
         current folder and among the bundled data sets.
     pairs : list of (str, str), optional
         Trackers of A and B to compare (default: the names they share, or their only trackers).
+    evaluation : dict, optional
+        Evaluation design values (``--set``: matching gate, GOSPA cut-off and order, …) both
+        sides are scored with, over those recorded in A's provenance; a tracker's design value
+        is refused (:func:`evaluation_overrides`), since both replays already ran.
     """
     from evaluators.compare import pair_trackers, paired_differences
 
@@ -528,6 +583,11 @@ def compare_files(a_path, b_path, data_path=None, pairs=None, recover=False) -> 
     if stage_a.name != stage_b.name:
         raise InputError(f"A holds {stage_a.name} outputs, B {stage_b.name} outputs: nothing to compare", b_path)
     design = _used_design(stage_a, ds, prov_a)
+    changed = evaluation_overrides(stage_a, evaluation, "compare")
+    if changed:
+        design = {**design, **changed}
+        stage_a.check_design(design)
+        ds.cache[("design", stage_a.name)] = design  # the views see the values the scores used
     tracked = lambda r: [n for n, o in r["tracks"].items() if "state" in o]
     try:
         pairs = pair_trackers(tracked(result_a), tracked(result_b), pairs)
@@ -560,7 +620,8 @@ def compare_files(a_path, b_path, data_path=None, pairs=None, recover=False) -> 
         return per_scan, pl.concat([summary, standard.select(summary.columns)], how="diagonal_relaxed")
 
     table = paired_differences(score, result_a["tracks"], result_b["tracks"], reference["runs"], runs_a, pairs)
-    return Comparison(table, stage_a, ds, result_a, result_b, pairs)
+    used = {k: design[k] for k in stage_a.evaluation_defaults if k in design}
+    return Comparison(table, stage_a, ds, result_a, result_b, pairs, used, tuple(changed))
 
 
 def _installed_data() -> Path:

@@ -27,7 +27,7 @@ from recorders.foreign_mcap import UNITS
 REPO = Path(__file__).resolve().parents[1]
 SAMPLES = REPO / "data" / "samples"
 DESIGN = ("--set", "detection_probability=0.85", "--set", "clutter_per_scan=1.5")
-MULTI = ("gnn", "jpda_mt", "ukf")
+MULTI = ("gnn", "jpda_mt")  # the multi-target trackers a replay runs by default (ukf when named)
 
 
 def invoke(*args):

@@ -1129,7 +1129,27 @@ def _json_value(v):
     return v
 
 
-@main.command("compare")
+# The evaluation design values of every stage with their defaults (Stage.evaluation_defaults;
+# tests/test_evaluation_design_values.py keeps this text equal to them): written out here so
+# that `--help` needs no import of the stages.
+EVALUATION_VALUES_EPILOG = """Evaluation design values (--set NAME=VALUE) and their fixed defaults, per stage (a data
+set's scenario record, or the stage from the data, may give others; the values used are recorded):
+
+\b
+  radar-tws          ospa_cutoff_m=1000, ospa_order=2, assignment_gate_m=500,
+                     hota_distance_m=1000, gospa_switch_penalty_m=1000, siap_gate_m=500
+  xcorr-peaks        ospa_cutoff_deg=10, ospa_order=2, assignment_gate_deg=5
+  array-bearing      ospa_cutoff_deg=10, ospa_order=2, assignment_gate_deg=3
+  tdoa-fdoa          ospa_cutoff_m=5000, ospa_order=2, assignment_gate_m=2000
+  colored-noise-imm  ospa_cutoff_m=100, ospa_order=2, assignment_gate_m=50
+
+The meaning of each: docs/evaluation.md (OSPA and GOSPA, HOTA, SIAP)."""
+
+EVALUATION_SET_HELP = ("Score with this evaluation design value (the matching gate, the GOSPA cut-off and order, "
+                       "HOTA's distance scale, the SIAP gate; listed below); repeatable.")
+
+
+@main.command("compare", epilog=EVALUATION_VALUES_EPILOG)
 @click.argument("a_path", metavar="A", type=click.Path(dir_okay=False, path_type=Path))
 @click.argument("b_path", metavar="B", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--data", "data_path", type=click.Path(dir_okay=False, path_type=Path),
@@ -1140,25 +1160,34 @@ def _json_value(v):
 @click.option("-o", "--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
               help="Write compare.csv/.parquet, compare.png and compare.rrd here (default: replay-out/compare).")
 @click.option("--recover", is_flag=True, help="Accept truncated MCAP files.")
-def compare_cmd(a_path, b_path, data_path, pairs, as_json, out_dir, recover):
+@click.option("--set", "sets", multiple=True, metavar="NAME=VALUE", help=EVALUATION_SET_HELP)
+def compare_cmd(a_path, b_path, data_path, pairs, as_json, out_dir, recover, sets):
     """Paired comparison of two replays of the same data set (A − B, run against run).
 
     Every metric of both, the difference with its 95 % interval from the paired runs, and a
     verdict: better / worse for A, or no significant difference. Outputs of different data sets
     are refused.
 
+    Both sides are scored with the same evaluation design values: those recorded in A's
+    provenance, changed by --set. Only evaluation values change here (the trackers already
+    ran; a tracker's design value is refused: replay again). The values used are printed and
+    recorded in compare.parquet's metadata (key replay.compare).
+
     \b
     Example:
       replay data/radar_tws_demo.mcap --out before/tracks.mcap
       replay data/radar_tws_demo.mcap --out after/tracks.mcap --set nominal_cross_range_m=120
       replay compare after/tracks.mcap before/tracks.mcap
+      replay compare after/tracks.mcap before/tracks.mcap --set assignment_gate_m=2000
     """
     import polars as pl
 
     from evaluators.compare import write_comparison_figure
     from pipeline.contract import atomic_output
-    from pipeline.replay import compare_files
+    from pipeline.replay import compare_files, format_evaluation_values
+    from recorders.scenarios import parse_assignments
 
+    overrides = parse_assignments(sets)
     parsed = []
     for p in pairs:
         if p.count(":") != 1 or not all(p.split(":")):
@@ -1167,13 +1196,17 @@ def compare_cmd(a_path, b_path, data_path, pairs, as_json, out_dir, recover):
     out_dir = out_dir or Path.cwd() / "replay-out" / "compare"
     refuse_input_overwrite([a_path, b_path, data_path],
                            [out_dir / n for n in ("compare.csv", "compare.parquet", "compare.png", "compare.rrd")])
-    cmp = compare_files(a_path, b_path, data_path, parsed or None, recover)
+    cmp = compare_files(a_path, b_path, data_path, parsed or None, recover, overrides)
     table = cmp.table
+    evaluation = ", ".join(format_evaluation_values({k: v}) + (" (--set)" if k in cmp.evaluation_set else "")
+                           for k, v in cmp.evaluation.items())
     if as_json:
         click.echo(json.dumps([{k: _json_value(v) for k, v in r.items()} for r in table.to_dicts()]))
     else:
         click.echo(f"A = {a_path}\nB = {b_path}\ndata set: {Path(cmp.dataset.path).name}; "
                    "difference A − B with ± half its 95 % paired interval")
+        if evaluation:
+            _echo_wrapped(f"evaluation values (both sides): {evaluation}", indent="  ")
         with pl.Config(tbl_rows=400, tbl_width_chars=160, tbl_hide_dataframe_shape=True,
                        tbl_hide_column_data_types=True, fmt_str_lengths=40):
             shown = table.with_columns(
@@ -1186,8 +1219,10 @@ def compare_cmd(a_path, b_path, data_path, pairs, as_json, out_dir, recover):
     out_dir.mkdir(parents=True, exist_ok=True)
     with atomic_output(out_dir / "compare.csv", "w") as f:
         table.write_csv(f)
+    record = {"a": str(a_path), "b": str(b_path), "data": Path(cmp.dataset.path).name, "stage": cmp.stage.name,
+              "evaluation": cmp.evaluation, "evaluation_set": list(cmp.evaluation_set)}
     with atomic_output(out_dir / "compare.parquet", "wb") as f:
-        table.write_parquet(f)
+        table.write_parquet(f, metadata={"replay.compare": json.dumps(record, default=str)})
     write_comparison_figure(table, out_dir / "compare.png", f"A = {a_path.name}  vs  B = {b_path.name}")
     from pipeline.face.rerun_views import log_comparison
 
@@ -1222,13 +1257,15 @@ def help_cmd(ctx, command):
         click.echo(cmd.get_help(sub))
 
 
-@main.command("check")
+@main.command("check", epilog=EVALUATION_VALUES_EPILOG)
 @click.argument("data_dir", required=False, type=click.Path(file_okay=False, path_type=Path))
 @click.option("--update", is_flag=True,
               help="Rewrite the baselines (DATA_DIR/baselines/) from the current code, deliberately; refused "
                    "for the copy inside an installed package: pass the checkout's data folder.")
+@click.option("--set", "sets", multiple=True, metavar="NAME=VALUE",
+              help=EVALUATION_SET_HELP + " Not with --update: the baselines hold the defaults' metrics.")
 @tracker_option
-def check_cmd(data_dir, update, tracker_specs):
+def check_cmd(data_dir, update, sets, tracker_specs):
     """Re-run every bundled data set and compare its metrics with the stored baselines.
 
     DATA_DIR defaults to the data/ folder of the checkout you are in (found from the current
@@ -1237,14 +1274,24 @@ def check_cmd(data_dir, update, tracker_specs):
     --tracker runs beside the built-ins on every data set and sweep of its family; its metrics
     are compared with the baseline entries that exist for it, and --update adds them.
 
+    --set scores every data set and sweep whose stage has that evaluation design value with it
+    (the others with their defaults). The baselines hold the metrics of the defaults: the check
+    says so in one line first, the metrics that depend on the values may drift (exit 1), and
+    --update refuses --set.
+
     \b
     Example:
       replay check data/
       replay check --update        # after a deliberate change
       replay check --tracker my_trackers.py:ConstantVelocity --update
+      replay check --set assignment_gate_m=2000   # which metrics move with the gate
     """
-    from pipeline.check import run_check
+    from pipeline.check import UPDATE_WITH_SET, evaluation_values, run_check
+    from recorders.scenarios import parse_assignments
 
+    evaluation = evaluation_values(parse_assignments(sets))
+    if evaluation and update:
+        raise InputError(UPDATE_WITH_SET)
     data_dir = data_dir or checkout_data_dir() or bundled_data_dir()
     if update and inside_installed_package(data_dir):
         raise InputError(f"{data_dir} is inside an installed package: --update will not rewrite its baselines; pass "
@@ -1275,7 +1322,7 @@ def check_cmd(data_dir, update, tracker_specs):
                 bar.echo(f"timing: {finished} {time.perf_counter() - state['t']:.2f} s", err=True)
             state["t"] = time.perf_counter()
 
-        report = run_check(data_dir, update=update, echo=echo, tracker_specs=specs)
+        report = run_check(data_dir, update=update, echo=echo, tracker_specs=specs, evaluation=evaluation)
     fail_on_tracker_errors(report.errors)
     if report.failed:
         raise click.exceptions.Exit(1)
@@ -1284,11 +1331,14 @@ def check_cmd(data_dir, update, tracker_specs):
 # --------------------------------------------------------------------------- sweep
 
 
-@main.command("sweep")
+@main.command("sweep", epilog=EVALUATION_VALUES_EPILOG)
 @click.argument("scenario")
 @click.option("--param", "params", multiple=True, required=True, metavar="NAME=v1,v2,...",
-              help="A swept parameter and its values (repeat for a cartesian grid).")
-@click.option("--set", "sets", multiple=True, metavar="NAME=VALUE", help="A parameter fixed at every point.")
+              help="A swept parameter and its values (repeat for a cartesian grid): a scenario parameter, a "
+                   "tracker's design value or an evaluation design value.")
+@click.option("--set", "sets", multiple=True, metavar="NAME=VALUE",
+              help="A value fixed at every point: a scenario parameter, a tracker's design value or an evaluation "
+                   "design value (listed below).")
 @click.option("--runs", default=100, show_default=True, type=click.IntRange(min=1))
 @click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0), help="Base seed; each point's seed derives from it and the point.")
 @click.option("--trackers", help="Comma-separated subset of trackers.")
@@ -1309,14 +1359,22 @@ def sweep_cmd(scenario, params, sets, runs, seed, trackers, out_dir, executor, w
     with --tracker runs beside the built-ins on every point and every executor; its design
     parameters take --set and --param like the scenario's (they do not change a point's seed).
 
+    Evaluation design values (the matching gate, the GOSPA cut-off and order, HOTA's distance
+    scale, the SIAP gate) take --set and --param too: every point is scored with them, its seed
+    unchanged. A name that is also a scenario parameter is the scenario's (it changes the data
+    set, whose scenario record the evaluation reads). Each point's point.json records the
+    evaluation values it was scored with, sweep.json those of the sweep.
+
     \b
     Example:
       replay sweep radar-tws --param sigma_bearing_deg=0.5,1,2 --param nominal_cross_range_m=100,150 \\
              --runs 100 --seed 7 -o study/
       replay sweep radar-tws --param plot_sigma_m=100,200 --tracker my_trackers.py:ConstantVelocity -o cv/
+      replay sweep radar-tws --param sigma_bearing_deg=0.5,1,2 --set assignment_gate_m=2000 -o gate/
     """
     from pipeline.registry import canonical_spec
-    from pipeline.sweep import build_grid, check_resume, parse_param_specs, run_sweep, write_sweep_outputs
+    from pipeline.sweep import (build_grid, check_evaluation_values, check_resume, parse_param_specs, run_sweep,
+                                write_sweep_outputs)
     from recorders.scenarios import parse_assignments
 
     if scheduler:
@@ -1328,9 +1386,19 @@ def sweep_cmd(scenario, params, sets, runs, seed, trackers, out_dir, executor, w
     from recorders.scenarios import load_scenario
 
     scenario_keys = load_scenario(scenario).defaults
-    # names that are not scenario parameters may be trackers' design parameters
+    # names that are not scenario parameters may be trackers' design parameters or evaluation values
     foreign = [n for n in (*fixed, *specs) if n not in scenario_keys]
-    design_defaults = _sweep_design_defaults(scenario, fixed, wanted, plugged) if (plugged or foreign) else {}
+    design_defaults, evaluation = (_sweep_design_defaults(scenario, fixed, wanted, plugged) if (plugged or foreign)
+                                   else ({}, {}))
+    for option, names in (("--set", fixed), ("--param", specs)):
+        unknown = [n for n in names if n not in scenario_keys and n not in design_defaults]
+        if unknown:
+            raise InputError(f"{option} {unknown[0]}: unknown parameter {unknown[0]!r} for scenario {scenario!r}: not "
+                             f"one of its parameters ({', '.join(scenario_keys)}), a design value of its trackers "
+                             "(`replay trackers`) or one of its evaluation design values "
+                             f"({', '.join(evaluation) or 'none'})")
+    check_evaluation_values({n: [fixed[n]] if n in fixed else specs[n] for n in (*fixed, *specs)
+                             if n in evaluation and n not in scenario_keys})
     tasks = build_grid(scenario, specs, runs, seed, wanted, out_dir, keep_data, fixed, plugged, design_defaults)
     if wanted:
         from pipeline.registry import available_trackers
@@ -1372,9 +1440,10 @@ def sweep_cmd(scenario, params, sets, runs, seed, trackers, out_dir, executor, w
         raise click.exceptions.Exit(1)
 
 
-def _sweep_design_defaults(scenario: str, fixed: dict, wanted, plugged) -> dict:
-    """Design parameters (name → default) of the trackers a sweep runs, after checking that
-    every plugged tracker consumes what the scenario records."""
+def _sweep_design_defaults(scenario: str, fixed: dict, wanted, plugged) -> tuple[dict, dict]:
+    """Design parameters (name → default) of the trackers a sweep runs and of its evaluation,
+    after checking that every plugged tracker consumes what the scenario records; and the
+    evaluation's alone."""
     from pipeline.registry import available_trackers
     from pipeline.stages import STAGES
     from pipeline.sweep import scenario_families
@@ -1388,12 +1457,13 @@ def _sweep_design_defaults(scenario: str, fixed: dict, wanted, plugged) -> dict:
         if e.spec in plugged and e.family not in families:
             raise InputError(f"tracker {e.name!r} consumes {e.family} measurements; scenario {scenario!r} "
                              f"records {', '.join(sorted(families)) or 'none of the families'}")
-    out = {}
+    out, evaluation = {}, {}
     for stage in STAGES:
         if stage.family in families:
             entries = [e for e in chosen if e.family == stage.family]
             out.update(stage.parameter_defaults(entries))
-    return out
+            evaluation.update({k: v for k, v in stage.evaluation_defaults.items() if k not in evaluation})
+    return out, evaluation
 
 
 # --------------------------------------------------------------------------- trackers
@@ -1431,7 +1501,13 @@ def tracker_listing(specs=()) -> list[dict]:
                 default = resolved.get(p.name)
                 origin = f"scenario {stage.scenario}" if stage is not None and default is not None else "data set / --set"
             params.append({"name": p.name, "default": default, "unit": p.unit, "from": origin, "doc": p.doc})
-        rows.append({"name": e.name, "family": e.family, "form": e.cls.form, "source": e.source,
+        if not e.builtin:
+            runs = "always"  # a plugged tracker runs beside the built-ins
+        elif not getattr(e.cls, "runs_by_default", True):
+            runs = "when named"
+        else:
+            runs = "many-target sets" if getattr(e.cls, "targets", "one") == "many" else "the papers' sets"
+        rows.append({"name": e.name, "family": e.family, "form": e.cls.form, "source": e.source, "runs": runs,
                      "spec": e.spec, "stage": stage.name if stage is not None else None, "params": params})
     return rows
 
@@ -1463,7 +1539,10 @@ def trackers_cmd(tracker_specs, as_json):
     """List the trackers: built-in, installed (entry points) and plugged with --tracker.
 
     For each: its measurement family, form (batch: all runs at once; run: one run at a time),
-    where it comes from, and its design parameters with default and unit (a default taken from
+    which data sets a replay runs it on without --trackers (a built-in made for the papers'
+    scenes, or for truth sets of many targets among clutter; a variant only when named; a plugged
+    one always), where it comes from, and
+    its design parameters with default and unit (a default taken from
     the stage's bundled scenario says so). Any of them can be changed with --set NAME=VALUE.
 
     \b
@@ -1475,8 +1554,8 @@ def trackers_cmd(tracker_specs, as_json):
     if as_json:
         click.echo(json.dumps(rows, indent=1, default=str))
         return
-    for line in _table(("TRACKER", "FAMILY", "FORM", "SOURCE"),
-                       [(r["name"], r["family"], r["form"], r["source"]) for r in rows]):
+    for line in _table(("TRACKER", "FAMILY", "FORM", "RUNS BY DEFAULT ON", "SOURCE"),
+                       [(r["name"], r["family"], r["form"], r["runs"], r["source"]) for r in rows]):
         click.echo(line)
     # trackers with the same parameter table share one listing
     groups: dict[str, list] = {}

@@ -89,6 +89,9 @@ class Tracker:
     #: paper's fixed slots) or "many" (tracks born and deleted among clutter, any number of
     #: slots); a replay runs the built-ins made for the data set's scene unless told which
     targets: ClassVar[str] = "one"
+    #: whether a replay runs this built-in without being named (a variant of another built-in,
+    #: e.g. the same association with a different filter, runs when asked: ``--trackers``)
+    runs_by_default: ClassVar[bool] = True
 
     def __init__(self, **design):
         defaults = {p.name: p.default for p in self.params}

@@ -487,6 +487,9 @@ class UkfGnnTracker(_MultiTargetTracker):
     label = "UKF (GNN)"
     association = "gnn"
     track_filter = PolarConstantVelocityUKF
+    # the GNN again with another filter: on a radar's long-range plots it follows the EKF GNN
+    # closely, so a replay runs it when named (--trackers gnn,jpda_mt,ukf), not by default
+    runs_by_default = False
 
 
 TRACKERS = (GnnTracker, JpdaTracker, UkfGnnTracker)
