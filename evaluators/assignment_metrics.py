@@ -78,7 +78,7 @@ def _truth_identities(truths, truth_ids):
 
 
 def scan_matches(tracks, truths, gate: float, angular: bool = False, track_ids=None, truth_ids=None,
-                 keep_previous: bool | None = None):
+                 keep_previous: bool | None = None, pairs=None):
     """Per-scan matches of tracks to targets.
 
     Parameters
@@ -99,6 +99,9 @@ def scan_matches(tracks, truths, gate: float, angular: bool = False, track_ids=N
         the gate, and assign only the rest optimally (Bernardin & Stiefelhagen 2008, §2.1.1; the
         rule of TrackEval's ``clear.py``). Default: with ``truth_ids`` only
         (:func:`default_convention`); without, each scan's optimal assignment alone.
+    pairs : tuple, optional
+        :func:`gated_pairs` of the same sets at the same gate, when already found (the matching
+        that keeps previous matches works on them alone).
 
     Returns
     -------
@@ -114,7 +117,7 @@ def scan_matches(tracks, truths, gate: float, angular: bool = False, track_ids=N
     vy = all_finite(Y)
     if keep_previous:
         ids = slot_identities(Y) if track_ids is None else np.asarray(track_ids)
-        return _matches_keeping_previous(X, Y, vx, vy & (ids >= 0), tid, ids, gate, angular)
+        return _matches_keeping_previous(X, Y, vx, vy & (ids >= 0), tid, ids, gate, angular, pairs)
     R, K, T = vx.shape
     S = vy.shape[-1]
     match = np.empty((R, K, T), np.intp)
@@ -141,6 +144,26 @@ def _scan_block(X, Y, vx, vy, gate, angular):
     dist = np.where(match >= 0, np.take_along_axis(d, np.maximum(match, 0)[..., None], axis=-1)[..., 0], np.nan)
     ok = (match >= 0) & (dist < gate)
     return np.where(ok, match, -1), np.where(ok, dist, np.nan)
+
+
+def gated_pairs(tracks, truths, gate: float, angular: bool = False, track_ids=None, truth_ids=None):
+    """Every pair of a present target and a present reported track closer than the gate, per
+    (run, scan).
+
+    The matching that keeps previous matches, the identity pairing of TrackEval's convention
+    and SIAP's associations (:func:`evaluators.siap.siap_sums`) all start from these pairs:
+    found once, they can be handed to each (their ``pairs``). Arguments as :func:`scan_matches`.
+
+    Returns
+    -------
+    problem, truth_slot, track_slot, distance : ndarray (E,)
+        :func:`evaluators.set_distances.close_pairs` of the targets (rows) and tracks (columns)
+        of every (run, scan) problem ``run · K + scan``.
+    """
+    tracks, truths = np.asarray(tracks, float), np.asarray(truths, float)
+    present, _ = _truth_identities(truths, truth_ids)
+    ids = slot_identities(tracks) if track_ids is None else np.asarray(track_ids)
+    return _gated_pairs(truths, tracks, present, all_finite(tracks) & (ids >= 0), gate, angular)
 
 
 def _gated_pairs(truths, tracks, present, track_present, gate, angular):
@@ -192,7 +215,7 @@ def _matches_keeping_previous(X, Y, vx, vy, tid, ids, gate, angular, pairs=None)
 
 
 def assignment_metrics(tracks, truths, gate: float, track_ids=None, angular: bool = False, matches=None,
-                       truth_ids=None, convention: str | None = None) -> dict:
+                       truth_ids=None, convention: str | None = None, pairs=None) -> dict:
     """Per-run CLEAR MOT, identity measures and track-quality counts (arrays of shape (R,)).
 
     Parameters
@@ -211,6 +234,9 @@ def assignment_metrics(tracks, truths, gate: float, track_ids=None, angular: boo
         one target for the whole run.
     convention : {"trackeval", "per-scan"}, optional
         See the module's docstring; default :func:`default_convention`.
+    pairs : tuple, optional
+        :func:`gated_pairs` of the same sets at the same gate, when already found (TrackEval's
+        convention matches and pairs identities on them).
 
     Returns
     -------
@@ -226,12 +252,12 @@ def assignment_metrics(tracks, truths, gate: float, track_ids=None, angular: boo
         raise ValueError(f"convention must be one of {CONVENTIONS}, not {convention!r}")
     tracks, truths = np.asarray(tracks, float), np.asarray(truths, float)
     ids = slot_identities(tracks) if track_ids is None else np.asarray(track_ids)
-    pairs = None
     if matches is None and convention == "trackeval":
         # the pairs within the gate serve both the matching and the identity pairing
         present, tid = _truth_identities(truths, truth_ids)
         vy = all_finite(tracks)
-        pairs = _gated_pairs(truths, tracks, present, vy & (ids >= 0), gate, angular)
+        if pairs is None:
+            pairs = _gated_pairs(truths, tracks, present, vy & (ids >= 0), gate, angular)
         matches = _matches_keeping_previous(truths, tracks, present, vy, tid, ids, gate, angular, pairs)
     elif matches is None:
         matches = scan_matches(tracks, truths, gate, angular, ids, truth_ids, keep_previous=False)
@@ -351,8 +377,6 @@ def _identity_pairing(tracks, truths, gate, ids, tid, present, match, matched_id
                       pairs=None) -> dict:
     """IDTP/IDFP/IDFN per run from one global pairing of truth and track identities (Ristani et
     al. 2016), and the false tracks (track identities never matched at any scan)."""
-    from scipy.optimize import linear_sum_assignment  # imported where needed: 0.25 s
-
     R, K, T = tid.shape
     S = ids.shape[-1]
     track_present = ids >= 0
@@ -371,6 +395,38 @@ def _identity_pairing(tracks, truths, gate, ids, tid, present, match, matched_id
     pairs, count = np.unique(target[r, k, t] * max(n_tracks, 1) + track[r, k, s], return_counts=True)
     pair_target, pair_track = pairs // max(n_tracks, 1), pairs % max(n_tracks, 1)
     pair_run = target_run[pair_target]
+    idtp = _identity_true_positives(pair_run, pair_target, pair_track, count, target_run, track_run, R)
+    # false tracks: identities of a run never matched at any scan
+    matched_tracks = _matched_tracks(track, match, matched_id)
+    false_tracks = np.bincount(track_run, minlength=R) - np.bincount(track_run[matched_tracks], minlength=R)
+    return {"idtp": idtp, "idfp": track_present.sum(axis=(1, 2)) - idtp, "idfn": present.sum(axis=(1, 2)) - idtp,
+            "false_tracks": false_tracks}
+
+
+def _identity_true_positives(pair_run, pair_target, pair_track, count, target_run, track_run, R):
+    """IDTP per run: the largest total ``count`` of a one-to-one pairing of the run's target and
+    track identities (Ristani et al. 2016), each run's :func:`_identity_true_positives_dense`.
+
+    Most identities share scans with few others, so the pairing is solved on the pairs that
+    share any (:func:`evaluators.set_distances.assign_edges`: lone pairs directly, the rest by
+    connected components) instead of on the run's whole target × track matrix. The counts are
+    integers, so the optimum's total is exact whichever optimal pairing either form picks.
+    """
+    if count.size == 0:
+        return np.zeros(R, np.int64)
+    first_target = np.searchsorted(target_run, np.arange(R))
+    first_track = np.searchsorted(track_run, np.arange(R))
+    rows = pair_target - first_target[pair_run]
+    cols = pair_track - first_track[pair_run]
+    chosen = assign_edges(pair_run, rows, cols, count.astype(float), int(rows.max()) + 1, int(cols.max()) + 1)
+    return np.bincount(pair_run[chosen], weights=count[chosen], minlength=R).round().astype(np.int64)
+
+
+def _identity_true_positives_dense(pair_run, pair_target, pair_track, count, target_run, track_run, R):
+    """:func:`_identity_true_positives` by ``scipy.optimize.linear_sum_assignment`` on each run's
+    whole target × track matrix of counts: the plain form."""
+    from scipy.optimize import linear_sum_assignment
+
     first_target = np.searchsorted(target_run, np.arange(R))
     first_track = np.searchsorted(track_run, np.arange(R))
     n_target_run = np.bincount(target_run, minlength=R)
@@ -383,11 +439,7 @@ def _identity_pairing(tracks, truths, gate, ids, tid, present, match, matched_id
         weight[pair_target[b] - first_target[run], pair_track[b] - first_track[run]] = count[b]
         rows, cols = linear_sum_assignment(weight, maximize=True)
         idtp[run] = weight[rows, cols].sum()
-    # false tracks: identities of a run never matched at any scan
-    matched_tracks = _matched_tracks(track, match, matched_id)
-    false_tracks = n_track_run - np.bincount(track_run[matched_tracks], minlength=R)
-    return {"idtp": idtp, "idfp": track_present.sum(axis=(1, 2)) - idtp, "idfn": present.sum(axis=(1, 2)) - idtp,
-            "false_tracks": false_tracks}
+    return idtp
 
 
 def _matched_tracks(track, match, matched_id):

@@ -53,8 +53,12 @@ MEASURES = ("completeness", "ambiguity", "spuriousness", "position_accuracy", "v
             "track_number_change_rate", "longest_track_segment")
 
 
-def siap_associations(tracks, truths, gate: float, track_ids=None, truth_ids=None, angular: bool = False):
+def siap_associations(tracks, truths, gate: float, track_ids=None, truth_ids=None, angular: bool = False,
+                      pairs=None):
     """Each reported track's target at every scan: the nearest present target closer than ``gate``.
+
+    ``pairs``, when given, are :func:`evaluators.assignment_metrics.gated_pairs` of the same
+    sets at the same gate (the pairs this search starts from), found once for several measures.
 
     Returns
     -------
@@ -68,9 +72,11 @@ def siap_associations(tracks, truths, gate: float, track_ids=None, truth_ids=Non
     T = truths.shape[2]
     vy = all_finite(tracks) & (_ids(track_ids, (R, K, S)) >= 0)
     vx = all_finite(truths) & (_ids(truth_ids, (R, K, T)) >= 0)
-    X = np.where(vx[..., None], truths, np.nan).reshape(R * K, T, -1)
-    Y = np.where(vy[..., None], tracks, np.nan).reshape(R * K, S, -1)
-    p, i, j, d = close_pairs(X, Y, gate, angular)
+    if pairs is None:
+        X = np.where(vx[..., None], truths, np.nan).reshape(R * K, T, -1)
+        Y = np.where(vy[..., None], tracks, np.nan).reshape(R * K, S, -1)
+        pairs = close_pairs(X, Y, gate, angular)
+    p, i, j, d = pairs
     keep = d < gate
     p, i, j, d = p[keep], i[keep], j[keep], d[keep]
     # the nearest target of every track (the first of equal distances, by slot): the pairs come
@@ -96,7 +102,7 @@ def _ids(ids, shape):
 
 
 def siap_sums(tracks, truths, gate: float, times=None, track_ids=None, truth_ids=None, angular: bool = False,
-              track_velocities=None, truth_velocities=None) -> dict:
+              track_velocities=None, truth_velocities=None, pairs=None) -> dict:
     """Per-run sums from which the SIAP measures of any set of runs are formed.
 
     Parameters
@@ -115,6 +121,9 @@ def siap_sums(tracks, truths, gate: float, times=None, track_ids=None, truth_ids
         The components are angles (differences wrap).
     track_velocities, truth_velocities : ndarray (R, K, S, v) / (R, K, T, v), optional
         Velocities for the velocity accuracy; without them ``velocity_error_sum`` is NaN.
+    pairs : tuple, optional
+        :func:`evaluators.assignment_metrics.gated_pairs` of the same sets at ``gate``, when
+        already found.
 
     Returns
     -------
@@ -131,7 +140,7 @@ def siap_sums(tracks, truths, gate: float, times=None, track_ids=None, truth_ids
     tid, gid = _ids(track_ids, (R, K, S)), _ids(truth_ids, (R, K, T))
     vy = all_finite(tracks) & (tid >= 0)
     vx = all_finite(truths) & (gid >= 0)
-    target, distance = siap_associations(tracks, truths, gate, tid, gid, angular)
+    target, distance = siap_associations(tracks, truths, gate, tid, gid, angular, pairs)
     target = np.where(vy, target, -1)
     associated = target >= 0
     out = {key: np.zeros(R) for key in SUM_KEYS}

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 import polars as pl
 
-from evaluators.assignment_metrics import assignment_metrics, scan_matches
+from evaluators.assignment_metrics import assignment_metrics, gated_pairs, scan_matches
 from evaluators.confidence import jackknife, mean_interval, ratio_jackknife, rms_interval
 from evaluators.consistency import (consistency_summary, innovation_whiteness, normalised_squared,
                                    whitened_innovations)
@@ -312,15 +312,21 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
             part_truth_ids = None if truth_ids is None else truth_slot_ids[part]
             g = gospa_switching(X, Y, space.cutoff, space.order, space.gospa_switch_penalty, part_ids, part_truth_ids,
                                 space.angular)
-            match, dist = scan_matches(X, Y, space.gate, space.angular, part_ids, part_truth_ids)
+            siap_gate = space.gate if space.siap_gate is None else space.siap_gate
+            # the pairs within the gate, found once for the matching, the identity pairing (with
+            # target identities, TrackEval's convention) and SIAP's associations (at the same gate)
+            pairs = None
+            if part_truth_ids is not None or siap_gate == space.gate:
+                pairs = gated_pairs(X, Y, space.gate, space.angular, part_ids, part_truth_ids)
+            match, dist = scan_matches(X, Y, space.gate, space.angular, part_ids, part_truth_ids, pairs=pairs)
             a = assignment_metrics(X, Y, space.gate, part_ids, space.angular, matches=(match, dist),
-                                   truth_ids=part_truth_ids)
+                                   truth_ids=part_truth_ids, pairs=pairs)
             d0 = space.cutoff if space.hota_distance is None else space.hota_distance
             h = hota_sums(X, Y, d0, part_ids, part_truth_ids, space.angular)
-            siap_gate = space.gate if space.siap_gate is None else space.siap_gate
             vel = (None, None) if velocity is None else (_components(compared[part], velocity),
                                                          _components(tr[part], velocity))
-            si = siap_sums(X, Y, siap_gate, times, part_ids, part_truth_ids, space.angular, *vel)
+            si = siap_sums(X, Y, siap_gate, times, part_ids, part_truth_ids, space.angular, *vel,
+                           pairs=pairs if siap_gate == space.gate else None)
             return g, match, a, {key: h[key] for key in HOTA_SUMS}, {key: si[key] for key in SIAP_SUMS}
 
         # a block of runs at a time: the assignments' temporaries stay a few MB at any number of runs

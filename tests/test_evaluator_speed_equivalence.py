@@ -300,3 +300,72 @@ def test_life_tables_without_targets_or_tracks():
         for g, w in zip(got, want):
             assert g.height == 0
             assert_same_table(g, w)
+
+
+# ------------------------------------------------------------------ identity pairing
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**16), runs=st.integers(1, 4), targets=st.integers(0, 12), tracks=st.integers(0, 15),
+       density=st.sampled_from([0.05, 0.2, 0.6, 1.0]), top=st.sampled_from([1, 3, 50]))
+def test_identity_true_positives_on_the_pairs_equal_the_whole_matrix(seed, runs, targets, tracks, density, top):
+    # identities numbered across runs in run order, as global_identities numbers them; counts
+    # with ties (top 1: every pair counts the same) and without; runs without any pair
+    from evaluators.assignment_metrics import _identity_true_positives, _identity_true_positives_dense
+
+    rng = np.random.default_rng(seed)
+    n_targets = rng.integers(0, targets + 1, runs)
+    n_tracks = rng.integers(0, tracks + 1, runs)
+    target_run = np.repeat(np.arange(runs), n_targets)
+    track_run = np.repeat(np.arange(runs), n_tracks)
+    first_target, first_track = np.cumsum(n_targets) - n_targets, np.cumsum(n_tracks) - n_tracks
+    pair_run, pair_target, pair_track = [], [], []
+    for r in range(runs):
+        for a in range(n_targets[r]):
+            for b in range(n_tracks[r]):
+                if rng.random() < density:
+                    pair_run.append(r)
+                    pair_target.append(first_target[r] + a)
+                    pair_track.append(first_track[r] + b)
+    pair_run, pair_target, pair_track = (np.array(v, np.int64) for v in (pair_run, pair_target, pair_track))
+    count = rng.integers(1, top + 1, pair_run.size)
+    args = (pair_run, pair_target, pair_track, count, target_run, track_run, runs)
+    got, want = _identity_true_positives(*args), _identity_true_positives_dense(*args)
+    assert got.dtype == want.dtype == np.int64
+    np.testing.assert_array_equal(got, want)
+
+
+# ------------------------------------------------------------------ pairs found once
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**16), runs=st.integers(1, 3), scans=st.integers(1, 30), targets=st.integers(1, 7),
+       tracks=st.integers(1, 9), miss=st.sampled_from([0.0, 0.3]), with_ids=st.booleans(), angular=st.booleans())
+def test_measures_on_gated_pairs_found_once_equal_their_own(seed, runs, scans, targets, tracks, miss, with_ids,
+                                                            angular):
+    # the standard measures hand one gated_pairs to the matching, the identity pairing and SIAP
+    from evaluators.assignment_metrics import assignment_metrics, gated_pairs
+    from evaluators.siap import siap_sums
+
+    times, positions, track_ids, truths, truth_ids, _ = many_target_run(
+        seed, runs, scans, targets, tracks, 400.0, miss, 0.5, "none", 9)
+    gate = 30.0
+    if angular:
+        positions, truths, gate = positions[..., :1] / 400.0 * 6.0 - 3.0, truths[..., :1] / 400.0 * 6.0 - 3.0, 0.3
+    ids = (track_ids, truth_ids) if with_ids else (None, None)
+    pairs = gated_pairs(positions, truths, gate, angular, *ids)
+    match = scan_matches(positions, truths, gate, angular, *ids)
+    shared = scan_matches(positions, truths, gate, angular, *ids, pairs=pairs)
+    for g, w in zip(shared, match):
+        assert g.tobytes() == w.tobytes()
+    own = assignment_metrics(positions, truths, gate, ids[0], angular, matches=match, truth_ids=ids[1])
+    given_pairs = assignment_metrics(positions, truths, gate, ids[0], angular, matches=match, truth_ids=ids[1],
+                                     pairs=pairs)
+    unmatched = assignment_metrics(positions, truths, gate, ids[0], angular, truth_ids=ids[1], pairs=pairs)
+    for key, value in own.items():
+        assert given_pairs[key].tobytes() == value.tobytes(), key
+        assert unmatched[key].tobytes() == value.tobytes(), key
+    siap = siap_sums(positions, truths, gate, times, *ids, angular)
+    siap_shared = siap_sums(positions, truths, gate, times, *ids, angular, pairs=pairs)
+    for key, value in siap.items():
+        assert siap_shared[key].tobytes() == value.tobytes(), key
