@@ -19,6 +19,13 @@ process pool or a Dask cluster.
   exit when the client dies, even by SIGKILL (Dask's nannied workers do the same); temporaries
   a SIGKILL leaves behind are removed by the next sweep into the folder, which holds a lock on
   it while it runs.
+* Evaluation design values (the matching gate, the GOSPA cut-off and order, HOTA's distance
+  scale, the SIAP gate: :attr:`pipeline.stages.base.Stage.evaluation_defaults`) go with
+  ``--set`` or ``--param`` like the trackers' design values: to every point's replay, without
+  changing its seed. A name that is also a parameter of the scenario is the scenario's (it goes
+  into the data set, whose scenario record the evaluation reads as well, and into the seed).
+  Every point's ``point.json`` (and its ``metrics.parquet``'s metadata) records the evaluation
+  values it was scored with; ``sweep.json`` and ``sweep.parquet``'s metadata the sweep's.
 * Plugged trackers (``--tracker``) travel to the workers as canonical specs (absolute file
   paths, :func:`pipeline.registry.canonical_spec`) and are loaded again there, so serial, process
   pool and Dask runs load the same file. A tracker that fails on a point is reported with its
@@ -111,6 +118,8 @@ class PointResult:
     work_s: float = 0.0
     # (where, message) of every tracker that failed on this point; the others' records are kept
     tracker_errors: list = field(default_factory=list)
+    # stage name → {evaluation design value: value} the point was scored with
+    evaluation: dict = field(default_factory=dict)
 
 
 def point_seed(base_seed: int, overrides) -> int:
@@ -219,9 +228,9 @@ def run_point(task: PointTask) -> PointResult:
 
     t0 = time.perf_counter()
     try:
-        records, failures = _run_point(task)
+        records, failures, evaluation = _run_point(task)
         return PointResult(task.index, task.label, records, None, time.perf_counter() - t0,
-                           [(f.path or "", str(f)) for f in failures])
+                           [(f.path or "", str(f)) for f in failures], evaluation)
     except TrackerError as exc:  # no tracker of the point ran (e.g. the plugged one alone failed)
         return PointResult(task.index, task.label, [], None, time.perf_counter() - t0, [(exc.path or "", str(exc))])
     except Exception as exc:  # isolate the point: the sweep reports it and goes on
@@ -230,7 +239,7 @@ def run_point(task: PointTask) -> PointResult:
         return PointResult(task.index, task.label, [], msg, time.perf_counter() - t0)
 
 
-def _run_point(task: PointTask) -> tuple[list[dict], list]:
+def _run_point(task: PointTask) -> tuple[list[dict], list, dict]:
     from pipeline.replay import replay
     from recorders.scenarios import load_scenario
     from recorders.simulated import record
@@ -251,7 +260,63 @@ def _run_point(task: PointTask) -> tuple[list[dict], list]:
             shutil.rmtree(work, ignore_errors=True)
     overall = res.summary.filter(pl.col("scope") == "overall")
     records = [{k: r.get(k) for k in RECORD_COLUMNS} for r in overall.iter_rows(named=True)]
-    return records, res.failures
+    return records, res.failures, evaluation_used(res)
+
+
+def evaluation_used(res) -> dict:
+    """Stage name → the evaluation design values a replay's scores used (defaults, the data
+    set's scenario record and ``--set``, as :meth:`Stage.design` resolved them)."""
+    from pipeline.stages import stage_named
+
+    out = {}
+    for name in res.results:
+        design = res.dataset.cache.get(("design", name), {})
+        out[name] = {k: design[k] for k in stage_named(name).evaluation_defaults if k in design}
+    return json.loads(json.dumps(out, default=str))
+
+
+def evaluation_defaults_of(families) -> dict:
+    """Evaluation design value → default of the stages of ``families`` (measurement families):
+    what ``--set`` may change in a sweep of a scenario that records them."""
+    from pipeline.stages import STAGES
+
+    out = {}
+    for stage in STAGES:
+        if stage.family in families:
+            out.update({k: v for k, v in stage.evaluation_defaults.items() if k not in out})
+    return out
+
+
+def check_evaluation_values(values: dict) -> None:
+    """Refuse, before any work, an evaluation design value out of its range (name → raw values,
+    checked by every stage that declares the name; other names are left alone).
+
+    Raises
+    ------
+    InputError
+        One line naming the value.
+    """
+    from pipeline.stages import STAGES
+    from recorders.scenarios import coerce
+
+    for stage in STAGES:
+        for name, raws in values.items():
+            if name in stage.evaluation_defaults:
+                for raw in raws:
+                    stage.check_design({name: coerce(name, raw, stage.evaluation_defaults[name])})
+
+
+def evaluation_summary(per_point: dict) -> dict:
+    """Stage name → evaluation value → its value at every point, or ``{point label: value}``
+    where the points differ (a swept value, or a default the data sets adapt)."""
+    out: dict = {}
+    for label, stages in per_point.items():
+        for stage, values in (stages or {}).items():
+            for name, value in values.items():
+                out.setdefault(stage, {}).setdefault(name, {})[label] = value
+    return {stage: {name: (next(iter(by.values())) if len(set(map(json.dumps, by.values()))) == 1 and
+                           len(by) == len(per_point) else by)
+                    for name, by in values.items()} for stage, values in out.items()}
 
 
 # every metric of a point with its Monte Carlo standard error and 95 % interval (docs/evaluation.md)
@@ -494,6 +559,8 @@ class SweepReport:
     tracker_failures: dict[str, list] = field(default_factory=dict)
     # one line per reason why a resumed sweep computed points again (what changed)
     notes: list[str] = field(default_factory=list)
+    # point label → stage name → {evaluation design value: value} the point was scored with
+    evaluation: dict = field(default_factory=dict)
 
     def tracker_failure_lines(self) -> list[str]:
         """One line per failing tracker: its first failure, the point, and on how many points."""
@@ -644,33 +711,36 @@ def record_changes(old: dict, new: dict) -> list[str]:
     return out
 
 
-def _reuse(task: PointTask, out_dir: Path, swept: list[str]) -> tuple[pl.DataFrame | None, str | None]:
+def _reuse(task: PointTask, out_dir: Path, swept: list[str]) -> tuple[pl.DataFrame | None, str | None, dict]:
     """The point's table from a previous sweep, or ``None`` and why it is computed again
-    (``None`` as the reason: it never finished)."""
+    (``None`` as the reason: it never finished); and the evaluation values it was scored with."""
     metrics = _metrics_file(out_dir, task.label)
     if not metrics.exists():
-        return None, None
+        return None, None, {}
     rec = _record_file(out_dir, task.label)
     if not rec.exists():
-        return None, "no point.json records what it computed"
+        return None, "no point.json records what it computed", {}
     try:
         old = json.loads(rec.read_text())
         if not isinstance(old, dict):
             raise ValueError("not a JSON object")
     except (OSError, UnicodeDecodeError, ValueError) as exc:
-        return None, f"point.json unreadable ({type(exc).__name__})"
+        return None, f"point.json unreadable ({type(exc).__name__})", {}
+    # what the point was scored with: a result, not part of what it computes (its record)
+    evaluation = old.pop("evaluation", None)
+    evaluation = evaluation if isinstance(evaluation, dict) else {}
     new = task.record()
     if old != new:
-        return None, "; ".join(record_changes(old, new)) or "point.json differs"
+        return None, "; ".join(record_changes(old, new)) or "point.json differs", {}
     try:
         stored = pl.read_parquet(metrics)
         stored = stored.with_columns(*(pl.lit(None, pl.Float64).alias(c) for c in RECORD_COLUMNS
                                        if c not in stored.columns))
         records = stored.select(RECORD_COLUMNS).cast(RECORD_SCHEMA).to_dicts()
     except Exception as exc:  # any damage: compute the point again rather than trust it
-        return None, f"metrics.parquet unreadable ({type(exc).__name__})"
+        return None, f"metrics.parquet unreadable ({type(exc).__name__})", {}
     # the stored values under this grid's index, label and columns, as a fresh run builds them
-    return _point_frame(task, records, swept), None
+    return _point_frame(task, records, swept), None, evaluation
 
 
 def _resume_notes(reasons: dict[str, str]) -> list[str]:
@@ -773,11 +843,13 @@ def _run_sweep(tasks, swept, out_dir, executor, workers, scheduler, resume, prog
     todo = []
     skipped = 0
     again: dict[str, str] = {}
+    evaluation: dict[str, dict] = {}
     for t in tasks:
         if resume and out_dir is not None:
-            frame, why = _reuse(t, out_dir, swept)
+            frame, why, used = _reuse(t, out_dir, swept)
             if frame is not None:
                 frames[t.index] = frame
+                evaluation[t.label] = used
                 skipped += 1
                 if progress:
                     progress(1)
@@ -807,13 +879,15 @@ def _run_sweep(tasks, swept, out_dir, executor, workers, scheduler, resume, prog
                     task = by_index[res.index]
                     frame = _point_frame(task, res.records, swept)
                     frames[res.index] = frame
+                    # a worker of an older installed copy may not send it
+                    used = evaluation[res.label] = getattr(res, "evaluation", None) or {}
                     # a point where a tracker failed is not recorded as done: resume computes it
                     # again. The record goes last: metrics without their record are not reused.
                     if out_dir is not None and not res.tracker_errors:
                         with atomic_output(_metrics_file(out_dir, res.label)) as fh:
-                            frame.write_parquet(fh)
+                            frame.write_parquet(fh, metadata={EVALUATION_METADATA: json.dumps(used)})
                         with atomic_output(_record_file(out_dir, res.label), "w") as fh:
-                            json.dump(task.record(), fh, indent=1)
+                            json.dump({**task.record(), "evaluation": used}, fh, indent=1)
                 if progress:
                     progress(1)
                 if outcome:
@@ -822,16 +896,25 @@ def _run_sweep(tasks, swept, out_dir, executor, workers, scheduler, resume, prog
             it.close()  # stops the workers when interrupted here rather than in the executor
     table = (pl.concat([frames[i] for i in sorted(frames)], how="vertical_relaxed") if frames
              else pl.DataFrame(schema={"point_index": pl.Int64, "point": pl.Utf8, **RECORD_SCHEMA}))
+    order = {t.label: t.index for t in tasks}
     return SweepReport(table, len(todo) - len(failed), skipped, failed, time.perf_counter() - t0, work, out_dir,
-                       tracker_failures, _resume_notes(again))
+                       tracker_failures, _resume_notes(again),
+                       {label: evaluation[label] for label in sorted(evaluation, key=order.get)})
+
+
+#: key of the Parquet metadata (sweep.parquet, a point's metrics.parquet) holding the evaluation
+#: design values the metrics were scored with, as JSON
+EVALUATION_METADATA = "replay.evaluation"
 
 
 def write_sweep_outputs(report: SweepReport, swept: list[str], spec: dict) -> list[Path]:
-    """Table as Parquet + CSV, the spec as JSON, and one PNG per metric vs the first swept parameter."""
+    """Table as Parquet + CSV, the spec as JSON (with the evaluation design values the points were
+    scored with: :func:`evaluation_summary`), and one PNG per metric vs the first swept parameter."""
     out = report.out_dir
     with _stop_on_signals(), _folder_lock(out):
         try:
-            return _write_sweep_outputs(report, swept, {**spec, "version": __version__})
+            return _write_sweep_outputs(report, swept, {**spec, "version": __version__,
+                                                        "evaluation": evaluation_summary(report.evaluation)})
         finally:
             # a signal can land between a temporary's creation and the code that removes it
             # (inside tempfile.mkstemp); whatever is left is swept up here
@@ -844,7 +927,8 @@ def _write_sweep_outputs(report: SweepReport, swept: list[str], spec: dict) -> l
     out = report.out_dir
     paths = []
     with atomic_output(out / "sweep.parquet") as f:
-        report.table.write_parquet(f)
+        report.table.write_parquet(f, metadata={EVALUATION_METADATA: json.dumps(spec.get("evaluation", {}),
+                                                                                default=str)})
     with atomic_output(out / "sweep.csv") as f:
         report.table.write_csv(f)
     with atomic_output(out / "sweep.json", "w") as f:
@@ -868,9 +952,13 @@ def _write_sweep_outputs(report: SweepReport, swept: list[str], spec: dict) -> l
     return paths
 
 
-def sweep_spec_report(spec_path: str | Path, executor: str = "serial", tracker_specs=()) -> SweepReport:
+def sweep_spec_report(spec_path: str | Path, executor: str = "serial", tracker_specs=(),
+                      evaluation: dict | None = None) -> SweepReport:
     """Run a bundled regression sweep (``data/sweeps/*.toml``), metrics only, no files kept;
-    ``tracker_specs`` adds plugged trackers beside the spec's trackers."""
+    ``tracker_specs`` adds plugged trackers beside the spec's trackers, and ``evaluation``
+    (name → value) sets the evaluation design values at every point; the names the stages of
+    the scenario do not declare are left out (:attr:`SweepReport.evaluation` says what each
+    point used)."""
     import tomllib
 
     spec_path = Path(spec_path)
@@ -880,8 +968,12 @@ def sweep_spec_report(spec_path: str | Path, executor: str = "serial", tracker_s
         scenario, runs, seed = doc["scenario"], int(doc["runs"]), int(doc["seed"])
     except (tomllib.TOMLDecodeError, KeyError, TypeError, ValueError) as exc:
         raise InputError(f"not a valid sweep spec ({type(exc).__name__}: {exc})", spec_path) from None
-    tasks = build_grid(scenario, specs, runs, seed, doc.get("trackers"), None, keep_data=False,
-                       tracker_specs=tracker_specs)
+    fixed, defaults = {}, {}
+    if evaluation:
+        defaults = evaluation_defaults_of(scenario_families(scenario))
+        fixed = {k: v for k, v in evaluation.items() if k in defaults}
+    tasks = build_grid(scenario, specs, runs, seed, doc.get("trackers"), None, keep_data=False, fixed=fixed,
+                       tracker_specs=tracker_specs, design_defaults=defaults)
     report = run_sweep(tasks, list(specs), None, executor=executor)
     if report.failed:
         raise InputError(f"sweep points failed: {report.failed}", spec_path)

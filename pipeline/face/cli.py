@@ -1132,8 +1132,8 @@ def _json_value(v):
 # The evaluation design values of every stage with their defaults (Stage.evaluation_defaults;
 # tests/test_evaluation_design_values.py keeps this text equal to them): written out here so
 # that `--help` needs no import of the stages.
-EVALUATION_VALUES_EPILOG = """Evaluation design values (--set NAME=VALUE) and their fixed defaults, per stage (a data
-set's scenario record, or the stage from the data, may give others; the values used are recorded):
+EVALUATION_VALUES_EPILOG = """Evaluation design values (--set NAME=VALUE) with each stage's fixed defaults; a data set's
+scenario record, or the data set itself, may give others (docs/evaluation.md, "Evaluation design values"):
 
 \b
   radar-tws          ospa_cutoff_m=1000, ospa_order=2, assignment_gate_m=500,
@@ -1141,9 +1141,7 @@ set's scenario record, or the stage from the data, may give others; the values u
   xcorr-peaks        ospa_cutoff_deg=10, ospa_order=2, assignment_gate_deg=5
   array-bearing      ospa_cutoff_deg=10, ospa_order=2, assignment_gate_deg=3
   tdoa-fdoa          ospa_cutoff_m=5000, ospa_order=2, assignment_gate_m=2000
-  colored-noise-imm  ospa_cutoff_m=100, ospa_order=2, assignment_gate_m=50
-
-The meaning of each: docs/evaluation.md (OSPA and GOSPA, HOTA, SIAP)."""
+  colored-noise-imm  ospa_cutoff_m=100, ospa_order=2, assignment_gate_m=50"""
 
 EVALUATION_SET_HELP = ("Score with this evaluation design value (the matching gate, the GOSPA cut-off and order, "
                        "HOTA's distance scale, the SIAP gate; listed below); repeatable.")
