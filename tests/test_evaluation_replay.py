@@ -14,7 +14,9 @@ from evaluators.compare import direction
 from pipeline.cores.filters.kalman import kf_predict, kf_update
 from pipeline.cores.filters.pcrb import pcrb_recursion
 from pipeline.face.cli import main
+from pipeline.contract import read_dataset
 from pipeline.replay import replay
+from pipeline.stages import stage_named
 
 STANDARD = {"ospa_mean_m", "gospa_mean_m", "mota", "motp_m", "idf1", "nees_time_average", "nis_time_average",
             "anees_inside_fraction", "mostly_tracked_per_run", "id_switches_per_run"}
@@ -46,9 +48,10 @@ def test_standard_measures_are_reported_for_every_tracker(demo_result):
     assert (low < 4).all() and (high > 4).all()
 
 
-def test_ospa_never_exceeds_its_cutoff_and_gospa_parts_add_up(demo_result):
+def test_ospa_never_exceeds_its_cutoff_and_gospa_parts_add_up(demo_result, demo_mcap):
     p = demo_result.per_scan
-    assert p["ospa_m"].drop_nulls().max() <= 1000.0 + 1e-9
+    cutoff = stage_named("radar-tws").design(read_dataset(demo_mcap))["ospa_cutoff_m"]
+    assert p["ospa_m"].drop_nulls().max() <= cutoff + 1e-9
     # with one target and one track GOSPA (p = 2, α = 2) is √(loc² + c²/2 (missed + false))
     g = p.select("gospa_m", "gospa_localisation_m", "gospa_missed", "gospa_false").drop_nulls()
     assert g.height > 0

@@ -22,6 +22,17 @@ from pipeline.stages.truth_sets import identity_slots, single_target
 from pipeline.trackers.radar_tws import radar_pcrb
 from evaluators.standard import position_space
 
+#: radius, in standard deviations, of the two-dimensional Gaussian ellipse that holds all but
+#: 10⁻⁴ of it (√ of the χ² quantile with 2 degrees of freedom: √(−2 ln 10⁻⁴))
+GATE_SIGMAS = float(np.sqrt(-2.0 * np.log(1e-4)))
+
+
+def _round_up(value: float, digits: int = 2) -> float:
+    """``value`` rounded up to ``digits`` significant digits (a gate a reader can quote)."""
+    step = 10.0 ** (np.floor(np.log10(value)) - (digits - 1))
+    return float(np.ceil(value / step - 1e-9) * step)
+
+
 PLOTS = vocab.CHANNELS["radar_plots"]
 TRUTH = vocab.CHANNELS["radar_truth"]
 XY = "/xy/world"  # under the x/y view's origin, flipped north-up (see timeline.north_up)
@@ -92,6 +103,30 @@ class RadarTwsStage(Stage):
                              dataset.path)
         state, ids = identity_slots(state, ids, counts, TRUTH, dataset.path)
         return _fit_runs_scans(state, plot_counts.shape), _fit_runs_scans(ids, plot_counts.shape, -1)
+
+    def evaluation_defaults_from_data(self, dataset, design: dict) -> dict:
+        """The matching gate from the plots' noise at the targets' farthest range.
+
+        A plot's position error has along-range σ_r and cross-range r σ_θ; the gate is the
+        radius holding all but 10⁻⁴ of a two-dimensional Gaussian of the larger spread
+        ``√(σ_r² + (r σ_θ)²)`` at the farthest true range, rounded up to two significant digits.
+        A filter's position error is at most its plots' after the first update, so a gate this
+        wide does not cut a well-modelled track off its target (a fixed 500 m did, at long range
+        with a coarse bearing; docs/evaluation.md, "Evaluation design values"). The GOSPA cut-off
+        c, its switch penalty and HOTA's distance scale are twice the gate, the SIAP gate the gate
+        (the ratios of the fixed defaults). Without truth there is nothing to score: no change."""
+        truth = self.decode_truth(dataset)
+        sigma_range = design.get("sigma_range_m")
+        if truth is None or sigma_range is None or design.get("sigma_bearing_deg") is None:
+            return {}
+        far = np.hypot(truth[0][..., 0], truth[0][..., 1])
+        far = far[np.isfinite(far)]
+        if far.size == 0:
+            return {}
+        spread = np.hypot(float(sigma_range), float(far.max()) * np.deg2rad(float(design["sigma_bearing_deg"])))
+        gate = _round_up(GATE_SIGMAS * spread)
+        return {"assignment_gate_m": gate, "siap_gate_m": gate, "ospa_cutoff_m": 2.0 * gate,
+                "hota_distance_m": 2.0 * gate, "gospa_switch_penalty_m": 2.0 * gate}
 
     # HOTA's distance scale d₀ and GOSPA's switch penalty γ default to the cut-off c, the SIAP
     # gate to the assignment gate
