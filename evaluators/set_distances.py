@@ -543,8 +543,10 @@ def _close_pairs_windowed(X, Y, radius: float, angular: bool = False):
 
 
 #: rows of a block of problems of :func:`_close_pairs_windowed`: its keys stay exact to far
-#: below the window's margin, and its candidates take some tens of MB
+#: below the window's margin
 WINDOW_BLOCK_ROWS = 1 << 18
+#: candidate pairs :func:`_window_block` measures at once (8 MB an array)
+WINDOW_CANDIDATES = 1 << 20
 
 
 def _window_block(X, Y, radius, angular):
@@ -560,12 +562,14 @@ def _window_block(X, Y, radius, angular):
     """
     P, m, n = X.shape[0], X.shape[1], Y.shape[1]
     d = X.shape[-1]
-    px, ix = np.nonzero(all_finite(X))
-    py, jy = np.nonzero(all_finite(Y))
-    if px.size == 0 or py.size == 0:
+    x_at_rows = np.flatnonzero(all_finite(X))
+    y_at_rows = np.flatnonzero(all_finite(Y))
+    if x_at_rows.size == 0 or y_at_rows.size == 0:
         return _no_pairs()
-    xs = [X[px, ix, c] for c in range(d)]                          # present rows, a component each
-    ys = [Y[py, jy, c] for c in range(d)]
+    px, ix = np.divmod(x_at_rows, m)
+    py, jy = np.divmod(y_at_rows, n)
+    xs = X.reshape(-1, d)[x_at_rows].T.copy()                      # present rows, a component each
+    ys = Y.reshape(-1, d)[y_at_rows].T.copy()
     turn = 2 * np.pi
     if angular:
         x_at = np.mod(xs[0] + np.pi, turn) - np.pi
@@ -591,34 +595,45 @@ def _window_block(X, Y, radius, angular):
     x_key = px * spacing + (x_at - low)
     by_key = np.argsort(y_key)
     y_key = y_key[by_key]
-    # the rows of X in key order too: the binary searches then walk the keys of Y in order
-    x_order = np.argsort(x_key)
-    x_key = x_key[x_order]
     start = np.searchsorted(y_key, x_key - width, side="left")
     count = np.searchsorted(y_key, x_key + width, side="right") - start
-    total = int(count.sum())
-    if total == 0:
-        return _no_pairs()
-    # the candidates: each row of X with every row of Y in its window
-    row = np.repeat(x_order, count)
-    at = np.arange(total) + np.repeat(start - (np.cumsum(count) - count), count)
-    other = y_row[by_key[at]]
-    # the squared distance a component at a time, as _close_pairs_dense sums it
-    t = np.zeros(total)
-    for xc, yc in zip(xs, ys):
-        u = xc[row] - yc[other]
-        if angular:
-            u += np.pi
-            np.mod(u, 2 * np.pi, out=u)
-            u -= np.pi
-        np.multiply(u, u, out=u)
-        t += u
+    # the rows of X in pieces of about WINDOW_CANDIDATES candidates: the memory stays bounded
+    # however wide the windows are against the spread of the rows
+    ends = np.cumsum(count)
+    cuts = np.unique(np.r_[0, np.searchsorted(ends, np.arange(WINDOW_CANDIDATES, ends[-1], WINDOW_CANDIDATES)),
+                           px.size])
     wide = radius * radius * (1 + 8 * np.finfo(float).eps)
-    near = np.flatnonzero(t < wide)
-    dist = np.sqrt(t[near])
-    keep = dist < radius
-    near, dist = near[keep], dist[keep]
-    flat = (px[row[near]] * m + ix[row[near]]) * n + jy[other[near]]
+    found, distances = [], []
+    for lo, hi in zip(cuts[:-1], cuts[1:]):
+        piece = count[lo:hi]
+        total = int(piece.sum())
+        if total == 0:
+            continue
+        # the candidates: each row of X with every row of Y in its window
+        row = np.repeat(np.arange(lo, hi), piece)
+        at = np.arange(total) + np.repeat(start[lo:hi] - (np.cumsum(piece) - piece), piece)
+        other = y_row[by_key[at]]
+        # the squared distance a component at a time, as _close_pairs_dense sums it
+        t = np.zeros(total)
+        for xc, yc in zip(xs, ys):
+            u = xc[row] - yc[other]
+            if angular:
+                u += np.pi
+                np.mod(u, 2 * np.pi, out=u)
+                u -= np.pi
+            np.multiply(u, u, out=u)
+            t += u
+        near = np.flatnonzero(t < wide)
+        dist = np.sqrt(t[near])
+        keep = dist < radius
+        near, dist = near[keep], dist[keep]
+        found.append((px[row[near]] * m + ix[row[near]]) * n + jy[other[near]])
+        distances.append(dist)
+    if not found:
+        return _no_pairs()
+    flat, dist = np.concatenate(found), np.concatenate(distances)
+    # in (problem, i) order already, each row's pairs by position along the window: a stable
+    # sort (a merge of sorted runs) puts them in j order
     by = np.argsort(flat, kind="stable")
     flat, dist = flat[by], dist[by]
     p, ij = np.divmod(flat, m * n)

@@ -91,14 +91,18 @@ def test_close_pairs_across_the_wrap_are_found():
     np.testing.assert_array_equal(d, pairwise_distance(X, Y, angular=True)[p, i, j])
 
 
-def test_windowed_close_pairs_in_many_blocks(monkeypatch):
-    # blocks of a few problems each: the problems' offsets and the joined order are right
+@pytest.mark.parametrize("block_rows,candidates", [(40, 1 << 20), (1 << 18, 7), (40, 50)])
+def test_windowed_close_pairs_in_many_blocks(monkeypatch, block_rows, candidates):
+    # blocks of a few problems each, and their candidates in pieces: the problems' offsets and
+    # the joined order are right
     X, Y = padded_sets(7, 300, 9, 11, 2, 10.0, 0.2, False, angular=False)
     want = _close_pairs_dense(X, Y, 3.0)
-    monkeypatch.setattr(set_distances, "WINDOW_BLOCK_ROWS", 40)
-    assert_same_pairs(_close_pairs_windowed(X, Y, 3.0), want)
     Xa, Ya = padded_sets(8, 300, 9, 11, 1, 1.0, 0.2, False, angular=True)
-    assert_same_pairs(_close_pairs_windowed(Xa, Ya, 0.2, angular=True), _close_pairs_dense(Xa, Ya, 0.2, angular=True))
+    want_angular = _close_pairs_dense(Xa, Ya, 0.2, angular=True)
+    monkeypatch.setattr(set_distances, "WINDOW_BLOCK_ROWS", block_rows)
+    monkeypatch.setattr(set_distances, "WINDOW_CANDIDATES", candidates)
+    assert_same_pairs(_close_pairs_windowed(X, Y, 3.0), want)
+    assert_same_pairs(_close_pairs_windowed(Xa, Ya, 0.2, angular=True), want_angular)
 
 
 def test_windowed_close_pairs_on_many_problems_equal_every_pair():
