@@ -439,6 +439,18 @@ def _half_switches(own, partner, present) -> np.ndarray:
     return np.bincount(r * K + k, weights=halves, minlength=R * K).reshape(R, K).astype(np.int64)
 
 
+def _add_square(total, difference, angular: bool) -> None:
+    """``total += difference²`` in place, the difference wrapped into [−π, π) first for an angle
+    (``difference`` is overwritten): one component of a squared distance, summed the same way by
+    both forms of :func:`close_pairs` so that their distances agree bit for bit."""
+    if angular:
+        difference += np.pi
+        np.mod(difference, 2 * np.pi, out=difference)
+        difference -= np.pi
+    np.multiply(difference, difference, out=difference)
+    total += difference
+
+
 #: pairs per block of :func:`_close_pairs_dense`: its squared distances stay in the cache
 PAIR_BLOCK = 1 << 16
 
@@ -490,13 +502,7 @@ def _close_pairs_dense(X, Y, radius: float, angular: bool = False):
         t, u = total[:b], part[:b]
         t.fill(0.0)
         for xc, yc in zip(Xc, Yc):
-            np.subtract(xc[a:a + b, :, None], yc[a:a + b, None, :], out=u)
-            if angular:
-                u += np.pi
-                np.mod(u, 2 * np.pi, out=u)
-                u -= np.pi
-            np.multiply(u, u, out=u)
-            t += u
+            _add_square(t, np.subtract(xc[a:a + b, :, None], yc[a:a + b, None, :], out=u), angular)
         flat = np.flatnonzero(t.reshape(-1) < wide)   # NaN (an absent row) is never closer
         found.append(flat + a * m * n)
         squares.append(t.reshape(-1)[flat])
@@ -616,13 +622,7 @@ def _window_block(X, Y, radius, angular):
         # the squared distance a component at a time, as _close_pairs_dense sums it
         t = np.zeros(total)
         for xc, yc in zip(xs, ys):
-            u = xc[row] - yc[other]
-            if angular:
-                u += np.pi
-                np.mod(u, 2 * np.pi, out=u)
-                u -= np.pi
-            np.multiply(u, u, out=u)
-            t += u
+            _add_square(t, xc[row] - yc[other], angular)
         near = np.flatnonzero(t < wide)
         dist = np.sqrt(t[near])
         keep = dist < radius

@@ -410,6 +410,28 @@ def joint_association_probabilities(ratio: np.ndarray, miss: np.ndarray, gated: 
     return beta, beta0, split
 
 
+def _cut_clusters(cluster, max_cluster_tracks: int):
+    """Groups of at most ``max_cluster_tracks`` tracks from tracks sorted by ``cluster`` (and,
+    within one, in the order a cut follows): ``too_big`` marks the tracks of a cluster that had
+    to be cut, ``new_group`` the first track of every group."""
+    new_cluster = np.r_[True, cluster[1:] != cluster[:-1]]
+    cluster_start = np.flatnonzero(new_cluster)
+    cluster_id = np.cumsum(new_cluster) - 1
+    cluster_size = np.diff(np.r_[cluster_start, cluster.size])
+    rank = np.arange(cluster.size) - cluster_start[cluster_id]
+    too_big = cluster_size[cluster_id] > max_cluster_tracks
+    return too_big, new_cluster | (too_big & (rank % max_cluster_tracks == 0))
+
+
+def _lone_track_marginals(ratio, miss):
+    """:func:`association_marginals` of clusters of one track ``(B, 1, m)``, without the
+    recursion: ``β_j = r_j / (miss + Σ r)``, ``β₀ = miss / (miss + Σ r)``."""
+    Z = miss + ratio.sum(axis=-1)
+    ok = Z > 0
+    Zs = np.where(ok, Z, 1.0)
+    return np.where(ok[..., None], ratio / Zs[..., None], 0.0), np.where(ok, miss / Zs, 1.0)
+
+
 def pair_association_probabilities(ratio, track, peak, miss, predicted_bearing, max_cluster_tracks: int = 12):
     """:func:`joint_association_probabilities` from the gated track–peak pairs alone.
 
@@ -456,15 +478,8 @@ def pair_association_probabilities(ratio, track, peak, miss, predicted_bearing, 
     tracks = np.unique(track)
     # order the tracks of each cluster as the dense form does: by predicted bearing, then index
     order = tracks[np.lexsort((tracks, predicted_bearing[tracks], label[tracks]))]
-    cluster = label[order]
-    new_cluster = np.r_[True, cluster[1:] != cluster[:-1]]
-    cluster_start = np.flatnonzero(new_cluster)
-    cluster_id = np.cumsum(new_cluster) - 1
-    cluster_size = np.diff(np.r_[cluster_start, order.size])
-    rank = np.arange(order.size) - cluster_start[cluster_id]
-    too_big = cluster_size[cluster_id] > max_cluster_tracks
+    too_big, new_group = _cut_clusters(label[order], max_cluster_tracks)
     split[order[too_big]] = True
-    new_group = new_cluster | (too_big & (rank % max_cluster_tracks == 0))
     group_start = np.flatnonzero(new_group)
     group_size = np.diff(np.r_[group_start, order.size])
     group_of = np.empty(N, np.int64)
@@ -493,14 +508,7 @@ def pair_association_probabilities(ratio, track, peak, miss, predicted_bearing, 
         r[index[g[mine]], slot_in_group[track[mine]], column[mine]] = ratio[mine]
         members = order[group_start[groups][:, None] + np.arange(s)]      # (batch, s) tracks
         mm = miss[members]
-        if s == 1:  # a track alone: β_j = r_j / (miss + Σ r), β₀ = miss / (miss + Σ r), no recursion
-            Z = mm + r.sum(axis=-1)
-            ok = Z > 0
-            Zs = np.where(ok, Z, 1.0)
-            bb = np.where(ok[..., None], r / Zs[..., None], 0.0)
-            b0 = np.where(ok, mm / Zs, 1.0)
-        else:
-            bb, b0 = association_marginals(r, mm)
+        bb, b0 = _lone_track_marginals(r, mm) if s == 1 else association_marginals(r, mm)
         beta[mine] = bb[index[g[mine]], slot_in_group[track[mine]], column[mine]]
         beta0[members] = b0
     return beta, beta0, split
@@ -512,15 +520,8 @@ def _clustered_marginals(r, miss, gated, predicted_bearing, max_cluster_tracks, 
     labels = cluster_tracks(gated) if T > 1 else np.zeros((R, 1), np.int64)
     key = (labels + T * np.arange(R)[:, None]).ravel()
     order = np.lexsort((predicted_bearing.ravel(), key))
-    k_sorted = key[order]
-    new_cluster = np.r_[True, k_sorted[1:] != k_sorted[:-1]]
-    cluster_id = np.cumsum(new_cluster) - 1
-    cluster_start = np.flatnonzero(new_cluster)
-    cluster_size = np.diff(np.r_[cluster_start, key.size])
-    rank = np.arange(key.size) - cluster_start[cluster_id]
-    too_big = cluster_size[cluster_id] > max_cluster_tracks
+    too_big, new_group = _cut_clusters(key[order], max_cluster_tracks)
     split.ravel()[order[too_big]] = True
-    new_group = new_cluster | (too_big & (rank % max_cluster_tracks == 0))
     group_start = np.flatnonzero(new_group)
     group_size = np.diff(np.r_[group_start, key.size])
     beta = np.zeros((R, T, m))
@@ -529,13 +530,8 @@ def _clustered_marginals(r, miss, gated, predicted_bearing, max_cluster_tracks, 
         first = group_start[group_size == s]
         flat = order[first[:, None] + np.arange(s)]  # (batch, s) flat (run, track) indices
         run, trk = np.divmod(flat, T)
-        if s == 1:  # a track alone: β_j = r_j / (miss + Σ r), β₀ = miss / (miss + Σ r), no recursion
-            rr, mm = r[run, trk], miss[run, trk]
-            Z = mm + rr.sum(axis=-1)
-            ok = Z > 0
-            Zs = np.where(ok, Z, 1.0)
-            bb = np.where(ok[..., None], rr / Zs[..., None], 0.0)
-            b0 = np.where(ok, mm / Zs, 1.0)
+        if s == 1:
+            bb, b0 = _lone_track_marginals(r[run, trk], miss[run, trk])
         else:
             bb, b0 = _cluster_marginals_on_own_peaks(r[run, trk], miss[run, trk])
         beta[run, trk] = bb
