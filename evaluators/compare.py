@@ -53,6 +53,10 @@ def pair_trackers(names_a, names_b, pairs=None) -> list[tuple[str, str]]:
         When nothing pairs.
     """
     if pairs:
+        for a, b in pairs:  # a name neither output holds is the user's slip, said plainly
+            for name, names, side in ((a, names_a, "A"), (b, names_b, "B")):
+                if name not in names:
+                    raise ValueError(f"--pair {a}:{b}: {side} has no tracker {name!r} (it has: {', '.join(names)})")
         return list(pairs)
     common = [n for n in names_a if n in names_b]
     if common:

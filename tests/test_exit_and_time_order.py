@@ -79,3 +79,34 @@ def test_scan_times_that_do_not_increase_are_refused_with_one_line(runner, tmp_p
     errors = [line for line in res.stderr.splitlines() if line.startswith("replay: error: ")]
     assert len(errors) == 1 and "back.mcap" in errors[0] and "scan times must increase" in errors[0], res.output
     assert path.read_bytes() == before and not Path("o").exists()
+
+
+def test_a_pair_naming_a_tracker_neither_output_holds_is_one_line(runner, radar_small):
+    """``compare --pair nosuch:kalman`` was an internal error (exit 3); it is the user's slip."""
+    assert runner.invoke(main, [str(radar_small), "--no-rrd", "--out", "a/t.mcap", "--figures", "none"]).exit_code == 0
+    res = runner.invoke(main, ["compare", "a/t.mcap", "a/t.mcap", "--data", str(radar_small), "--pair", "nosuch:kalman"])
+    assert res.exit_code == 2, res.output
+    errors = [line for line in res.stderr.splitlines() if line.startswith("replay: error: ")]
+    assert len(errors) == 1 and "A has no tracker 'nosuch'" in errors[0] and "kalman" in errors[0], res.output
+
+
+def test_plots_with_two_numbers_each_are_refused_as_input_not_blamed_on_a_tracker(runner, tmp_path):
+    import numpy as np
+
+    from pipeline.contract import scenario_metadata, write_dataset
+    from recorders.radar_tws import simulate
+    from recorders.scenarios import load_scenario
+
+    params = load_scenario("radar-tws").params
+    data = simulate(params, 1, 2)
+    values, counts = data.ragged["/radar/plots"]
+    path = tmp_path / "wide.mcap"
+    with write_dataset(path, scenario_metadata("radar-tws", params, 2)) as w:
+        for k, t in enumerate(data.times):
+            n = counts[0, k]
+            w.write("/radar/plots", 0, k, float(t), {"range_m": np.stack([values["range_m"][0, k, :n]] * 2, -1),
+                                                     "bearing_rad": values["bearing_rad"][0, k, :n]})
+    res = runner.invoke(main, [str(path), "--no-rrd", "--out", "o/t.mcap", "--figures", "none"])
+    assert res.exit_code == 2, res.output
+    errors = [line for line in res.stderr.splitlines() if line.startswith("replay: error: ")]
+    assert len(errors) == 1 and "wide.mcap" in errors[0] and "range_m has shape (2,) per plot" in errors[0], res.output

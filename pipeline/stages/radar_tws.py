@@ -56,6 +56,10 @@ class RadarTwsStage(Stage):
         ch = dataset.channel(PLOTS)
         rng, counts = ch.ragged("range_m")
         brg, _ = ch.ragged("bearing_rad")
+        for name, values in (("range_m", rng), ("bearing_rad", brg)):
+            if values.ndim != 3:  # (runs, scans, plots): one number per plot
+                raise InputError(f"{PLOTS} {name} has shape {values.shape[3:]} per plot; each plot has one "
+                                 f"{name}", dataset.path)
         # finite values and ranges ≥ 0 are the contract's checks at read time (pipeline.vocabulary.VALUES)
         if ch.n_scans < 3:
             raise InputError(f"{PLOTS} has {ch.n_scans} scan(s); a track needs at least 3", dataset.path)
