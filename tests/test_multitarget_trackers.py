@@ -316,6 +316,14 @@ def test_gnn_assignment_on_the_gated_pairs_equals_one_dense_problem_per_run(seed
     miss = rng.uniform(-2, 8, (runs, tracks))
     np.testing.assert_array_equal(gnn_assignment(cost, gated, miss, sparse=True),
                                   gnn_assignment(cost, gated, miss, sparse=False))
+    # the rest as one sparse matching (what many runs' scans take) rather than a dense matrix
+    from pipeline.cores.association.gnn import pair_assignment
+
+    b, t, w = np.nonzero(gated)
+    chosen = pair_assignment(cost[b, t, w], b * tracks + t, b * plots + w, miss.ravel(), dense_entries=0)
+    sparse_plot = np.full((runs, tracks), -1)
+    sparse_plot[b[chosen], t[chosen]] = w[chosen]
+    np.testing.assert_array_equal(sparse_plot, gnn_assignment(cost, gated, miss, sparse=False))
 
 
 def test_covariance_prediction_as_one_product_equals_F_P_Ft():
@@ -353,3 +361,28 @@ def test_bearings_given_over_zero_to_two_pi_track_as_the_same_plots_in_minus_pi_
     other = tracker.track(RadarPlots(range_m=rng, bearing_rad=turned, counts=counts, times_s=times))
     np.testing.assert_array_equal(other["track_id"], plain["track_id"])
     np.testing.assert_allclose(other["state"], plain["state"], rtol=1e-9, atol=1e-6)
+
+
+def test_innovation_covariance_written_out_equals_H_P_Ht_plus_R():
+    from pipeline.cores.filters.track_filter import _position_innovation_covariance
+
+    rng = np.random.default_rng(5)
+    A = rng.normal(size=(3, 6, 4, 4))
+    P = A @ np.swapaxes(A, -1, -2)
+    H = np.zeros((3, 6, 2, 4))
+    H[..., :2] = rng.normal(size=(3, 6, 2, 2))
+    R = np.array([[400.0, 0.0], [0.0, 1e-5]])
+    expected = H @ P @ np.swapaxes(H, -1, -2) + R
+    np.testing.assert_allclose(_position_innovation_covariance(H, P, R), 0.5 * (expected + np.swapaxes(expected, -1, -2)),
+                               rtol=1e-12, atol=1e-12)
+
+
+def test_gain_from_a_given_two_by_two_S_equals_the_batched_solve():
+    rng = np.random.default_rng(6)
+    A = rng.normal(size=(5, 4, 4))
+    P = A @ np.swapaxes(A, -1, -2)
+    H = rng.normal(size=(5, 2, 4))
+    R = np.diag([400.0, 1e-5])
+    K_solve, S = kalman_gain(P, H, R)
+    K_given, _ = kalman_gain(P, H, R, S)
+    np.testing.assert_allclose(K_given, K_solve, rtol=1e-10, atol=1e-14)

@@ -107,7 +107,8 @@ class MultiTargetDesign:
 class ScanAssociation:
     """What an association strategy returns for one scan.
 
-    ``x``, ``P``: posterior of every slot (prediction where coasted); ``hit`` (R, S): a plot was
+    ``x``, ``P``: posterior of every slot (prediction where coasted; a strategy updates the
+    prediction arrays it is given in place, they are the loop's own); ``hit`` (R, S): a plot was
     used; ``claimed`` (R, W): plots a track took (the rest may start tracks); ``innovation``
     (R, S, m) and ``innovation_covariance`` (R, S, m, m) of the update, NaN where none or where
     it is not a single plot's (the JPDA's combined innovation is not Gaussian with covariance
@@ -159,8 +160,7 @@ def _nearest_neighbour_update(design: MultiTargetDesign, x, P, H, S, pairs: Gate
     picked = pairs.innovation[run, slot, k]                  # (hits, m): each hit track's plot
     # the update of the tracks that took a plot only (the others coast on their prediction)
     x_upd, P_upd, _ = f.update(x[run, slot], P[run, slot], H[run, slot], S[run, slot], picked)
-    x, P = x.copy(), P.copy()
-    x[run, slot], P[run, slot] = x_upd, P_upd
+    x[run, slot], P[run, slot] = x_upd, P_upd  # in place: the loop's own prediction arrays
     innovation[run, slot] = picked
     covariance = np.where(hit[..., None, None], S, np.nan)
     return ScanAssociation(x, P, hit, claimed, innovation, covariance, np.zeros(hit.shape, np.uint32))
@@ -214,12 +214,11 @@ class JointProbabilistic:
         if not in_gate.any():
             return ScanAssociation(x, P, hit, claimed, None, None, flags)
         run, slot = np.nonzero(in_gate)
-        K, _ = kalman_gain(P[run, slot], H[run, slot], f.measurement_covariance(x))
+        K, _ = kalman_gain(P[run, slot], H[run, slot], f.measurement_covariance(x), S[run, slot])
         x_upd, P_upd, _ = pda_update_gaussian(x[run, slot], P[run, slot], K, S[run, slot],
                                               pairs.innovation[run, slot], usable[run, slot], beta[run, slot],
                                               beta0[run, slot])
-        x, P = x.copy(), P.copy()
-        x[run, slot], P[run, slot] = x_upd, P_upd
+        x[run, slot], P[run, slot] = x_upd, P_upd  # in place: the loop's own prediction arrays
         return ScanAssociation(x, P, hit, claimed, None, None, flags)
 
 
@@ -325,8 +324,9 @@ def track_multi_target(range_m, bearing_rad, counts, times, design: MultiTargetD
             z_pred, H, S = f.predict_measurement(x, P)
             pairs = gate_pairs(f, z, valid, z_pred, S, design.gate_chi2, live)
             step = association.associate(design, x, P, H, S, pairs, slots.life.tentative[:, :top])
-            slots.x[:, :top] = np.where(live[..., None], step.x, slots.x[:, :top])
-            slots.P[:, :top] = np.where(live[..., None, None], step.P, slots.P[:, :top])
+            # every slot below top takes its prediction or posterior: an empty one is never read
+            # before a new track's start writes it
+            slots.x[:, :top], slots.P[:, :top] = step.x, step.P
             hit = _pad(step.hit & live, alive.shape[1], False)
             flags |= _pad(np.where(live, step.flags, 0).astype(np.uint32), alive.shape[1], 0)
             claimed = step.claimed

@@ -118,14 +118,20 @@ def _gate_pairs_windowed(track_filter, z, valid, z_pred, S, gate_chi2: float, li
         p = float(period)
         u = value + 1.5 * p                                         # [p, 2p]
         base = run_w * (4.0 * p)
-        keys = np.concatenate([base + u - p, base + u, base + u + p])
-        copy_of = np.tile(np.arange(run_w.size), 3)
         c = track_run * (4.0 * p) + centre + 1.5 * p
         whole = half >= 0.5 * p
         lo_key = np.where(whole, track_run * (4.0 * p) + p, c - half)
         hi_key = np.where(whole, track_run * (4.0 * p) + 2.0 * p, c + half)
         scale = 4.0 * p * R
-    margin = _WINDOW_MARGIN_REL * np.abs(hi_key - lo_key) + _WINDOW_MARGIN_ABS * max(scale, 1.0)
+        margin = _WINDOW_MARGIN_REL * np.abs(hi_key - lo_key) + _WINDOW_MARGIN_ABS * max(scale, 1.0)
+        own = track_run * (4.0 * p)
+        if np.any((lo_key - margin < own + p) | (hi_key + margin > own + 2.0 * p)):
+            keys = np.concatenate([base + u - p, base + u, base + u + p])
+            copy_of = np.tile(np.arange(run_w.size), 3)
+        else:  # no window reaches across ±period/2 (a radar's sector, say): one copy will do
+            keys, copy_of = base + u, np.arange(run_w.size)
+    if period is None:
+        margin = _WINDOW_MARGIN_REL * np.abs(hi_key - lo_key) + _WINDOW_MARGIN_ABS * max(scale, 1.0)
     order = np.argsort(keys, kind="stable")
     sorted_keys = keys[order]
     lo = np.searchsorted(sorted_keys, lo_key - margin, side="left")
@@ -139,8 +145,8 @@ def _gate_pairs_windowed(track_filter, z, valid, z_pred, S, gate_chi2: float, li
     d2 = squared_distance(nu, S[run, slot])
     keep = d2 <= gate_chi2
     run, slot, plot, nu, d2 = run[keep], slot[keep], plot[keep], nu[keep], d2[keep]
-    # the same order as gate_pairs': by run, slot, then plot
-    by = np.lexsort((plot, slot, run))
+    # the same order as gate_pairs': by run, slot (the tracks' order already), then plot
+    by = np.argsort(track[keep] * W + plot, kind="stable")
     return _side_by_side(run[by], slot[by], plot[by], nu[by], d2[by], live.shape, W)
 
 

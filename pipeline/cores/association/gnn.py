@@ -71,7 +71,12 @@ def _gnn_assignment_sparse(cost, gated, miss):
     return plot
 
 
-def pair_assignment(cost, track, plot, miss):
+#: the rest of a scan's assignment goes to a dense linear_sum_assignment up to this many matrix
+#: entries (its fixed cost is lower than building a sparse graph), to the sparse matching beyond
+DENSE_MATCHING_ENTRIES = 1 << 16
+
+
+def pair_assignment(cost, track, plot, miss, dense_entries: int = DENSE_MATCHING_ENTRIES):
     """The GNN assignment from the gated track–plot pairs alone.
 
     A track whose one gated plot no other track gates is a problem of its own: it takes the plot
@@ -80,7 +85,8 @@ def pair_assignment(cost, track, plot, miss):
     (:func:`scipy.sparse.csgraph.min_weight_full_bipartite_matching`) is the assignment; separate
     problems (runs) share no vertex, so one matching solves them all. Costs are shifted per track
     to be positive (a sparse graph has no zero-weight edge); a constant added to all of one
-    track's options changes no optimum, as the track takes exactly one of them.
+    track's options changes no optimum, as the track takes exactly one of them. A small rest
+    (one run's crossings) is solved as a dense matrix instead, which costs less to set up.
 
     Parameters
     ----------
@@ -92,6 +98,9 @@ def pair_assignment(cost, track, plot, miss):
         Its plot (any non-negative integers; a plot shared by tracks has one number).
     miss : ndarray (N,)
         Cost of each track taking no plot.
+    dense_entries : int
+        Largest tracks × (plots + misses) matrix of the rest solved densely
+        (:func:`scipy.optimize.linear_sum_assignment`); the same assignment either way.
 
     Returns
     -------
@@ -113,13 +122,19 @@ def pair_assignment(cost, track, plot, miss):
     cols, col = np.unique(plot[rest], return_inverse=True)
     n, row, col, c = rows.size, row.ravel(), col.ravel(), cost[rest]
     row_miss = miss[rows]
-    low = row_miss.copy()
-    np.minimum.at(low, row, c)
-    shift = 1.0 - low
-    graph = csr_matrix((np.concatenate([c + shift[row], row_miss + shift]),
-                        (np.concatenate([row, np.arange(n)]), np.concatenate([col, cols.size + np.arange(n)]))),
-                       shape=(n, cols.size + n))
-    r, k = min_weight_full_bipartite_matching(graph)
+    if n * (cols.size + n) <= dense_entries:
+        big = np.full((n, cols.size + n), np.inf)
+        big[row, col] = c
+        big[np.arange(n), cols.size + np.arange(n)] = row_miss
+        r, k = linear_sum_assignment(big)
+    else:
+        low = row_miss.copy()
+        np.minimum.at(low, row, c)
+        shift = 1.0 - low
+        graph = csr_matrix((np.concatenate([c + shift[row], row_miss + shift]),
+                            (np.concatenate([row, np.arange(n)]), np.concatenate([col, cols.size + np.arange(n)]))),
+                           shape=(n, cols.size + n))
+        r, k = min_weight_full_bipartite_matching(graph)
     real = k < cols.size
     # the edge of each matched (row, column): rows of a matching are distinct, so one per row
     match_col = np.full(n, -1, np.int64)

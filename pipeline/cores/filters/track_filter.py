@@ -84,7 +84,7 @@ class TrackFilter:
         """Kalman update of ``(x, P)`` with one innovation per track (Joseph form).
 
         Returns ``(x⁺, P⁺, K)``."""
-        K, _ = kalman_gain(P, H, self.measurement_covariance(x))
+        K, _ = kalman_gain(P, H, self.measurement_covariance(x), S)
         x_post = x + np.einsum("...ij,...j->...i", K, innovation)
         return x_post, joseph_covariance(P, K, H, self.measurement_covariance(x)), K
 
@@ -139,15 +139,15 @@ class PolarConstantVelocityEKF(TrackFilter):
         return np.diag([self.sigma_range_m ** 2, self.sigma_bearing_rad ** 2])
 
     def predict_measurement(self, x, P):
+        """``ẑ = [r, θ]``, ``H = ∂ẑ/∂x`` and ``S = H P Hᵀ + R``."""
         px, py = x[..., 0], x[..., 1]
         r2 = px * px + py * py
         r = np.sqrt(r2)
         H = np.zeros(x.shape[:-1] + (2, 4))
         H[..., 0, 0], H[..., 0, 1] = px / r, py / r
         H[..., 1, 0], H[..., 1, 1] = -py / r2, px / r2
-        S = H @ P @ np.swapaxes(H, -1, -2) + self.measurement_covariance()
-        S = 0.5 * (S + np.swapaxes(S, -1, -2))
-        return np.stack([r, np.arctan2(py, px)], axis=-1), H, S
+        return np.stack([r, np.arctan2(py, px)], axis=-1), H, _position_innovation_covariance(
+            H, P, self.measurement_covariance())
 
     def innovation(self, z, z_pred):
         nu = z - z_pred
@@ -171,6 +171,20 @@ class PolarConstantVelocityEKF(TrackFilter):
         P[..., 0, 1] = P[..., 1, 0] = (along - cross) * c * s
         P[..., 2, 2] = P[..., 3, 3] = self.initial_speed_sigma_mps ** 2
         return x, P
+
+
+def _position_innovation_covariance(H, P, R):
+    """``H P Hᵀ + R`` for a Jacobian ``H`` ``(..., 2, n)`` that is zero beyond its first two
+    columns (the measurement sees the position only), written out entry by entry: a batched
+    ``matmul`` of thousands of small matrices pays per matrix (tests/test_multitarget_trackers.py
+    holds it against ``H @ P @ Hᵀ + R``)."""
+    a, b, c, d = H[..., 0, 0], H[..., 0, 1], H[..., 1, 0], H[..., 1, 1]
+    p00, p01, p11 = P[..., 0, 0], 0.5 * (P[..., 0, 1] + P[..., 1, 0]), P[..., 1, 1]
+    S = np.empty(H.shape[:-2] + (2, 2))
+    S[..., 0, 0] = a * a * p00 + 2.0 * a * b * p01 + b * b * p11 + R[0, 0]
+    S[..., 1, 1] = c * c * p00 + 2.0 * c * d * p01 + d * d * p11 + R[1, 1]
+    S[..., 0, 1] = S[..., 1, 0] = a * c * p00 + (a * d + b * c) * p01 + b * d * p11 + R[0, 1]
+    return S
 
 
 def _congruence(F, P):
