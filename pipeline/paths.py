@@ -56,7 +56,8 @@ class OutputSet:
     Everything is first written into a hidden staging folder inside ``folder``; when the block
     ends without an error the files are moved into place (``os.replace``: each move is atomic,
     and they follow each other within microseconds), files of the previous set that this one does
-    not produce (``replaces``) are removed, and the staging folder goes. On an error, or if the
+    not produce (``replaces``) are removed unless the command reads them (``inputs``), and the
+    staging folder goes. On an error, or if the
     process is killed, the previous set stays as it was; a staging folder left by a killed
     process is removed by the next run.
 
@@ -68,9 +69,12 @@ class OutputSet:
 
     PREFIX = ".partial-"
 
-    def __init__(self, folder, replaces=()):
+    def __init__(self, folder, replaces=(), inputs=()):
         self.folder = Path(folder)
         self.replaces = list(replaces)
+        # files this command reads: never removed, whatever their names (an input called
+        # tracks.rrd is not a stale recording)
+        self.inputs = [Path(p) for p in inputs if p is not None]
         self.stage: Path | None = None
 
     def __enter__(self) -> "OutputSet":
@@ -113,7 +117,7 @@ class OutputSet:
         names = {self.final(p).name for p in produced}
         for name in self.replaces:
             old = self.folder / name
-            if name not in names and old.is_file():
+            if name not in names and old.is_file() and not any(_same(old, src) for src in self.inputs):
                 old.unlink()
         _remove_tree(self.stage)
         return False

@@ -832,7 +832,7 @@ def _run(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, sets
     # every output is staged and moved into place at the end: a crash or a kill leaves the
     # previous set untouched, never a mix (a recording elsewhere than the folder is one atomic file)
     rrd_inside = rrd_path is not None and rrd_path.parent.resolve() == out_dir.resolve()
-    with OutputSet(out_dir, replaces=[out_path.with_suffix(".rrd").name, *REPORT_FILES]) as outputs, \
+    with OutputSet(out_dir, replaces=[out_path.with_suffix(".rrd").name, *REPORT_FILES], inputs=[data]) as outputs, \
             contextlib.closing(recorder) if recorder else contextlib.nullcontext():  # stopped before the set goes
         staged_rrd = outputs.path(rrd_path.name) if rrd_inside else rrd_path
         with progress.Phases(f"replaying {data.name}", ("filter", "evaluate", "write", "rerun")) as phases:

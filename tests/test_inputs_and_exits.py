@@ -1,7 +1,8 @@
-"""Nothing decided by accident (issue 30). A plugged tracker cannot decide the tool's exit:
-``sys.exit()`` in ``track()``, in its constructor or at import is that tracker's failure like any
-exception, one line and exit 2, and the built-ins' outputs are still written. Scan times that
-stall or go back are refused."""
+"""Nothing lost, nothing decided by accident (issue 30). An input is never removed, whatever
+its name. A plugged tracker cannot decide the tool's exit: ``sys.exit()`` in ``track()``, in its
+constructor or at import is that tracker's failure like any exception, one line and exit 2, and
+the built-ins' outputs are still written. Scan times that stall or go back, plots with two
+numbers each and a --pair naming no tracker are one line and exit 2, never an internal error."""
 
 from __future__ import annotations
 
@@ -110,3 +111,19 @@ def test_plots_with_two_numbers_each_are_refused_as_input_not_blamed_on_a_tracke
     assert res.exit_code == 2, res.output
     errors = [line for line in res.stderr.splitlines() if line.startswith("replay: error: ")]
     assert len(errors) == 1 and "wide.mcap" in errors[0] and "range_m has shape (2,) per plot" in errors[0], res.output
+
+
+@pytest.mark.parametrize("rrd", [None, "elsewhere.rrd"])
+def test_an_input_named_like_a_stale_output_is_never_removed(runner, radar_small, rrd):
+    """``replay o/tracks.rrd --no-rrd --out o/tracks.mcap --force`` with an MCAP input named
+    ``tracks.rrd`` deleted it: the clean-up of a stale recording must spare what the command reads."""
+    import shutil
+
+    Path("o").mkdir()
+    shutil.copy(radar_small, "o/tracks.rrd")
+    before = Path("o/tracks.rrd").read_bytes()
+    extra = ["--no-rrd"] if rrd is None else ["--rrd", rrd]
+    res = runner.invoke(main, ["o/tracks.rrd", *extra, "--out", "o/tracks.mcap", "--force", "--figures", "none"])
+    assert res.exit_code == 0, res.output
+    assert Path("o/tracks.rrd").read_bytes() == before
+    assert "/tracks/radar/kalman" in read_dataset(Path("o/tracks.mcap")).channels
