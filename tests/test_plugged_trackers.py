@@ -197,7 +197,7 @@ def test_replay_trackers_lists_a_plugged_tracker(runner, plugged):
     res = runner.invoke(main, ["trackers", "--tracker", "plugged.py:PlotEcho", "--tracker", "plugged.py:PlotEchoRun"])
     assert res.exit_code == 0, res.output
     rows = {line.split()[0]: line.split() for line in res.stdout.splitlines() if line.strip()}
-    assert rows["plot_echo"][1:4] == ["radar-plots", "batch", "plugged.py:PlotEcho"]
+    assert rows["plot_echo"][1:5] == ["radar-plots", "batch", "always", "plugged.py:PlotEcho"]
     assert rows["plot_echo_run"][1:3] == ["radar-plots", "run"]
     section = res.stdout.split("design parameters of plot_echo:")[1].split("\n\n")[0]
     assert "offset_m" in section and "added to the x of every estimate" in section

@@ -1502,9 +1502,9 @@ def tracker_listing(specs=()) -> list[dict]:
         if not e.builtin:
             runs = "always"  # a plugged tracker runs beside the built-ins
         elif not getattr(e.cls, "runs_by_default", True):
-            runs = "when named"
+            runs = "when-named"
         else:
-            runs = "many-target sets" if getattr(e.cls, "targets", "one") == "many" else "the papers' sets"
+            runs = "many-targets" if getattr(e.cls, "targets", "one") == "many" else "paper-scenes"
         rows.append({"name": e.name, "family": e.family, "form": e.cls.form, "source": e.source, "runs": runs,
                      "spec": e.spec, "stage": stage.name if stage is not None else None, "params": params})
     return rows
@@ -1537,9 +1537,9 @@ def trackers_cmd(tracker_specs, as_json):
     """List the trackers: built-in, installed (entry points) and plugged with --tracker.
 
     For each: its measurement family, form (batch: all runs at once; run: one run at a time),
-    which data sets a replay runs it on without --trackers (a built-in made for the papers'
-    scenes, or for truth sets of many targets among clutter; a variant only when named; a plugged
-    one always), where it comes from, and
+    which data sets a replay runs it on without --trackers (paper-scenes: a built-in made for
+    the papers' scenes; many-targets: for truth sets of many targets among clutter; when-named: a
+    variant run only when named; always: a plugged one), where it comes from, and
     its design parameters with default and unit (a default taken from
     the stage's bundled scenario says so). Any of them can be changed with --set NAME=VALUE.
 
@@ -1552,7 +1552,7 @@ def trackers_cmd(tracker_specs, as_json):
     if as_json:
         click.echo(json.dumps(rows, indent=1, default=str))
         return
-    for line in _table(("TRACKER", "FAMILY", "FORM", "RUNS BY DEFAULT ON", "SOURCE"),
+    for line in _table(("TRACKER", "FAMILY", "FORM", "BY-DEFAULT-ON", "SOURCE"),
                        [(r["name"], r["family"], r["form"], r["runs"], r["source"]) for r in rows]):
         click.echo(line)
     # trackers with the same parameter table share one listing
