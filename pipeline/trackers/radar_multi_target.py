@@ -55,7 +55,6 @@ from pipeline.cores.filters.track_filter import (
     PolarConstantVelocityEKF,
     PolarConstantVelocityUKF,
     TrackFilter,
-    symmetric_2x2_inverse,
     wrap_angle,
 )
 from pipeline.trackers.interface import Param, Tracker
@@ -125,7 +124,10 @@ class ScanAssociation:
 
 def _det(S):
     """``|S|`` of every track's innovation covariance (1 where not positive: an empty slot)."""
-    det = symmetric_2x2_inverse(S)[1] if S.shape[-1] == 2 else np.linalg.det(S)
+    if S.shape[-1] == 2:
+        det = S[..., 0, 0] * S[..., 1, 1] - S[..., 0, 1] * S[..., 0, 1]
+    else:
+        det = np.linalg.det(S)
     return np.where(det > 0, det, 1.0)
 
 

@@ -79,8 +79,8 @@ DENSE_MATCHING_ENTRIES = 1 << 16
 def pair_assignment(cost, track, plot, miss, dense_entries: int = DENSE_MATCHING_ENTRIES):
     """The GNN assignment from the gated track–plot pairs alone.
 
-    A track whose one gated plot no other track gates is a problem of its own: it takes the plot
-    when cheaper than a miss. The other tracks form one sparse bipartite graph (their gated
+    A track none of whose gated plots another track gates is a problem of its own: it takes its
+    cheapest plot when cheaper than a miss. The other tracks form one sparse bipartite graph (their gated
     pairs, plus one "miss" column per track) whose minimum-weight matching of every track
     (:func:`scipy.sparse.csgraph.min_weight_full_bipartite_matching`) is the assignment; separate
     problems (runs) share no vertex, so one matching solves them all. Costs are shifted per track
@@ -113,8 +113,14 @@ def pair_assignment(cost, track, plot, miss, dense_entries: int = DENSE_MATCHING
         return chosen
     _, plot = np.unique(plot, return_inverse=True)
     plot = plot.ravel()
-    alone = (np.bincount(track)[track] == 1) & (np.bincount(plot)[plot] == 1)
-    chosen[alone] = cost[alone] < miss[track[alone]]
+    # a track none of whose plots another track gates is a problem of its own: its cheapest plot,
+    # if cheaper than a miss (a track in clutter, away from the other tracks)
+    shared_plot = np.bincount(plot)[plot] > 1
+    alone = np.bincount(track, weights=shared_plot)[track] == 0
+    first = np.flatnonzero(alone)
+    first = first[np.lexsort((cost[first], track[first]))]
+    first = first[np.r_[True, track[first][1:] != track[first][:-1]]] if first.size else first
+    chosen[first] = cost[first] < miss[track[first]]
     rest = np.flatnonzero(~alone)
     if rest.size == 0:
         return chosen

@@ -38,18 +38,6 @@ def wrap_angle(angle):
     return (np.asarray(angle) + np.pi) % (2.0 * np.pi) - np.pi
 
 
-def symmetric_2x2_inverse(S):
-    """Inverse and determinant of a stack of symmetric 2×2 matrices ``(..., 2, 2)``, element-wise
-    (what a batched ``np.linalg.inv`` computes, without its per-matrix call overhead)."""
-    a, b, d = S[..., 0, 0], S[..., 0, 1], S[..., 1, 1]
-    det = a * d - b * b
-    inv = np.empty(S.shape)
-    inv[..., 0, 0] = d / det
-    inv[..., 1, 1] = a / det
-    inv[..., 0, 1] = inv[..., 1, 0] = -b / det
-    return inv, det
-
-
 @dataclass(frozen=True)
 class TrackFilter:
     """Interface of a per-track filter (see the module docstring). Subclasses set ``state_size``
@@ -132,8 +120,11 @@ class PolarConstantVelocityEKF(TrackFilter):
         """``x⁻ = F x``, ``P⁻ = F P Fᵀ + Q``."""
         F, Q = self.motion_model(dt)
         x_pred = x @ F.T
-        P_pred = _congruence(F, P) + Q
-        return x_pred, 0.5 * (P_pred + np.swapaxes(P_pred, -1, -2))
+        P_pred = _congruence(F, P)
+        P_pred += Q
+        P_pred += np.swapaxes(P_pred, -1, -2).copy()  # symmetric to the last bit, in place
+        P_pred *= 0.5
+        return x_pred, P_pred
 
     def measurement_covariance(self, x=None):
         return np.diag([self.sigma_range_m ** 2, self.sigma_bearing_rad ** 2])
