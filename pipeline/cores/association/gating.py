@@ -140,6 +140,13 @@ def _gate_pairs_windowed(track_filter, z, valid, z_pred, S, gate_chi2: float, li
     track = np.repeat(np.arange(track_run.size), counts)
     position = np.repeat(lo - np.cumsum(counts) + counts, counts) + np.arange(counts.sum())
     candidate = copy_of[order[position]]
+    # the same box along the other components, one number per candidate, before the full d²
+    # (plots at every range share a bearing window)
+    for other in range(m):
+        if other != component and other not in track_filter.angular_components:
+            reach = np.sqrt(gate_chi2 * S[track_run, track_slot, other, other]) * (1.0 + _WINDOW_MARGIN_REL)
+            near = np.abs(z[run_w, plot_w, other][candidate] - z_pred[track_run, track_slot, other][track]) <= reach[track]
+            track, candidate = track[near], candidate[near]
     run, slot, plot = track_run[track], track_slot[track], plot_w[candidate]
     nu = track_filter.innovation(z[run, plot], z_pred[run, slot])
     d2 = squared_distance(nu, S[run, slot])

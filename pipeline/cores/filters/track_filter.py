@@ -49,6 +49,8 @@ class TrackFilter:
     #: when it is an angle (None otherwise); see :mod:`pipeline.cores.association.gating`
     window_component = 0
     window_period = None
+    #: measurement components that are angles (wrapped in the innovation)
+    angular_components = ()
 
     def predict(self, x, P, dt: float):  # pragma: no cover - interface
         """``(x⁻, P⁻)`` after ``dt`` seconds."""
@@ -109,6 +111,7 @@ class PolarConstantVelocityEKF(TrackFilter):
     measurement_size = 2
     window_component = 1         # bearing: plots spread over the sector, each gate a sliver of it
     window_period = 2.0 * np.pi
+    angular_components = (1,)
 
     def motion_model(self, dt: float):
         """``F``, ``Q`` ``(4, 4)`` for state ``[x, y, ẋ, ẏ]``: the per-axis continuous white-noise
