@@ -386,3 +386,13 @@ def test_gain_from_a_given_two_by_two_S_equals_the_batched_solve():
     K_solve, S = kalman_gain(P, H, R)
     K_given, _ = kalman_gain(P, H, R, S)
     np.testing.assert_allclose(K_given, K_solve, rtol=1e-10, atol=1e-14)
+
+
+def test_joseph_products_contracted_equal_the_matmul_form():
+    from pipeline.cores.filters.kalman import _joseph_terms_contracted
+
+    rng = np.random.default_rng(7)
+    A, P = rng.normal(size=(600, 4, 4)), rng.normal(size=(600, 4, 4))
+    K, R = rng.normal(size=(600, 4, 2)), np.diag([400.0, 1e-5])
+    np.testing.assert_allclose(_joseph_terms_contracted(A, P, K, R),
+                               A @ P @ np.swapaxes(A, -1, -2) + K @ R @ np.swapaxes(K, -1, -2), rtol=1e-13, atol=1e-12)
