@@ -270,8 +270,10 @@ class _Slots:
             free = np.concatenate([free, np.ones((R, self.count - free.shape[1]), bool)], axis=1)
         first = np.cumsum(born) - born
         rank = np.arange(runs.size) - first[runs]
-        free_slots = np.argsort(~free, axis=1, kind="stable")
-        slots = free_slots[runs, rank]
+        # the rank-th free slot of each run, lowest first: the free slots in run-major order
+        _, free_slot = np.nonzero(free)
+        first_free = np.cumsum(free.sum(axis=1)) - free.sum(axis=1)
+        slots = free_slot[first_free[runs] + rank]
         x0, P0 = track_filter.start(z)
         self.x[runs, slots] = x0
         self.P[runs, slots] = P0
@@ -350,9 +352,8 @@ def track_multi_target(range_m, bearing_rad, counts, times, design: MultiTargetD
         flags |= np.where(live & slots.life.tentative, vocab.INITIALISING, 0).astype(np.uint32)
         flags |= np.where(~live, vocab.NO_TRACK, 0).astype(np.uint32)
         flags |= np.where(ending, vocab.DELETED, 0).astype(np.uint32)
-        state = np.where(live[..., None], slots.x, np.nan)
         scans.append({
-            "state": state,
+            "state": np.where(live[..., None], slots.x, np.nan),
             "covariance": np.where(live[..., None, None], slots.P, np.nan),
             "flags": flags,
             "track_id": np.where(live, slots.ids, -1),
