@@ -353,8 +353,9 @@ def track_multi_target(range_m, bearing_rad, counts, times, design: MultiTargetD
         flags |= np.where(~live, vocab.NO_TRACK, 0).astype(np.uint32)
         flags |= np.where(ending, vocab.DELETED, 0).astype(np.uint32)
         scans.append({
-            "state": np.where(live[..., None], slots.x, np.nan),
-            "covariance": np.where(live[..., None, None], slots.P, np.nan),
+            # copies as they stand; an empty slot's entries become NaN once, in _stack_scans
+            "state": slots.x.copy(),
+            "covariance": slots.P.copy(),
             "flags": flags,
             "track_id": np.where(live, slots.ids, -1),
             **({"innovation": _pad(innovation, S_now, np.nan),
@@ -382,14 +383,18 @@ def _stack_scans(scans: list, slots: int, innovations: bool) -> dict:
     for key, fill in fills.items():
         if key.startswith("innovation") and not innovations:
             continue
-        parts = []
-        for scan in scans:
+        first = next((scan[key] for scan in scans if scan.get(key) is not None), None)
+        tail = first.shape[2:] if first is not None else ((2,) if key == "innovation" else (2, 2))
+        dtype = first.dtype if first is not None else float
+        out[key] = np.full((R, len(scans), slots) + tail, fill, dtype=dtype)
+        for k, scan in enumerate(scans):
             a = scan.get(key)
-            if a is None:  # a scan before any track: nothing updated
-                shape = (R, 0, 2) if key == "innovation" else (R, 0, 2, 2)
-                a = np.zeros(shape)
-            parts.append(_pad(a, slots, fill))
-        out[key] = np.stack(parts, axis=1)
+            if a is not None:  # (None: a scan before any track, nothing updated)
+                out[key][:, k, :a.shape[1]] = a
+    # the states and covariances of slots holding no track at a scan (stored as they stood)
+    empty = out["track_id"] < 0
+    out["state"][empty] = np.nan
+    out["covariance"][empty] = np.nan
     return out
 
 
