@@ -85,11 +85,20 @@ def _load_file_module(path: Path, spec: str):
         raise InputError("cannot be loaded as a Python module", path)
     module = importlib.util.module_from_spec(module_spec)
     sys.modules[mod_name] = module
+    # the file's folder is on the path while it loads, as for a script run from there: a tracker
+    # file imports the modules beside it
+    folder = str(resolved.parent)
+    added = folder not in sys.path
+    if added:
+        sys.path.insert(0, folder)
     try:
         module_spec.loader.exec_module(module)
     except (Exception, SystemExit) as exc:  # sys.exit() at import is the file's failure, not the tool's exit
         del sys.modules[mod_name]
         raise InputError(f"importing it raised {type(exc).__name__}: {exc}", path) from None
+    finally:
+        if added:
+            sys.path.remove(folder)
     return module
 
 

@@ -609,3 +609,41 @@ def test_the_covariance_check_never_changes_the_outputs(runs, scans, live_matric
     before = cov.copy()
     validate_outputs({"state": state, "flags": flags, "covariance": cov}, runs, scans, "t")
     np.testing.assert_array_equal(cov, before)
+
+
+NEIGHBOUR_USER = '''
+import sys
+
+from offsets import OFFSET_M
+from pipeline.trackers.interface import Tracker
+
+
+class Shifted(Tracker):
+    """The first plot of every scan, shifted by a constant from the module beside this file."""
+    name, family = "shifted", "radar-plots"
+
+    def track(self, plots):
+        import numpy as np
+
+        R, K = plots.counts.shape
+        state = np.zeros((R, K, 4))
+        state[..., 0] = plots.range_m[..., 0] * np.cos(plots.bearing_rad[..., 0]) + OFFSET_M
+        state[..., 1] = plots.range_m[..., 0] * np.sin(plots.bearing_rad[..., 0])
+        return {"state": state, "flags": np.zeros((R, K), np.uint32)}
+'''
+
+
+def test_a_plugged_tracker_file_imports_the_module_beside_it(runner, radar_small, tmp_path):
+    """Its folder is on the path while it loads (issue 28), and only then."""
+    import sys
+
+    folder = tmp_path / "mine"
+    folder.mkdir()
+    (folder / "offsets.py").write_text("OFFSET_M = 25.0\n")
+    (folder / "shifted.py").write_text(NEIGHBOUR_USER)
+    before = list(sys.path)
+    res = runner.invoke(main, [str(radar_small), "--tracker", f"{folder / 'shifted.py'}:Shifted", "--no-rrd", "--out",
+                               "o/t.mcap", "--figures", "none"])
+    assert res.exit_code == 0, res.output
+    assert "shifted" in outputs(Path("o/t.mcap"))
+    assert sys.path == before
