@@ -14,6 +14,7 @@ from evaluators.verdicts import consistency_verdict, tracker_verdicts
 @pytest.mark.parametrize("value, low, high, verdict", [
     (4.0, 3.5, 4.5, "consistent"), (3.5, 3.5, 4.5, "consistent"), (4.6, 3.5, 4.5, "optimistic"),
     (3.4, 3.5, 4.5, "pessimistic"), (None, 3.5, 4.5, "untestable"), (4.0, math.nan, 4.5, "untestable"),
+    (45.0, 3.5, 4.5, "optimistic"), (45.1, 3.5, 4.5, "implausible"),
 ])
 def test_consistency_verdict_is_the_interval_test(value, low, high, verdict):
     assert consistency_verdict(value, low, high) == verdict
@@ -50,3 +51,33 @@ def test_replay_prints_the_verdicts_first(runner, demo_mcap):
     for tracker in ("fixed", "approximate", "exact", "kalman"):
         line = next(line for line in lines[first:table] if line.strip().startswith(tracker))
         assert any(v in line for v in ("consistent", "optimistic", "pessimistic")) and "rmse_position_m" in line
+
+
+def test_a_tracker_following_clutter_is_called_implausible_in_plain_words(runner, tmp_path):
+    """A recording of many targets among clutter, without truth, replayed by the papers'
+    single-target trackers without a gate: their tracks jump between plots, and the verdict says
+    so instead of printing a healthy track summary (issue 28)."""
+    from pipeline.face.cli import main
+    from recorders.radar_multi import simulate
+    from recorders.scenarios import load_scenario
+    from recorders.simulated import write_simulated
+    from pipeline.contract import scenario_metadata
+
+    params = dict(load_scenario("radar-multi").params, n_scans=40)
+    data = simulate(params, 2, 5)
+    data.fixed.pop("/radar/truth", None)
+    data.ragged.pop("/radar/truth", None)
+    write_simulated(tmp_path / "rec.mcap", data, scenario_metadata("radar-multi", params, 5))
+    res = runner.invoke(main, [str(tmp_path / "rec.mcap"), "--no-rrd", "--figures", "none", "--out", "o/t.mcap"])
+    assert res.exit_code == 0, res.output
+    lines = res.output.splitlines()
+    kalman = next(i for i, line in enumerate(lines) if line.strip().startswith("kalman"))
+    assert "implausible (NIS)" in lines[kalman]
+    assert "follows clutter or another object" in " ".join(" ".join(lines[kalman + 1:kalman + 4]).split())
+
+
+def test_the_bundled_demo_has_no_implausible_tracker(demo_mcap):
+    from pipeline.replay import replay
+
+    table = tracker_verdicts(replay(demo_mcap).summary)
+    assert "implausible" not in table["verdict"].to_list() and set(table["note"].to_list()) == {""}

@@ -386,6 +386,11 @@ def _print_verdicts(summary: pl.DataFrame, family_metrics=()) -> None:
                 break
             line += item
         click.echo(line)
+        if r["note"]:
+            import textwrap
+
+            indent = " " * (width + 4)
+            click.echo(textwrap.fill(r["note"], TABLE_WIDTH, initial_indent=indent, subsequent_indent=indent))
     click.echo("")
 
 
