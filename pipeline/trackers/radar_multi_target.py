@@ -307,6 +307,7 @@ def track_multi_target(range_m, bearing_rad, counts, times, design: MultiTargetD
     """
     f = design.track_filter
     R, K = counts.shape
+    history = _History(R, K, f.state_size)
     bearing_rad = wrap_angle(bearing_rad)  # a recording's bearings may run over [0, 2π) or beyond
     slots = _Slots(R, design)
     scans = []
@@ -352,10 +353,8 @@ def track_multi_target(range_m, bearing_rad, counts, times, design: MultiTargetD
         flags |= np.where(live & slots.life.tentative, vocab.INITIALISING, 0).astype(np.uint32)
         flags |= np.where(~live, vocab.NO_TRACK, 0).astype(np.uint32)
         flags |= np.where(ending, vocab.DELETED, 0).astype(np.uint32)
+        history.record(k, slots.x, slots.P)
         scans.append({
-            # copies as they stand; an empty slot's entries become NaN once, in _stack_scans
-            "state": slots.x.copy(),
-            "covariance": slots.P.copy(),
             "flags": flags,
             "track_id": np.where(live, slots.ids, -1),
             **({"innovation": _pad(innovation, S_now, np.nan),
@@ -363,7 +362,37 @@ def track_multi_target(range_m, bearing_rad, counts, times, design: MultiTargetD
                if association.reports_innovation and innovation is not None else {}),
         })
         slots.ids = np.where(ending, -1, slots.ids)
-    return _stack_scans(scans, slots.count, association.reports_innovation)
+    out = _stack_scans(scans, slots.count, association.reports_innovation)
+    # the states and covariances of slots holding no track at a scan (recorded as they stood,
+    # or never written) are NaN
+    out["state"], out["covariance"] = history.state[:, :, :slots.count], history.covariance[:, :, :slots.count]
+    empty = out["track_id"] < 0
+    np.copyto(out["state"], np.nan, where=empty[..., None])
+    np.copyto(out["covariance"], np.nan, where=empty[..., None, None])
+    return out
+
+
+class _History:
+    """Every scan's slot states and covariances as they stand, written straight into
+    ``(R, K, S, ...)`` buffers whose slot axis grows with the tracker's (doubling, as the slots
+    do): one copy per scan, no stacking at the end. Entries a scan did not write belong to
+    slots that held no track then; the caller sets them to NaN."""
+
+    def __init__(self, runs: int, scans: int, n: int):
+        self.state = np.empty((runs, scans, 0, n))
+        self.covariance = np.empty((runs, scans, 0, n, n))
+
+    def record(self, k: int, x, P) -> None:
+        S = x.shape[1]
+        if S > self.state.shape[2]:
+            grown = max(S, 2 * self.state.shape[2])
+            for name in ("state", "covariance"):
+                old = getattr(self, name)
+                new = np.empty(old.shape[:2] + (grown,) + old.shape[3:])
+                new[:, :, :old.shape[2]] = old
+                setattr(self, name, new)
+        self.state[:, k, :S] = x
+        self.covariance[:, k, :S] = P
 
 
 def _pad(a, slots: int, fill):
@@ -376,9 +405,8 @@ def _pad(a, slots: int, fill):
 
 def _stack_scans(scans: list, slots: int, innovations: bool) -> dict:
     """Per-scan outputs of different slot counts as ``(R, K, S, ...)`` arrays."""
-    R = scans[0]["state"].shape[0] if scans else 0
-    fills = {"state": np.nan, "covariance": np.nan, "flags": vocab.NO_TRACK, "track_id": -1,
-             "innovation": np.nan, "innovation_covariance": np.nan}
+    R = scans[0]["flags"].shape[0] if scans else 0
+    fills = {"flags": vocab.NO_TRACK, "track_id": -1, "innovation": np.nan, "innovation_covariance": np.nan}
     out = {}
     for key, fill in fills.items():
         if key.startswith("innovation") and not innovations:
@@ -386,15 +414,11 @@ def _stack_scans(scans: list, slots: int, innovations: bool) -> dict:
         first = next((scan[key] for scan in scans if scan.get(key) is not None), None)
         tail = first.shape[2:] if first is not None else ((2,) if key == "innovation" else (2, 2))
         dtype = first.dtype if first is not None else float
-        out[key] = np.full((R, len(scans), slots) + tail, fill, dtype=dtype)
+        out[key] = np.full((R, len(scans), slots) + tail, fill, dtype)
         for k, scan in enumerate(scans):
             a = scan.get(key)
             if a is not None:  # (None: a scan before any track, nothing updated)
                 out[key][:, k, :a.shape[1]] = a
-    # the states and covariances of slots holding no track at a scan (stored as they stood)
-    empty = out["track_id"] < 0
-    out["state"][empty] = np.nan
-    out["covariance"][empty] = np.nan
     return out
 
 
