@@ -183,21 +183,9 @@ def json_bodies() -> list:
 
 def write_json_radar_many(path: Path) -> int:
     """The JSON sample; returns the messages written."""
-    from mcap.writer import Writer
-
-    bodies = json_bodies()
-    with open(path, "wb") as f:
-        writer = Writer(f)
-        writer.start(profile="", library="trackreplay sample")
-        schema = writer.register_schema("demo.RadarFrame", "jsonschema",
-                                        json.dumps(FRAME_SCHEMA, sort_keys=True).encode())
-        channel = writer.register_channel(JSON_TOPIC, "json", schema)
-        for seq, body in enumerate(bodies):
-            log_time = EPOCH_S * 10**9 + body["t_ms"] * 10**6 + body["run"] * 1000 + 20_000_000
-            writer.add_message(channel, log_time=log_time, publish_time=log_time, sequence=seq,
-                               data=json.dumps(body, sort_keys=True).encode())
-        writer.finish()
-    return len(bodies)
+    return _BASE.write_json_mcap(
+        path, "demo.RadarFrame", FRAME_SCHEMA, JSON_TOPIC,
+        ((EPOCH_S * 10**9 + body["t_ms"] * 10**6 + body["run"] * 1000 + 20_000_000, body) for body in json_bodies()))
 
 
 def main() -> int:

@@ -105,24 +105,30 @@ def positions(seed: int = 12, n: int = 400, period_s: float = 0.05):
     return [(int(round(tk * 1000)), float(round((xk + nk) / 0.3048, 3))) for tk, xk, nk in zip(t, x, noise)]
 
 
-def write_json_positions(path: Path) -> int:
-    """The JSON sample; returns the messages written."""
+def write_json_mcap(path: Path, schema_name: str, schema: dict, topic: str, messages) -> int:
+    """A JSON MCAP of one channel: ``messages`` are ``(log time in ns, body)`` in order (the
+    sequence numbers count them); returns how many were written."""
     from mcap.writer import Writer
 
-    rows = positions()
     with open(path, "wb") as f:
         writer = Writer(f)
         writer.start(profile="", library="trackreplay sample")
-        schema = writer.register_schema("demo.PositionFix", "jsonschema",
-                                        json.dumps(POSITION_SCHEMA, sort_keys=True).encode())
-        channel = writer.register_channel(POSITION_TOPIC, "json", schema)
-        for seq, (t_ms, x_ft) in enumerate(rows):
-            body = {"t_ms": t_ms, "sensor": "fix-1", "position": {"x": x_ft}}
-            log_time = EPOCH_S * 10**9 + t_ms * 10**6
+        channel = writer.register_channel(topic, "json", writer.register_schema(
+            schema_name, "jsonschema", json.dumps(schema, sort_keys=True).encode()))
+        count = 0
+        for seq, (log_time, body) in enumerate(messages):
             writer.add_message(channel, log_time=log_time, publish_time=log_time, sequence=seq,
                                data=json.dumps(body, sort_keys=True).encode())
+            count += 1
         writer.finish()
-    return len(rows)
+    return count
+
+
+def write_json_positions(path: Path) -> int:
+    """The JSON sample; returns the messages written."""
+    return write_json_mcap(path, "demo.PositionFix", POSITION_SCHEMA, POSITION_TOPIC,
+                           ((EPOCH_S * 10**9 + t_ms * 10**6, {"t_ms": t_ms, "sensor": "fix-1", "position": {"x": x_ft}})
+                            for t_ms, x_ft in positions()))
 
 
 def write_samples(description: str, writers) -> int:
