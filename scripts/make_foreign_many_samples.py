@@ -28,7 +28,6 @@ numpy and the mcap packages.
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
