@@ -11,8 +11,9 @@ side by side (:class:`GatedPairs`), and the association works on those.
 gives the same pairs (tests/test_multitarget_trackers.py holds them equal) without forming every
 pair: the ellipse ``d² ≤ γ`` lies inside ``|ν_c| ≤ √(γ S_cc)`` along any one component c, so with
 the plots sorted along c each track needs only the plots within that window (a binary search at
-each end); d² is then computed for those candidates alone. For an angle (a radar's bearing) the
-window wraps around the circle.
+each end); the same box along the other, non-angular components (a radar's range) thins those
+candidates with one number each, and d² is then computed for the survivors alone. For an angle
+(a radar's bearing) the window wraps around the circle.
 """
 
 from __future__ import annotations
