@@ -321,6 +321,9 @@ def test_gnn_assignment_on_the_gated_pairs_equals_one_dense_problem_per_run(seed
 
     b, t, w = np.nonzero(gated)
     chosen = pair_assignment(cost[b, t, w], b * tracks + t, b * plots + w, miss.ravel(), dense_entries=0)
+    # plot numbers far apart (renumbered densely inside) choose the same pairs
+    np.testing.assert_array_equal(pair_assignment(cost[b, t, w], b * tracks + t, (b * plots + w) * 100_003 + 7,
+                                                  miss.ravel(), dense_entries=0), chosen)
     sparse_plot = np.full((runs, tracks), -1)
     sparse_plot[b[chosen], t[chosen]] = w[chosen]
     np.testing.assert_array_equal(sparse_plot, gnn_assignment(cost, gated, miss, sparse=False))

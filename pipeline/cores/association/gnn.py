@@ -111,8 +111,9 @@ def pair_assignment(cost, track, plot, miss, dense_entries: int = DENSE_MATCHING
     chosen = np.zeros(cost.size, bool)
     if cost.size == 0:
         return chosen
-    _, plot = np.unique(plot, return_inverse=True)
-    plot = plot.ravel()
+    if plot.max() >= 4 * plot.size + 1024:  # sparse numbers: made dense for the counts below
+        _, plot = np.unique(plot, return_inverse=True)
+        plot = plot.ravel()
     # a track none of whose plots another track gates is a problem of its own: its cheapest plot,
     # if cheaper than a miss (a track in clutter, away from the other tracks)
     shared_plot = np.bincount(plot)[plot] > 1
