@@ -74,9 +74,10 @@ class TrackFilter:
         """Kalman update of ``(x, P)`` with one innovation per track (Joseph form).
 
         Returns ``(x⁺, P⁺, K)``."""
-        K, _ = kalman_gain(P, H, self.measurement_covariance(x), S)
+        R = self.measurement_covariance(x)
+        K, _ = kalman_gain(P, H, R, S)
         x_post = x + np.einsum("...ij,...j->...i", K, innovation)
-        return x_post, joseph_covariance(P, K, H, self.measurement_covariance(x)), K
+        return x_post, joseph_covariance(P, K, H, R), K
 
     def start(self, z):  # pragma: no cover - interface
         """``(x₀, P₀)`` of tracks started from single plots ``z`` ``(..., m)``."""
