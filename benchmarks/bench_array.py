@@ -73,7 +73,8 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.cores.array.angular_innovation import INNOVATIONS
-from pipeline.cores.array.flop_counts import ANALYTIC, counted_flops
+from pipeline.cores.array.angular_innovation import counted_flops
+from pipeline.cores.array.flop_counts import ANALYTIC
 from pipeline.cores.array.linear_array import steering_vectors
 from pipeline.cores.array.music import angle_grid, music, pick_peaks
 from timing import spread  # noqa: E402  (benchmarks/ is on sys.path when run as a script)

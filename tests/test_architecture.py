@@ -117,3 +117,22 @@ def test_every_relative_link_in_the_documentation_exists():
             if not (md.parent / target).exists():
                 missing.append(f"{md.relative_to(ROOT)} → {target}")
     assert not missing, "broken links: " + "; ".join(missing)
+
+
+def test_the_paper_index_names_files_that_exist():
+    # the trackers package's docstring maps each paper to its files; a bare name lives in the
+    # folder of the path before it
+    import re
+
+    import pipeline.trackers
+
+    missing, folder = [], None
+    for name in re.findall(r"``([\w/]+\.(?:py|md)|[\w/]+/)``", pipeline.trackers.__doc__):
+        if "/" in name:
+            folder = name if name.endswith("/") else name.rsplit("/", 1)[0] + "/"
+            path = name
+        else:
+            path = folder + name
+        if not any((base / path).exists() for base in (ROOT / "pipeline", ROOT)):
+            missing.append(path)
+    assert folder is not None and not missing, f"the paper index names missing files: {missing}"

@@ -5,10 +5,15 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pipeline.cores.array.angular_innovation import INNOVATIONS, noise_projector, proposed_innovation, ryu_innovation
+from pipeline.cores.array.angular_innovation import (
+    INNOVATIONS,
+    counted_flops,
+    noise_projector,
+    proposed_innovation,
+    ryu_innovation,
+)
 from pipeline.cores.array.flop_counts import (
     FlopTally,
-    counted_flops,
     gaussian_elimination_flops,
     proposed_flops,
     ryu_flops,

@@ -59,8 +59,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline import vocabulary as vocab
-from pipeline.cores.array.angular_innovation import INNOVATIONS
-from pipeline.cores.array.flop_counts import ANALYTIC, counted_flops
+from pipeline.cores.array.angular_innovation import INNOVATIONS, counted_flops
+from pipeline.cores.array.flop_counts import ANALYTIC
 from pipeline.cores.array.music import angle_grid, eigen_decomposition, music_spectrum, pick_peaks, sample_covariance, source_count
 from pipeline.cores.array.past_subspace import batch_signal_subspace, initial_state, largest_principal_angle, past_scans
 from pipeline.cores.association.track_management import EndingRule, TrackLife

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.cores.array.flop_counts import NO_TALLY
+from pipeline.cores.array.flop_counts import NO_TALLY, FlopTally
 from pipeline.cores.array.linear_array import steering_derivatives, steering_vectors
 
 
@@ -151,3 +151,17 @@ def ryu_innovation(W: np.ndarray, theta_pred: np.ndarray, spacing_wavelengths: f
 
 
 INNOVATIONS = {"proposed": proposed_innovation, "ryu": ryu_innovation}
+
+
+def counted_flops(strategy: str, n_sensors: int, n_targets: int, spacing_wavelengths: float = 0.5) -> dict[str, int]:
+    """FLOPs our kernel of ``strategy`` executes for one scan (per step label).
+
+    Runs the kernel once on a random subspace of the given size with a :class:`FlopTally`;
+    counts depend only on shapes, not on the values.
+    """
+    rng = np.random.default_rng(0)
+    W = rng.standard_normal((n_sensors, n_targets)) + 1j * rng.standard_normal((n_sensors, n_targets))
+    theta = rng.uniform(-0.5, 0.5, n_targets)
+    tally = FlopTally()
+    INNOVATIONS[strategy](W, theta, spacing_wavelengths, tally=tally)
+    return dict(tally.by_step)

@@ -158,19 +158,3 @@ class _NoTally:
 
 
 NO_TALLY = _NoTally()
-
-
-def counted_flops(strategy: str, n_sensors: int, n_targets: int, spacing_wavelengths: float = 0.5) -> dict[str, int]:
-    """FLOPs our kernel of ``strategy`` executes for one scan (per step label).
-
-    Runs the kernel once on a random subspace of the given size with a :class:`FlopTally`;
-    counts depend only on shapes, not on the values.
-    """
-    from pipeline.cores.array.angular_innovation import INNOVATIONS
-
-    rng = np.random.default_rng(0)
-    W = rng.standard_normal((n_sensors, n_targets)) + 1j * rng.standard_normal((n_sensors, n_targets))
-    theta = rng.uniform(-0.5, 0.5, n_targets)
-    tally = FlopTally()
-    INNOVATIONS[strategy](W, theta, spacing_wavelengths, tally=tally)
-    return dict(tally.by_step)
