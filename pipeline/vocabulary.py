@@ -210,6 +210,11 @@ FLAGS = {
     "DELETED": 1 << 13,         # the track ended at this scan (with NO_TRACK; NO_TRACK alone after)
     "FLOORED": 1 << 14,         # a variance was raised to its floor
     "LIMITED": 1 << 15,         # a coefficient was limited to its stable range
+    # set by the output check every tracker passes through (pipeline.trackers.interface), never
+    # by a tracker: the covariance written is not numerically positive definite (its smallest
+    # eigenvalue is within rounding of zero or below it, e.g. a component known exactly), so its
+    # inverse, and the NEES it would give, are not to be trusted
+    "NOT_POSITIVE_DEFINITE": 1 << 16,
 }
 FLAG_DTYPE = "uint32"
 
@@ -229,6 +234,7 @@ NOT_ESTIMATED = FLAGS["NOT_ESTIMATED"]
 DELETED = FLAGS["DELETED"]
 FLOORED = FLAGS["FLOORED"]
 LIMITED = FLAGS["LIMITED"]
+NOT_POSITIVE_DEFINITE = FLAGS["NOT_POSITIVE_DEFINITE"]
 
 
 def flag_names(mask: int) -> list[str]:

@@ -338,6 +338,11 @@ def validate_outputs(outputs: dict, n_runs: int, n_scans: int, name: str, where:
     shaped like ``state`` without its last axis; NaN in ``state`` only where the flags say
     ``NO_TRACK`` or ``NOT_ESTIMATED``; ``covariance`` symmetric positive definite wherever the
     state is finite. Paper-specific extra arrays pass through with the shape check alone.
+
+    A covariance within rounding of positive semi-definite passes, but where it is not
+    numerically positive definite (:data:`STRICT_DEFINITENESS`) its flags gain
+    ``NOT_POSITIVE_DEFINITE``: every covariance written is positive definite or says it is not
+    (``docs/contract.md``, Flags).
     """
     where = where or name
     out = {}
@@ -379,7 +384,11 @@ def validate_outputs(outputs: dict, n_runs: int, n_scans: int, name: str, where:
     if "track_id" in out:
         out["track_id"] = _checked_track_ids(out["track_id"], flags, name, where)
     if "covariance" in out:
-        _check_covariance(out["covariance"], state, name, where)
+        # a covariance that passes but is not numerically positive definite is written flagged,
+        # whichever tracker made it: the one place every output goes through
+        singular = _check_covariance(out["covariance"], state, name, where)
+        if singular is not None:
+            out["flags"] = flags = flags | np.where(singular, vocab.NOT_POSITIVE_DEFINITE, 0).astype(flags.dtype)
     return out
 
 
@@ -407,6 +416,13 @@ def _checked_track_ids(ids, flags, name, where):
 
 
 COVARIANCE_CHECK_BLOCK = 32768  # matrices per block: a few MB of temporaries, whatever the run count
+#: A covariance is numerically positive definite when its smallest eigenvalue exceeds this times
+#: n · trace: four times n units of roundoff of its largest eigenvalue (≤ trace), above the
+#: error with which a backward-stable eigensolver or Cholesky factorisation can place it
+#: (Golub & Van Loan 2013, Matrix Computations, §8.1.2 and §4.2.6), so no independent check finds
+#: it singular. Below it (condition number beyond about 10¹³ for n = 4) it is flagged
+#: ``NOT_POSITIVE_DEFINITE``.
+STRICT_DEFINITENESS = 4 * np.finfo(float).eps
 
 
 def _live_entries(block, live, everything: bool, scan_major: bool):
@@ -435,15 +451,23 @@ def _live_entries(block, live, everything: bool, scan_major: bool):
     return (entries.copy() if np.may_share_memory(entries, block) else entries), position.reshape(-1)
 
 
-def _check_covariance(cov, state, name, where) -> None:
-    """Finite, symmetric and positive (semi-)definite wherever the state is finite; checked in
-    blocks of :data:`COVARIANCE_CHECK_BLOCK` matrices so that the temporaries stay small and in
-    cache at any number of runs. A failure names the first offending matrix in (run, scan)
-    order, whatever order a block is read in."""
+def _check_covariance(cov, state, name, where):
+    """Finite, symmetric and positive semi-definite to rounding wherever the state is finite;
+    checked in blocks of :data:`COVARIANCE_CHECK_BLOCK` matrices so that the temporaries stay
+    small and in cache at any number of runs. A failure names the first offending matrix in
+    (run, scan) order, whatever order a block is read in.
+
+    Returns
+    -------
+    ndarray of bool (runs, scans[, slots]) or None
+        Where a live covariance passed but is not numerically positive definite (its smallest
+        eigenvalue below :data:`STRICT_DEFINITENESS` · n · trace); None when every one is.
+    """
     n = state.shape[-1]
     if cov.shape != state.shape + (n,):
         raise TrackerError(f"tracker {name!r}: covariance has shape {cov.shape}, expected {state.shape + (n,)}", where)
     live_all = np.isfinite(state).all(axis=-1)
+    singular = None
 
     def fail(index: int, problem: str):
         """``index``: the offending matrix in the flattened (runs, scans[, slots]) order."""
@@ -474,18 +498,31 @@ def _check_covariance(cov, state, name, where) -> None:
         asym = np.maximum.reduce(np.abs(t[upper, lower] - t[lower, upper]), axis=0) > 1e-8 * scale
         if asym.any():
             fail(start + where_live[asym].min(), "covariance not symmetric")
-        # c + δI has a Cholesky factor exactly when c's smallest eigenvalue exceeds −δ: one batched
-        # factorisation, entry by entry (pipeline.batched_linalg), clears the common case; the
-        # eigenvalues are computed only to name the offending entry
-        tolerance = 1e-9 * scale
-        t[on_diagonal] += tolerance  # t is now c + δI
+        # c − δI has a Cholesky factor only when c's smallest eigenvalue exceeds δ, a margin
+        # above what rounding can move it by: one batched factorisation, entry by entry
+        # (pipeline.batched_linalg), clears the common case; the eigenvalues are computed only
+        # for the matrices it does not clear
+        trace = np.maximum(np.add.reduce(np.abs(t[on_diagonal]), axis=0), np.finfo(float).tiny)
+        t[on_diagonal] -= STRICT_DEFINITENESS * n * trace  # t is now c − δI
         with np.errstate(invalid="ignore", divide="ignore"):
             factor = cholesky_lower(t)
-        if positive_definite(factor).all():
+        definite = positive_definite(factor)
+        if definite.all():
             continue
+        doubtful = np.flatnonzero(~definite)
         entries, _ = _live_entries(cov[first_run:first_run + runs], live, everything, scan_major)  # without δI
-        lowest = np.linalg.eigvalsh(np.moveaxis(entries.reshape(n, n, -1), -1, 0))[..., 0]
-        indefinite = lowest <= -tolerance
+        lowest = np.linalg.eigvalsh(np.moveaxis(entries[:, doubtful].reshape(n, n, -1), -1, 0))[..., 0]
+        # beyond rounding of positive semi-definite (−10⁻⁹ of the largest variance): refused
+        indefinite = lowest <= -1e-9 * scale[doubtful]
         if indefinite.any():
-            first = int(np.argmin(np.where(indefinite, where_live, live_all.size)))
-            fail(start + where_live[first], f"covariance not positive definite (smallest eigenvalue {lowest[first]:.3g})")
+            first = int(np.argmin(np.where(indefinite, where_live[doubtful], live_all.size)))
+            fail(start + where_live[doubtful[first]],
+                 f"covariance not positive definite (smallest eigenvalue {lowest[first]:.3g})")
+        # within rounding of it: passed, and flagged where the eigenvalue confirms what the
+        # shifted factorisation (itself subject to rounding) suggested
+        flagged = doubtful[lowest <= STRICT_DEFINITENESS * n * trace[doubtful]]
+        if flagged.size:
+            if singular is None:
+                singular = np.zeros(live_all.size, bool)
+            singular[start + where_live[flagged]] = True
+    return None if singular is None else singular.reshape(live_all.shape)
