@@ -206,6 +206,9 @@ TIME_COLUMN = "time_s"
 # its rows are truth-only rows of the plots table (range and bearing empty)
 TRUTH_TABLE = "truth"
 TRUTH_FAMILIES = ("radar-plots",)
+# the optional table of values the recording's sensor had (its noise, scan period, …), recorded
+# with the source "mapping file" (pipeline.sensor_values); what it does not say stays unknown
+SENSOR_TABLE = "sensor"
 TRUTH_COLUMNS = ("truth_id", "truth_x_m", "truth_y_m", "truth_vx_mps", "truth_vy_mps")
 # families whose message with an empty item list is still a scan (a row with these columns
 # empty marks a scan without plots, or peaks)
@@ -245,6 +248,7 @@ class Mapping:
     family: str
     tables: dict
     path: Path = field(compare=False)
+    sensor: dict = field(default_factory=dict)  # the [sensor] table: values of the recording's sensor
 
 
 def _formats() -> dict:
@@ -316,10 +320,13 @@ def load_mapping(path: str | Path) -> Mapping:
         raise InputError(f"[truth] (a list of targets with identities) belongs to "
                          f"{' or '.join(TRUTH_FAMILIES)} mappings; a {family} mapping carries its truth in the "
                          "columns of [measurements]", path)
-    unknown = [k for k in doc if k not in ("family", *tables)]
+    unknown = [k for k in doc if k not in ("family", SENSOR_TABLE, *tables)]
     if unknown:
         raise InputError(f"unknown key {unknown[0]!r} (a mapping of {family} has: family, "
-                         f"{', '.join(f'[{t}]' for t in tables)})", path)
+                         f"{', '.join(f'[{t}]' for t in tables)}, [{SENSOR_TABLE}])", path)
+    sensor = doc.get(SENSOR_TABLE, {})
+    if not isinstance(sensor, dict) or any(isinstance(v, (dict, list)) for v in sensor.values()):
+        raise InputError(f"[{SENSOR_TABLE}] holds one value per name (sigma_range_m = 50), no tables or lists", path)
     if "measurements" not in doc:
         raise InputError("missing table [measurements] (its topic, time and columns)", path)
     specs = {}
@@ -330,7 +337,14 @@ def load_mapping(path: str | Path) -> Mapping:
         raise InputError(f"missing table [sensors] (a {family} mapping reads the sensors too)", path)
     if TRUTH_TABLE in specs:
         _check_truth_spec(specs, path)
-    return Mapping(family, specs, path)
+    if sensor:  # names and types checked here, so that a bad value names the mapping file
+        from recorders.tables import _given_values
+
+        try:
+            _given_values(family, sensor, f"[{SENSOR_TABLE}]")
+        except InputError as exc:
+            raise InputError(exc.problem, path) from None
+    return Mapping(family, specs, path, dict(sensor))
 
 
 def _check_truth_spec(specs: dict, path) -> None:
@@ -974,7 +988,8 @@ def convert_foreign_mcap(src, mapping_path, dst, overrides: dict | None = None) 
     dst : str or Path
         The data set to write.
     overrides : dict, optional
-        ``--set`` values for the family's scenario parameters (sensor noise, design values).
+        ``--set`` values of the sensor and the trackers' design (they win over the mapping
+        file's ``[sensor]`` table); nothing is taken from a bundled scenario.
 
     Returns
     -------
@@ -985,8 +1000,9 @@ def convert_foreign_mcap(src, mapping_path, dst, overrides: dict | None = None) 
 
     mapping = load_mapping(mapping_path)
     data, got = dataset_from_foreign(src, mapping)
-    n, _, notes = tables.write_imported(mapping.family, data, dst, overrides, f"{mapping.family} mcap",
-                                        {"source_mcap": Path(src).name, "mapping": Path(mapping_path).name}, src)
+    n, _, notes, _ = tables.write_imported(mapping.family, data, dst, overrides, f"{mapping.family} mcap",
+                                           {"source_mcap": Path(src).name, "mapping": Path(mapping_path).name}, src,
+                                           mapped=mapping.sensor)
     return {"family": mapping.family, "messages_in": got.messages,
             "rows": {t: df.height for t, df in got.tables.items()}, "messages_out": n,
             "topics": {t: s.topic for t, s in mapping.tables.items()}, "notes": [*got.notes, *notes]}

@@ -14,8 +14,9 @@ command-line help is written from it (and ``docs/importers.md`` is tested to lis
   tables carry) as tables in the import format, so that simulate → export → import gives the
   same arrays bit for bit;
 * :func:`convert_table` is what ``replay convert plots|peaks|tdoa-fdoa|positions`` runs: read,
-  validate, record the design values of the family's bundled scenario (changed with ``--set``)
-  and write the data set.
+  validate, record the sensor and design values the user gave with ``--set`` (nothing from a
+  bundled scenario: :mod:`pipeline.sensor_values`) and what the data hold, and write the data
+  set.
 
 Rules every importer applies (a broken rule is one :class:`~pipeline.errors.InputError` naming
 the file and the first row at fault; rows are counted from 1 after the header):
@@ -1034,25 +1035,89 @@ class ConvertReport:
     truth: bool
     params: dict
     notes: list = field(default_factory=list)
+    sources: dict = field(default_factory=dict)
+
+
+def _given_values(family: str, given: dict, what: str) -> dict:
+    """``given`` (``--set`` or a mapping file's ``[sensor]`` table) parsed to each value's type:
+    a parameter of the family's bundled scenario takes its default's type, another sensor value
+    of the family (:data:`pipeline.sensor_values.SENSOR_KEYS`, e.g. a multi-target radar's
+    clutter) a number. Anything else is refused, naming the known values."""
+    from pipeline.sensor_values import SENSOR_KEYS
+    from recorders.scenarios import coerce, load_scenario
+
+    defaults = load_scenario(scenario_of(family)).params
+    out = {}
+    for key, raw in given.items():
+        if key in defaults:
+            out[key] = coerce(key, raw, defaults[key])
+        elif key in SENSOR_KEYS.get(family, ()):
+            out[key] = coerce(key, raw, 0.0)
+        else:
+            known = ", ".join(sorted(set(defaults) | set(SENSOR_KEYS.get(family, ()))))
+            raise InputError(f"{what}: unknown parameter {key!r} for {family} (known: {known})")
+        if out[key] is None:
+            raise InputError(f"{what}: parameter {key!r}: cannot read {raw!r}")
+    return out
 
 
 def table_parameters(family: str, overrides: dict | None = None,
-                     data: SimulatedData | None = None) -> tuple[dict, list]:
-    """Design values recorded with an imported table: the bundled scenario of ``family``'s stage
-    changed by ``overrides`` (``--set``), with notes on choices made for the user.
+                     data: SimulatedData | None = None, mapped: dict | None = None) -> tuple[dict, list, dict]:
+    """Values recorded with an imported table: what the user said about the sensor and the
+    trackers (``overrides``, from ``--set``; ``mapped``, from a mapping file's ``[sensor]``
+    table; the flag wins) and what the data themselves hold (runs, scans, time span), with
+    notes on choices made for the user.
 
-    A tdoa-fdoa table without prior columns records ``initial_guess = "grid"`` (the replay
-    then starts Gauss-Newton from a coarse grid search) unless ``overrides`` says otherwise.
+    Nothing is taken from a bundled scenario: a sensor value the user did not give is unknown
+    (``docs/importers.md``, "Sensor values"). A tdoa-fdoa table without prior columns records
+    ``initial_guess = "grid"`` (the replay then starts Gauss-Newton from a coarse grid search)
+    unless the user says otherwise.
+
+    Returns
+    -------
+    params : dict
+    notes : list of str
+    sources : dict
+        ``{parameter: source}`` (:data:`pipeline.sensor_values.SOURCES`) of every value of ``params``.
     """
-    from recorders.scenarios import load_scenario
+    from pipeline import sensor_values as sv
 
-    overrides = dict(overrides or {})
-    sc = load_scenario(scenario_of(family)).with_overrides(overrides)
-    params, notes = dict(sc.params), []
-    if family == "tdoa-fdoa" and data is not None and _PRIOR not in data.fixed and "initial_guess" not in overrides:
+    mapped = _given_values(family, dict(mapped or {}), "mapping file [sensor]")
+    flagged = _given_values(family, dict(overrides or {}), "--set")
+    params, sources, notes = {}, {}, []
+    for values, source in ((mapped, sv.MAPPING_FILE), (flagged, sv.CONVERTER_FLAG)):
+        params.update(values)
+        sources.update(dict.fromkeys(values, source))
+    if family == "tdoa-fdoa" and data is not None and _PRIOR not in data.fixed and "initial_guess" not in params:
         params["initial_guess"] = "grid"
+        sources["initial_guess"] = sv.DATA
         notes.append("no prior columns: recorded initial_guess=grid (Gauss-Newton starts from a coarse grid search)")
-    return params, notes
+    if data is not None:
+        times = np.asarray(data.times, dtype=float)
+        facts = {"n_runs": int(data.n_runs), "n_scans": int(times.size),
+                 "time_span_s": float(times[-1] - times[0]) if times.size else 0.0}
+        params.update(facts)
+        sources.update(dict.fromkeys(facts, sv.DATA))
+    return params, notes, sources
+
+
+def sensor_summary(family: str, params: dict, sources: dict) -> str:
+    """One line saying which sensor values a converted data set records and which it leaves
+    unknown (:data:`pipeline.sensor_values.SENSOR_KEYS`), for the converters to print."""
+    from pipeline.sensor_values import ESTIMABLE, SENSOR_KEYS
+
+    keys = SENSOR_KEYS.get(family, ())
+    if not keys:
+        return f"sensor values: in the measurements ({family} carries its noise and geometry per item)"
+    given = [f"{k}={params[k]:g}" if isinstance(params[k], float) else f"{k}={params[k]}" for k in keys if k in params]
+    estimated = [k for k in keys if k not in params and k in ESTIMABLE.get(family, {})]
+    unknown = [k for k in keys if k not in params and k not in estimated]
+    parts = [f"given {', '.join(given)} ({', '.join(sorted({sources[k] for k in keys if k in params}))})"] if given else []
+    if estimated:
+        parts.append(f"estimated at replay from the data: {', '.join(estimated)}")
+    if unknown:
+        parts.append(f"unknown: {', '.join(unknown)} (a tracker that needs one asks for --set NAME=VALUE)")
+    return "sensor values: " + "; ".join(parts)
 
 
 def check_peak_field(data: SimulatedData, params: dict, path) -> None:
@@ -1060,7 +1125,8 @@ def check_peak_field(data: SimulatedData, params: dict, path) -> None:
     ``params``), which the replay would refuse, naming the first peak with its run and time
     (``data``'s own times)."""
     arrays, counts = data.ragged[_PEAKS]
-    lo, hi = float(params["field_min_deg"]), float(params["field_max_deg"])
+    # an unknown field is the whole of what a bearing θ = arccos(C·D/d) can be (the stage's too)
+    lo, hi = float(params.get("field_min_deg", 0.0)), float(params.get("field_max_deg", 180.0))
     b = arrays["bearing_rad"]
     have = np.arange(b.shape[2]) < counts[..., None]
     outside = have & ((b < np.deg2rad(lo) - 1e-12) | (b > np.deg2rad(hi) + 1e-12))
@@ -1071,12 +1137,15 @@ def check_peak_field(data: SimulatedData, params: dict, path) -> None:
                          "field_min_deg=… --set field_max_deg=…", path)
 
 
-def write_imported(family: str, data: SimulatedData, dst, overrides, scenario: str, source: dict, path):
+def write_imported(family: str, data: SimulatedData, dst, overrides, scenario: str, source: dict, path,
+                   mapped: dict | None = None):
     """Write an imported data set: the one way a table or a foreign recording becomes one.
 
-    It records the family's design values changed by ``overrides`` (:func:`table_parameters`),
-    ``source`` (the input files' names) and the first time ``first_time_s`` (scan times start at
-    0: MCAP log times are unsigned), and refuses peaks outside the sensor's field
+    It records what the user gave (``overrides`` from ``--set``, ``mapped`` from a mapping
+    file) and what the data hold (:func:`table_parameters`), ``source`` (the input files'
+    names) and the first time ``first_time_s`` (scan times start at 0: MCAP log times are
+    unsigned), marks the record a recording with the source of every value
+    (:mod:`pipeline.sensor_values`), and refuses peaks outside the sensor's field
     (:func:`check_peak_field`, naming ``path``). Written atomically.
 
     Returns
@@ -1086,24 +1155,33 @@ def write_imported(family: str, data: SimulatedData, dst, overrides, scenario: s
         What was recorded.
     notes : list of str
         What the user should know (e.g. values taken from the data).
+    sources : dict
+        The source of every recorded value.
     """
-    from pipeline.contract import scenario_metadata
+    import json
 
-    params, notes = table_parameters(family, overrides, data)
+    from pipeline import sensor_values as sv
+    from pipeline.contract import METADATA_SCENARIO, scenario_metadata
+
+    params, notes, sources = table_parameters(family, overrides, data, mapped)
     t0 = float(data.times[0])
     if family == "bearing-peaks":
         check_peak_field(data, params, path)
     params.update(source, first_time_s=t0)
-    messages = write_simulated(dst, replace(data, times=data.times - t0), scenario_metadata(scenario, params, seed=-1))
-    return messages, params, notes
+    sources.update(dict.fromkeys([*source, "first_time_s"], sv.DATA))
+    metadata = scenario_metadata(scenario, params, seed=-1)
+    metadata[METADATA_SCENARIO].update(origin=sv.ORIGIN_RECORDING, sources=json.dumps(sources, sort_keys=True))
+    messages = write_simulated(dst, replace(data, times=data.times - t0), metadata)
+    return messages, params, notes, sources
 
 
 def convert_table(family: str, src, dst, overrides: dict | None = None, sensors_src=None) -> ConvertReport:
     """Read a table file (and its sensors table), validate it and write a data set.
 
-    The data set records the design values of the family's bundled scenario changed by
-    ``overrides`` (``--set``; see :func:`table_parameters`), the source file's name and the
-    table's first time ``first_time_s`` (its scan times start at 0).
+    The data set records the values ``overrides`` gives (``--set``; see
+    :func:`table_parameters`; nothing from a bundled scenario), the runs, scans and time span
+    it holds, the source file's name and the table's first time ``first_time_s`` (its scan
+    times start at 0).
 
     Returns
     -------
@@ -1122,12 +1200,12 @@ def convert_table(family: str, src, dst, overrides: dict | None = None, sensors_
     source = {"source_table": Path(src).name}
     if sensors_src is not None:
         source["source_sensors_table"] = Path(sensors_src).name
-    messages, params, notes = write_imported(family, data, dst, overrides, f"{family} table", source, src)
+    messages, params, notes, sources = write_imported(family, data, dst, overrides, f"{family} table", source, src)
     family_of = vocab.FAMILIES[family]
     measured = [counts for topic, (_, counts) in data.ragged.items() if topic in family_of.inputs]
     items = int(sum(int(c.sum()) for c in measured)) if measured else int(rows.height)
     truth = family_of.truth in data.fixed or family_of.truth in data.ragged
-    return ConvertReport(Path(dst), messages, data.n_runs, int(data.times.size), items, truth, params, notes)
+    return ConvertReport(Path(dst), messages, data.n_runs, int(data.times.size), items, truth, params, notes, sources)
 
 
 # --------------------------------------------------------------------------- exporting

@@ -703,6 +703,16 @@ def _list_outputs(folder: Path, groups, err: bool = False) -> None:
             _echo_wrapped(f"{kind + ':':10s} {', '.join(names)}{tail}", indent=" " * 11, err=err)
 
 
+def _print_design_notes(res) -> None:
+    """What the stages chose for the user on this data set (a sensor value estimated from the
+    data, say), one line each (``pipeline.sensor_values``)."""
+    from pipeline.stages.base import design_notes
+
+    for stage in res.results:
+        for note in design_notes(res.dataset, stage):
+            _echo_wrapped(f"note: {note}")
+
+
 def _previous_outputs(out_dir: Path, out_name: str, rrd_path: Path | None) -> list[Path]:
     """The files of an earlier replay that a replay into ``out_dir`` would replace."""
     names = [out_dir / out_name, out_dir / Path(out_name).with_suffix(".rrd").name, *(out_dir / n for n in REPORT_FILES)]
@@ -853,6 +863,7 @@ def _run(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, sets
             click.echo(f"recovered {res.dataset.recovered_messages} messages from complete chunks of {data}")
         _print_summary(_table_summary(res), _metrics_title(data, res.dataset), _headline_metrics(res))
         _print_stage_reports(res)
+        _print_design_notes(res)
         if figures_mode == "auto":  # a converted foreign file lives only as long as this call
             figures_mode = "background" if sys.stdout.isatty() and map_path is None else "now"
         elif figures_mode == "background" and map_path is not None:
@@ -1095,6 +1106,7 @@ def eval_cmd(data, outputs, as_json, per_scan, export_dir, recover, trackers, se
     else:
         _print_summary(_table_summary(res), _metrics_title(data, res.dataset), _headline_metrics(res))
         _print_stage_reports(res)
+        _print_design_notes(res)
     if export_dir:
         with progress.timed("export"):
             tables = _export_tables(res, export_dir)
@@ -1717,6 +1729,7 @@ EXTENSION_MODULES: tuple[str, ...] = (
     "pipeline.face.cli_convert_upgrade",
     "pipeline.face.cli_convert_tables",
     "pipeline.face.cli_convert_foreign",
+    "pipeline.face.cli_info",
     # one line per module: "pipeline.cli_<paper>",
 )
 

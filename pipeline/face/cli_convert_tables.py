@@ -45,14 +45,16 @@ def _column_lines(columns, indent: str = "  ") -> list[str]:
 
 def format_help(family: str, command: str) -> str:
     """The --help text of a table converter, from the family's :data:`recorders.tables.TABLE_FORMATS` entry."""
+    from pipeline.sensor_values import SENSOR_KEYS
     from recorders.tables import TABLE_FORMATS, scenario_of
 
     fmt = TABLE_FORMATS[family]
     sample, sensors = SAMPLES[family]
     lines = [f"{TITLES[family]} table (.csv or .parquet) → data set (MCAP), ready for `replay`.", "",
-             f"{fmt.summary[0].upper()}{fmt.summary[1:]}. The design values (sensor noise, the trackers' "
-             f"parameters) come from the bundled {scenario_of(family)} scenario; change them with --set "
-             f"(`replay scenarios {scenario_of(family)}` lists them).", ""]
+             f"{fmt.summary[0].upper()}{fmt.summary[1:]}. Say what you know about the sensor with --set "
+             f"(its noise, scan period, …: {', '.join(SENSOR_KEYS.get(family, ())) or 'none; they are columns'}); "
+             f"what you do not say stays unknown, never taken from the bundled {scenario_of(family)} scenario, "
+             "and a tracker that needs it asks for it. `replay info DATA` shows every value and its source.", ""]
     for key, columns in fmt.tables.items():
         title = "Columns" if key == "measurements" else "Columns of the sensors table (--sensors)"
         lines += ["\b", f"{title} (unit; rad | ° means _rad or _deg):", *_column_lines(columns), ""]
@@ -63,9 +65,17 @@ def format_help(family: str, command: str) -> str:
               "text, NaN or Inf); an error names the file and the first bad row (rows counted from 1 after the "
               "header). See docs/importers.md.", ""]
     extra = f" --sensors data/samples/{sensors}" if sensors else ""
-    lines += ["\b", "Example:", f"  replay convert {command} data/samples/{sample}{extra} -o rec.mcap",
-              "  replay rec.mcap --no-rrd"]
+    given = "".join(f" --set {k}={v}" for k, v in SAMPLE_SENSOR_VALUES.get(family, {}).items())
+    lines += ["\b", "Example:", f"  replay convert {command} data/samples/{sample}{extra} -o rec.mcap{given}",
+              "  replay info rec.mcap", "  replay rec.mcap --no-rrd"]
     return "\n".join(lines)
+
+
+#: the sensor values the bundled samples were made with (docs/importers.md, "Sample tables")
+SAMPLE_SENSOR_VALUES = {"radar-plots": {"sigma_range_m": 100, "sigma_bearing_deg": 1, "scan_period_s": 5},
+                        "bearing-peaks": {"strong_sigma_p_deg": 1.3, "weak_sigma_p_deg": 1.8, "field_min_deg": 70,
+                                          "field_max_deg": 110},
+                        "colored-position": {"measurement_variance_m2": 100}}
 
 
 class _TableCommand(click.Command):
@@ -94,14 +104,15 @@ def _convert_command(name: str, family: str, alias_of: str | None = None) -> cli
                                    help="The sensors table (.csv or .parquet): positions and velocities per epoch."))
     params += [
         click.Option(["--set", "sets"], multiple=True, metavar="NAME=VALUE",
-                     help="A design value recorded with the data (a parameter of the bundled scenario)."),
+                     help="A sensor value (sigma_range_m=50) or design value recorded with the data; "
+                          "a sensor value not given is unknown."),
         click.Option(["--force"], is_flag=True, help="Replace the output file if it exists."),
     ]
 
     def callback(table_path, output, sets, force, sensors_path=None):
         from pipeline.paths import refuse_input_overwrite, refuse_replacing_file
         from recorders.scenarios import parse_assignments
-        from recorders.tables import convert_table
+        from recorders.tables import convert_table, sensor_summary
 
         refuse_input_overwrite([table_path, sensors_path], [output])
         refuse_replacing_file(output, force)
@@ -110,6 +121,7 @@ def _convert_command(name: str, family: str, alias_of: str | None = None) -> cli
                    f"{rep.items} {ITEMS[family]}; {'with truth' if rep.truth else 'no truth'}")
         for note in rep.notes:
             click.echo(f"note: {note}")
+        click.echo(sensor_summary(family, rep.params, rep.sources))
 
     short = (f"Alias of `{alias_of}` (its earlier name)." if alias_of
              else f"{TITLES[family]} table (CSV or Parquet) → MCAP.")
@@ -141,7 +153,7 @@ def export_tables(data: Path, out_dir: Path, fmt: str, recover: bool, force: boo
     refuse_input_overwrite([data], [p for p, _ in plan])
     for p, _ in plan:
         refuse_replacing_file(p, force)
-    with OutputSet(out_dir) as outputs:
+    with OutputSet(out_dir, inputs=[data], name="tables") as outputs:
         for p, df in plan:
             write_table(df, outputs.path(p.name), fmt)
     for p, df in plan:

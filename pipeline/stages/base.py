@@ -16,6 +16,7 @@ import numpy as np
 
 from pipeline import vocabulary as vocab
 from pipeline.errors import InputError
+from pipeline.isolation import DEFAULT_TRACKER_TIME_LIMIT_S, run_plugged_tracker
 from pipeline.trackers.interface import TrackerError, call_tracker
 
 
@@ -35,6 +36,41 @@ def _recorded_value(key: str, raw, default):
     if value is None or (numeric and (isinstance(value, bool) or not isinstance(value, (int, float)))):
         raise InputError(f"parameter {key!r}: cannot read {raw!r} as {type(default).__name__}")
     return value
+
+
+def design_notes(dataset, stage_name: str) -> list:
+    """What :meth:`Stage.design` chose for the user on ``dataset`` (e.g. a scan period
+    estimated from the scan times), one sentence each."""
+    return list(dataset.cache.get(("design_notes", stage_name), ()))
+
+
+def model_recorded(dataset) -> bool:
+    """Whether ``dataset`` records the model that generated it, so that a bound (the PCRB, the
+    CRLB at the truth) and an efficiency can be computed: not for a converted recording
+    (:func:`pipeline.sensor_values.is_recording`), whose noise and motion no one knows."""
+    from pipeline.sensor_values import is_recording
+
+    return not is_recording(dataset.scenario)
+
+
+#: metric and column names of bounds and of what is computed from them (docs/evaluation.md)
+BOUND_PREFIXES, BOUND_SUFFIXES = ("crlb_", "pcrb_"), ("_efficiency",)
+
+
+def _is_bound(name: str) -> bool:
+    return name.startswith(BOUND_PREFIXES) or name.endswith(BOUND_SUFFIXES)
+
+
+def without_bounds(per_scan, summary):
+    """``(per_scan, summary)`` without bounds and efficiencies: a recording has none."""
+    import polars as pl
+
+    if "metric" in summary.columns:
+        metric = pl.col("metric")
+        bound = pl.any_horizontal([metric.str.starts_with(p) for p in BOUND_PREFIXES] +
+                                  [metric.str.ends_with(x) for x in BOUND_SUFFIXES])
+        summary = summary.filter(~bound.fill_null(False))
+    return per_scan.drop([c for c in per_scan.columns if _is_bound(c)]), summary
 
 
 #: a replay scores and releases trackers' outputs once they hold this many bytes (see
@@ -121,10 +157,30 @@ class Stage:
                                          f"{self.scenario} scenario does not define it")
         return out
 
+    def scenario_sourced_keys(self, entries=None) -> set:
+        """The design keys whose default is the bundled scenario's value (the stage's own keys,
+        and the trackers' parameters without a default of their own), as opposed to a
+        tracker's own documented default."""
+        from recorders.scenarios import load_scenario
+
+        scenario = load_scenario(self.scenario).params
+        keys = {k for k in self.design_keys if k in scenario}
+        for e in (self.entries() if entries is None else entries):
+            keys.update(p.name for p in e.cls.params if p.default is None and p.name in scenario)
+        return keys
+
     def design(self, dataset, overrides: dict | None = None, entries=None) -> dict:
         """Design values: those of the replay in progress if there is one, else the file's
         scenario record, else the defaults (bundled scenario, then the trackers' own), then
-        ``overrides``."""
+        ``overrides``.
+
+        A recording (:func:`pipeline.sensor_values.is_recording`) says what it knows about its
+        sensor; a sensor value it does not say (:data:`pipeline.sensor_values.SENSOR_KEYS`) is
+        never the bundled scenario's: it is estimated from the data where the family documents
+        how (:data:`pipeline.sensor_values.ESTIMABLE`; the estimate is noted in
+        :func:`design_notes`), else None, *unknown*, and a tracker that needs it stops with one
+        line naming the ``--set`` it needs (:meth:`run_units`)."""
+        from pipeline import sensor_values as sv
         from recorders.scenarios import coerce
 
         if not overrides and entries is None and ("design", self.name) in dataset.cache:
@@ -132,12 +188,21 @@ class Stage:
 
         defaults = self.parameter_defaults(entries)
         recorded = dataset.scenario.get("params", {})
-        out = {}
+        unknowable = set()
+        if sv.is_recording(dataset.scenario):
+            unknowable = set(sv.SENSOR_KEYS.get(self.family, ())) & self.scenario_sourced_keys(entries)
+        out, notes = {}, []
         for k, default in defaults.items():
             try:
                 out[k] = _recorded_value(k, recorded[k], default) if k in recorded else default
             except InputError as exc:  # the file's metadata, not the command line, is at fault
                 raise InputError(f"scenario record: {exc.problem}", dataset.path) from None
+            if k in unknowable and k not in recorded:
+                how = sv.ESTIMABLE.get(self.family, {}).get(k)
+                out[k] = None if how is None else sv.estimate(k, self.scan_times(dataset))
+                if out[k] is not None and k not in (overrides or {}):
+                    notes.append(f"{k} = {out[k]:g} estimated from {how} (the recording does not say it; "
+                                 f"--set {k}=VALUE gives it)")
         derived = self.evaluation_defaults_from_data(dataset, out)
         out.update({k: v for k, v in derived.items() if k not in recorded})
         for k, v in (overrides or {}).items():
@@ -145,7 +210,17 @@ class Stage:
                 raise InputError(f"unknown tracker parameter {k!r} (known: {', '.join(defaults)})")
             out[k] = coerce(k, v, defaults[k])
         self.check_design(out)
+        dataset.cache[("design_notes", self.name)] = notes
         return out
+
+    def scan_times(self, dataset):
+        """The scan times of the family's first input channel (what an estimate reads)."""
+        return dataset.channel(self.input_topics[0]).times()
+
+    def unknown_values(self, entry, design: dict) -> list:
+        """The parameters of ``entry``'s tracker whose value is unknown for this data set (None
+        in ``design``: a sensor value the recording does not say)."""
+        return [p.name for p in entry.cls.params if p.name in design and design[p.name] is None]
 
     def evaluation_defaults_from_data(self, dataset, design: dict) -> dict:
         """Evaluation design values that follow from the data set (its noise and geometry), in
@@ -208,7 +283,7 @@ class Stage:
         tracks.update(extras)
         return {"times": times, "tracks": tracks, "errors": errors}
 
-    def run_units(self, dataset, entries, design: dict):
+    def run_units(self, dataset, entries, design: dict, time_limit_s: float | None = DEFAULT_TRACKER_TIME_LIMIT_S):
         """Decode once; then the trackers' outputs in scoring units, computed as they are read.
 
         Returns
@@ -228,9 +303,18 @@ class Stage:
         times = np.asarray(measurements.times_s, dtype=float)
 
         def call(entry):
+            from pipeline.sensor_values import unknown_message
+
+            unknown = self.unknown_values(entry, design)
+            if unknown:  # never a guess: this tracker stops, the others run
+                raise TrackerError(unknown_message(entry.name, unknown), dataset.path)
             # a plugged tracker that fails to construct is reported like one that fails to run
-            tracker = self.build(entry, design)
-            return call_tracker(tracker, measurements, None if entry.builtin else entry.source)
+            if entry.builtin:
+                return call_tracker(self.build(entry, design), measurements, None)
+            # a plugged one runs in a child process, stopped at time_limit_s (0 or None: never), so
+            # that it cannot end or hang the replay (pipeline/isolation.py)
+            return run_plugged_tracker(entry.name, entry.source, lambda: call_tracker(
+                self.build(entry, design), measurements, entry.source), time_limit_s)
 
         def units():
             extras, tracks, errors = None, {}, []
@@ -483,6 +567,8 @@ class Stage:
         innovations = {n: whitened_innovations(o) for n, o in tracks.items()}
         # the track summary reads the flags and innovations alone: every family has it, truth or not
         lives = track_summary(result["times"], tracks, innovations=innovations).with_columns(kind=pl.lit("standard"))
+        if not model_recorded(dataset):
+            per_scan, summary = without_bounds(per_scan, summary)
         space = self.standard_space(design, reference)
         if space is None:
             family = summary if "kind" in summary.columns else summary.with_columns(kind=pl.lit("family"))

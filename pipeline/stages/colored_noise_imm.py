@@ -22,7 +22,7 @@ import numpy as np
 from evaluators import colored_noise_imm as colored_eval
 from pipeline import vocabulary as vocab
 from pipeline.errors import InputError, require_finite
-from pipeline.stages.base import Stage
+from pipeline.stages.base import Stage, model_recorded
 from evaluators.standard import position_space
 from pipeline.trackers.colored_noise import MODEL_NAMES, ar1_outputs, colored_noise_pcrb
 from pipeline.trackers.interface import ColoredPositions
@@ -102,9 +102,9 @@ class ColoredNoiseImmStage(Stage):
         fixed = {}
         recorded = dataset.scenario.get("params", {})
         q = recorded.get("process_noise_variance")
-        if state is not None and alpha is not None and q is not None and float(q) > 0 \
+        if model_recorded(dataset) and state is not None and alpha is not None and q is not None and float(q) > 0 \
                 and "measurement_variance_m2" in recorded:
-            # the bound needs the truth's own noise, which only a simulated file records; without
+            # the bound needs the truth's own noise, which only a simulation records; without
             # process noise the truth is deterministic and, from a true start, the bound is zero
             bound = colored_noise_pcrb(alpha, times, float(q), float(recorded["measurement_variance_m2"]))
             axes = state.shape[-1] // 3
@@ -115,7 +115,10 @@ class ColoredNoiseImmStage(Stage):
     def score(self, reference: dict, result: dict, design: dict):
         runs, fixed = reference["runs"], reference.get("fixed", {})
         return colored_eval.evaluate(result["times"], result["tracks"], runs["truth_state"], runs["truth_alpha"],
-                                     float(design["measurement_variance_m2"]), float(design["ar_forgetting_factor"]),
+                                     # unknown on a recording that does not say it: the AR
+                                     # estimator's noise variance is then not scored
+                                     float("nan") if design["measurement_variance_m2"] is None
+                                     else float(design["measurement_variance_m2"]), float(design["ar_forgetting_factor"]),
                                      list(MODEL_NAMES), fixed.get("pcrb_position_var"), fixed.get("pcrb_velocity_var"))
 
     def standard_space(self, design: dict, reference: dict | None = None):

@@ -17,7 +17,7 @@ from pipeline.cores.filters.converted_measurements import polar_to_cartesian
 from pipeline import vocabulary as vocab
 from pipeline.trackers.interface import RadarPlots
 from pipeline.errors import InputError, require_finite
-from pipeline.stages.base import Stage
+from pipeline.stages.base import Stage, model_recorded
 from pipeline.stages.truth_sets import identity_slots, single_target
 from pipeline.trackers.radar_tws import radar_pcrb
 from evaluators.standard import position_space
@@ -179,10 +179,12 @@ class RadarTwsStage(Stage):
             truth_state = truth[0][:, :, 0]
             require_finite(f"{TRUTH} state", truth_state, dataset.path)
             runs["truth_state"] = truth_state
-            runs["cross_std"] = np.hypot(truth_state[..., 0], truth_state[..., 1]) * np.deg2rad(design["sigma_bearing_deg"])
+            if design.get("sigma_bearing_deg") is not None:  # unknown on a recording that does not say it
+                runs["cross_std"] = (np.hypot(truth_state[..., 0], truth_state[..., 1])
+                                     * np.deg2rad(design["sigma_bearing_deg"]))
             recorded = dataset.scenario.get("params", {})
-            if all(k in recorded for k in ("truth_process_noise_mps2", "sigma_range_m")):
-                # the bound needs the truth's own noise, which only a simulated file records
+            if model_recorded(dataset) and all(k in recorded for k in ("truth_process_noise_mps2", "sigma_range_m")):
+                # the bound needs the truth's own noise, which only a simulation records
                 fixed["pcrb"] = radar_pcrb(truth_state, times, float(recorded["truth_process_noise_mps2"]),
                                            float(recorded["sigma_range_m"]),
                                            float(np.deg2rad(float(recorded.get("sigma_bearing_deg", design["sigma_bearing_deg"])))),

@@ -1,0 +1,130 @@
+"""What a data set knows about its sensor, and where each value comes from.
+
+A tracker's design values are of two kinds. Some describe the *sensor* that made the data: its
+noise, scan period, geometry, detection probability. Only the data set can say them. A
+simulation records them from its parameters; a converter records the ones the user gave
+(``--set`` on ``replay convert``, or the ``[sensor]`` table of a mapping file). The others are
+the *tracker's own* choices (a design acceleration, a gate, a forgetting factor), with
+defaults documented with each tracker and its paper's scenario.
+
+Whatever a recording does not say about its sensor is **unknown**. It is never taken from a
+bundled scenario: a tracker that needs an unknown value stops with one line naming the
+``--set NAME=VALUE`` it needs, unless its family documents an estimate from the data (the scan
+period from the scan times), which is then used and said (``docs/importers.md``, "Sensor
+values").
+
+The record of a converted data set (``replay.scenario``) carries two fields a simulation's
+lacks: ``origin = "recording"`` and ``sources``, a JSON object naming the source of each value
+it records (:data:`SOURCES`). Files converted before these fields existed (seed ``-1``) and the
+WAV converter's records (scenario ``array-wav``) are recordings too. Only a simulation records
+its generating model, so only a simulation has Cramér–Rao bounds (``docs/evaluation.md``).
+"""
+
+from __future__ import annotations
+
+import json
+
+#: the sources a value can have, as ``replay info`` prints them
+SIMULATION = "simulation parameters"
+CONVERTER_FLAG = "converter flag"
+MAPPING_FILE = "mapping file"
+DATA = "the data"
+ESTIMATED = "estimated"
+UNKNOWN = "unknown"
+EARLIER_CONVERTER = "an earlier converter (possibly the bundled scenario's value)"
+SOURCES = (SIMULATION, CONVERTER_FLAG, MAPPING_FILE, DATA, ESTIMATED, UNKNOWN, EARLIER_CONVERTER)
+
+#: per measurement family, the design values that describe the sensor (the rest of a stage's
+#: design values are the trackers' own choices). The TDOA/FDOA family carries its sensor in the
+#: measurements themselves (σ of every pair, the carrier, the sensors' positions).
+SENSOR_KEYS = {
+    "radar-plots": ("scan_period_s", "sigma_range_m", "sigma_bearing_deg", "detection_probability",
+                    "clutter_per_scan", "min_range_m", "max_range_m", "sector_half_width_deg"),
+    "bearing-peaks": ("scan_period_s", "strong_sigma_p_deg", "weak_sigma_p_deg", "field_min_deg", "field_max_deg"),
+    "array-snapshots": ("scan_period_s", "spacing_wavelengths"),
+    "tdoa-fdoa": (),
+    "colored-position": ("measurement_variance_m2",),
+}
+
+#: per family, the sensor values the family estimates from the data when a recording does not
+#: say them, and how (the estimate itself is :func:`estimate`)
+ESTIMABLE = {
+    "radar-plots": {"scan_period_s": "the median interval between scan times"},
+    "bearing-peaks": {"scan_period_s": "the median interval between scan times"},
+}
+
+#: what a record may say about the data themselves, recorded by every converter from the file
+DATA_KEYS = ("n_runs", "n_scans", "time_span_s")
+
+#: the recording field values
+ORIGIN_RECORDING = "recording"
+
+
+def _record(scenario: dict) -> dict:
+    return scenario if isinstance(scenario, dict) else {}
+
+
+def is_recording(scenario: dict) -> bool:
+    """Whether a ``replay.scenario`` record (as :attr:`pipeline.contract.Dataset.scenario`
+    gives it) is a converted recording's rather than a simulation's.
+
+    A record written by a converter says ``origin = "recording"``; earlier converters wrote seed
+    ``-1`` (tables, foreign MCAP) or scenario ``array-wav``. A file without a record is neither
+    (a hand-written file: its design values are the defaults, as before)."""
+    rec = _record(scenario)
+    if not rec:
+        return False
+    if rec.get("origin") == ORIGIN_RECORDING:
+        return True
+    return str(rec.get("seed", "")).strip() == "-1" or rec.get("scenario") == "array-wav"
+
+
+def is_simulation(scenario: dict) -> bool:
+    """Whether the record is a simulation's: its generating model is recorded, so bounds such as
+    the PCRB and the CRLB at the truth can be computed from it."""
+    rec = _record(scenario)
+    return bool(rec) and "params" in rec and not is_recording(rec)
+
+
+def recorded_sources(scenario: dict) -> dict:
+    """``{parameter: source}`` of every value the record holds (:data:`SOURCES`)."""
+    rec = _record(scenario)
+    params = rec.get("params", {})
+    if not isinstance(params, dict):
+        return {}
+    if not is_recording(rec):
+        return {k: SIMULATION for k in params}
+    raw = rec.get("sources")
+    sources = {}
+    if isinstance(raw, str):
+        try:
+            sources = json.loads(raw)
+        except ValueError:
+            sources = {}
+    if not isinstance(sources, dict):
+        sources = {}
+    return {k: str(sources.get(k, EARLIER_CONVERTER if raw is None else DATA)) for k in params}
+
+
+def estimate(key: str, times_s) -> float | None:
+    """The estimate of sensor value ``key`` from the data (see :data:`ESTIMABLE`), or None.
+
+    The scan period is the median interval between successive scan times: robust to a missing
+    scan, which doubles one interval, and exact on evenly spaced scans."""
+    if key != "scan_period_s":
+        return None
+    import numpy as np
+
+    t = np.asarray(times_s, dtype=float)
+    steps = np.diff(t[np.isfinite(t)])
+    steps = steps[steps > 0]
+    return float(np.median(steps)) if steps.size else None
+
+
+def unknown_message(tracker: str, keys) -> str:
+    """The one line a tracker that needs unknown sensor values stops with."""
+    keys = list(keys)
+    sets = " ".join(f"--set {k}=VALUE" for k in keys)
+    what = "value" if len(keys) == 1 else "values"
+    return (f"tracker {tracker!r} needs the sensor {what} {', '.join(keys)}, which this recording does not say: "
+            f"give {'it' if len(keys) == 1 else 'them'} with {sets}")
