@@ -9,6 +9,10 @@ by path loads the same way on a process-pool or Dask worker:
 * a name registered in the entry-point group ``trackreplay.trackers`` (the entry point's object
   is a :class:`~pipeline.trackers.interface.Tracker` subclass, or a list of them).
 
+A file or module not yet imported is first imported in a child process
+(:func:`pipeline.isolation.run_in_child`) and only then here: an import that ends its process
+(``os._exit``) or never finishes is one line naming the file, not the end of the tool or a hang.
+
 See ``docs/trackers.md``.
 """
 
@@ -23,6 +27,7 @@ from pathlib import Path
 
 from pipeline import vocabulary as vocab
 from pipeline.errors import InputError
+from pipeline.isolation import DEFAULT_TRACKER_TIME_LIMIT_S, ChildEnded, ChildRaised, ChildTimedOut, run_in_child
 from pipeline.trackers.interface import Tracker, tracker_name
 
 ENTRY_POINT_GROUP = "trackreplay.trackers"
@@ -73,11 +78,41 @@ def _check_class(obj, spec: str) -> type:
     return obj
 
 
+def _tried_in_child(load, where, time_limit_s: float | None) -> None:
+    """Run ``load`` (an import) in a child process first, so that plugged code that ends its
+    process or never returns while it is imported fails by name instead of ending or hanging
+    this one.
+
+    Raises
+    ------
+    InputError
+        Naming ``where`` (the file or module): the import ended the process, or was still
+        running at ``time_limit_s``; an import that raises an :class:`InputError` in the child
+        raises it here (any other exception is left to the import in this process).
+    """
+    def trial():
+        load()  # the module stays in the child; nothing comes back but the outcome
+
+    try:
+        run_in_child(trial, time_limit_s)
+    except ChildTimedOut as exc:
+        raise InputError(f"importing it did not finish within {exc.seconds:g} s and was stopped "
+                         "(--tracker-time-limit sets the limit; 0 lifts it)", where) from None
+    except ChildEnded as exc:
+        raise InputError(f"importing it ended the process ({exc.how})", where) from None
+    except ChildRaised:
+        pass  # an exception: the import here raises it again, and says it as it always has
+
+
+def _file_module_name(path: Path) -> str:
+    return "trackreplay_user_" + hashlib.sha1(str(path.resolve()).encode()).hexdigest()[:12]
+
+
 def _load_file_module(path: Path, spec: str):
     if not path.is_file():
         raise InputError("no such file" if not path.exists() else "not a file", path)
     resolved = path.resolve()
-    mod_name = "trackreplay_user_" + hashlib.sha1(str(resolved).encode()).hexdigest()[:12]
+    mod_name = _file_module_name(path)
     if mod_name in sys.modules:
         return sys.modules[mod_name]
     module_spec = importlib.util.spec_from_file_location(mod_name, resolved)
@@ -102,25 +137,38 @@ def _load_file_module(path: Path, spec: str):
     return module
 
 
-def load_spec(spec: str) -> type:
-    """The tracker class a ``--tracker`` spec names (``file.py:Class`` or ``module:Class``)."""
+def load_spec(spec: str, time_limit_s: float | None = DEFAULT_TRACKER_TIME_LIMIT_S) -> type:
+    """The tracker class a ``--tracker`` spec names (``file.py:Class`` or ``module:Class``).
+
+    A file or module not imported yet is imported in a child process first, stopped at
+    ``time_limit_s`` seconds (0 or None: no limit).
+    """
     target, sep, attr = spec.rpartition(":")
     if not sep or not target or not attr:
         raise InputError(f"--tracker {spec!r}: expected FILE.py:CLASS or MODULE:CLASS")
     if target.endswith(".py") or "/" in target or "\\" in target:
-        module = _load_file_module(Path(target), spec)
+        path = Path(target)
+        if path.is_file() and _file_module_name(path) not in sys.modules:
+            _tried_in_child(lambda: _load_file_module(path, spec), path, time_limit_s)
+        module = _load_file_module(path, spec)
         where = target
     else:
-        try:
-            module = importlib.import_module(target)
-        except (Exception, SystemExit) as exc:
-            raise InputError(f"--tracker {spec!r}: cannot import {target!r} ({type(exc).__name__}: {exc})") from None
+        if target not in sys.modules:
+            _tried_in_child(lambda: _import_module(target, spec), target, time_limit_s)
+        module = _import_module(target, spec)
         where = target
     if not hasattr(module, attr):
         have = sorted(n for n, v in vars(module).items()
                       if isinstance(v, type) and issubclass(v, Tracker) and v is not Tracker)
         raise InputError(f"no class {attr!r} (trackers defined there: {', '.join(have) or 'none'})", where)
     return _check_class(getattr(module, attr), spec)
+
+
+def _import_module(target: str, spec: str):
+    try:
+        return importlib.import_module(target)
+    except (Exception, SystemExit) as exc:
+        raise InputError(f"--tracker {spec!r}: cannot import {target!r} ({type(exc).__name__}: {exc})") from None
 
 
 def canonical_spec(spec: str) -> str:
@@ -139,12 +187,14 @@ def _builtin_entries(modules=BUILTIN_MODULES) -> list[TrackerEntry]:
     return out
 
 
-def _entry_point_entries() -> list[TrackerEntry]:
+def _entry_point_entries(time_limit_s: float | None = DEFAULT_TRACKER_TIME_LIMIT_S) -> list[TrackerEntry]:
     from importlib.metadata import entry_points
 
     out = []
     for ep in entry_points(group=ENTRY_POINT_GROUP):
         where = f"entry point {ep.name} ({ep.value})"
+        if ep.module not in sys.modules:
+            _tried_in_child(ep.load, where, time_limit_s)
         try:
             obj = ep.load()
         except (Exception, SystemExit) as exc:
@@ -156,17 +206,20 @@ def _entry_point_entries() -> list[TrackerEntry]:
     return out
 
 
-def available_trackers(specs=()) -> dict[str, TrackerEntry]:
-    """Every tracker the registry can find: built-in, entry points, then ``specs`` (``--tracker``).
+def available_trackers(specs=(), time_limit_s: float | None = DEFAULT_TRACKER_TIME_LIMIT_S
+                       ) -> dict[str, TrackerEntry]:
+    """Every tracker the registry can find: built-in, entry points, then ``specs`` (``--tracker``);
+    plugged code not imported yet is tried in a child process first, stopped at
+    ``time_limit_s`` (:func:`load_spec`).
 
     Raises
     ------
     InputError
         A spec that does not load, or two trackers of one family with the same name.
     """
-    entries = _builtin_entries() + _entry_point_entries()
+    entries = _builtin_entries() + _entry_point_entries(time_limit_s)
     for spec in specs:
-        cls = load_spec(spec)
+        cls = load_spec(spec, time_limit_s)
         entries.append(TrackerEntry(tracker_name(cls), cls, spec, canonical_spec(spec)))
     table: dict[str, TrackerEntry] = {}
     for e in entries:
@@ -177,11 +230,12 @@ def available_trackers(specs=()) -> dict[str, TrackerEntry]:
     return table
 
 
-def trackers_of_family(family: str, specs=()) -> list[TrackerEntry]:
+def trackers_of_family(family: str, specs=(), time_limit_s: float | None = DEFAULT_TRACKER_TIME_LIMIT_S
+                       ) -> list[TrackerEntry]:
     """The trackers of ``family``. Without plugged trackers (``specs``) only that family's
     built-in module is imported; with them every tracker is loaded, so that a name clash with
     any other tracker is refused (:func:`available_trackers`)."""
     if specs:
-        return [e for e in available_trackers(specs).values() if e.family == family]
-    entries = _builtin_entries(BUILTIN_FAMILY_MODULES.get(family, ())) + _entry_point_entries()
+        return [e for e in available_trackers(specs, time_limit_s).values() if e.family == family]
+    entries = _builtin_entries(BUILTIN_FAMILY_MODULES.get(family, ())) + _entry_point_entries(time_limit_s)
     return [e for e in entries if e.family == family]

@@ -17,6 +17,7 @@ import polars as pl
 from pipeline import __version__
 from pipeline.contract import METADATA_PROVENANCE, OUTPUT_ZSTD_LEVEL, Dataset, read_dataset, write_dataset
 from pipeline.errors import InputError
+from pipeline.isolation import DEFAULT_TRACKER_TIME_LIMIT_S
 from pipeline.stages import applicable_stages, stage_for_outputs
 from pipeline.stages import base as stage_base
 
@@ -37,7 +38,8 @@ class ReplayResult:
     track_lives: pl.DataFrame | None = None  # one row per track
 
 
-def select_trackers(stages, names=None, specs=(), dataset=None) -> dict:
+def select_trackers(stages, names=None, specs=(), dataset=None,
+                    time_limit_s: float | None = DEFAULT_TRACKER_TIME_LIMIT_S) -> dict:
     """Stage name → the tracker entries to run: every built-in and plugged (``specs``) tracker
     of the stage's family, or the ones ``names`` selects.
 
@@ -45,7 +47,9 @@ def select_trackers(stages, names=None, specs=(), dataset=None) -> dict:
     scene (``Tracker.targets``): the multi-target ones where :meth:`Stage.holds_many_targets`
     says ``dataset`` holds many targets, the single-target ones (the papers') elsewhere; a
     variant that does not run by default (``Tracker.runs_by_default``) runs when named.
-    Plugged trackers always run; ``names`` picks any.
+    Plugged trackers always run; ``names`` picks any. A plugged file or module not yet imported
+    is tried in a child process first, stopped at ``time_limit_s``
+    (:func:`pipeline.registry.load_spec`).
 
     Raises
     ------
@@ -56,9 +60,10 @@ def select_trackers(stages, names=None, specs=(), dataset=None) -> dict:
 
     families = {s.family for s in stages}
     if specs:  # every tracker, so that a plugged one's name clash with any other is refused
-        table = available_trackers(specs)
+        table = available_trackers(specs, time_limit_s)
     else:  # only the families in the file: their numerics alone are imported
-        table = {e.name: e for family in sorted(families) for e in trackers_of_family(family)}
+        table = {e.name: e for family in sorted(families)
+                 for e in trackers_of_family(family, time_limit_s=time_limit_s)}
     plugged = {name for name, e in table.items() if e.source in specs}
     for name in plugged:
         if table[name].family not in families:
@@ -90,7 +95,8 @@ def _canonical(specs):
 
 def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, design_overrides=None,
            rerun_run: int = 0, dataset: Dataset | None = None, progress=None, tracker_specs=(),
-           keep_runs: int | None = None, recorder=None) -> ReplayResult:
+           keep_runs: int | None = None, recorder=None,
+           tracker_time_limit_s: float | None = DEFAULT_TRACKER_TIME_LIMIT_S) -> ReplayResult:
     """Replay every applicable stage over a data set.
 
     Trackers go through in scoring units (:meth:`pipeline.stages.base.Stage.run_units`): once
@@ -133,6 +139,11 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
         is written (or raising :class:`InputError`): by default
         :func:`pipeline.face.rerun_views.write_recording`, in this process; the command line
         may pass a :class:`pipeline.face.recording_process.RecordingProcess` instead.
+    tracker_time_limit_s : float, optional
+        Seconds a plugged tracker may take (its construction and ``track()``, and the first
+        import of its file) before it is stopped and reported as failed; 0 or None: no limit.
+        Plugged trackers run in a child process, so one that ends its process or hangs is
+        that tracker's failure (:mod:`pipeline.isolation`); built-in trackers run here, unlimited.
 
     Raises
     ------
@@ -148,7 +159,7 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
     if not stages:
         have = ", ".join(sorted(ds.channels)) or "none"
         raise InputError(f"no stage applies to the channels in this file ({have})", ds.path)
-    chosen = select_trackers(stages, trackers, tracker_specs, ds)
+    chosen = select_trackers(stages, trackers, tracker_specs, ds, tracker_time_limit_s)
     designs = {}
     for stage in stages:
         design = stage.design(ds, design_overrides, chosen[stage.name])
@@ -161,7 +172,7 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
             design = designs[stage.name]
             tables = []
             t1 = time.perf_counter()
-            times, units = stage.run_units(ds, chosen[stage.name], design)
+            times, units = stage.run_units(ds, chosen[stage.name], design, tracker_time_limit_s)
             result = results[stage.name] = {"times": times, "tracks": {}}
             extras = {}
             for own, unit, errors in units:

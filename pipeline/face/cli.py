@@ -105,7 +105,18 @@ def tracker_option(f):
     return click.option("--tracker", "tracker_specs", multiple=True, metavar="SPEC", help=TRACKER_HELP)(f)
 
 
-def resolve_tracker_specs(specs) -> list[str]:
+def tracker_time_limit_option(f):
+    """``--tracker-time-limit SECONDS``: how long a plugged tracker may run (run and sweep)."""
+    from pipeline.isolation import DEFAULT_TRACKER_TIME_LIMIT_S
+
+    return click.option("--tracker-time-limit", "tracker_time_limit_s", type=click.FloatRange(min=0),
+                        default=DEFAULT_TRACKER_TIME_LIMIT_S, show_default=True, metavar="SECONDS",
+                        help="Seconds a plugged (--tracker) tracker may take, its first import included, before "
+                             "it is stopped and reported as failed; 0: no limit. Plugged trackers run in a child "
+                             "process (one that exits or hangs fails alone); the built-ins run unlimited.")(f)
+
+
+def resolve_tracker_specs(specs, time_limit_s: float | None = None) -> list[str]:
     """``--tracker`` values as loadable specs, each loaded once here so that a bad one fails
     before any work with one line.
 
@@ -119,15 +130,17 @@ def resolve_tracker_specs(specs) -> list[str]:
         A file, module or class that does not load, a class that is not a Tracker, an unknown
         name, or two trackers with one name.
     """
+    from pipeline.isolation import DEFAULT_TRACKER_TIME_LIMIT_S
     from pipeline.registry import available_trackers
 
+    limit = DEFAULT_TRACKER_TIME_LIMIT_S if time_limit_s is None else time_limit_s
     out = []
     installed = None
     for spec in dict.fromkeys(s.strip() for s in specs):
         if ":" in spec:
             out.append(spec)
             continue
-        installed = installed if installed is not None else available_trackers()
+        installed = installed if installed is not None else available_trackers((), limit)
         entry = installed.get(spec)
         if entry is None:
             raise InputError(f"--tracker {spec!r}: no installed tracker has that name (known: "
@@ -135,7 +148,7 @@ def resolve_tracker_specs(specs) -> list[str]:
         if not entry.builtin:
             out.append(entry.spec)
     if out:  # the plugged trackers load, and no name clashes with another tracker
-        available_trackers(out)
+        available_trackers(out, limit)
     return out
 
 
@@ -770,8 +783,9 @@ CONVERTED_SUFFIXES = {".csv": "replay convert plots|peaks|tdoa-fdoa|positions FI
                    "so the results do not wait for them; else before replay returns), now, background, or none. "
                    "`replay plot DATA TRACKS` draws them later.")
 @tracker_option
+@tracker_time_limit_option
 def run_cmd(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, sets, rerun_run, tracker_specs,
-            map_path=None, figures_mode="auto"):
+            map_path=None, figures_mode="auto", tracker_time_limit_s=None):
     """Replay a data set through every tracker that applies.
 
     A tracker given with --tracker runs beside the built-ins (its design values take --set too).
@@ -796,11 +810,11 @@ def run_cmd(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, s
     recorder = recording_process.start(data, recover) if not no_rrd and map_path is None else None
     with recorder or contextlib.nullcontext():
         _run(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, sets, rerun_run, tracker_specs,
-             map_path, figures_mode, recorder)
+             map_path, figures_mode, recorder, tracker_time_limit_s)
 
 
 def _run(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, sets, rerun_run, tracker_specs,
-         map_path, figures_mode, recorder):
+         map_path, figures_mode, recorder, tracker_time_limit_s=None):
     """``run_cmd``'s work, with ``recorder`` (a :class:`~pipeline.face.recording_process.RecordingProcess`,
     or None to record in this process) already started."""
     from pipeline.contract import read_dataset
@@ -828,7 +842,10 @@ def _run(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, sets
     if out_dir != base:
         _echo_wrapped(f"{base} holds an earlier replay: writing to {out_dir} (--force would replace it)")
     wanted = [t.strip() for t in trackers.split(",")] if trackers else None
-    specs = resolve_tracker_specs(tracker_specs)  # a tracker that does not load fails here
+    from pipeline.isolation import DEFAULT_TRACKER_TIME_LIMIT_S
+
+    limit = DEFAULT_TRACKER_TIME_LIMIT_S if tracker_time_limit_s is None else tracker_time_limit_s
+    specs = resolve_tracker_specs(tracker_specs, limit)  # a tracker that does not load fails here
     if map_path is not None:  # a recording made by another tool: replay its conversion
         from pipeline.face.cli_convert_foreign import convert_for_replay
 
@@ -854,6 +871,7 @@ def _run(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, sets
             res = replay(data, wanted, outputs.path(out_path.name), staged_rrd, design_overrides=parse_assignments(sets),
                          rerun_run=rerun_run, dataset=dataset, progress=phases.step, tracker_specs=specs,
                          keep_runs=rerun_run + 1,  # the views, figures and listing read runs 0 … rerun_run
+                         tracker_time_limit_s=limit,
                          recorder=recorder if staged_rrd is not None else None)
         if recorder is not None and staged_rrd is not None:
             progress.timing("rerun, drawn by a second process", res.timings.get("rerun_s", 0.0))
