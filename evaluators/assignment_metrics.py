@@ -43,7 +43,7 @@ from __future__ import annotations
 import numpy as np
 
 from evaluators.set_distances import (BRUTE_FORCE_MAX, assign_edges, close_pairs, global_identities,
-                                      optimal_assignment, pairwise_distance)
+                                      optimal_assignment, pairwise_distance, single_pair_distance)
 from pipeline.batched_linalg import all_finite
 
 MOSTLY_TRACKED = 0.8
@@ -265,6 +265,11 @@ def assignment_metrics(tracks, truths, gate: float, track_ids=None, angular: boo
         out = _slot_metrics(ids, truths, matches)
     else:
         out = _identity_metrics(tracks, truths, gate, ids, truth_ids, matches, convention, angular, pairs)
+    return _with_ratios(out)
+
+
+def _with_ratios(out: dict) -> dict:
+    """MOTA, MOTP, IDF1, IDP and IDR per run added to the counts ``out``."""
     with np.errstate(invalid="ignore", divide="ignore"):
         out["mota"] = 1 - (out["misses"] + out["false_positives"] + out["id_switches"]) / out["presences"]
         out["motp"] = out["distance_sum"] / out["matches"]
@@ -272,6 +277,74 @@ def assignment_metrics(tracks, truths, gate: float, track_ids=None, angular: boo
         out["idp"] = out["idtp"] / (out["idtp"] + out["idfp"])
         out["idr"] = out["idtp"] / (out["idtp"] + out["idfn"])
     return out
+
+
+def _single_target_matches(tracks, truths, gate: float, angular: bool = False, track_ids=None, truth_ids=None,
+                           distance=None):
+    """:func:`scan_matches` (either convention) of sets of one track and one target slot
+    ``(R, K, 1, d)`` whose identities are one per run
+    (:func:`evaluators.set_distances.one_identity_per_run`): the one pair is the match when
+    both are present and closer than the gate, so keeping previous matches changes nothing.
+    ``distance`` (R, K): :func:`evaluators.set_distances.single_pair_distance`, when found."""
+    X, Y = np.asarray(truths, float), np.asarray(tracks, float)
+    vx, _ = _truth_identities(X, truth_ids)
+    vy = all_finite(Y)
+    if track_ids is not None:
+        vy = vy & (np.asarray(track_ids) >= 0)
+    d = single_pair_distance(X, Y, angular) if distance is None else distance
+    ok = vx[:, :, 0] & vy[:, :, 0] & (d < gate)
+    return np.where(ok, 0, -1)[:, :, None].astype(np.intp), np.where(ok, d, np.nan)[:, :, None]
+
+
+def _single_target_metrics(tracks, truths, gate: float, track_ids=None, angular: bool = False, matches=None,
+                           truth_ids=None, convention: str | None = None) -> dict:
+    """:func:`assignment_metrics` of sets of one track and one target slot ``(R, K, 1, d)`` whose
+    identities are one per run (one target and one track identity a run), from per-scan
+    arrays alone: no identity switch can happen, IDTP is the number of matches (the one
+    pairing), a break is a match after a scan without one once the target was matched, and a
+    track never matched is a false track."""
+    convention = default_convention(truth_ids) if convention is None else convention
+    if convention not in CONVENTIONS:
+        raise ValueError(f"convention must be one of {CONVENTIONS}, not {convention!r}")
+    tracks, truths = np.asarray(tracks, float), np.asarray(truths, float)
+    if matches is None:
+        matches = _single_target_matches(tracks, truths, gate, angular, track_ids, truth_ids)
+    match, dist = matches[0][:, :, 0], matches[1][:, :, 0]
+    present, _ = _truth_identities(truths, truth_ids)
+    present = present[:, :, 0]
+    track_present = (slot_identities(tracks) if track_ids is None else np.asarray(track_ids))[:, :, 0] >= 0
+    matched = (match >= 0) & present
+    R, K = present.shape
+    # a break: matched now, not at the scan before, matched at some earlier scan
+    earlier = np.zeros((R, K), bool)
+    earlier[:, 1:] = np.logical_or.accumulate(matched, axis=1)[:, :-1]
+    previous = np.zeros((R, K), bool)
+    previous[:, 1:] = matched[:, :-1]
+    presences = present.sum(axis=1)
+    n_matches = matched.sum(axis=1)
+    exists = presences > 0
+    ratio = n_matches / np.maximum(presences, 1)
+    mostly = ratio > MOSTLY_TRACKED if convention == "trackeval" else ratio >= MOSTLY_TRACKED
+    n_track = track_present.sum(axis=1)
+    out = {
+        "targets": exists.astype(np.int64),
+        "presences": presences,
+        "matches": n_matches,
+        "misses": presences - n_matches,
+        "false_positives": n_track - n_matches,
+        "id_switches": np.zeros(R, np.int64),
+        "track_breaks": (matched & ~previous & earlier).sum(axis=1),
+        "mostly_tracked": (exists & mostly).astype(np.int64),
+        "mostly_lost": (exists & (ratio < MOSTLY_LOST)).astype(np.int64),
+        # summed as the general form sums its (R, K, T) distances: the same bits
+        "distance_sum": np.nansum(np.where(matched, dist, np.nan)[:, :, None], axis=(1, 2)),
+    }
+    out["partially_tracked"] = out["targets"] - out["mostly_tracked"] - out["mostly_lost"]
+    out["idtp"] = n_matches
+    out["idfp"] = n_track - n_matches
+    out["idfn"] = presences - n_matches
+    out["false_tracks"] = ((n_track > 0) & (n_matches == 0)).astype(np.int64)
+    return _with_ratios(out)
 
 
 def _slot_metrics(ids, truths, matches) -> dict:

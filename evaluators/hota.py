@@ -34,7 +34,7 @@ from __future__ import annotations
 import numpy as np
 
 from evaluators.set_distances import (assign_edges, close_pairs, global_identities, optimal_assignment,
-                                      pairwise_distance)
+                                      pairwise_distance, single_pair_distance)
 from pipeline.batched_linalg import all_finite
 
 #: the localisation thresholds α, built as TrackEval builds them (so every bit of α agrees)
@@ -210,6 +210,54 @@ def _sums_sparse(tracks, truths, d0, track_ids, truth_ids, angular, alphas) -> d
            "ass_re_sum": per_run(tpa * (tpa / np.maximum(1.0, g_count))),
            "ass_pr_sum": per_run(tpa * (tpa / np.maximum(1.0, h_count)))}
     return out
+
+
+def _sums_single(tracks, truths, d0, track_ids=None, truth_ids=None, angular=False, alphas=HOTA_ALPHAS,
+                 distance=None) -> dict:
+    """:func:`hota_sums` of sets of one track and one target slot ``(R, K, 1, d)`` whose
+    identities are one per run (:func:`evaluators.set_distances.one_identity_per_run`), from
+    the distance of the one pair per (run, scan) (``distance``, when already found).
+
+    With one pair a scan, a scan's normalised similarity is 1 wherever S > ε (S / (S + S − S)),
+    so the alignment of a run's one identity pair is its count of such scans over
+    ``n_g + n_h −`` that count, and each scan's assignment takes the pair whenever A·S > 0.
+    The sums are then added as :func:`_sums_sparse` adds them (the same order), so the values
+    are the same.
+    """
+    alphas, d0 = np.asarray(alphas, float), float(d0)
+    tracks, truths = np.asarray(tracks, float), np.asarray(truths, float)
+    R, K = truths.shape[:2]
+    vx, vy = all_finite(truths)[:, :, 0], all_finite(tracks)[:, :, 0]
+    if truth_ids is not None:
+        vx = vx & (np.asarray(truth_ids)[:, :, 0] >= 0)
+    if track_ids is not None:
+        vy = vy & (np.asarray(track_ids)[:, :, 0] >= 0)
+    d = single_pair_distance(truths, tracks, angular) if distance is None else distance
+    close = vx & vy & (d < d0)
+    sim = np.where(close, point_similarity(np.where(close, d, 0.0), d0), 0.0)
+    n_truth, n_track = vx.sum(axis=1), vy.sum(axis=1)
+    potential = (close & (sim > _EPS)).sum(axis=1).astype(float)
+    alignment = potential / np.maximum(n_truth + n_track - potential, 1.0)
+    # the pair's weight A·S in the scan's assignment: taken when positive
+    chosen = close & (alignment[:, None] * sim > 0)
+    flat = np.flatnonzero(chosen)
+    sim_c, run_c = sim.reshape(-1)[flat], flat // K
+    level = np.searchsorted(alphas - _EPS, sim_c, side="right")
+    A = alphas.size
+
+    def over_alphas(weights=None):
+        """Σ over each run's TPs at each α (R, A)."""
+        h = np.bincount(run_c * (A + 1) + level, weights, minlength=R * (A + 1)).reshape(R, A + 1)
+        return np.cumsum(h[:, ::-1], axis=1)[:, ::-1][:, 1:]
+
+    n_tp = over_alphas()
+    tpa = n_tp.astype(float)
+    g_count, h_count = n_truth[:, None].astype(float), n_track[:, None].astype(float)
+    return {"tp": n_tp.astype(float), "fn": (n_truth[:, None] - n_tp).astype(float),
+            "fp": (n_track[:, None] - n_tp).astype(float), "loc_sum": over_alphas(sim_c),
+            "ass_sum": tpa * (tpa / np.maximum(1.0, g_count + h_count - tpa)),
+            "ass_re_sum": tpa * (tpa / np.maximum(1.0, g_count)),
+            "ass_pr_sum": tpa * (tpa / np.maximum(1.0, h_count)), "alphas": alphas}
 
 
 def pooled_hota(sums: dict, runs=None) -> dict:

@@ -370,6 +370,95 @@ def gospa_switching(tracks, truths, cutoff: float, order: float = 2.0, switch_pe
     return parts
 
 
+def single_pair_distance(rows, columns, angular: bool = False):
+    """Distance (R, K) between the one element of ``rows`` and the one of ``columns`` (sets
+    ``(R, K, 1, d)``) of every (run, scan), NaN where either is absent: :func:`pairwise_distance`'s
+    sum of squares of ``rows − columns``, a component at a time in the same order (bit for bit
+    its value and :func:`close_pairs`'s with the same rows; with angles the wrapped difference
+    depends on the order by rounding)."""
+    X, Y = np.asarray(rows, float), np.asarray(columns, float)
+    total = np.zeros(X.shape[:2])
+    for i in range(min(X.shape[-1], Y.shape[-1])):
+        diff = X[:, :, 0, i] - Y[:, :, 0, i]
+        if angular:
+            diff = (diff + np.pi) % (2 * np.pi) - np.pi
+        total += diff * diff
+    return np.sqrt(total, out=total)
+
+
+def one_identity_per_run(ids, present) -> bool:
+    """Whether every run's identities ``(R, K, 1)`` are one value wherever ``present`` and ≥ 0
+    exactly there (None: the slot's own identity, one per run): the case the single-target
+    forms (:func:`_gospa_switching_single` and those beside the assignment metrics, HOTA and
+    SIAP) take."""
+    if ids is None:
+        return True
+    ids = np.asarray(ids)[:, :, 0]
+    present = np.asarray(present)[:, :, 0] if np.ndim(present) == 3 else np.asarray(present)
+    if not np.array_equal(ids >= 0, present):
+        return False
+    low = np.min(np.where(present, ids, np.iinfo(np.int64).max), axis=1, initial=np.iinfo(np.int64).max)
+    high = np.max(np.where(present, ids, -1), axis=1, initial=-1)
+    return bool(np.all((high == low) | (high < 0)))
+
+
+def _gospa_switching_single(tracks, truths, cutoff: float, order: float = 2.0, switch_penalty: float | None = None,
+                            track_ids=None, truth_ids=None, angular: bool = False, per: str = "track",
+                            distance=None) -> dict:
+    """:func:`gospa_switching` of sets of one track and one target slot ``(R, K, 1, d)`` whose
+    identities are one per run (:func:`one_identity_per_run`, both sides), from the distance
+    of the one pair per (run, scan) (``distance``, :func:`single_pair_distance`, when already
+    found): the assignment is the pair when both are present and closer than c, and an
+    identity's state changes between assigned and unassigned only, one half switch each
+    time. The same arithmetic as the one-element assignment, so the same values."""
+    if per not in ("track", "truth"):
+        raise ValueError(f"per must be 'track' or 'truth', not {per!r}")
+    gamma = float(cutoff if switch_penalty is None else switch_penalty)
+    X, Y = np.asarray(tracks, float), np.asarray(truths, float)
+    d = single_pair_distance(X, Y, angular) if distance is None else distance
+    vx, vy = all_finite(X)[:, :, 0], all_finite(Y)[:, :, 0]
+    both = vx & vy
+    cp = cutoff ** order
+    # the one-element assignment's total: the pair's capped cost, c^p with one element, 0 with none
+    total = np.where(both, np.minimum(np.where(both, d, 0.0), cutoff) ** order, np.where(vx | vy, cp, 0.0))
+    close = both & (d < cutoff)
+    m_count, n_count = vx.astype(np.int64), vy.astype(np.int64)
+    assigned = close.astype(np.int64)
+    loc = np.where(close, d ** order, 0.0)
+    g = np.maximum(total - cp / 2 * np.abs(m_count - n_count), 0.0) ** (1 / order)
+    big = np.maximum(m_count, n_count)
+    ospa = np.where(big > 0, (total / np.maximum(big, 1)) ** (1 / order), 0.0)
+    parts = {"gospa": g, "localisation": loc ** (1 / order), "missed": n_count - assigned,
+             "false": m_count - assigned, "ospa": ospa, "assigned": assigned}
+    # the followed identity's presences; its state is assigned or not (one partner per run)
+    own_ids = track_ids if per == "track" else truth_ids
+    present = vx if per == "track" else vy
+    if own_ids is not None:
+        present = present & (np.asarray(own_ids)[:, :, 0] >= 0)
+    half = _single_half_switches(present, close & present)
+    term = gamma ** order / 2 * half
+    parts["half_switches"] = half
+    parts["switching"] = term ** (1 / order)
+    parts["gospa_switching"] = (g ** order + term) ** (1 / order)
+    return parts
+
+
+def _single_half_switches(present, assigned) -> np.ndarray:
+    """Half switches (R, K) of one identity per run present at ``present`` (R, K) and assigned
+    at ``assigned``: a change of state between consecutive presences, from its first
+    assignment on, charged at the later one (:func:`gospa_switching`)."""
+    R, K = present.shape
+    scans = np.arange(K)
+    # the latest presence before each scan, and whether any assignment came before it
+    latest = np.maximum.accumulate(np.where(present, scans, -1), axis=1)
+    previous = np.full((R, K), -1, np.int64)
+    previous[:, 1:] = latest[:, :-1]
+    before = np.zeros((R, K), bool)
+    before[:, 1:] = np.logical_or.accumulate(assigned, axis=1)[:, :-1]
+    prev_state = np.take_along_axis(assigned, np.maximum(previous, 0), axis=1)
+    return (present & (previous >= 0) & before & (assigned != prev_state)).astype(np.int64)
+
+
 def _gospa_sparse(X, Y, cutoff, order, angular):
     """:func:`gospa`'s parts and assignment of every problem (P, m, d), (P, n, d) from the pairs
     closer than c alone (:func:`close_pairs`, :func:`assign_edges`): GOSPA^p is

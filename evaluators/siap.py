@@ -42,7 +42,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from evaluators.set_distances import close_pairs, global_identities
+from evaluators.set_distances import close_pairs, global_identities, single_pair_distance
 from pipeline.batched_linalg import all_finite
 
 SUM_KEYS = ("truths", "tracked_truths", "tracks", "associated_tracks", "position_error_sum",
@@ -218,6 +218,76 @@ def siap_sums(tracks, truths, gate: float, times=None, track_ids=None, truth_ids
         b = by_g[bounds[target_number]:bounds[target_number + 1]]
         changes[target_number] = _fewest_segments(seg_p0[b], seg_p1[b]) - 1
     out["track_number_changes"] = np.bincount(g_run, changes, minlength=R) if n_g else np.zeros(R)
+    return out
+
+
+def _sums_single(tracks, truths, gate: float, times=None, track_ids=None, truth_ids=None, angular: bool = False,
+                 track_velocities=None, truth_velocities=None, distance=None) -> dict:
+    """:func:`siap_sums` of sets of one track and one target slot ``(R, K, 1, d)`` whose
+    identities are one per run (:func:`evaluators.set_distances.one_identity_per_run`), from
+    per-scan arrays (``distance`` (R, K): the one pair's, when already found).
+
+    The track is associated wherever both are present and closer than the gate. Its
+    association segments are the stretches of associated reports between two reports that are
+    not associated; they are disjoint, so the fewest that cover the tracked presences are all
+    of them (NU = their number); a gap between two consecutive presences of the target is
+    spanned when both ends lie in one segment. The sums are added in the order
+    :func:`siap_sums` adds them.
+    """
+    tracks, truths = np.asarray(tracks, float), np.asarray(truths, float)
+    R, K = tracks.shape[:2]
+    times = np.arange(K, dtype=float) if times is None else np.asarray(times, float)
+    vy = all_finite(tracks)[:, :, 0] & (_ids(track_ids, (R, K, 1))[:, :, 0] >= 0)
+    vx = all_finite(truths)[:, :, 0] & (_ids(truth_ids, (R, K, 1))[:, :, 0] >= 0)
+    d = single_pair_distance(truths, tracks, angular) if distance is None else distance
+    associated = vx & vy & (d < gate)
+    out = {key: np.zeros(R) for key in SUM_KEYS}
+    out["truths"] = vx.sum(axis=1).astype(float)
+    out["tracks"] = vy.sum(axis=1).astype(float)
+    out["associated_tracks"] = associated.sum(axis=1).astype(float)
+    out["tracked_truths"] = out["associated_tracks"].copy()
+    out["position_error_sum"] = np.where(associated, d, 0.0)[:, :, None].sum(axis=(1, 2))
+    ra, ka = np.nonzero(associated)
+    if track_velocities is None or truth_velocities is None:
+        out["velocity_error_sum"] = np.full(R, np.nan)
+    else:
+        dv = np.asarray(track_velocities, float)[ra, ka, 0] - np.asarray(truth_velocities, float)[ra, ka, 0]
+        out["velocity_error_sum"] = np.bincount(ra, np.sqrt(np.sum(dv * dv, axis=-1)), minlength=R)
+    scans = np.arange(K)
+    # whether the track's latest report at or before each scan (its earliest at or after) is
+    # associated: the latest associated report is the latest report
+    none_before, none_after = np.full((R, 1), -1), np.full((R, 1), K)
+    latest = np.maximum.accumulate(np.where(vy, scans, -1), axis=1)
+    latest_associated = (np.maximum.accumulate(np.where(associated, scans, -1), axis=1) == latest) & (latest >= 0)
+    earliest = np.minimum.accumulate(np.where(vy, scans, K)[:, ::-1], axis=1)[:, ::-1]
+    earliest_associated = ((np.minimum.accumulate(np.where(associated, scans, K)[:, ::-1], axis=1)[:, ::-1] == earliest)
+                           & (earliest < K))
+    shift_right = lambda a, fill: np.concatenate([fill, a[:, :-1]], axis=1)  # noqa: E731  (the scan before)
+    shift_left = lambda a, fill: np.concatenate([a[:, 1:], fill], axis=1)    # noqa: E731  (the scan after)
+    # a segment starts at an associated report whose previous report is not associated (or none),
+    # and ends at one whose next report is not
+    starts = associated & ~shift_right(latest_associated, none_before >= 0)
+    ends = associated & ~shift_left(earliest_associated, none_after < K)
+    # the gap from a presence of the target to its next one lies in one segment when the latest
+    # report up to the first and the earliest report after it are associated and no report falls
+    # between the two presences (one there would be unassociated: the target is absent)
+    next_presence = shift_left(np.minimum.accumulate(np.where(vx, scans, K)[:, ::-1], axis=1)[:, ::-1], none_after)
+    covered = (vx & (next_presence < K) & latest_associated & shift_left(earliest_associated, none_after < K)
+               & (shift_left(earliest, none_after) >= next_presence))
+    rc, kc = np.nonzero(covered)
+    out["time_tracked"] = np.bincount(rc, times[next_presence[rc, kc]] - times[kc], minlength=R)
+    # T_j and TL_j; a run without the target adds nothing
+    exists = vx.any(axis=1)
+    first = np.argmax(vx, axis=1)
+    last = K - 1 - np.argmax(vx[:, ::-1], axis=1)
+    out["truth_lifetime"] = np.where(exists, times[last] - times[first], 0.0)
+    re, ke = np.nonzero(ends)
+    start_scan = np.maximum.accumulate(np.where(starts, scans, -1), axis=1)
+    longest = np.zeros(R)
+    np.maximum.at(longest, re, times[ke] - times[start_scan[re, ke]])
+    out["longest_segment_time"] = longest
+    n_segments = starts.sum(axis=1)
+    out["track_number_changes"] = np.maximum(n_segments - 1, 0).astype(float)
     return out
 
 

@@ -23,15 +23,18 @@ from dataclasses import dataclass
 import numpy as np
 import polars as pl
 
-from evaluators.assignment_metrics import assignment_metrics, gated_pairs, scan_matches
-from evaluators.confidence import jackknife, mean_interval, ratio_jackknife, rms_interval
+from evaluators import hota as hota_module, siap as siap_module
+from evaluators.assignment_metrics import (_single_target_matches, _single_target_metrics, assignment_metrics,
+                                           gated_pairs, scan_matches)
+from evaluators.confidence import group_totals, jackknife, mean_interval, ratio_jackknife, rms_interval, run_groups
 from evaluators.consistency import (consistency_summary, innovation_whiteness, normalised_squared,
                                    whitened_innovations)
 from evaluators.hota import SUM_KEYS as HOTA_SUMS, hota_sums, pooled_hota
-from evaluators.set_distances import gospa_switching
+from evaluators.set_distances import (_gospa_switching_single, gospa_switching, one_identity_per_run,
+                                      single_pair_distance)
 from evaluators.siap import SUM_KEYS as SIAP_SUMS, pooled_siap, siap_sums
 from evaluators.tracking_metrics import nanmean
-from pipeline.batched_linalg import sum_squares
+from pipeline.batched_linalg import all_finite, sum_squares
 from pipeline.vocabulary import DELETED, INITIALISING, NO_TRACK
 
 # What a tracker reports is its confirmed tracks: a tentative track (INITIALISING) is a hypothesis
@@ -226,6 +229,20 @@ def _put_runs(joined, part, runs: slice) -> None:
         joined[runs] = part
 
 
+def _pooled_jackknife(pooled, sums: dict, keys, n_runs: int, groups: int = 10):
+    """:func:`evaluators.confidence.jackknife` of ``pooled(sums, runs)`` (a measure formed from
+    per-run sums added over ``runs``: HOTA, SIAP) from the totals of each group of runs
+    (:func:`evaluators.confidence.group_totals`): a group left out is all groups but one, so
+    the G + 1 poolings add G totals instead of nearly every run G + 1 times. The same
+    estimates up to the order of the additions."""
+    G = len(run_groups(n_runs, groups))
+    if G < 2:
+        return jackknife(lambda runs: pooled(sums, runs), n_runs, groups)
+    totals = {key: group_totals(np.asarray(sums[key]), G) for key in keys}
+    # each group a pseudo-run: leaving one out is the jackknife's group left out
+    return jackknife(lambda parts: pooled(totals, parts), G, G)
+
+
 def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: float = 0.95,
                       innovations: dict | None = None, truth_ids=None):
     """Standard measures of every tracker.
@@ -310,9 +327,14 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
             Y = true_positions[part]
             part_ids = None if ids is None else ids[part]
             part_truth_ids = None if truth_ids is None else truth_slot_ids[part]
+            siap_gate = space.gate if space.siap_gate is None else space.siap_gate
+            d0 = space.cutoff if space.hota_distance is None else space.hota_distance
+            vel = (None, None) if velocity is None else (_components(compared[part], velocity),
+                                                         _components(tr[part], velocity))
+            if single:
+                return one_pair_measures(X, Y, part_ids, part_truth_ids, d0, siap_gate, vel)
             g = gospa_switching(X, Y, space.cutoff, space.order, space.gospa_switch_penalty, part_ids, part_truth_ids,
                                 space.angular)
-            siap_gate = space.gate if space.siap_gate is None else space.siap_gate
             # the pairs within the gate, found once for the matching, the identity pairing (with
             # target identities, TrackEval's convention) and SIAP's associations (at the same gate)
             pairs = None
@@ -321,16 +343,34 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
             match, dist = scan_matches(X, Y, space.gate, space.angular, part_ids, part_truth_ids, pairs=pairs)
             a = assignment_metrics(X, Y, space.gate, part_ids, space.angular, matches=(match, dist),
                                    truth_ids=part_truth_ids, pairs=pairs)
-            d0 = space.cutoff if space.hota_distance is None else space.hota_distance
             h = hota_sums(X, Y, d0, part_ids, part_truth_ids, space.angular)
-            vel = (None, None) if velocity is None else (_components(compared[part], velocity),
-                                                         _components(tr[part], velocity))
             si = siap_sums(X, Y, siap_gate, times, part_ids, part_truth_ids, space.angular, *vel,
                            pairs=pairs if siap_gate == space.gate else None)
             return g, match, a, {key: h[key] for key in HOTA_SUMS}, {key: si[key] for key in SIAP_SUMS}
 
+        def one_pair_measures(X, Y, part_ids, part_truth_ids, d0, siap_gate, vel):
+            """:func:`sets_and_matches` where every run holds one target and one track identity
+            in one slot each: the single-target forms beside each measure, on the one distance
+            per (run, scan) (the same values as the general forms, tested)."""
+            d = single_pair_distance(Y, X, space.angular)             # target − track, as the pairs are
+            # GOSPA takes track − target: the same distance, but a wrapped angle may round apart
+            g = _gospa_switching_single(X, Y, space.cutoff, space.order, space.gospa_switch_penalty, part_ids,
+                                        part_truth_ids, space.angular, distance=None if space.angular else d)
+            match, dist = _single_target_matches(X, Y, space.gate, space.angular, part_ids, part_truth_ids, distance=d)
+            a = _single_target_metrics(X, Y, space.gate, part_ids, space.angular, matches=(match, dist),
+                                       truth_ids=part_truth_ids)
+            h = hota_module._sums_single(X, Y, d0, part_ids, part_truth_ids, space.angular, distance=d)
+            si = siap_module._sums_single(X, Y, siap_gate, times, part_ids, part_truth_ids, space.angular, *vel,
+                                          distance=d)
+            return g, match, a, {key: h[key] for key in HOTA_SUMS}, {key: si[key] for key in SIAP_SUMS}
+
         # a block of runs at a time: the assignments' temporaries stay a few MB at any number of runs
         truth_slot_ids = None if truth_ids is None else _as_slots(np.asarray(truth_ids)[..., None], 1)[..., 0]
+        # one target and one track identity a run in one slot each (a single-target family): every
+        # measure follows from the one distance per scan
+        single = (S == 1 and tr.shape[2] == 1 and K > 0
+                  and one_identity_per_run(ids, ~absent & all_finite(_components(compared, pos)))
+                  and one_identity_per_run(truth_slot_ids, all_finite(true_positions)))
         velocity = None
         if space.velocity_components is not None and all(c in comps for c in space.velocity_components):
             velocity = [comps.index(c) for c in space.velocity_components]
@@ -362,7 +402,8 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
         # ---- HOTA: counts and sums added over runs, never per-run HOTA averaged; the interval
         # re-pools the runs with each group left out (grouped jackknife)
         parts = ("hota", "deta", "assa", "loca")
-        hota_ci = jackknife(lambda runs: [pooled_hota(h, runs)[key] for key in parts], R, 10)
+        hota_ci = _pooled_jackknife(lambda sums, runs: [pooled_hota(sums, runs)[key] for key in parts], h, HOTA_SUMS,
+                                    R, 10)
         for i, key in enumerate(parts):
             rows.append(_with_ci(name, key, *(v[i] for v in hota_ci)))
         # ---- SIAP (evaluators/siap.py): sums over runs, the same grouped jackknife as HOTA
@@ -373,7 +414,8 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
                      "longest_track_segment": "siap_longest_track_segment"}
         if velocity is None:
             del siap_rows["velocity_accuracy"]
-        siap_ci = jackknife(lambda runs: [pooled_siap(si, runs)[key] for key in siap_rows], R, 10)
+        siap_ci = _pooled_jackknife(lambda sums, runs: [pooled_siap(sums, runs)[key] for key in siap_rows], si,
+                                    SIAP_SUMS, R, 10)
         for i, (key, metric) in enumerate(siap_rows.items()):
             factor = scale if key == "position_accuracy" else 1.0
             rows.append(_with_ci(name, metric, *(factor * v[i] for v in siap_ci)))

@@ -6,7 +6,10 @@
   block by block, against whitening matrix by matrix;
 * the standard measures in blocks of runs against one block;
 * the component-wise sums and checks against numpy's reductions, and the one-element
-  assignment against the permutation search.
+  assignment against the permutation search;
+* the single-target forms (one target and one track identity a run) against the general
+  GOSPA, matching, CLEAR/identity, HOTA and SIAP, and the HOTA/SIAP intervals from group
+  totals against the jackknife that re-pools the runs.
 """
 
 from __future__ import annotations
@@ -231,3 +234,131 @@ def test_jackknife_leaves_out_each_group_in_run_order():
     for part, idx in zip(run_groups(23, 5), seen[1:]):
         assert np.array_equal(idx, np.setdiff1d(np.arange(23), part))
 
+
+
+# ------------------------------------------------------------------ one target and one track a run
+
+
+def _one_pair_sets(seed: int, runs: int = 6, scans: int = 30, angular: bool = False, with_ids: bool = True):
+    """One truth slot and one track slot per (run, scan), both missing at random, the track near
+    the gate; the identities one per run (drawn per run) or the slots'. Bearings are wrapped
+    anywhere in three turns."""
+    rng = np.random.default_rng(seed)
+    d = 1 if angular else 2
+    truth = rng.normal(scale=3.0, size=(runs, scans, 1, d))
+    track = truth + rng.normal(scale=rng.uniform(0.2, 3.0), size=truth.shape)
+    if angular:
+        truth = truth % (2 * np.pi)
+        track = track % (2 * np.pi) + 2 * np.pi * rng.integers(-1, 2, size=track.shape)
+    truth[rng.random((runs, scans)) < rng.uniform(0.0, 0.4)] = np.nan
+    track[rng.random((runs, scans)) < rng.uniform(0.0, 0.4)] = np.nan
+    truth_ids = track_ids = None
+    if with_ids:
+        truth_ids = np.where(np.isfinite(truth[..., 0]), rng.integers(0, 5, size=(runs, 1, 1)), -1)
+        track_ids = np.where(np.isfinite(track[..., 0]), rng.integers(0, 9, size=(runs, 1, 1)), -1)
+    times = np.cumsum(rng.uniform(0.5, 2.0, size=scans))
+    truth_velocity = rng.normal(size=(runs, scans, 1, 2))
+    return track, truth, track_ids, truth_ids, times, truth_velocity + rng.normal(size=truth_velocity.shape), truth_velocity
+
+
+def _assert_same_values(fast: dict, plain: dict, rtol: float = 0.0):
+    assert set(fast) >= set(plain) - {"alphas"}
+    for key in plain:
+        if key != "alphas":
+            if rtol:
+                np.testing.assert_allclose(np.asarray(fast[key], float), np.asarray(plain[key], float), rtol=rtol,
+                                           atol=1e-12, err_msg=key)
+            else:
+                np.testing.assert_array_equal(fast[key], plain[key], err_msg=key)
+
+
+@pytest.mark.parametrize("seed", range(24))
+def test_the_single_target_forms_are_the_general_measures(seed):
+    """With one target and one track identity a run in one slot each, GOSPA with switching, the
+    matches, CLEAR MOT and identity measures (both conventions), HOTA's sums and SIAP's sums of
+    the single-target forms are those of the general forms, bit for bit (HOTA's plain form
+    adds in another order: to rounding)."""
+    from evaluators import assignment_metrics as am, hota, siap
+    from evaluators import set_distances as sd
+
+    angular = seed % 4 == 0
+    X, Y, track_ids, truth_ids, times, track_v, truth_v = _one_pair_sets(seed, angular=angular, with_ids=seed % 3 > 0)
+    assert sd.one_identity_per_run(track_ids, all_finite(X)) and sd.one_identity_per_run(truth_ids, all_finite(Y))
+    for per in ("track", "truth"):
+        _assert_same_values(sd._gospa_switching_single(X, Y, 2.0, 2.0, 1.5, track_ids, truth_ids, angular, per=per),
+                            sd.gospa_switching(X, Y, 2.0, 2.0, 1.5, track_ids, truth_ids, angular, per=per))
+    for convention in ("trackeval", "per-scan"):
+        fast = am._single_target_matches(X, Y, 2.0, angular, track_ids, truth_ids)
+        plain = am.scan_matches(X, Y, 2.0, angular, track_ids, truth_ids, keep_previous=convention == "trackeval")
+        np.testing.assert_array_equal(fast[0], plain[0])
+        np.testing.assert_array_equal(fast[1], plain[1])
+        _assert_same_values(am._single_target_metrics(X, Y, 2.0, track_ids, angular, truth_ids=truth_ids,
+                                                      convention=convention),
+                            am.assignment_metrics(X, Y, 2.0, track_ids, angular, truth_ids=truth_ids,
+                                                  convention=convention))
+    single = hota._sums_single(X, Y, 2.5, track_ids, truth_ids, angular)
+    _assert_same_values(single, hota.hota_sums(X, Y, 2.5, track_ids, truth_ids, angular, method="sparse"))
+    _assert_same_values(single, hota.hota_sums(X, Y, 2.5, track_ids, truth_ids, angular, method="plain"), rtol=1e-12)
+    _assert_same_values(siap._sums_single(X, Y, 2.0, times, track_ids, truth_ids, angular, track_v, truth_v),
+                        siap.siap_sums(X, Y, 2.0, times, track_ids, truth_ids, angular, track_v, truth_v))
+
+
+def test_one_identity_per_run_tells_the_single_target_case():
+    from evaluators.set_distances import one_identity_per_run
+
+    present = np.array([[True, False, True], [False, False, False]])[..., None]
+    assert one_identity_per_run(None, present)
+    assert one_identity_per_run(np.where(present, 7, -1), present)
+    present[1, 1, 0] = True
+    assert one_identity_per_run(np.where(present, np.array([4, 9])[:, None, None], -1), present)  # one a run
+    two = np.where(present, 4, -1)
+    two[0, 2, 0] = 5                                       # a second identity in run 0
+    assert not one_identity_per_run(two, present)
+    hidden = np.where(present, 4, -1)
+    hidden[0, 2, 0] = -1                                   # present without an identity
+    assert not one_identity_per_run(hidden, present)
+
+
+@pytest.mark.parametrize("with_ids", [False, True])
+def test_the_standard_measures_of_one_target_take_the_single_target_forms(monkeypatch, with_ids):
+    """evaluate_standard on single-target outputs: its tables equal those of the general forms
+    (the single-target case switched off), to rounding in the intervals' sums."""
+    rng = np.random.default_rng(21 + with_ids)
+    R, K = 41, 17
+    truth = rng.normal(scale=100.0, size=(R, K, 1, 4))
+    truth[rng.random((R, K)) < 0.1] = np.nan
+    out = {"state": truth[:, :, 0] + rng.normal(scale=30.0, size=(R, K, 4)),
+           "covariance": _covariances((R, K), 4, rng) * 900.0,
+           "flags": np.where(rng.random((R, K)) < 0.15, NO_TRACK, 0).astype(np.uint16),
+           "innovation": rng.normal(size=(R, K, 2)), "innovation_covariance": _covariances((R, K), 2, rng)}
+    truth_ids = np.where(np.isfinite(truth[..., 0]), 3, -1) if with_ids else None
+    space = standard.EvaluationSpace(truth_components=(0, 1, 2, 3), position_components=(0, 1), angular=False,
+                                     cutoff=80.0, gate=60.0, velocity_components=(2, 3))
+    calls = []
+    single = standard.hota_module._sums_single
+    monkeypatch.setattr(standard.hota_module, "_sums_single", lambda *a, **k: calls.append(1) or single(*a, **k))
+    fast_scan, fast = standard.evaluate_standard(np.arange(K, dtype=float), {"t": out}, truth, space,
+                                                 truth_ids=truth_ids)
+    assert calls, "the single-target forms were not taken"
+    monkeypatch.setattr(standard, "one_identity_per_run", lambda ids, present: False)
+    plain_scan, plain = standard.evaluate_standard(np.arange(K, dtype=float), {"t": out}, truth, space,
+                                                   truth_ids=truth_ids)
+    assert len(calls) == 1
+    assert fast_scan.equals(plain_scan)
+    assert fast.select("tracker", "metric", "scope").equals(plain.select("tracker", "metric", "scope"))
+    for column in ("value", "se", "ci_low", "ci_high"):
+        np.testing.assert_allclose(fast[column].to_numpy().astype(float), plain[column].to_numpy().astype(float),
+                                   rtol=1e-9, atol=1e-12, err_msg=column)
+
+
+@pytest.mark.parametrize("runs", [1, 2, 7, 53])
+def test_pooled_jackknife_from_group_totals_is_the_jackknife(runs):
+    from evaluators.hota import SUM_KEYS, pooled_hota
+
+    rng = np.random.default_rng(runs)
+    sums = {key: rng.integers(0, 50, size=(runs, 19)).astype(float) for key in SUM_KEYS}
+    sums["loc_sum"] = sums["tp"] * rng.uniform(0.3, 1.0, size=(runs, 19))
+    statistic = lambda s, idx: [pooled_hota(s, idx)[k] for k in ("hota", "deta", "assa", "loca")]  # noqa: E731
+    fast = standard._pooled_jackknife(statistic, sums, SUM_KEYS, runs, 10)
+    plain = jackknife(lambda idx: statistic(sums, idx), runs, 10)
+    np.testing.assert_allclose(np.array(fast, float), np.array(plain, float), rtol=1e-12, atol=1e-15)
