@@ -75,6 +75,9 @@ from pipeline.cores.filters.converted_measurements import (
     rotated_diagonal,
 )
 from pipeline.cores.filters.kalman import (
+    _cv_position_filter_covariances,
+    _cv_predict_components_scans,
+    _cv_states_with_gains,
     cv_apply_gain_components,
     cv_floor_components,
     cv_position_update_components,
@@ -175,12 +178,21 @@ class AlphaBetaGains:
         along-range and cross-range error stds. The velocity variance of gains off Kalata's
         curve is floored (``diag["floored"]``) so that the covariance is positive definite.
         """
+        gain, c_post, diag = self.gain_and_covariance(c_pred, cos_b, sin_b, r_cov, sigmas, n_plots, design, dt)
+        x_post, innovation = _linear_update(x_pred, gain, z_range, cos_b, sin_b)
+        return x_post, c_post, innovation, gain, diag
+
+    def gain_and_covariance(self, c_pred, cos_b, sin_b, r_cov, sigmas, n_plots, design: TrackerDesign, dt):
+        """The gain ``(8, ...)``, the posterior covariance ``(10, ...)`` and the diagnostics of
+        :meth:`update`: functions of the plot alone (not of the predicted state or covariance),
+        so a stretch of scans can be taken in one call (:func:`_steady_block`). Elementwise:
+        ``dt`` may be an array shaped like the plots."""
         T = dt
         sigma_along, sigma_cross = sigmas
         lam_c = tracking_index(design.sigma_v, T, sigma_cross)
         alpha_r, beta_r, nu_r = kalata_steady_state(tracking_index(design.sigma_v, T, sigma_along))
         if np.ndim(alpha_r) == 0:  # one range error for all runs (nothing floored)
-            alpha_r, beta_r, nu_r = (np.full(z_range.shape, v) for v in (alpha_r, beta_r, nu_r))
+            alpha_r, beta_r, nu_r = (np.full(cos_b.shape, v) for v in (alpha_r, beta_r, nu_r))
         alpha_c, beta_c, nu_c, clamped, floored = self._cross_gains(lam_c, design.lam_nominal)
         if design.startup:
             alpha_r, beta_r, nu_r = with_startup(alpha_r, beta_r, n_plots, nu_r)
@@ -194,8 +206,7 @@ class AlphaBetaGains:
         B = rotated_diagonal(cos_b, sin_b, along[1], cross[1])
         C = rotated_diagonal(cos_b, sin_b, along[2], cross[2])
         c_post = np.stack([A[0], A[1], A[2], B[0], B[1], B[1], B[2], C[0], C[1], C[2]])
-        x_post, innovation = _linear_update(x_pred, gain, z_range, cos_b, sin_b)
-        return x_post, c_post, innovation, gain, {"alpha": np.stack([alpha_r, alpha_c]), "beta": np.stack([beta_r, beta_c]),
+        return gain, c_post, {"alpha": np.stack([alpha_r, alpha_c]), "beta": np.stack([beta_r, beta_c]),
                               "lambda_cross": lam_c, "clamped": clamped, "floored": floored}
 
 
@@ -226,9 +237,15 @@ class KalmanGains:
     name = "kalman"
 
     def update(self, x_pred, c_pred, z_range, cos_b, sin_b, r_cov, sigmas, n_plots, design: TrackerDesign, dt: float):
-        T = dt
         gain, c_post = cv_position_update_components(c_pred, *r_cov)
-        # the gain seen in the (along-range, cross-range) frame, for comparison with α-β
+        x_post, innovation = _linear_update(x_pred, gain, z_range, cos_b, sin_b)
+        return x_post, c_post, innovation, gain, self.diagnostics(gain, cos_b, sin_b, sigmas, design, dt)
+
+    @staticmethod
+    def diagnostics(gain, cos_b, sin_b, sigmas, design: TrackerDesign, dt):
+        """The gain seen in the (along-range, cross-range) frame as α and β, for comparison with
+        the α-β strategies, and λ_k (elementwise: ``dt`` may be an array)."""
+        T = dt
         cc, ss, cs = cos_b * cos_b, sin_b * sin_b, cos_b * sin_b
         k00, k01, k10, k11, g00, g01, g10, g11 = gain
         alpha, beta = np.empty((2,) + k00.shape), np.empty((2,) + k00.shape)
@@ -238,10 +255,8 @@ class KalmanGains:
         beta[0] = T * (cc * g00 + gx + ss * g11)
         beta[1] = T * (ss * g00 - gx + cc * g11)
         lam_c = tracking_index(design.sigma_v, T, sigmas[1])
-        x_post, innovation = _linear_update(x_pred, gain, z_range, cos_b, sin_b)
-        no = np.zeros(z_range.shape, bool)
-        return x_post, c_post, innovation, gain, {"alpha": alpha, "beta": beta, "lambda_cross": lam_c,
-                                                  "clamped": no, "floored": no}
+        no = np.zeros(cos_b.shape, bool)
+        return {"alpha": alpha, "beta": beta, "lambda_cross": lam_c, "clamped": no, "floored": no}
 
 
 def _linear_update(x_pred, gain, z_range, cos_b, sin_b):
@@ -313,7 +328,113 @@ def _select_plots(plot_range, plot_bearing, counts_k, x_pred, started):
     return plot_range[rows, j], plot_bearing[rows, j]
 
 
-def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, strategy) -> dict:
+#: Shortest stretch of steady scans :func:`track_plots` takes as one block (below it the scan
+#: loop's own step costs no more).
+MIN_BLOCK_SCANS = 4
+#: Run-scans per block: bounds the block's temporaries (a few dozen arrays of this size) at any
+#: number of runs.
+BLOCK_RUN_SCANS = 1 << 18
+
+
+def _steady_stretches(counts):
+    """For each scan k, how many scans from k on have a plot in every run (0 where scan k lacks one)."""
+    every = (counts > 0).all(axis=0)
+    idx = np.arange(len(every))
+    gaps = np.append(np.flatnonzero(~every), len(every))
+    return gaps[np.searchsorted(gaps, idx)] - idx
+
+
+def _block_plot_variances(z_r, dt, design: TrackerDesign):
+    """:func:`_plot_variances` of a block of scans ``(L, runs)`` with intervals ``dt`` ``(L,)``,
+    scan by scan as the loop decides it (a scan with nothing to floor keeps σ_r² and σ_r).
+
+    Returns ``(var_along, var_cross, floored, sigma_along, sigma_cross)``; ``floored`` is None when
+    no scan of the block was floored.
+    """
+    least = (design.sigma_v * dt * dt / MAX_TRACKING_INDEX) ** 2
+    var_r = design.sigma_range_m**2
+    var_cross = (z_r * design.sigma_bearing_rad) ** 2
+    lo, hi = np.maximum(RELATIVE_VARIANCE_FLOOR * var_r, least), var_r / RELATIVE_VARIANCE_FLOOR
+    common = (var_r >= least) & ~((var_cross < lo[:, None]) | (var_cross > hi)).any(axis=1)
+    if common.all():
+        return var_r, var_cross, None, design.sigma_range_m, z_r * design.sigma_bearing_rad
+    var_along_f, var_cross_f, floored = floored_polar_variances(z_r, design.sigma_range_m, design.sigma_bearing_rad)
+    low_along, low_cross = var_along_f < least[:, None], var_cross_f < least[:, None]
+    var_along_f = np.where(low_along, least[:, None], var_along_f)
+    var_cross_f = np.where(low_cross, least[:, None], var_cross_f)
+    keep = common[:, None]
+    var_along = np.where(keep, var_r, var_along_f)
+    var_cross = np.where(keep, var_cross, var_cross_f)
+    floored = ~keep & (floored | low_along | low_cross)
+    sigma_along = np.where(keep, design.sigma_range_m, np.sqrt(var_along))
+    sigma_cross = np.where(keep, z_r * design.sigma_bearing_rad, np.sqrt(var_cross))
+    return var_along, var_cross, floored, sigma_along, sigma_cross
+
+
+
+
+
+
+def _steady_block(first, stop, x, c, n_plots, plot_range, plot_bearing, times, design: TrackerDesign, strategy, out):
+    """Scans ``first`` to ``stop − 1`` of :func:`track_plots` in one pass, where every run has a
+    started, confirmed track, one plot in every scan, and no gate: then nothing the loop decides
+    depends on the states (every scan updates every run, no track starts or ends), the α-β gains
+    and covariances are functions of the plots alone, and the Kalman covariances of the plots and
+    the covariance the block starts from. Those are computed for the whole block at once; only
+    the recursions that must run scan after scan (the states, the Kalman covariance) do, on as
+    little as they need (:func:`~pipeline.cores.filters.kalman._cv_states_with_gains`,
+    :func:`~pipeline.cores.filters.kalman._cv_position_filter_covariances`). The outputs
+    are written into ``out`` (the loop's arrays); returns ``(x, c, n_plots)`` after the block.
+    """
+    L = stop - first
+    n_runs = x.shape[1]
+    dt = times[first:stop] - times[first - 1:stop - 1]
+    z_r = np.ascontiguousarray(plot_range[:, first:stop, 0].T)
+    z_b = np.ascontiguousarray(plot_bearing[:, first:stop, 0].T)
+    cos_b, sin_b = np.cos(z_b), np.sin(z_b)
+    zx, zy = z_r * cos_b, z_r * sin_b
+    var_along, var_cross, floored, sigma_along, sigma_cross = _block_plot_variances(z_r, dt, design)
+    r_cov = rotated_diagonal(cos_b, sin_b, var_along, var_cross)
+    T = np.broadcast_to(dt[:, None], (L, n_runs))
+    plots = n_plots[None, :] + np.arange(1, L + 1)[:, None]
+    if isinstance(strategy, KalmanGains):
+        gain, c_post = _cv_position_filter_covariances(c, r_cov, dt, design.sigma_v)
+        diag = strategy.diagnostics(gain, cos_b, sin_b, (sigma_along, sigma_cross), design, T)
+    else:
+        gain, c_post, diag = strategy.gain_and_covariance(None, cos_b, sin_b, r_cov, (sigma_along, sigma_cross),
+                                                          plots, design, T)
+    states = _cv_states_with_gains(x, gain, zx, zy, dt)
+    # the predictions each scan started from, all at once (the same operations as the loop's)
+    x_prev = np.concatenate([x[:, None], states[:, :-1]], axis=1)
+    c_prev = np.concatenate([c[:, None], c_post[:, :-1]], axis=1)
+    xp, cp = _cv_predict_components_scans(x_prev, c_prev, dt, design.sigma_v)
+    scans = slice(first, stop)
+    out["state"][scans] = states.transpose(1, 0, 2)
+    out["cov"][scans] = c_post[MATRIX_FROM_COMPONENTS].transpose(1, 0, 2)
+    out["used"][scans, 0], out["used"][scans, 1] = zx, zy
+    out["innov"][scans, 0], out["innov"][scans, 1] = zx - xp[0], zy - xp[1]
+    out["alpha"][scans] = diag["alpha"].transpose(1, 0, 2)
+    out["beta"][scans] = diag["beta"].transpose(1, 0, 2)
+    out["lam"][scans] = diag["lambda_cross"]
+    s_k = out["s_cov"][scans]
+    s_k[..., 0] = cp[0] + r_cov[0]
+    s_k[..., 1] = s_k[..., 2] = cp[1] + r_cov[1]
+    s_k[..., 3] = cp[2] + r_cov[2]
+    out["gains"][scans] = gain.transpose(1, 2, 0)
+    flags = out["flags"][scans]
+    if floored is not None:
+        flags |= np.where(floored, FLAG_FLOORED, 0).astype(np.uint16)
+    if diag["clamped"].any():
+        flags |= np.where(diag["clamped"], FLAG_CLAMPED, 0).astype(np.uint16)
+    if diag["floored"].any():
+        flags |= np.where(diag["floored"], FLAG_FLOORED, 0).astype(np.uint16)
+    return states[:, -1].copy(), c_post[:, -1].copy(), n_plots + L
+
+
+
+
+def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, strategy,
+                scan_blocks: bool = True) -> dict:
     """Run one tracker over all Monte Carlo runs at once.
 
     Parameters
@@ -326,6 +447,11 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
     design : TrackerDesign
     strategy : AlphaBetaGains or KalmanGains
         One of :data:`STRATEGIES`.
+    scan_blocks : bool
+        Take stretches of steady scans (every run has a confirmed track and one plot a scan, no
+        gate) as blocks (:func:`_steady_block`): the same outputs, to the bit, with a few NumPy
+        calls per block instead of a few hundred per scan (``docs/benchmarks.md``). False: scan by
+        scan throughout (the reference form the tests hold the blocks to).
 
     Returns
     -------
@@ -368,7 +494,25 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
     n_plots = np.zeros(n_runs, np.int64)  # plots a track has used, the start-up gains' n
     life = TrackLife((n_runs,), design.confirmation, design.ending)
     gated = np.isfinite(design.gate_chi2)
+    # stretches of scans where nothing decided depends on the states go as blocks (_steady_block):
+    # no gate, one plot a scan at most (so none is chosen by distance), an ending rule that only
+    # counts coasted scans
+    blocks = (scan_blocks and not gated and plot_range.shape[2] == 1 and design.ending.field is None
+              and not np.isfinite(design.ending.max_position_variance))
+    stretch = _steady_stretches(counts) if blocks else None
+    longest = max(MIN_BLOCK_SCANS, BLOCK_RUN_SCANS // max(n_runs, 1))
+    out = dict(state=state, cov=cov, alpha=alpha, beta=beta, lam=lam, innov=innov, used=used, s_cov=s_cov,
+               gains=gains, flags=flags)
+    resume = 0
     for k in range(n_scans):
+        if k < resume:
+            continue
+        if blocks and k > 0 and stretch[k] >= MIN_BLOCK_SCANS and started.all() and not life.tentative.any():
+            resume = k + min(int(stretch[k]), longest)
+            x, c, n_plots = _steady_block(k, resume, x, c, n_plots, plot_range, plot_bearing, times, design, strategy,
+                                          out)
+            life.coasting = np.zeros(n_runs, np.int64)  # every scan of the block had a plot
+            continue
         dt = float(times[k] - times[k - 1]) if k else design.scan_period_s
         xp, cp = cv_predict_components(x, c, dt, design.sigma_v)
         has = counts[:, k] > 0

@@ -1,0 +1,117 @@
+"""One long recording, fast (issue 27): every fast form equal to the plain form it stands for.
+
+The radar trackers take stretches of steady scans as blocks (``track_plots(scan_blocks=True)``,
+the default) and the CV Kalman kernel has scan-axis fast forms; each is held here to the plain
+scan-by-scan form, bit for bit, on plots that reach every branch: misses (coasting, deletion,
+restarts), tentative tracks, start-up gains, clamped approximate gains and floored variances
+next to the radar, one run (Python floats) and many (arrays).
+"""
+
+import numpy as np
+import pytest
+
+from pipeline.cores.filters import kalman
+from pipeline.trackers import radar_tws as rt
+
+BASE = dict(scan_period_s=5.0, design_sigma_v_mps2=0.98, sigma_range_m=100.0, sigma_bearing_deg=1.0,
+            nominal_cross_range_m=150.0, startup_gains=True)
+
+
+def _plots(n_runs, n_scans, seed, detection=0.9, pass_distance_m=3000.0, sigma_range_m=100.0):
+    """Plots of a straight-line target passing ``pass_distance_m`` from the radar (jittered scan
+    times, misses with probability 1 − ``detection``): (range, bearing, counts, times)."""
+    rng = np.random.default_rng(seed)
+    times = np.cumsum(np.r_[0.0, 5.0 + rng.uniform(-0.05, 0.05, n_scans - 1)])
+    t = times - times[n_scans // 2]
+    x = 20.0 * t[None, :] + rng.normal(0, 50, (n_runs, 1))
+    y = pass_distance_m + 0.0 * t[None, :] + rng.normal(0, 5, (n_runs, 1))
+    r = np.hypot(x, y) + rng.normal(0, sigma_range_m, x.shape)
+    b = np.arctan2(y, x) + rng.normal(0, np.deg2rad(1.0), x.shape)
+    counts = (rng.random((n_runs, n_scans)) < detection).astype(np.int64)
+    r = np.where(counts > 0, np.abs(r), np.nan)[..., None]
+    b = np.where(counts > 0, b, np.nan)[..., None]
+    return r, b, counts, times
+
+
+def _both(plots, strategy, **design):
+    tracker = next(c for c in rt.TRACKERS if c.name == strategy)(**{**BASE, **design})
+    args = (*plots, tracker.tracker_design, rt.STRATEGIES[strategy])
+    return rt.track_plots(*args, scan_blocks=True), rt.track_plots(*args, scan_blocks=False)
+
+
+def _assert_same(fast, plain):
+    assert fast.keys() == plain.keys()
+    for name in plain:
+        assert fast[name].dtype == plain[name].dtype, name
+        np.testing.assert_array_equal(fast[name], plain[name], err_msg=name)
+
+
+@pytest.mark.parametrize("strategy", ["fixed", "approximate", "exact", "kalman"])
+@pytest.mark.parametrize("n_runs", [1, 3, 9])
+def test_scan_blocks_equal_the_scan_loop_bit_for_bit(strategy, n_runs):
+    plots = _plots(n_runs, 160, seed=n_runs, detection=0.93)
+    fast, plain = _both(plots, strategy)
+    _assert_same(fast, plain)
+    # the blocks did run: most scans of one run lie in stretches with a plot in every scan
+    if n_runs == 1:
+        assert (rt._steady_stretches(plots[2]) >= rt.MIN_BLOCK_SCANS).sum() > 60
+
+
+@pytest.mark.parametrize("strategy", ["fixed", "approximate", "exact", "kalman"])
+def test_scan_blocks_with_clamps_floors_and_other_designs(strategy):
+    # a pass 2 m from the radar: approximate gains clamp, the cross-range variance is floored
+    plots = _plots(2, 120, seed=7, detection=1.0, pass_distance_m=2.0)
+    fast, plain = _both(plots, strategy)
+    _assert_same(fast, plain)
+    if strategy == "approximate":
+        assert (plain["flags"] & rt.FLAG_CLAMPED).any()
+    assert (plain["flags"] & rt.FLAG_FLOORED).any()
+    # no start-up gains, immediate confirmation, deletion after two coasted scans
+    plots = _plots(1, 200, seed=8, detection=0.7)
+    _assert_same(*_both(plots, strategy, startup_gains=False, confirm_hits=0, max_coasted_scans=2))
+    assert (_both(plots, strategy, max_coasted_scans=2)[1]["flags"] & rt.FLAG_DELETED).any()
+
+
+def test_blocks_of_many_runs_are_cut_to_bound_memory(monkeypatch):
+    monkeypatch.setattr(rt, "BLOCK_RUN_SCANS", 40)  # blocks of max(4, 40 // 6) = 6 scans
+    plots = _plots(6, 90, seed=3, detection=1.0)
+    _assert_same(*_both(plots, "kalman"))
+    _assert_same(*_both(plots, "approximate"))
+
+
+def _random_components(rng, n_runs):
+    A = rng.normal(size=(n_runs, 4, 4))
+    P = A @ np.swapaxes(A, 1, 2) * 100.0 + np.eye(4) * 50.0
+    return kalman.matrix_to_components(P)
+
+
+@pytest.mark.parametrize("scalar_runs", [0, 8])
+def test_kalman_scan_axis_forms_equal_the_kernel_scan_by_scan(scalar_runs):
+    rng = np.random.default_rng(11)
+    n_runs, L, sigma_v = 3, 50, 0.7
+    dt = 5.0 + rng.uniform(-0.1, 0.1, L)
+    c0 = _random_components(rng, n_runs)
+    x0 = rng.normal(size=(4, n_runs)) * 1e3
+    along, cross = rng.uniform(1e2, 1e4, (L, n_runs)), rng.uniform(1e2, 1e5, (L, n_runs))
+    theta = rng.uniform(-np.pi, np.pi, (L, n_runs))
+    r_cov = (along * np.cos(theta) ** 2 + cross * np.sin(theta) ** 2, (along - cross) * np.cos(theta) * np.sin(theta),
+             along * np.sin(theta) ** 2 + cross * np.cos(theta) ** 2)
+    zx, zy = rng.normal(size=(L, n_runs)) * 1e3, rng.normal(size=(L, n_runs)) * 1e3
+    gains, posts = kalman._cv_position_filter_covariances(c0, r_cov, dt, sigma_v, scalar_runs=scalar_runs)
+    states = kalman._cv_states_with_gains(x0, gains, zx, zy, dt, scalar_runs=scalar_runs)
+    x, c = x0, c0
+    for j in range(L):
+        xp, cp = kalman.cv_predict_components(x, c, float(dt[j]), sigma_v)
+        g, c = kalman.cv_position_update_components(cp, r_cov[0][j], r_cov[1][j], r_cov[2][j])
+        x = kalman.cv_apply_gain_components(xp, g, np.stack([zx[j] - xp[0], zy[j] - xp[1]]))
+        np.testing.assert_array_equal(gains[:, j], g)
+        np.testing.assert_array_equal(posts[:, j], c)
+        np.testing.assert_array_equal(states[:, j], x)
+    # the predictions of many scans in one call
+    x_prev = np.concatenate([x0[:, None], states[:, :-1]], axis=1)
+    c_prev = np.concatenate([c0[:, None], posts[:, :-1]], axis=1)
+    xp_all, cp_all = kalman._cv_predict_components_scans(x_prev, c_prev, dt, sigma_v)
+    for j in range(L):
+        xp, cp = kalman.cv_predict_components(x_prev[:, j], c_prev[:, j], float(dt[j]), sigma_v)
+        np.testing.assert_array_equal(xp_all[:, j], xp)
+        np.testing.assert_array_equal(cp_all[:, j], cp)
