@@ -115,3 +115,31 @@ def test_kalman_scan_axis_forms_equal_the_kernel_scan_by_scan(scalar_runs):
         xp, cp = kalman.cv_predict_components(x_prev[:, j], c_prev[:, j], float(dt[j]), sigma_v)
         np.testing.assert_array_equal(xp_all[:, j], xp)
         np.testing.assert_array_equal(cp_all[:, j], cp)
+
+
+@pytest.mark.parametrize("sigma_v", [0.0, 2.0])
+def test_cv_position_pcrb_equals_the_general_recursion(sigma_v):
+    from pipeline.cores.filters.pcrb import _cv_position_pcrb_recursion, pcrb_recursion, polar_position_information
+
+    rng = np.random.default_rng(5)
+    K = 120
+    times = np.cumsum(np.r_[0.0, 5.0 + rng.uniform(-0.2, 0.2, K - 1)])
+    xy = np.stack([np.linspace(-8e3, 9e3, K), np.linspace(6e3, 2e3, K)], axis=-1)
+    info = polar_position_information(xy, 100.0, np.deg2rad(1.0))
+    info[rng.random(K) < 0.2] = 0.0  # scans without a plot in any run
+    full = np.zeros((K, 4, 4))
+    full[:, :2, :2] = info
+    dt = np.diff(times, prepend=np.nan)
+    F, Q = kalman.white_acceleration_model(np.nan_to_num(dt, nan=1.0), sigma_v)
+    P0 = kalman.components_to_matrix(_random_components(rng, 1))[0]
+    expected = pcrb_recursion(P0, F, Q, full)
+    got = _cv_position_pcrb_recursion(P0, dt, sigma_v, info)
+    np.testing.assert_allclose(got, expected, rtol=1e-9, atol=1e-9 * np.abs(expected).max())
+    # a scan whose information cannot be represented ends the bound in both
+    info[60] = np.inf
+    full[60, :2, :2] = np.inf
+    with np.errstate(invalid="ignore"):
+        expected = pcrb_recursion(P0, F, Q, full)
+    got = _cv_position_pcrb_recursion(P0, dt, sigma_v, info)
+    assert np.isnan(got[60:]).all() and np.isnan(expected[60:]).all()
+    np.testing.assert_allclose(got[:60], expected[:60], rtol=1e-9, atol=1e-9 * np.abs(expected[:60]).max())

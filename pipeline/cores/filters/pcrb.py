@@ -19,7 +19,11 @@ coloured measurement noise), where the information form above has no ``R⁻¹``.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+
+from pipeline.cores.filters.kalman import MATRIX_FROM_COMPONENTS
 
 
 def pcrb_recursion(P0, F, Q, information) -> np.ndarray:
@@ -59,6 +63,74 @@ def pcrb_recursion(P0, F, Q, information) -> np.ndarray:
             out[k:] = np.nan  # no bound from here on rather than a wrong one
             break
         out[k] = 0.5 * (P + P.T)  # symmetric to rounding
+    return out
+
+
+def _cv_position_pcrb_recursion(P0, dt, sigma_v: float, position_information) -> np.ndarray:
+    """:func:`pcrb_recursion` for the 2-D constant-velocity model (state ``[x, y, ẋ, ẏ]``, white
+    acceleration of std ``sigma_v``, intervals ``dt`` ``(K,)``, entry 0 unused) observed in
+    position only (``position_information`` ``(K, 2, 2)``: the non-zero block of ``M``): a fast
+    form for long recordings, equal to it to rounding (tests/test_long_recording.py).
+
+    With ``A = [[A_p, A_c], [A_cᵀ, A_v]]`` in (position, velocity) blocks and ``M`` zero beside
+    its position block ``M_p``, ``(I + A M)⁻¹ A`` is ``P_p = E A_p``, ``P_c = E A_c``,
+    ``P_v = A_v − A_cᵀ M_p P_c`` with ``E = (I + A_p M_p)⁻¹`` (2 × 2); each scan is then some
+    hundred operations on Python floats instead of 4 × 4 products and a solve, which costs a
+    hundred times more per scan on a recording of one run. ``A`` is formed as
+    :func:`pipeline.cores.filters.kalman.cv_predict_components` forms it.
+    """
+    K = len(dt)
+    out = np.full((K, 4, 4), np.nan)
+    out[0] = P0
+    P = np.asarray(P0, float)
+    a00, a01, a11 = P[0, 0], P[0, 1], P[1, 1]
+    b00, b01, b10, b11 = P[0, 2], P[0, 3], P[1, 2], P[1, 3]
+    c00, c01, c11 = P[2, 2], P[2, 3], P[3, 3]
+    a00, a01, a11, b00, b01, b10, b11, c00, c01, c11 = (float(v) for v in (a00, a01, a11, b00, b01, b10, b11,
+                                                                          c00, c01, c11))
+    q = sigma_v * sigma_v
+    info = np.asarray(position_information, float)
+    rows = []
+    for d, m00, m01, m10, m11 in zip(np.asarray(dt, float)[1:].tolist(), *info[1:].reshape(-1, 4).T.tolist()):
+        m01 = 0.5 * (m01 + m10)
+        q4, q3, q2 = q * d**4 / 4, q * d**3 / 2, q * d * d
+        d2 = d * d
+        a00, a01, a11, b00, b01, b10, b11, c00, c11 = (
+            a00 + 2 * d * b00 + d2 * c00 + q4, a01 + d * (b01 + b10) + d2 * c01, a11 + 2 * d * b11 + d2 * c11 + q4,
+            b00 + d * c00 + q3, b01 + d * c01, b10 + d * c01, b11 + d * c11 + q3, c00 + q2, c11 + q2)
+        # I + A_p M_p and its inverse E
+        e00, e01 = 1.0 + a00 * m00 + a01 * m01, a00 * m01 + a01 * m11
+        e10, e11 = a01 * m00 + a11 * m01, 1.0 + a01 * m01 + a11 * m11
+        det = e00 * e11 - e01 * e10
+        if not (det != 0.0 and math.isfinite(det) and math.isfinite(a00 + a01 + a11 + b00 + b01 + b10 + b11
+                                                                     + c00 + c01 + c11)):
+            break  # no bound from here on rather than a wrong one (as pcrb_recursion)
+        i00, i01, i10, i11 = e11 / det, -e01 / det, -e10 / det, e00 / det
+        # P_p = E A_p, P_c = E A_c
+        p00, p01 = i00 * a00 + i01 * a01, i00 * a01 + i01 * a11
+        p10, p11 = i10 * a00 + i11 * a01, i10 * a01 + i11 * a11
+        x00, x01 = i00 * b00 + i01 * b10, i00 * b01 + i01 * b11
+        x10, x11 = i10 * b00 + i11 * b10, i10 * b01 + i11 * b11
+        # A_cᵀ M_p, then P_v = A_v − A_cᵀ M_p P_c and the lower block A_cᵀ − A_cᵀ M_p P_p
+        n00, n01 = b00 * m00 + b10 * m01, b00 * m01 + b10 * m11
+        n10, n11 = b01 * m00 + b11 * m01, b01 * m01 + b11 * m11
+        v00 = c00 - (n00 * x00 + n01 * x10)
+        v01 = c01 - (n00 * x01 + n01 * x11)
+        v10 = c01 - (n10 * x00 + n11 * x10)
+        v11 = c11 - (n10 * x01 + n11 * x11)
+        l00 = b00 - (n00 * p00 + n01 * p10)
+        l01 = b10 - (n00 * p01 + n01 * p11)
+        l10 = b01 - (n10 * p00 + n11 * p10)
+        l11 = b11 - (n10 * p01 + n11 * p11)
+        # symmetric to rounding, as pcrb_recursion makes it
+        a00, a01, a11 = p00, 0.5 * (p01 + p10), p11
+        b00, b01, b10, b11 = 0.5 * (x00 + l00), 0.5 * (x01 + l10), 0.5 * (x10 + l01), 0.5 * (x11 + l11)
+        c00, c01, c11 = v00, 0.5 * (v01 + v10), v11
+        rows.append((a00, a01, a11, b00, b01, b10, b11, c00, c01, c11))
+    if rows:
+        c = np.array(rows).T
+        n = len(rows)
+        out[1:1 + n] = np.moveaxis(c[MATRIX_FROM_COMPONENTS], 0, -1).reshape(n, 4, 4)
     return out
 
 
