@@ -420,6 +420,7 @@ def _print_summary(summary: pl.DataFrame, title: str, family_metrics=()) -> None
         summary = summary.with_columns(pl.lit("family").alias("kind"))
     summary = summary.with_columns(
         section=pl.when(pl.col("kind") == "standard").then(pl.lit("standard measures")).otherwise(pl.col("scope")))
+    missing = summary.filter(~pl.col("scope").str.starts_with("no "))  # those say why in their cell
     sections = summary["section"].unique(maintain_order=True).to_list()
     sections = [s for s in dict.fromkeys([*_declared_scopes(summary), *sections]) if s is not None]
     if not (summary["kind"] == "family").any():
@@ -471,6 +472,26 @@ def _print_summary(summary: pl.DataFrame, title: str, family_metrics=()) -> None
                 rows = [k for k, m in enumerate(metrics) if any(columns[shown[i]][k] for i in group)]
                 click.echo(pl.DataFrame({"metric": [metrics[k] for k in rows],
                                          **{shown[i]: [columns[shown[i]][k] for k in rows] for i in group}}))
+    _print_missing_notes(missing)
+
+
+MISSING_NOTES_SHOWN = 12  # reasons printed under the tables; the rest are in metrics.csv
+
+
+def _print_missing_notes(summary: pl.DataFrame) -> None:
+    """Why the metrics without a value have none (shown — or left out of the tables): one line per
+    tracker and reason, from the ``note`` column (:mod:`evaluators.missing_reasons`)."""
+    from evaluators.missing_reasons import notes_by_tracker
+
+    notes = notes_by_tracker(summary)
+    if not notes:
+        return
+    click.echo("\nmetrics without a value, and why (column 'note' of metrics.csv):")
+    for tracker, metrics, note in notes[:MISSING_NOTES_SHOWN]:
+        named = ", ".join(metrics[:4]) + (f" and {len(metrics) - 4} more" if len(metrics) > 4 else "")
+        _echo_wrapped(f"  {tracker}: {named}: {note}", indent="    ")
+    if len(notes) > MISSING_NOTES_SHOWN:
+        click.echo(f"  … {len(notes) - MISSING_NOTES_SHOWN} more in the note column of metrics.csv")
 
 
 def _is_rule(line: str) -> bool:

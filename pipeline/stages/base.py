@@ -537,6 +537,7 @@ class Stage:
 
         from evaluators.confidence import summary_intervals
         from evaluators.consistency import whitened_innovations
+        from evaluators.missing_reasons import explain_missing
         from evaluators.standard import evaluate_standard
         from evaluators.track_summary import track_summary
 
@@ -572,7 +573,9 @@ class Stage:
         space = self.standard_space(design, reference)
         if space is None:
             family = summary if "kind" in summary.columns else summary.with_columns(kind=pl.lit("family"))
-            return per_scan, pl.concat([family, lives], how="diagonal_relaxed")
+            # every metric without a value says why (evaluators.missing_reasons)
+            return per_scan, explain_missing(pl.concat([family, lives], how="diagonal_relaxed"), result["tracks"],
+                                             innovations)
         truth = self.standard_truth(reference) if reference is not None else None
         truth_ids = self.standard_truth_ids(reference) if truth is not None else None
         std_scan, std_summary = evaluate_standard(result["times"], tracks, truth, space, innovations=innovations,
@@ -584,8 +587,9 @@ class Stage:
             # no tracker the family's own measures apply to (multi-target trackers): the standard
             # per-scan measures are the table
             per_scan = std_scan
-        return per_scan, pl.concat([summary.with_columns(kind=pl.lit("family")),
-                                    std_summary.with_columns(kind=pl.lit("standard")), lives], how="diagonal_relaxed")
+        return per_scan, explain_missing(pl.concat([summary.with_columns(kind=pl.lit("family")),
+                                                    std_summary.with_columns(kind=pl.lit("standard")), lives],
+                                                   how="diagonal_relaxed"), result["tracks"], innovations)
 
     def life_tables(self, dataset, result: dict, design: dict):
         """``(targets, tracks)`` tables of :mod:`evaluators.life_tables` for the trackers of
