@@ -56,6 +56,9 @@ ESTIMABLE = {
 #: what a record may say about the data themselves, recorded by every converter from the file
 DATA_KEYS = ("n_runs", "n_scans", "time_span_s")
 
+#: what the WAV converter (``replay convert array-wav``) reads from the file rather than its flags
+WAV_MEASURED = ("source_wav", "sample_rate_hz", "n_sensors", "n_sources")
+
 #: the recording field values
 ORIGIN_RECORDING = "recording"
 
@@ -103,6 +106,9 @@ def recorded_sources(scenario: dict) -> dict:
             sources = {}
     if not isinstance(sources, dict):
         sources = {}
+    if raw is None and rec.get("scenario") == "array-wav":
+        # the WAV converter records its flags and what it measured in the file, nothing borrowed
+        return {k: DATA if k in WAV_MEASURED or k.startswith("source_count") else CONVERTER_FLAG for k in params}
     return {k: str(sources.get(k, EARLIER_CONVERTER if raw is None else DATA)) for k in params}
 
 

@@ -115,7 +115,8 @@ def test_csv_converter_round_trip_and_errors(runner, tmp_path):
     b = np.degrees(np.arctan2(y, x)) + rng.normal(0, 1, t.size)
     lines = ["time,range_m,bearing_deg"] + [f"{a},{c},{d}" for a, c, d in zip(t + 1000.0, r, b)]
     (tmp_path / "p.csv").write_text("\n".join(lines) + "\n")
-    res = runner.invoke(main, ["convert", "plots-csv", "p.csv", "-o", "p.mcap"])
+    res = runner.invoke(main, ["convert", "plots-csv", "p.csv", "-o", "p.mcap", "--set", "sigma_range_m=100",
+                               "--set", "sigma_bearing_deg=1"])  # a recording's noise is what its user says
     assert res.exit_code == 0, res.output
     res = runner.invoke(main, ["p.mcap", "--no-rrd"])
     assert res.exit_code == 0 and "rms_innovation_m" in res.output

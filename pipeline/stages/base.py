@@ -46,11 +46,12 @@ def design_notes(dataset, stage_name: str) -> list:
 
 def model_recorded(dataset) -> bool:
     """Whether ``dataset`` records the model that generated it, so that a bound (the PCRB, the
-    CRLB at the truth) and an efficiency can be computed: not for a converted recording
-    (:func:`pipeline.sensor_values.is_recording`), whose noise and motion no one knows."""
-    from pipeline.sensor_values import is_recording
+    CRLB at the truth) and an efficiency can be computed: a simulation
+    (:func:`pipeline.sensor_values.is_simulation`), not a converted recording or a file without
+    a scenario record, whose noise and motion no one knows."""
+    from pipeline.sensor_values import is_simulation
 
-    return not is_recording(dataset.scenario)
+    return is_simulation(dataset.scenario)
 
 
 #: metric and column names of bounds and of what is computed from them (docs/evaluation.md)
@@ -203,12 +204,13 @@ class Stage:
                 if out[k] is not None and k not in (overrides or {}):
                     notes.append(f"{k} = {out[k]:g} estimated from {how} (the recording does not say it; "
                                  f"--set {k}=VALUE gives it)")
-        derived = self.evaluation_defaults_from_data(dataset, out)
-        out.update({k: v for k, v in derived.items() if k not in recorded})
         for k, v in (overrides or {}).items():
             if k not in defaults:
                 raise InputError(f"unknown tracker parameter {k!r} (known: {', '.join(defaults)})")
             out[k] = coerce(k, v, defaults[k])
+        # from the values in force, --set ones included (a recording's noise may come only from there)
+        derived = self.evaluation_defaults_from_data(dataset, out)
+        out.update({k: v for k, v in derived.items() if k not in recorded and k not in (overrides or {})})
         self.check_design(out)
         dataset.cache[("design_notes", self.name)] = notes
         return out
