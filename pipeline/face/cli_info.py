@@ -17,6 +17,10 @@ import click
 
 COMMANDS: list = []
 
+#: a field of bearings the recording does not give: the stage reads the whole of it
+#: (``pipeline.stages.bearing_peaks.field_deg``)
+WHOLE_FIELD = {"bearing-peaks": {"field_min_deg": 0.0, "field_max_deg": 180.0}}
+
 #: sensor values of the TDOA/FDOA family live in its measurements, one per pair and epoch
 MEASURED_SENSOR_ARRAYS = {"tdoa-fdoa": ("carrier_hz", "sigma_tdoa_s", "sigma_fdoa_hz")}
 
@@ -62,6 +66,10 @@ def _sensor_values(dataset, stage) -> dict:
     from_scenario = stage.scenario_sourced_keys()
     recording = sv.is_recording(dataset.scenario)
     for key in keys:
+        if key in WHOLE_FIELD.get(family, {}) and key not in recorded:
+            out[key] = {"value": WHOLE_FIELD[family][key], "source": f"{sv.UNKNOWN}: the whole field a bearing "
+                        "arccos(C·D/d) can have is read, 0° … 180°"}
+            continue
         if key not in design and key not in recorded:
             continue
         value = design.get(key)
