@@ -174,6 +174,9 @@ def test_a_mapping_files_sensor_table_is_recorded_and_a_flag_wins(tmp_path):
     sources = sv.recorded_sources(ds.scenario)
     assert ds.scenario["params"]["sigma_range_m"] == 100.0 and sources["sigma_range_m"] == sv.MAPPING_FILE
     assert ds.scenario["params"]["sigma_bearing_deg"] == 0.7 and sources["sigma_bearing_deg"] == sv.CONVERTER_FLAG
+    plots = ds.channel("/radar/plots")  # the record says what the file holds
+    assert (ds.scenario["params"]["n_runs"], ds.scenario["params"]["n_scans"]) == (plots.n_runs, plots.n_scans)
+    assert ds.scenario["params"]["time_span_s"] == float(plots.times()[-1] - plots.times()[0])
     # without the table, the noise is unknown and the replay through the mapping asks for it
     bare = "\n".join(line for line in mapping.splitlines() if line.strip() and not line.startswith(
         ("[sensor]", "sigma_", "#")))
