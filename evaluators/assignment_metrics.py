@@ -43,7 +43,8 @@ from __future__ import annotations
 import numpy as np
 
 from evaluators.set_distances import (BRUTE_FORCE_MAX, assign_edges, close_pairs, global_identities,
-                                      optimal_assignment, pairwise_distance, single_pair_distance)
+                                      identity_pairs, optimal_assignment, pairwise_distance, single_pair_distance,
+                                      stable_order)
 from pipeline.batched_linalg import all_finite
 
 MOSTLY_TRACKED = 0.8
@@ -188,7 +189,7 @@ def _matches_keeping_previous(X, Y, vx, vy, tid, ids, gate, angular, pairs=None)
     weight = gate ** 2 - d ** 2           # the assignment minimises Σ min(d, gate)²
     target, _, _ = global_identities(tid, vx)
     u, v = target[r, k, t], np.asarray(ids)[r, k, s]
-    by_scan = np.argsort(k, kind="stable")
+    by_scan = stable_order(k, K)
     bounds = np.searchsorted(k[by_scan], np.arange(K + 1))
     n_targets = int(target.max()) + 1 if target.size else 0
     last_track = np.full(n_targets, -1, np.int64)      # each target's track at its last match
@@ -398,9 +399,9 @@ def _identity_metrics(tracks, truths, gate, ids, truth_ids, matches, convention,
 
     # one event per target presence, in the order (run, identity, scan): each identity's history
     r, k, t = np.nonzero(present)                                  # in (run, scan) order
-    number, _, _ = global_identities(tid, present)                  # in (run, identity) order
+    number, n_numbers, _ = global_identities(tid, present)          # in (run, identity) order
     u, v = number[r, k, t], matched_id[r, k, t]
-    order = np.argsort(u, kind="stable")                            # scans stay in order
+    order = stable_order(u, n_numbers)                              # scans stay in order
     r, k, u, v = r[order], k[order], u[order], v[order]
     n = r.size
     first = np.ones(n, bool)
@@ -442,18 +443,19 @@ def _identity_metrics(tracks, truths, gate, ids, truth_ids, matches, convention,
     }
     out["partially_tracked"] = out["targets"] - out["mostly_tracked"] - out["mostly_lost"]
     out.update(_identity_pairing(tracks, truths, gate, ids, tid, present, match, matched_id, convention, angular,
-                                 pairs))
+                                 pairs, numbered=(number, n_numbers, group_run)))
     return out
 
 
 def _identity_pairing(tracks, truths, gate, ids, tid, present, match, matched_id, convention, angular,
-                      pairs=None) -> dict:
+                      pairs=None, numbered=None) -> dict:
     """IDTP/IDFP/IDFN per run from one global pairing of truth and track identities (Ristani et
-    al. 2016), and the false tracks (track identities never matched at any scan)."""
+    al. 2016), and the false tracks (track identities never matched at any scan). ``numbered``:
+    :func:`evaluators.set_distances.global_identities` of ``(tid, present)``, when found."""
     R, K, T = tid.shape
     S = ids.shape[-1]
     track_present = ids >= 0
-    target, n_targets, target_run = global_identities(tid, present)
+    target, n_targets, target_run = global_identities(tid, present) if numbered is None else numbered
     track, n_tracks, track_run = global_identities(ids, track_present)
     if convention == "trackeval":
         # every scan at which both identities are present within the gate counts, whatever the
@@ -461,12 +463,12 @@ def _identity_pairing(tracks, truths, gate, ids, tid, present, match, matched_id
         if pairs is None:
             pairs = _gated_pairs(truths, tracks, present, track_present & all_finite(tracks), gate, angular)
         p, t, s, _ = pairs
-        r, k = p // K, p % K
     else:
-        r, k, t = np.nonzero(matched_id >= 0)
-        s = match[r, k, t]
-    pairs, count = np.unique(target[r, k, t] * max(n_tracks, 1) + track[r, k, s], return_counts=True)
-    pair_target, pair_track = pairs // max(n_tracks, 1), pairs % max(n_tracks, 1)
+        p, t = np.divmod(np.flatnonzero(matched_id >= 0), T)      # (run · K + scan, truth slot)
+        s = match.reshape(-1, T)[p, t]
+    # one index per element (run · K + scan) · slots + slot: gathers of one index, not three
+    pair_target, pair_track, _, count = identity_pairs(target.reshape(-1)[p * T + t], track.reshape(-1)[p * S + s],
+                                                       target_run, track_run)
     pair_run = target_run[pair_target]
     idtp = _identity_true_positives(pair_run, pair_target, pair_track, count, target_run, track_run, R)
     # false tracks: identities of a run never matched at any scan
@@ -517,8 +519,11 @@ def _identity_true_positives_dense(pair_run, pair_target, pair_track, count, tar
 
 def _matched_tracks(track, match, matched_id):
     """The global numbers of the track identities matched at some scan."""
-    r, k, t = np.nonzero(matched_id >= 0)
-    return np.unique(track[r, k, match[r, k, t]])
+    T, S = match.shape[-1], track.shape[-1]
+    p, t = np.divmod(np.flatnonzero(matched_id >= 0), T)           # (run · K + scan, truth slot)
+    seen = np.zeros(int(track.max()) + 1 if track.size else 0, bool)
+    seen[track.reshape(-1)[p * S + match.reshape(-1, T)[p, t]]] = True
+    return np.flatnonzero(seen)
 
 
 def _identity_counts(ids, matched_id, present, track_present) -> dict:

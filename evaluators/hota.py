@@ -33,8 +33,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from evaluators.set_distances import (assign_edges, close_pairs, global_identities, optimal_assignment,
-                                      pairwise_distance, single_pair_distance)
+from evaluators.set_distances import (assign_edges, close_pairs, global_identities, identity_pairs,
+                                      optimal_assignment, pairs_within, pairwise_distance, single_pair_distance)
 from pipeline.batched_linalg import all_finite
 
 #: the localisation thresholds α, built as TrackEval builds them (so every bit of α agrees)
@@ -52,7 +52,7 @@ def point_similarity(distance, distance_scale: float):
 
 
 def hota_sums(tracks, truths, distance_scale: float, track_ids=None, truth_ids=None, angular: bool = False,
-              alphas=HOTA_ALPHAS, method: str = "auto") -> dict:
+              alphas=HOTA_ALPHAS, method: str = "auto", pairs=None) -> dict:
     """Per-run sums from which HOTA and its parts are formed for any set of runs.
 
     Parameters
@@ -75,6 +75,10 @@ def hota_sums(tracks, truths, distance_scale: float, track_ids=None, truth_ids=N
         ``"plain"``: run by run on dense similarity matrices, the definitions as written;
         ``"sparse"``: all runs at once on the pairs with S > 0 only (the same sums up to
         rounding, tested); ``"auto"``: sparse from :data:`SPARSE_FROM_PAIRS` pairs on.
+    pairs : tuple, optional
+        :func:`evaluators.assignment_metrics.gated_pairs` of the same sets at a gate of at
+        least ``distance_scale`` (those closer than ``d₀`` are kept), when already found: the
+        sparse form starts from them instead of searching again.
 
     Returns
     -------
@@ -87,7 +91,7 @@ def hota_sums(tracks, truths, distance_scale: float, track_ids=None, truth_ids=N
     alphas = np.asarray(alphas, float)
     R = tracks.shape[0]
     if method == "sparse" or (method == "auto" and truths[..., 0].size * tracks.shape[2] >= SPARSE_FROM_PAIRS):
-        out = _sums_sparse(tracks, truths, float(distance_scale), track_ids, truth_ids, angular, alphas)
+        out = _sums_sparse(tracks, truths, float(distance_scale), track_ids, truth_ids, angular, alphas, pairs)
         out["alphas"] = alphas
         return out
     out = {key: np.zeros((R, alphas.size)) for key in SUM_KEYS}
@@ -160,7 +164,7 @@ def _one_run(tracks, truths, d0, track_ids, truth_ids, angular, alphas) -> dict:
     return out
 
 
-def _sums_sparse(tracks, truths, d0, track_ids, truth_ids, angular, alphas) -> dict:
+def _sums_sparse(tracks, truths, d0, track_ids, truth_ids, angular, alphas, pairs=None) -> dict:
     """:func:`hota_sums` for all runs at once from the pairs with S > 0 (d < d₀) alone."""
     R, K, T = truths.shape[:3]
     S = tracks.shape[2]
@@ -169,23 +173,24 @@ def _sums_sparse(tracks, truths, d0, track_ids, truth_ids, angular, alphas) -> d
     vx = all_finite(truths) & (truth_id >= 0)
     vy = all_finite(tracks) & (track_id >= 0)
     g_id, n_g, g_run = global_identities(truth_id, vx)
-    h_id, n_h, _ = global_identities(track_id, vy)
+    h_id, n_h, h_run = global_identities(track_id, vy)
     truth_count = np.bincount(g_id[vx], minlength=n_g).astype(float)
     track_count = np.bincount(h_id[vy], minlength=n_h).astype(float)
     n_truth, n_track = vx.sum(axis=(1, 2)), vy.sum(axis=(1, 2))
-    X = np.where(vx[..., None], truths, np.nan).reshape(R * K, T, -1)
-    Y = np.where(vy[..., None], tracks, np.nan).reshape(R * K, S, -1)
-    p, i, j, d = close_pairs(X, Y, d0, angular)
+    if pairs is None:
+        X = np.where(vx[..., None], truths, np.nan).reshape(R * K, T, -1)
+        Y = np.where(vy[..., None], tracks, np.nan).reshape(R * K, S, -1)
+        pairs = close_pairs(X, Y, d0, angular)
+    p, i, j, d = pairs_within(pairs, d0)
     sim = point_similarity(d, d0)
     # 1. global alignment from each scan's normalised similarity
     row_sum = np.bincount(p * T + i, weights=sim, minlength=R * K * T)
     col_sum = np.bincount(p * S + j, weights=sim, minlength=R * K * S)
     denom = row_sum[p * T + i] + col_sum[p * S + j] - sim
     soft = np.where(denom > _EPS, sim / np.where(denom > _EPS, denom, 1.0), 0.0)
-    g, h = g_id.reshape(R * K, T)[p, i], h_id.reshape(R * K, S)[p, j]
-    pairs, pair = np.unique(g * max(n_h, 1) + h, return_inverse=True)
-    pair_g, pair_h = pairs // max(n_h, 1), pairs % max(n_h, 1)
-    potential = np.bincount(pair, weights=soft, minlength=pairs.size)
+    g, h = g_id.reshape(-1)[p * T + i], h_id.reshape(-1)[p * S + j]
+    pair_g, pair_h, pair, _ = identity_pairs(g, h, g_run, h_run)
+    potential = np.bincount(pair, weights=soft, minlength=pair_g.size)
     alignment = potential / (truth_count[pair_g] + track_count[pair_h] - potential)
     # 2. every scan's assignment on A·S
     chosen = assign_edges(p, i, j, alignment[pair] * sim, T, S)
@@ -201,7 +206,7 @@ def _sums_sparse(tracks, truths, d0, track_ids, truth_ids, angular, alphas) -> d
         return np.cumsum(h[:, ::-1], axis=1)[:, ::-1][:, 1:]
 
     n_tp = over_alphas(run_c, R)
-    tpa = over_alphas(pair_c, pairs.size).astype(float)                      # (pairs, A)
+    tpa = over_alphas(pair_c, pair_g.size).astype(float)                      # (pairs, A)
     g_count, h_count = truth_count[pair_g][:, None], track_count[pair_h][:, None]
     per_run = lambda v: np.stack([np.bincount(pair_run, v[:, a], minlength=R) for a in range(A)], axis=1)  # noqa: E731
     out = {"tp": n_tp.astype(float), "fn": (n_truth[:, None] - n_tp).astype(float),

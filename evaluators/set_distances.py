@@ -485,24 +485,67 @@ def _gospa_sparse(X, Y, cutoff, order, angular):
 def global_identities(ids, present):
     """Identities (R, K, n) numbered 0…N−1 across runs in (run, identity) order (the same
     identity in two runs is two), −1 where not ``present``; N; and the run of each."""
-    r, k, j = np.nonzero(present)
-    value = np.asarray(ids)[r, k, j].astype(np.int64)
+    present = np.asarray(present, bool)
+    ids = np.asarray(ids)
+    R = present.shape[0]
     out = np.full(present.shape, -1, np.int64)
-    if value.size == 0:
+    if not present.any():
         return out, 0, np.zeros(0, np.int64)
-    low = value.min()
-    span = int(value.max() - low) + 1
-    # (run, identity) as one integer: numbered by marking when the range is small
-    key = r.astype(np.int64) * span + (value - low)
-    if present.shape[0] * span <= 1 << 26:
-        mark = np.zeros(present.shape[0] * span, bool)
-        mark[key] = True
+    value = np.where(present, ids, 0).astype(np.int64, copy=False)
+    big = np.iinfo(np.int64).max
+    low = int(np.min(np.where(present, value, big)))
+    span = int(np.max(np.where(present, value, low))) - low + 1
+    if R * span <= 1 << 26:
+        # (run, identity) as one integer, numbered by marking: no list of the present elements
+        key = np.where(present, value - low + np.arange(R).reshape((R,) + (1,) * (present.ndim - 1)) * span, 0)
+        mark = np.zeros(R * span, bool)
+        mark[key[present]] = True
         number = np.cumsum(mark) - 1
-        out[r, k, j] = number[key]
-        return out, int(mark.sum()), np.flatnonzero(mark) // span
+        np.copyto(out, number[key], where=present)
+        return out, int(number[-1]) + 1, np.flatnonzero(mark) // span
+    return _global_identities_sorted(value, present, low, span)
+
+
+def _global_identities_sorted(value, present, low, span):
+    """:func:`global_identities` by sorting the (run, identity) keys: any range of identities."""
+    r, k, j = np.nonzero(present)
+    key = r.astype(np.int64) * span + (value[r, k, j] - low)
+    out = np.full(present.shape, -1, np.int64)
     uniq, inverse = np.unique(key, return_inverse=True)
     out[r, k, j] = inverse
     return out, uniq.size, uniq // span
+
+
+def stable_order(keys, n: int) -> np.ndarray:
+    """``np.argsort(keys, kind="stable")`` of integers in [0, n): the same permutation (a stable
+    sort has one answer), by numpy's radix sort on 16-bit digits (least significant first)
+    where n allows, several times faster than the merge sort it uses on wider integers."""
+    keys = np.asarray(keys)
+    if n <= 1 << 16:
+        return np.argsort(keys.astype(np.uint16), kind="stable")
+    if n <= 1 << 32:
+        order = np.argsort((keys & 0xFFFF).astype(np.uint16), kind="stable")
+        return order[np.argsort((keys[order] >> 16).astype(np.uint16), kind="stable")]
+    return np.argsort(keys, kind="stable")
+
+
+def unique_pairs(first, second, n_second: int):
+    """The distinct pairs ``first · n_second + second`` (integers ≥ 0) in increasing order, the
+    index of each element's pair and each pair's count: ``np.unique(..., return_inverse=True,
+    return_counts=True)`` of those keys, through :func:`stable_order`."""
+    key = np.asarray(first, np.int64) * max(n_second, 1) + np.asarray(second, np.int64)
+    if key.size == 0:
+        return key, np.zeros(0, np.int64), np.zeros(0, np.int64)
+    order = stable_order(key, int(key.max()) + 1)
+    ordered = key[order]
+    new = np.empty(key.size, bool)
+    new[0] = True
+    np.not_equal(ordered[1:], ordered[:-1], out=new[1:])
+    number = np.cumsum(new) - 1
+    inverse = np.empty(key.size, np.int64)
+    inverse[order] = number
+    starts = np.flatnonzero(new)
+    return ordered[starts], inverse, np.diff(np.append(starts, key.size))
 
 
 def _half_switches(own, partner, present) -> np.ndarray:
@@ -512,7 +555,7 @@ def _half_switches(own, partner, present) -> np.ndarray:
     r, k, j = np.nonzero(present)                                   # in (run, scan) order
     number, _, _ = global_identities(own, present)                  # in (run, identity) order
     ident, state = number[r, k, j], partner[r, k, j]
-    order = np.argsort(ident, kind="stable")                        # scans stay in order
+    order = stable_order(ident, int(ident.max()) + 1 if ident.size else 0)   # scans stay in order
     r, k, ident, state = r[order], k[order], ident[order], state[order]
     same = np.zeros(r.size, bool)
     same[1:] = (r[1:] == r[:-1]) & (ident[1:] == ident[:-1])
@@ -728,6 +771,38 @@ def _window_block(X, Y, radius, angular):
     p, ij = np.divmod(flat, m * n)
     i, j = np.divmod(ij, n)
     return p, i, j, dist
+
+
+def identity_pairs(first, second, first_run, second_run):
+    """The distinct (first, second) identity pairs of a list of events, as :func:`unique_pairs`
+    of ``first · N₂ + second`` (N₂ the number of second identities) would give them: sorted by
+    ``first`` then ``second``, each event's pair and each pair's count.
+
+    Both identities are numbered across runs in run order (:func:`global_identities`) and an
+    event pairs identities of one run, so ``second`` is keyed by its number within its run: the
+    keys then stay far smaller (fewer radix passes) and sort the same.
+
+    Returns
+    -------
+    pair_first, pair_second, inverse, count : ndarray of int
+    """
+    first, second = np.asarray(first, np.int64), np.asarray(second, np.int64)
+    second_run = np.asarray(second_run)
+    R = int(max(np.max(first_run, initial=-1), np.max(second_run, initial=-1))) + 1
+    start = np.searchsorted(second_run, np.arange(R))                # each run's first second identity
+    per_run = max(int(np.max(np.diff(np.append(start, second_run.size)), initial=0)), 1)
+    run = np.asarray(first_run)[first]
+    keys, inverse, count = unique_pairs(first, second - start[run], per_run)
+    pair_first = keys // per_run
+    return pair_first, keys % per_run + start[np.asarray(first_run)[pair_first]], inverse, count
+
+
+def pairs_within(pairs, radius: float):
+    """The pairs of :func:`close_pairs` (found at a radius at least ``radius``) closer than
+    ``radius``, in their order: the pairs :func:`close_pairs` finds at ``radius`` itself."""
+    p, i, j, d = pairs
+    keep = d < radius
+    return p[keep], i[keep], j[keep], d[keep]
 
 
 def _no_pairs():

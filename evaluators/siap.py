@@ -42,7 +42,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from evaluators.set_distances import close_pairs, global_identities, single_pair_distance
+from evaluators.set_distances import close_pairs, global_identities, single_pair_distance, stable_order
 from pipeline.batched_linalg import all_finite
 
 SUM_KEYS = ("truths", "tracked_truths", "tracks", "associated_tracks", "position_error_sum",
@@ -161,12 +161,12 @@ def siap_sums(tracks, truths, gate: float, times=None, track_ids=None, truth_ids
 
     # ---- continuity: association segments per target
     g_num, n_g, g_run = global_identities(gid, vx)                 # targets numbered over runs
-    h_num, _, _ = global_identities(tid, vy)
+    h_num, n_h, _ = global_identities(tid, vy)
     r, k, s = np.nonzero(vy)                                         # every report, in (run, scan) order
     h = h_num[r, k, s]
     slot = target[r, k, s]
     g = np.where(slot >= 0, g_num[r, k, np.maximum(slot, 0)], -1)
-    order = np.argsort(h, kind="stable")                            # each track's reports in scan order
+    order = stable_order(h, n_h)                                    # each track's reports in scan order
     r, k, h, g, slot = r[order], k[order], h[order], g[order], slot[order]
     start = np.ones(h.size, bool)
     start[1:] = (h[1:] != h[:-1]) | (g[1:] != g[:-1])
@@ -181,7 +181,7 @@ def siap_sums(tracks, truths, gate: float, times=None, track_ids=None, truth_ids
     # every target's presences in scan order, and each presence's position in its target's list
     pr, pk, pi = np.nonzero(vx)
     pg = g_num[pr, pk, pi]
-    order = np.argsort(pg, kind="stable")
+    order = stable_order(pg, n_g)
     pr, pk, pg = pr[order], pk[order], pg[order]
     n_pres = np.bincount(pg, minlength=n_g)
     offset = np.concatenate([[0], np.cumsum(n_pres)[:-1]]).astype(np.int64)
@@ -212,7 +212,7 @@ def siap_sums(tracks, truths, gate: float, times=None, track_ids=None, truth_ids
     out["time_tracked"] = np.bincount(pr[covered & inside], gap[covered & inside], minlength=R)
     # NU_j: the fewest segments covering the tracked presences (greedy on the latest end)
     changes = np.zeros(n_g)
-    by_g = np.argsort(seg_g, kind="stable")
+    by_g = stable_order(seg_g, n_g)
     bounds = np.searchsorted(seg_g[by_g], np.arange(n_g + 1))
     for target_number in np.flatnonzero(bounds[1:] > bounds[:-1]):
         b = by_g[bounds[target_number]:bounds[target_number + 1]]

@@ -31,7 +31,7 @@ from evaluators.consistency import (consistency_summary, innovation_whiteness, n
                                    whitened_innovations)
 from evaluators.hota import SUM_KEYS as HOTA_SUMS, hota_sums, pooled_hota
 from evaluators.set_distances import (_gospa_switching_single, gospa_switching, one_identity_per_run,
-                                      single_pair_distance)
+                                      pairs_within, single_pair_distance)
 from evaluators.siap import SUM_KEYS as SIAP_SUMS, pooled_siap, siap_sums
 from evaluators.tracking_metrics import nanmean
 from pipeline.batched_linalg import all_finite, sum_squares
@@ -336,14 +336,20 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
             g = gospa_switching(X, Y, space.cutoff, space.order, space.gospa_switch_penalty, part_ids, part_truth_ids,
                                 space.angular)
             # the pairs within the gate, found once for the matching, the identity pairing (with
-            # target identities, TrackEval's convention) and SIAP's associations (at the same gate)
-            pairs = None
+            # target identities, TrackEval's convention) and SIAP's associations (at the same
+            # gate); found out to HOTA's d₀ when that is wider, HOTA starts from them too
+            pairs = wide = None
             if part_truth_ids is not None or siap_gate == space.gate:
-                pairs = gated_pairs(X, Y, space.gate, space.angular, part_ids, part_truth_ids)
+                # (HOTA's plain form, on small sets, searches none: the gate is enough there)
+                sparse = Y[..., 0].size * X.shape[2] >= hota_module.SPARSE_FROM_PAIRS
+                wide = gated_pairs(X, Y, max(space.gate, d0) if sparse else space.gate, space.angular, part_ids,
+                                   part_truth_ids)
+                pairs = pairs_within(wide, space.gate)
+                wide = wide if sparse else None
             match, dist = scan_matches(X, Y, space.gate, space.angular, part_ids, part_truth_ids, pairs=pairs)
             a = assignment_metrics(X, Y, space.gate, part_ids, space.angular, matches=(match, dist),
                                    truth_ids=part_truth_ids, pairs=pairs)
-            h = hota_sums(X, Y, d0, part_ids, part_truth_ids, space.angular)
+            h = hota_sums(X, Y, d0, part_ids, part_truth_ids, space.angular, pairs=wide)
             si = siap_sums(X, Y, siap_gate, times, part_ids, part_truth_ids, space.angular, *vel,
                            pairs=pairs if siap_gate == space.gate else None)
             return g, match, a, {key: h[key] for key in HOTA_SUMS}, {key: si[key] for key in SIAP_SUMS}
