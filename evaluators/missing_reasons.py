@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 import polars as pl
 
+from pipeline.batched_linalg import cholesky_lower, positive_definite
 from pipeline.vocabulary import DELETED, INITIALISING, NO_TRACK, NOT_POSITIVE_DEFINITE, flag_names
 
 NOTE = "note"
@@ -73,8 +74,18 @@ class _TrackerFacts:
     def tentative(self) -> int:
         return _count(self.estimate & ((self.flags & INITIALISING) > 0))
 
-    def not_positive_definite(self) -> int:
-        return _count(self.estimate & ((self.flags & NOT_POSITIVE_DEFINITE) > 0))
+    def not_positive_definite(self, compared=None) -> int:
+        """Estimates whose covariance is not positive definite: over the ``compared`` components
+        (those a NEES reads; a component known exactly, with zero variance, elsewhere in the
+        state does not matter to it), else as the flag ``NOT_POSITIVE_DEFINITE`` says."""
+        cov = self.out.get("covariance")
+        if compared is None or cov is None:
+            return _count(self.estimate & ((self.flags & NOT_POSITIVE_DEFINITE) > 0))
+        which = np.asarray(compared)
+        block = np.asarray(cov)[self.estimate][:, which[:, None], which[None, :]]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            factor = cholesky_lower(np.ascontiguousarray(np.moveaxis(block, 0, -1)))
+        return _count(~positive_definite(factor))
 
     def finite_nis(self):
         """Cells with a finite NIS, or None when the tracker reports no innovation covariance."""
@@ -99,7 +110,8 @@ def _class_counts(rows: dict, tracker: str, scope: str) -> dict | None:
     return counts
 
 
-def _reason(tracker: str, metric: str, scope: str, facts: _TrackerFacts | None, rows: dict, out) -> str:
+def _reason(tracker: str, metric: str, scope: str, facts: _TrackerFacts | None, rows: dict, out,
+            compared=None) -> str:
     """The first cause that holds, from the most basic to the most specific."""
     if scope.startswith("no "):  # the standard measures' own convention: the scope says it
         return f"{scope}: the tracker reports none"
@@ -121,7 +133,7 @@ def _reason(tracker: str, metric: str, scope: str, facts: _TrackerFacts | None, 
         base = metric.rsplit("_", 1)[0]
         if (tracker, base, scope) in rows:
             if _missing(rows[(tracker, base, scope)]):
-                return f"derived from {base}, which has no value: {_reason(tracker, base, scope, facts, rows, out)}"
+                return f"derived from {base}, which has no value: {_reason(tracker, base, scope, facts, rows, out, compared)}"
             if _missing(rows.get((tracker, base, scope, "ci"))):
                 return (f"the bounds of {base} come from its interval over Monte Carlo runs, which needs "
                         "values in at least two runs")
@@ -137,10 +149,9 @@ def _reason(tracker: str, metric: str, scope: str, facts: _TrackerFacts | None, 
             return ("no finite NIS: the innovation covariance is not positive definite (or its inverse overflows) "
                     "wherever there is an innovation")
     if metric.startswith(COVARIANCE_METRICS):
-        flagged = facts.not_positive_definite()
+        flagged = facts.not_positive_definite(compared)
         if flagged:
-            return (f"covariance not positive definite in {flagged} of {_count(facts.estimate)} estimates "
-                    "(flag NOT_POSITIVE_DEFINITE)")
+            return f"covariance not positive definite in {flagged} of {_count(facts.estimate)} estimates"
     if metric.endswith("_efficiency"):
         bound = next((k[1] for k in rows if len(k) == 3 and k[0] == tracker and k[2] == scope
                       and k[1].startswith(BOUND_METRICS) and k[1].split("_")[1] == metric.split("_")[0]), None)
@@ -149,15 +160,14 @@ def _reason(tracker: str, metric: str, scope: str, facts: _TrackerFacts | None, 
     if metric.startswith(BOUND_METRICS):
         return ("the bound is not finite at any scan scored here: its information matrix is singular or overflows "
                 "at these design values")
-    if metric.startswith(MATCHED_METRICS):
-        return "no track was matched to a true target (none inside the assignment gate)"
-    flagged = facts.not_positive_definite()
-    if flagged:
-        return f"covariance not positive definite in {flagged} of {_count(facts.estimate)} estimates"
+    if metric.startswith(MATCHED_METRICS) and _missing(rows.get((tracker, "motp", scope, "any unit"), 0.0)):
+        # MOTP is the mean distance over matched pairs: without a value, there was no pair
+        return "no track was matched to a true target (none inside the assignment gate at any scan)"
     return "no run or scan gives this metric a value on these data"
 
 
-def explain_missing(summary: pl.DataFrame, tracks: dict, innovations: dict | None = None) -> pl.DataFrame:
+def explain_missing(summary: pl.DataFrame, tracks: dict, innovations: dict | None = None,
+                    compared=None) -> pl.DataFrame:
     """``summary`` with a ``note`` column: the reason of every metric without a value.
 
     Parameters
@@ -170,6 +180,9 @@ def explain_missing(summary: pl.DataFrame, tracks: dict, innovations: dict | Non
     innovations : dict, optional
         ``name ->`` :func:`evaluators.consistency.whitened_innovations` (``(w, nis)`` or None), when
         already computed.
+    compared : sequence of int, optional
+        The state components the standard measures compare with the truth (and a NEES reads);
+        without it a covariance counts as not positive definite where its flags say so.
 
     Returns
     -------
@@ -187,6 +200,8 @@ def explain_missing(summary: pl.DataFrame, tracks: dict, innovations: dict | Non
     for t, m, s, v, c in zip(summary["tracker"], summary["metric"], summary["scope"], summary["value"], ci):
         rows[(t, m, s)] = v
         rows[(t, m, s, "ci")] = c
+        if m.startswith("motp_"):  # in the space's unit (m, deg, …)
+            rows[(t, "motp", s, "any unit")] = v
     facts: dict = {}
     notes = []
     for t, m, s, v in zip(summary["tracker"], summary["metric"], summary["scope"], summary["value"]):
@@ -197,7 +212,7 @@ def explain_missing(summary: pl.DataFrame, tracks: dict, innovations: dict | Non
         if t not in facts:
             facts[t] = (_TrackerFacts(out, (innovations or {}).get(t) if innovations is not None else _innovation(out))
                         if out is not None and "state" in out else None)
-        notes.append(_reason(t, m, s or "", facts[t], rows, out))
+        notes.append(_reason(t, m, s or "", facts[t], rows, out, compared))
     return summary.with_columns(pl.Series(NOTE, notes, dtype=pl.String))
 
 

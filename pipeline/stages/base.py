@@ -591,7 +591,8 @@ class Stage:
             per_scan = std_scan
         return per_scan, explain_missing(pl.concat([summary.with_columns(kind=pl.lit("family")),
                                                     std_summary.with_columns(kind=pl.lit("standard")), lives],
-                                                   how="diagonal_relaxed"), result["tracks"], innovations)
+                                                   how="diagonal_relaxed"), result["tracks"], innovations,
+                                         list(space.truth_components))
 
     def life_tables(self, dataset, result: dict, design: dict):
         """``(targets, tracks)`` tables of :mod:`evaluators.life_tables` for the trackers of
