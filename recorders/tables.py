@@ -1109,10 +1109,11 @@ def sensor_summary(family: str, params: dict, sources: dict) -> str:
     keys = SENSOR_KEYS.get(family, ())
     if not keys:
         return f"sensor values: in the measurements ({family} carries its noise and geometry per item)"
-    given = [f"{k}={params[k]:g}" if isinstance(params[k], float) else f"{k}={params[k]}" for k in keys if k in params]
+    given = [(f"{k}={params[k]:g}" if isinstance(params[k], float) else f"{k}={params[k]}") + f" ({sources.get(k, '?')})"
+             for k in keys if k in params]
     estimated = [k for k in keys if k not in params and k in ESTIMABLE.get(family, {})]
     unknown = [k for k in keys if k not in params and k not in estimated]
-    parts = [f"given {', '.join(given)} ({', '.join(sorted({sources[k] for k in keys if k in params}))})"] if given else []
+    parts = [f"given {', '.join(given)}"] if given else []
     if estimated:
         parts.append(f"estimated at replay from the data: {', '.join(estimated)}")
     if unknown:

@@ -23,7 +23,8 @@ COMMANDS: list = []  # defined first: importing pipeline.face.cli below may re-e
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path),
               help="The data set to write (never SRC or the mapping: an input is never written over).")
 @click.option("--set", "sets", multiple=True, metavar="NAME=VALUE",
-              help="Sensor/design values of the family's bundled scenario, e.g. sigma_range_m=50.")
+              help="A sensor or design value recorded with the data, e.g. sigma_range_m=50 (wins over the "
+                   "mapping's [sensor] table); a sensor value given nowhere is unknown.")
 @click.option("--force", is_flag=True, help="Replace the output file if it exists.")
 def convert_mcap_cmd(src, map_path, output, sets, force):
     """An MCAP recorded by another tool (ROS 2, JSON or protobuf) → a data set.
@@ -42,6 +43,8 @@ def convert_mcap_cmd(src, map_path, output, sets, force):
       bearing_rad = { field = "azimuth", unit = "deg" }
       run = "/run_id"                # optional; a leading / reads from the message
       amplitude = { value = 1.0 }    # a constant
+      [sensor]                       # optional: what the sensor was like
+      sigma_range_m = 50.0           # (a value given nowhere is unknown)
 
     \b
     Columns are those of the family's table (replay convert plots|peaks|tdoa-fdoa|positions
@@ -71,6 +74,18 @@ def convert_mcap_cmd(src, map_path, output, sets, force):
         click.echo(f"  {table}: {rep['messages_in'][table]} messages on {topic} → {rep['rows'][table]} rows")
     for note in rep["notes"]:
         click.echo(f"  {note}")
+    click.echo(f"  {_sensor_line(output, rep['family'])}")
+
+
+def _sensor_line(data: Path, family: str) -> str:
+    """Which sensor values the converted data set records (from the mapping file's [sensor] or
+    --set) and which it leaves unknown, read back from what was written."""
+    from pipeline.contract import read_dataset
+    from pipeline.sensor_values import recorded_sources
+    from recorders.tables import sensor_summary
+
+    record = read_dataset(data).scenario
+    return sensor_summary(family, record.get("params", {}), recorded_sources(record))
 
 
 def convert_for_replay(src: Path, map_path: Path) -> Path:
@@ -83,6 +98,7 @@ def convert_for_replay(src: Path, map_path: Path) -> Path:
     rep = convert_foreign_mcap(src, map_path, out)
     click.echo(f"converted {src} through {map_path.name}: " + ", ".join(
         f"{rep['messages_in'][t]} messages on {topic} → {rep['rows'][t]} rows" for t, topic in rep["topics"].items()))
+    click.echo(_sensor_line(out, rep["family"]))
     return out
 
 
