@@ -14,7 +14,11 @@ Three estimators, one per measurement kind (:data:`TRACKERS`):
 ``fdoa``   FDOA only: position and velocity.
 
 With ``stationary_emitter`` (the paper's Fig. 7) the velocity is known to be zero: every
-estimator solves for the position alone and reports the velocity as 0 with zero variance.
+estimator solves for the position alone and reports the velocity as 0 with zero variance; such a
+covariance is singular by construction, and the output check flags it ``NOT_POSITIVE_DEFINITE``
+(``docs/contract.md``, Flags), as it does a covariance that rounding has made singular (e.g. at
+σ_FDOA = 10⁻⁹ Hz, where the position and velocity variances differ by more than double
+precision holds).
 
 Outputs (:data:`pipeline.vocabulary.OUTPUTS`): ``state`` (4), ``covariance`` (4 × 4, the
 inverse Fisher information (HᵀΨ⁻¹H)⁻¹ at the estimate, eq. 18) and ``flags`` (``CONVERGED``,
