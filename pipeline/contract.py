@@ -9,7 +9,7 @@ embedded in the file as the schema, so any MCAP tool decodes it without our code
                      string name = 1; string dtype = 2; repeated uint32 shape = 3; bytes values = 4;
                      bytes offsets = 5; bytes frames = 6; repeated Array entries = 7; Layout layout = 8; }
     message Scan   { uint32 scan = 1; double time_s = 2; uint32 first_run = 3; uint32 frame_count = 4;
-                     bytes runs = 5; bytes times_s = 6; repeated Column columns = 7; }
+                     bytes runs = 5; bytes times_s = 6; repeated Column columns = 7; uint32 scan_count = 8; }
 
 * a *frame* is one Monte Carlo run × one scan of one channel; a ``Scan`` message holds
   ``frame_count`` frames of one scan, runs ``first_run …`` (or the ``<u4`` list ``runs``), all at
@@ -21,8 +21,13 @@ embedded in the file as the schema, so any MCAP tool decodes it without our code
   ``shape``) — the variable-length measurement lists; ``IRREGULAR``: anything else, one
   ``Array`` per entry; ``SYMMETRIC`` (replay outputs only): real matrices symmetric to the bit,
   as their upper triangles (``shape`` is the full entry shape), expanded on reading;
-* messages are written scan-major, one chunk per scan (zstd, CRC of every chunk), so log time
-  never goes backwards and a crash loses at most one scan;
+* a *long recording* (at least :data:`GROUP_MIN_SCANS` scans of few runs) groups scans: a message
+  with ``scan_count`` > 1 holds scans ``scan … scan + scan_count − 1``, each with the runs
+  ``first_run …`` (``frame_count / scan_count`` of them), frames scan-major, their times in
+  ``times_s``; the schema lists ``scan_count`` only in files that use it (:func:`scans_per_message`);
+* messages are written scan-major, one chunk per scan (per group of scans in a long recording;
+  zstd, CRC of every chunk), so log time never goes backwards and a crash loses at most one scan
+  (one group);
 * a ``replay.layout`` metadata record (written last) states, per channel, the runs, scans and
   frames written; readers check every frame's run and scan against it;
 * ground truth lives on its own channels (``/truth/...``) next to the measurements;
@@ -131,12 +136,13 @@ def _build_frame_class():
     return _message_classes(fdp, [FRAME_SCHEMA_V1])
 
 
-def _build_scan_class(symmetric: bool = True):
+def _build_scan_class(symmetric: bool = True, grouped: bool = True):
     """``replay.v2.Scan``: every run of one scan of one channel, column by column.
 
-    ``symmetric``: whether the ``Layout`` enum lists ``SYMMETRIC``. The schema a file carries
-    lists it only when the file uses it (replay outputs), so that data sets stay byte for byte
-    what earlier versions wrote; the wire format is the same either way.
+    ``symmetric``: whether the ``Layout`` enum lists ``SYMMETRIC``; ``grouped``: whether ``Scan``
+    lists ``scan_count`` (messages of several scans, :func:`scans_per_message`). The schema a file
+    carries lists them only when the file may use them (replay outputs; long recordings), so that
+    data sets stay byte for byte what earlier versions wrote; the wire format is the same either way.
     """
     F = descriptor_pb2.FieldDescriptorProto
     fdp = descriptor_pb2.FileDescriptorProto(name="replay/v2/scan.proto", package=CONTRACT_V2, syntax="proto3")
@@ -165,12 +171,34 @@ def _build_scan_class(symmetric: bool = True):
     scan.field.add(name="times_s", number=6, type=F.TYPE_BYTES, label=F.LABEL_OPTIONAL)
     scan.field.add(name="columns", number=7, type=F.TYPE_MESSAGE, label=F.LABEL_REPEATED,
                    type_name=f".{CONTRACT_V2}.Column")
+    if grouped:
+        scan.field.add(name="scan_count", number=8, type=F.TYPE_UINT32, label=F.LABEL_OPTIONAL)
     return _message_classes(fdp, [SCAN_SCHEMA])
 
 
 Frame, FRAME_DESCRIPTOR_SET = _build_frame_class()
 Scan, PACKED_SCAN_DESCRIPTOR_SET = _build_scan_class()
-_, SCAN_DESCRIPTOR_SET = _build_scan_class(symmetric=False)
+_, SCAN_DESCRIPTOR_SET = _build_scan_class(symmetric=False, grouped=False)
+_, GROUPED_SCAN_DESCRIPTOR_SET = _build_scan_class(symmetric=False)
+
+#: A channel of at least this many scans is a long recording: its scans are grouped into
+#: messages when its runs are few (:func:`scans_per_message`). Below it a message per scan costs
+#: a replay little (about 0.1 s a channel), and every shorter data set keeps the bytes earlier
+#: versions wrote.
+GROUP_MIN_SCANS = 2048
+#: Frames (runs × scans) a grouped message holds at most.
+GROUP_FRAMES = 1024
+
+
+def scans_per_message(n_runs: int, n_scans: int) -> int:
+    """How many scans one message of a channel holds: 1, or for a long recording of few runs
+    (at least :data:`GROUP_MIN_SCANS` scans, at most ``GROUP_FRAMES / 8`` runs) ``GROUP_FRAMES //
+    n_runs``. Each message, protobuf object and MCAP record costs tens of microseconds to write
+    and to read whatever it holds: at 100,000 scans of one run, one per scan was most of a
+    replay's reading and writing (docs/benchmarks.md)."""
+    if n_scans < GROUP_MIN_SCANS or not 0 < n_runs <= GROUP_FRAMES // 8:
+        return 1
+    return GROUP_FRAMES // n_runs
 _SCHEMA_DATA = {CONTRACT_V1: (FRAME_SCHEMA_V1, FRAME_DESCRIPTOR_SET), CONTRACT_V2: (SCAN_SCHEMA, SCAN_DESCRIPTOR_SET)}
 
 
@@ -727,19 +755,29 @@ def _encode_column(col, name: str, pieces: list[tuple[_Part, np.ndarray]], frame
                 col.entries.add(shape=e.shape, dtype=e.dtype.str, data=e.tobytes())
 
 
-def encode_scan(scan: int, parts: list[_Part]) -> bytes:
-    """Serialise the frames of one channel and scan as one ``replay.v2.Scan`` message."""
+def encode_scan(scan: int, parts: list[_Part], scan_times: np.ndarray | None = None) -> bytes:
+    """Serialise the frames of one channel and scan as one ``replay.v2.Scan`` message.
+
+    With ``scan_times`` (G > 1 times) the one part holds G scans from ``scan`` on, the same runs
+    in each, frames scan-major: a message of a long recording (:func:`scans_per_message`)."""
     counts = [p.n for p in parts]
     total = sum(counts)
     msg = Scan(scan=int(scan), time_s=float(parts[0].time_s), frame_count=total)
-    runs = np.concatenate([np.arange(p.first_run, p.first_run + p.n, dtype=np.int64) for p in parts])
-    if np.array_equal(runs, np.arange(runs[0], runs[0] + total)):
-        msg.first_run = int(runs[0])
+    if scan_times is not None:
+        (part,) = parts
+        msg.first_run = part.first_run
+        msg.scan_count = len(scan_times)
+        msg.times_s = np.repeat(np.asarray(scan_times, "<f8"), total // len(scan_times)).tobytes()
+        counts = [total]
     else:
-        msg.runs = runs.astype("<u4").tobytes()
-    times = [float(p.time_s) for p in parts]
-    if any(t != times[0] or math.copysign(1, t) != math.copysign(1, times[0]) for t in times):
-        msg.times_s = np.repeat(np.array(times, "<f8"), counts).tobytes()
+        runs = np.concatenate([np.arange(p.first_run, p.first_run + p.n, dtype=np.int64) for p in parts])
+        if np.array_equal(runs, np.arange(runs[0], runs[0] + total)):
+            msg.first_run = int(runs[0])
+        else:
+            msg.runs = runs.astype("<u4").tobytes()
+        times = [float(p.time_s) for p in parts]
+        if any(t != times[0] or math.copysign(1, t) != math.copysign(1, times[0]) for t in times):
+            msg.times_s = np.repeat(np.array(times, "<f8"), counts).tobytes()
     starts = np.cumsum([0, *counts])
     names = list(dict.fromkeys(n for p in parts for n in p.arrays))
     for name in names:
@@ -876,13 +914,17 @@ class McapFrameWriter:
     """
 
     def __init__(self, f, metadata: Mapping[str, Mapping[str, str]] | None = None,
-                 contract: str = CONTRACT_VERSION, zstd_level: int | None = None, pack_symmetric: bool = False):
+                 contract: str = CONTRACT_VERSION, zstd_level: int | None = None, pack_symmetric: bool = False,
+                 group_scans: bool = False):
         if contract not in _SCHEMA_DATA:
             raise ValueError(f"unknown contract {contract!r} (have: {', '.join(_SCHEMA_DATA)})")
         self.contract = contract
         self.zstd_level = zstd_level  # None: zstd's default (data sets); OUTPUT_ZSTD_LEVEL for outputs
         # grids of symmetric matrices stored as their upper triangles (replay outputs' covariances)
         self.pack_symmetric = pack_symmetric and contract == CONTRACT_V2
+        # long recordings of few runs in messages of several scans (scans_per_message): replay
+        # outputs, and data sets whose writer asks for it (their schema then lists scan_count)
+        self.group_scans = (group_scans or pack_symmetric) and contract == CONTRACT_V2
         self._file = f
         self.messages = 0  # MCAP messages written so far
         # v2 also writes the data-section CRC (covering the metadata records, which sit outside
@@ -894,6 +936,8 @@ class McapFrameWriter:
         name, data = _SCHEMA_DATA[contract]
         if self.pack_symmetric:
             data = PACKED_SCAN_DESCRIPTOR_SET
+        elif self.group_scans:
+            data = GROUPED_SCAN_DESCRIPTOR_SET
         self._schema = self._w.register_schema(name=name, encoding="protobuf", data=data)
         self._channels: dict[str, int] = {}
         self._seq: dict[int, int] = {}
@@ -1014,6 +1058,47 @@ class McapFrameWriter:
             flat[name] = _normalise(name, a[mask])
         self._add(topic, int(scan), _Part("ragged", int(first_run), counts.size, float(time_s), flat, counts))
 
+    def write_scan_group(self, topic: str, first_scan: int, times: np.ndarray, arrays: Mapping[str, np.ndarray],
+                         counts: np.ndarray | None = None):
+        """Scans ``first_scan …`` (one per entry of ``times``) of one channel, every run, as one
+        message (a long recording's group, :func:`scans_per_message`; needs ``group_scans``).
+        Arrays are ``(runs, scans, ...)``; with ``counts`` ``(runs, scans)`` they are padded
+        ``(runs, scans, width, ...)`` and frame (r, k) holds the first ``counts[r, k]`` entries."""
+        times = np.asarray(times, float)
+        if len(times) == 1 or not self.group_scans:
+            for k, t in enumerate(times):
+                if counts is None:
+                    self.write_batch(topic, first_scan + k, t, {n: a[:, k] for n, a in arrays.items()})
+                else:
+                    self.write_ragged(topic, first_scan + k, t, {n: a[:, k] for n, a in arrays.items()}, counts[:, k])
+            return
+        self.channel(topic)
+        if topic in self._blocks:
+            self._emit(topic)
+        G = len(times)
+        if counts is None:
+            n_runs = next(iter(arrays.values())).shape[0]
+            flat = {name: _normalise(name, np.asarray(a).swapaxes(0, 1).reshape(n_runs * G, *np.shape(a)[2:]))
+                    for name, a in arrays.items()}
+            part = _Part("batch", 0, n_runs * G, float(times[0]), flat)
+        else:
+            counts = np.asarray(counts, dtype=np.int64)
+            n_runs = counts.shape[0]
+            scan_major = counts.T  # (scans, runs): the frames' order
+            flat = {}
+            for name, a in arrays.items():
+                a = np.asarray(a).swapaxes(0, 1)
+                mask = np.arange(a.shape[2]) < scan_major[..., None]
+                flat[name] = _normalise(name, a[mask])
+            part = _Part("ragged", 0, n_runs * G, float(times[0]), flat, scan_major.ravel())
+        if part.n == 0:
+            return
+        self._add_message(topic, float(times[0]), encode_scan(first_scan, [part], times))
+        lay = self._layout[topic]
+        lay[0] = max(lay[0], n_runs)
+        lay[1] = max(lay[1], first_scan + G)
+        lay[2] += n_runs * G
+
     def write_grid(self, topic: str, times: np.ndarray, arrays: Mapping[str, np.ndarray]):
         """Write ``[run, scan, ...]`` arrays as one batched frame per scan (all runs)."""
         n_runs, n_scans = next(iter(arrays.values())).shape[:2]
@@ -1057,9 +1142,16 @@ class McapFrameWriter:
         # cost per scan small on few runs, and the block a few MB on many
         scan_bytes = max((columns[i][3][:, 0].nbytes for i in packing), default=0)
         step = n_scans if not scan_bytes else max(1, min(n_scans, PACK_BLOCK_BYTES // scan_bytes))
+        group = scans_per_message(n_runs, n_scans) if self.group_scans else 1
+        if group > 1:
+            step = max(group, step // group * group)  # a packing block holds whole groups
         for first in range(0, n_scans, step):
             # each packing column's scans first … first + step − 1 as upper triangles, or None
             packed = {i: upper_triangles(columns[i][3][:, first:first + step]) for i in packing}
+            if group > 1:
+                self._write_grid_groups(topic, times, columns, packed, first, min(first + step, n_scans), group,
+                                        n_runs)
+                continue
             for k in range(first, min(first + step, n_scans)):
                 msg = Scan(scan=k, time_s=float(times[k]), frame_count=n_runs)
                 for i, (name, dtype, inner, a) in enumerate(columns):
@@ -1075,6 +1167,27 @@ class McapFrameWriter:
         lay[0] = max(lay[0], n_runs)
         lay[1] = max(lay[1], n_scans)
         lay[2] += n_runs * n_scans
+
+    def _write_grid_groups(self, topic: str, times, columns, packed, start: int, stop: int, group: int, n_runs: int):
+        """Scans ``start … stop − 1`` of :meth:`_write_grid_v2` in messages of ``group`` scans
+        (the last one may hold fewer; one of a single scan is an ordinary message)."""
+        for k in range(start, stop, group):
+            end = min(k + group, stop)
+            G = end - k
+            msg = Scan(scan=k, time_s=float(times[k]), frame_count=n_runs * G)
+            if G > 1:
+                msg.scan_count = G
+                msg.times_s = np.repeat(np.asarray(times[k:end], "<f8"), n_runs).tobytes()
+            for i, (name, dtype, inner, a) in enumerate(columns):
+                triangles = packed.get(i)
+                if triangles is None:
+                    values = np.ascontiguousarray(a[:, k:end].swapaxes(0, 1)).tobytes()
+                    col = msg.columns.add(name=name, dtype=dtype, layout=FIXED, values=values)
+                else:
+                    values = np.ascontiguousarray(triangles[:, k - start:end - start].swapaxes(0, 1)).tobytes()
+                    col = msg.columns.add(name=name, dtype=dtype, layout=SYMMETRIC, values=values)
+                col.shape.extend(inner)
+            self._add_message(topic, float(times[k]), msg.SerializeToString())
 
     def sync(self):
         """Push the bytes written so far to the disk (``fsync``), so that the one at the end of
@@ -1102,12 +1215,14 @@ class McapFrameWriter:
 
 @contextmanager
 def write_dataset(path: str | Path, metadata: Mapping[str, Mapping[str, str]] | None = None,
-                  contract: str = CONTRACT_VERSION, zstd_level: int | None = None, pack_symmetric: bool = False):
+                  contract: str = CONTRACT_VERSION, zstd_level: int | None = None, pack_symmetric: bool = False,
+                  group_scans: bool = False):
     """Atomically write an MCAP file of frames: ``with write_dataset(p, meta) as w: w.write(...)``
     (``zstd_level``: the chunks' compression level, None for zstd's default; ``pack_symmetric``:
-    :meth:`McapFrameWriter.write_grid` stores symmetric matrices as their upper triangles)."""
+    :meth:`McapFrameWriter.write_grid` stores symmetric matrices as their upper triangles;
+    ``group_scans``: a long recording's scans may share messages, :func:`scans_per_message`)."""
     with atomic_output(path) as f:
-        w = McapFrameWriter(f, metadata, contract, zstd_level, pack_symmetric)
+        w = McapFrameWriter(f, metadata, contract, zstd_level, pack_symmetric, group_scans)
         yield w
         w.finish()
 
@@ -1243,6 +1358,13 @@ class _Block:
     times: np.ndarray | None
     columns: dict[str, _Column]
     first_run: int | None = None  # the runs are first_run … (None: the message lists them)
+    scan_count: int = 1  # scans scan … scan + scan_count − 1, runs first_run … in each (scan-major)
+
+    def scans(self) -> np.ndarray:
+        """The scan of each frame."""
+        if self.scan_count == 1:
+            return np.full(self.n, self.scan, np.int64)
+        return np.repeat(np.arange(self.scan, self.scan + self.scan_count, dtype=np.int64), self.n // self.scan_count)
 
     @property
     def n(self) -> int:
@@ -1265,13 +1387,19 @@ def decode_scan(data: bytes) -> _Block:
     times = np.frombuffer(msg.times_s, "<f8") if msg.times_s else None
     if times is not None and times.size != n:
         raise _BadData(f"times_s holds {len(msg.times_s)} bytes for {n} frame(s)")
+    scan_count = max(1, msg.scan_count)
+    if scan_count > 1:  # a group of scans (a long recording): runs first_run … in each
+        if msg.runs or times is None or n % scan_count:
+            raise _BadData(f"a message of {scan_count} scans must hold the same runs in each ({n} frame(s)), "
+                           "from first_run, with times_s")
+        runs = np.tile(np.arange(first_run, first_run + n // scan_count, dtype=np.int64), scan_count)
     columns = {}
     for c in msg.columns:
         name, col = _decode_column(c, n)
         if name in columns:
             raise _BadData(f"column {name!r} appears twice")
         columns[name] = col
-    return _Block(msg.scan, runs, msg.time_s, times, columns, first_run)
+    return _Block(msg.scan, runs, msg.time_s, times, columns, first_run, scan_count)
 
 
 def _check_indices(runs_max: int, scan: int, topic: str, layout: dict | None) -> None:
@@ -1368,7 +1496,7 @@ class _Source:
         try:
             if contract == CONTRACT_V2:
                 block = decode_scan(data)
-                _check_indices(int(block.runs.max()), block.scan, topic, self.layout)
+                _check_indices(int(block.runs.max()), block.scan + block.scan_count - 1, topic, self.layout)
                 payload, n = block, block.n
             else:
                 payload = decode_frame(data)
@@ -1695,9 +1823,11 @@ class _Collector:
                                  np.array([b.first_run for b in blocks], np.int64),
                                  np.array([b.n for b in blocks], np.int64),
                                  np.array([b.time_s for b in blocks], np.float64))
-        else:
+        elif any(b.scan_count > 1 for b in blocks) and all(b.first_run is not None for b in blocks):
+            index = _grouped_index(blocks)
+        if index is None:
             run = np.concatenate([b.runs for b in blocks])
-            scan = np.repeat(np.array([b.scan for b in blocks], np.int64), [b.n for b in blocks])
+            scan = np.concatenate([b.scans() for b in blocks])
             t = np.concatenate([b.times if b.times is not None else np.full(b.n, b.time_s) for b in blocks])
         parts: dict[str, list[_Column]] = {}
         for b in blocks:
@@ -1708,6 +1838,23 @@ class _Collector:
         if index is not None:
             return ChannelData.of_blocks(index, columns, topic=topic, path=str(self.path))
         return ChannelData(run, scan, t, columns, topic=topic, path=str(self.path))
+
+
+def _grouped_index(blocks: list) -> "_FrameBlocks | None":
+    """The :class:`_FrameBlocks` of messages some of which group scans (one row per scan of
+    each), or None where a scan's frames do not share one time (then the per-frame arrays)."""
+    scans, first, count, times = [], [], [], []
+    for b in blocks:
+        per = b.n // b.scan_count
+        t = b.times[::per] if b.times is not None else np.full(b.scan_count, b.time_s)
+        if b.times is not None and per > 1 and not np.array_equal(b.times, np.repeat(t, per)):
+            return None
+        scans.append(np.arange(b.scan, b.scan + b.scan_count, dtype=np.int64))
+        first.append(np.full(b.scan_count, b.first_run, np.int64))
+        count.append(np.full(b.scan_count, per, np.int64))
+        times.append(t)
+    return _FrameBlocks(np.concatenate(scans), np.concatenate(first), np.concatenate(count),
+                        np.concatenate(times).astype(np.float64))
 
 
 def _check_time_order(ch: ChannelData) -> None:
@@ -1918,7 +2065,8 @@ def iter_frames(path: str | Path, recover: bool = False, meta: dict | None = Non
                 elif i in partial[name]:
                     arrays[name] = partial[name][i]
             t = float(block.times[i]) if block.times is not None else block.time_s
-            yield topic, int(block.runs[i]), block.scan, t, arrays, 1
+            scan = block.scan if block.scan_count == 1 else block.scan + i // (block.n // block.scan_count)
+            yield topic, int(block.runs[i]), scan, t, arrays, 1
     meta.setdefault("metadata", dict(source.metadata))
     meta["messages"] = source.messages
     meta["contracts"] = dict(source.contracts)
