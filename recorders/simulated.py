@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.contract import CONTRACT_VERSION, scenario_metadata, write_dataset
+from pipeline.contract import CONTRACT_V2, CONTRACT_VERSION, scans_per_message, scenario_metadata, write_dataset
 
 
 @dataclass
@@ -43,9 +43,27 @@ def write_simulated(path: str | Path, data: SimulatedData, metadata: dict, progr
 
     Each channel's scan goes to the writer in one call (``write_ragged`` / ``write_batch``): in
     contract v2 that is one message of every run; ``contract="replay.v1"`` writes one message
-    per run and scan as version 1 did. Returns the number of MCAP messages written.
+    per run and scan as version 1 did. A long recording of few runs (``scans_per_message`` > 1)
+    goes in messages, and chunks, of several scans (``write_scan_group``): per scan, reading and
+    writing 100,000 scans of one run cost tens of seconds. Returns the number of MCAP messages
+    written.
     ``progress(n)`` is called once per scan.
     """
+    n_scans = len(data.times)
+    group = scans_per_message(data.n_runs, n_scans) if contract == CONTRACT_V2 else 1
+    if group > 1:  # a long recording of few runs: messages (and chunks) of several scans
+        with write_dataset(path, metadata, contract, group_scans=True) as w:
+            for first in range(0, n_scans, group):
+                scans = slice(first, first + group)
+                for topic, (arrays, counts) in data.ragged.items():
+                    w.write_scan_group(topic, first, data.times[scans], {name: a[:, scans] for name, a in arrays.items()},
+                                       counts[:, scans])
+                for topic, arrays in data.fixed.items():
+                    w.write_scan_group(topic, first, data.times[scans], {name: a[:, scans] for name, a in arrays.items()})
+                w.flush()  # one chunk per group of scans
+                if progress:
+                    progress(len(data.times[scans]))
+        return w.messages
     with write_dataset(path, metadata, contract) as w:
         for k, t in enumerate(data.times):
             for topic, (arrays, counts) in data.ragged.items():

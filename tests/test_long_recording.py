@@ -143,3 +143,73 @@ def test_cv_position_pcrb_equals_the_general_recursion(sigma_v):
     got = _cv_position_pcrb_recursion(P0, dt, sigma_v, info)
     assert np.isnan(got[60:]).all() and np.isnan(expected[60:]).all()
     np.testing.assert_allclose(got[:60], expected[:60], rtol=1e-9, atol=1e-9 * np.abs(expected[:60]).max())
+
+
+# --------------------------------------------------------------------------- long recordings on disk
+
+
+def _same_channels(a, b):
+    """Every frame's run, scan and time, and every array's grid or ragged view, identical."""
+    assert list(a.channels) == list(b.channels)
+    for topic in a.channels:
+        x, y = a.channel(topic), b.channel(topic)
+        for attr in ("run", "scan", "time_s"):
+            np.testing.assert_array_equal(getattr(x, attr), getattr(y, attr), err_msg=f"{topic} {attr}")
+        assert list(x.arrays) == list(y.arrays)
+        for name in x.arrays:
+            u, v = (x.ragged(name), y.ragged(name)) if topic.endswith("plots") else ((x.grid(name),), (y.grid(name),))
+            for p, q in zip(u, v):
+                assert p.dtype == q.dtype and p.shape == q.shape and p.tobytes() == q.tobytes(), (topic, name)
+
+
+@pytest.mark.parametrize("runs", [1, 3])
+def test_a_long_recording_groups_scans_and_reads_as_one_message_per_scan(tmp_path, runs):
+    from pipeline.contract import CONTRACT_V1, GROUP_MIN_SCANS, read_dataset, rewrite_dataset, scans_per_message
+    from recorders.scenarios import load_scenario
+    from recorders.simulated import record
+
+    n_scans = GROUP_MIN_SCANS + 52
+    scenario = load_scenario("radar-tws").with_overrides({"n_scans": n_scans, "detection_probability": 0.9})
+    messages = record(tmp_path / "long.mcap", scenario, runs, seed=4)
+    group = scans_per_message(runs, n_scans)
+    assert group > 1 and messages == 2 * -(-n_scans // group)  # two channels, a message per group
+    record(tmp_path / "v1.mcap", scenario, runs, seed=4, contract=CONTRACT_V1)  # one message per run and scan
+    grouped, plain = read_dataset(tmp_path / "long.mcap"), read_dataset(tmp_path / "v1.mcap")
+    _same_channels(grouped, plain)
+    # and back through the frame-by-frame path every converter uses
+    rewrite_dataset(tmp_path / "long.mcap", tmp_path / "again.mcap", contract=CONTRACT_V1)
+    _same_channels(read_dataset(tmp_path / "again.mcap"), plain)
+
+
+@pytest.mark.parametrize("runs", [1, 5])
+def test_replay_outputs_of_a_long_recording_group_scans(tmp_path, runs):
+    from pipeline.contract import GROUP_MIN_SCANS, read_dataset, scans_per_message, write_dataset
+
+    rng = np.random.default_rng(2)
+    n_scans = GROUP_MIN_SCANS + 700
+    A = rng.normal(size=(runs, n_scans, 4, 4))
+    arrays = {"state": rng.normal(size=(runs, n_scans, 4)), "covariance": A @ np.swapaxes(A, -1, -2),
+              "flags": rng.integers(0, 9, size=(runs, n_scans)).astype(np.uint32),
+              "strided": rng.normal(size=(n_scans, runs, 2)).transpose(1, 0, 2)}
+    times = np.cumsum(rng.uniform(4.9, 5.1, n_scans))
+    with write_dataset(tmp_path / "out.mcap", pack_symmetric=True) as w:
+        w.write_grid("/tracks/radar/x", times, arrays)
+    assert w.messages == -(-n_scans // scans_per_message(runs, n_scans))
+    got = read_dataset(tmp_path / "out.mcap").channel("/tracks/radar/x")
+    assert (got.n_runs, got.n_scans) == (runs, n_scans)
+    np.testing.assert_array_equal(got.times(), times)
+    for name, a in arrays.items():
+        np.testing.assert_array_equal(got.grid(name), a, err_msg=name)
+
+
+def test_a_group_that_does_not_hold_the_same_runs_in_each_scan_is_refused(tmp_path):
+    from pipeline.contract import Scan, read_dataset, write_dataset
+    from pipeline.errors import InputError
+
+    with write_dataset(tmp_path / "bad.mcap", group_scans=True) as w:
+        msg = Scan(scan=0, time_s=0.0, frame_count=5, scan_count=2)  # 5 frames cannot be 2 scans alike
+        msg.times_s = np.zeros(5).tobytes()
+        msg.columns.add(name="state", dtype="<f8", values=np.zeros((5, 4)).tobytes()).shape.extend([4])
+        w._add_message("/radar/truth", 0.0, msg.SerializeToString())
+    with pytest.raises(InputError, match="same runs in each"):
+        read_dataset(tmp_path / "bad.mcap")
