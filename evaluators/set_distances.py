@@ -841,14 +841,9 @@ def assign_edges(problem, row, col, weight, n_rows: int, n_cols: int) -> np.ndar
     if rest.size == 0:
         return chosen
     # what is left falls apart into connected components, each its own (mostly small) problem
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     r_node, n_row_nodes = _compact(row_key[rest], P * n_rows)
     c_node, n_col_nodes = _compact(col_key[rest], P * n_cols)
-    nodes = n_row_nodes + n_col_nodes
-    graph = coo_matrix((np.ones(rest.size, bool), (r_node, n_row_nodes + c_node)), shape=(nodes, nodes))
-    n_comp, label = connected_components(graph, directed=False)
+    n_comp, label = _bipartite_components(r_node, c_node, n_row_nodes, n_col_nodes)
     prob = label[r_node]
     # the rows and columns of each component, numbered from 0
     r_number, n_r = _rank_within(label[:n_row_nodes], n_comp)
@@ -889,6 +884,55 @@ def assign_edges(problem, row, col, weight, n_rows: int, n_cols: int) -> np.ndar
                 ok = (index[r, c] >= 0) & (W[r, c] > 0)
                 chosen[index[r, c][ok]] = True
     return chosen
+
+
+#: edges up to which :func:`_bipartite_components` labels by propagation (beyond: scipy's search,
+#: whose fixed cost per call is above a small graph's whole work)
+PROPAGATION_MAX_EDGES = 1 << 12
+#: rounds of propagation before it leaves a long chain to scipy
+PROPAGATION_ROUNDS = 24
+
+
+def _bipartite_components(r_node, c_node, n_rows: int, n_cols: int):
+    """Connected components of the graph of rows 0…n_rows−1 and columns 0…n_cols−1 joined by the
+    edges (``r_node``, ``c_node``): their number and each node's (rows first, then columns),
+    numbered in the order of their smallest node.
+
+    A small graph is labelled by propagating the smallest node number along the edges, each
+    round followed by one pointer jump (label of the label), until nothing changes: a few
+    rounds where the components are a handful of nodes, as here. A larger one, or one that
+    has not settled after :data:`PROPAGATION_ROUNDS` rounds, goes to
+    ``scipy.sparse.csgraph.connected_components``; the partition is the same either way, and
+    the numbering (by smallest node) too.
+    """
+    nodes = n_rows + n_cols
+    a, b = np.asarray(r_node), n_rows + np.asarray(c_node)
+    if a.size <= PROPAGATION_MAX_EDGES:
+        label = np.arange(nodes)
+        for _ in range(PROPAGATION_ROUNDS):
+            low = np.minimum(label[a], label[b])
+            new = label.copy()
+            np.minimum.at(new, a, low)
+            np.minimum.at(new, b, low)
+            new = new[new]
+            if np.array_equal(new, label):
+                return _numbered(label, nodes)
+            label = new
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    graph = coo_matrix((np.ones(a.size, bool), (a, b)), shape=(nodes, nodes))
+    n_comp, label = connected_components(graph, directed=False)
+    # scipy numbers them as its search meets them: renumbered by their smallest node
+    smallest = np.full(n_comp, nodes, np.int64)
+    np.minimum.at(smallest, label, np.arange(nodes))
+    return _numbered(smallest[label], nodes)
+
+
+def _numbered(label, n: int):
+    """Labels (values below n) renumbered 0… in increasing order: their count and the labels."""
+    number, count = _compact(label, n)
+    return count, number
 
 
 def _compact(keys, n: int):

@@ -6,7 +6,9 @@
   the same distances, with absent rows, empty sets, pairs at the radius to the last bit,
   bearings wrapping at ±π and many problems in several blocks;
 * :func:`evaluators.life_tables.life_tables`, grouped with sorts and counts, against the
-  per-identity loop it replaced (kept below as the reference).
+  per-identity loop it replaced (kept below as the reference);
+* the identity helpers of :mod:`evaluators.set_distances` (numbering, radix orders, pair
+  counts, components by propagation) against numpy's and scipy's own.
 """
 
 from __future__ import annotations
@@ -373,3 +375,78 @@ def test_measures_on_gated_pairs_found_once_equal_their_own(seed, runs, scans, t
     siap_shared = siap_sums(positions, truths, gate, times, *ids, angular, pairs=pairs)
     for key, value in siap.items():
         assert siap_shared[key].tobytes() == value.tobytes(), key
+
+
+# ------------------------------------------------------------------ identity helpers
+
+
+def _global_identities_by_sorting(ids, present):
+    """The numbering of :func:`evaluators.set_distances.global_identities` from ``np.unique``."""
+    r, k, j = np.nonzero(present)
+    out = np.full(present.shape, -1, np.int64)
+    if r.size == 0:
+        return out, 0, np.zeros(0, np.int64)
+    pairs = np.stack([r, np.asarray(ids)[r, k, j]], axis=1)
+    uniq, inverse = np.unique(pairs, axis=0, return_inverse=True)
+    out[r, k, j] = inverse.ravel()
+    return out, len(uniq), uniq[:, 0]
+
+
+@settings(max_examples=200, deadline=None)
+@given(seed=st.integers(0, 2**16), runs=st.integers(1, 5), scans=st.integers(1, 8), slots=st.integers(1, 5),
+       top=st.sampled_from([1, 3, 100, 1 << 30]), density=st.floats(0.0, 1.0))
+def test_global_identities_equal_numbering_by_sorting(seed, runs, scans, slots, top, density):
+    rng = np.random.default_rng(seed)
+    ids = rng.integers(0, top, size=(runs, scans, slots))
+    present = rng.random(ids.shape) < density
+    got = set_distances.global_identities(ids, present)
+    want = _global_identities_by_sorting(ids, present)
+    np.testing.assert_array_equal(got[0], want[0])
+    assert got[1] == want[1]
+    np.testing.assert_array_equal(got[2], want[2])
+
+
+@pytest.mark.parametrize("top", [1, 7, 1 << 16, (1 << 16) + 1, 1 << 31, 1 << 40])
+def test_stable_order_is_numpys_stable_argsort(top):
+    keys = np.random.default_rng(top % 97).integers(0, top, size=5000)
+    np.testing.assert_array_equal(set_distances.stable_order(keys, top), np.argsort(keys, kind="stable"))
+
+
+def test_identity_pairs_are_the_unique_keys():
+    rng = np.random.default_rng(8)
+    runs, targets, tracks = 6, rng.integers(1, 30, 6), rng.integers(1, 300, 6)
+    first_run, second_run = np.repeat(np.arange(runs), targets), np.repeat(np.arange(runs), tracks)
+    event_run = rng.integers(0, runs, 4000)
+    first = np.cumsum(targets)[event_run] - 1 - rng.integers(0, targets[event_run])
+    second = np.cumsum(tracks)[event_run] - 1 - rng.integers(0, tracks[event_run])
+    pair_first, pair_second, inverse, count = set_distances.identity_pairs(first, second, first_run, second_run)
+    keys, want_inverse, want_count = np.unique(first * tracks.sum() + second, return_inverse=True, return_counts=True)
+    np.testing.assert_array_equal(pair_first * tracks.sum() + pair_second, keys)
+    np.testing.assert_array_equal(inverse, want_inverse)
+    np.testing.assert_array_equal(count, want_count)
+
+
+@pytest.mark.parametrize("edges,rows,cols,chain", [(0, 3, 3, False), (40, 30, 30, False), (3000, 2000, 2000, False),
+                                                   (6000, 3000, 3000, False), (200, 101, 101, True)])
+def test_components_by_propagation_are_scipys(monkeypatch, edges, rows, cols, chain):
+    """The same partition, numbered by smallest node, as scipy's connected_components: small
+    graphs, one over the propagation's edge limit and a chain longer than its rounds."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    rng = np.random.default_rng(edges)
+    if chain:   # row i – column i – row i+1 – …: one component as long as the graph, not settled in 2 rounds
+        monkeypatch.setattr(set_distances, "PROPAGATION_ROUNDS", 2)
+        a = np.concatenate([np.arange(rows - 1), np.arange(1, rows)])
+        b = np.concatenate([np.arange(rows - 1), np.arange(rows - 1)])
+    else:
+        a, b = rng.integers(0, rows, edges), rng.integers(0, cols, edges)
+    n, label = set_distances._bipartite_components(a, b, rows, cols)
+    graph = coo_matrix((np.ones(a.size, bool), (a, rows + b)), shape=(rows + cols,) * 2)
+    want_n, want = connected_components(graph, directed=False)
+    assert n == want_n
+    # the same partition, numbered in the order of each component's smallest node
+    first = np.unique(want, return_index=True)[1]
+    renumber = np.empty(want_n, np.int64)
+    renumber[np.argsort(first)] = np.arange(want_n)
+    np.testing.assert_array_equal(label, renumber[want])
