@@ -170,12 +170,16 @@ def convert_array_wav(src, dst, spacing_m: float, frequency_hz: float, sound_spe
     blocks = snaps[:, : K * snapshots_per_scan].reshape(M, K, snapshots_per_scan).transpose(1, 0, 2)
     if band_hz is None:
         band_hz = (bin_hz * (1.0 - BAND_RELATIVE), min(bin_hz * (1.0 + BAND_RELATIVE), fs / 2))
-    # the tracker needs N ≤ M − 1 and N ≤ Ns (the stage refuses more)
+    # the tracker needs N ≤ M − 1 and N ≤ Ns (the stage refuses more); a segment of the count is
+    # one scan (the trackers' sources stay put within a scan), or 2M frames if a scan is shorter
     counted = wideband_count.count_sources_in_band(
-        samples, fs, spacing_m / sound_speed_mps, band_hz, nfft, int(COUNT_SPAN_S * fs), COUNT_MIN_FRAMES * M,
-        max_sources=min(M - 1, snapshots_per_scan))
+        samples, fs, spacing_m / sound_speed_mps, band_hz, nfft, hop, max(snapshots_per_scan, COUNT_MIN_FRAMES * M),
+        int(COUNT_SPAN_S * fs), max_sources=min(M - 1, snapshots_per_scan))
     scan_period_s = snapshots_per_scan * hop / fs
-    data = SimulatedData(times=np.arange(K) * scan_period_s,
+    # a scan's time stamp is the centre of its frames (the mean of the frame centres): the instant
+    # its snapshots describe as a whole, and the one the trackers' filters refer to
+    first_centre_s = ((snapshots_per_scan - 1) * hop + nfft) / (2.0 * fs)
+    data = SimulatedData(times=np.arange(K) * scan_period_s + first_centre_s,
                          fixed={SNAPSHOTS_TOPIC: {"snapshots": blocks[None].astype(snapshot_dtype)}})
     params = {"source_wav": Path(src).name, "sample_rate_hz": fs, "frequency_hz": float(bin_hz),
               "spacing_m": float(spacing_m), "sound_speed_mps": float(sound_speed_mps), "nfft": int(nfft),
@@ -183,15 +187,19 @@ def convert_array_wav(src, dst, spacing_m: float, frequency_hz: float, sound_spe
               "spacing_wavelengths": float(spacing_wavelengths), "scan_period_s": float(scan_period_s),
               "bearing_positive_toward": f"{positive_toward} channel", "unambiguous_field_deg": unambiguous_deg,
               # the trackers' own parameter: a replay follows this many sources unless --set overrides it
-              "n_sources": int(counted.count), "source_count_method": "wideband MDL over the band",
-              "source_count_band_hz": [counted.band_hz[0], counted.band_hz[1]], "source_count_nfft": counted.nfft,
-              "source_count_bins": counted.n_bins, "source_count_frames": counted.n_frames,
-              "source_count_effective_snapshots": counted.effective_snapshots,
-              "source_count_dynamic_range_db": float(10 * np.log10(max(counted.dynamic_range, 1.0))),
+              "n_sources": int(counted.count),
+              # the frames are a continuous timeline stamped at each scan's centre, and PAST's memory
+              # reaches back before it: the trackers measure each bearing at the instant it describes
+              "align_subspace_instant": True,
+              "source_count_method": "distinct directions of the band's MDL signal subspace, per scan, the most common",
+              "source_count_band_hz": [counted.band_hz[0], counted.band_hz[1]], "source_count_bins": counted.n_bins,
+              "source_count_frames": counted.n_frames, "source_count_effective_snapshots": counted.effective_snapshots,
+              "source_count_per_segment": [int(c) for c in counted.segment_counts],
+              "source_count_dimensions": [int(k) for k in counted.dimensions],
               "source_count_leakage_db": float(10 * np.log10(counted.leakage_endfire))}
     n = write_simulated(dst, data, scenario_metadata("array-wav", params, 0))
     return {"messages": n, "scans": K, "sensors": M, "bin_hz": bin_hz,
             "spacing_wavelengths": spacing_wavelengths, "scan_period_s": scan_period_s,
             "unambiguous_field_deg": unambiguous_deg, "n_sources": int(counted.count),
-            "count_band_hz": counted.band_hz, "count_nfft": counted.nfft, "count_bins": counted.n_bins,
-            "count_frames": counted.n_frames, "count_leakage_db": float(10 * np.log10(counted.leakage_endfire))}
+            "count_band_hz": counted.band_hz, "count_bins": counted.n_bins, "count_frames": counted.n_frames,
+            "count_segments": int(counted.segment_counts.size), "count_dimensions": counted.dimensions, "count_leakage_db": float(10 * np.log10(counted.leakage_endfire))}

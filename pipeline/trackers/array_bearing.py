@@ -62,7 +62,8 @@ from pipeline import vocabulary as vocab
 from pipeline.cores.array.angular_innovation import INNOVATIONS, counted_flops
 from pipeline.cores.array.flop_counts import ANALYTIC
 from pipeline.cores.array.music import angle_grid, eigen_decomposition, music_spectrum, pick_peaks, sample_covariance, source_count
-from pipeline.cores.array.past_subspace import batch_signal_subspace, initial_state, largest_principal_angle, past_scans
+from pipeline.cores.array.past_subspace import (batch_signal_subspace, initial_state, largest_principal_angle, past_scans,
+                                                subspace_instant_offset)
 from pipeline.cores.association.track_management import EndingRule, TrackLife
 from pipeline.cores.filters.kalman import apply_gain, continuous_white_noise_model, kalman_gain, kf_predict, two_point_start
 from pipeline.errors import InputError
@@ -108,6 +109,12 @@ class SubspaceTrackerDesign:
         in a row is deleted; 0: never. A track whose bearing leaves the field
         (:attr:`field_rad`) is always deleted
         (:mod:`pipeline.cores.association.track_management`).
+    align_subspace_instant : bool
+        Measure each scan's bearing at the instant its subspace describes
+        (:func:`pipeline.cores.array.past_subspace.subspace_instant_offset`: PAST's memory reaches
+        back 0.59 T before the scan's time stamp at β = 0.97), not at the time stamp. False (the
+        default) is the paper as printed, whose tracks trail a moving source by θ̇ times that
+        offset; a converted WAV recording records True (``recorders/wav_array.py``).
     """
 
     spacing_wavelengths: float = 0.5
@@ -120,6 +127,7 @@ class SubspaceTrackerDesign:
     grid_step_rad: float = np.deg2rad(0.1)
     subspace: str = "past"
     max_coasted_scans: int = 3
+    align_subspace_instant: bool = False
 
     @property
     def field_rad(self) -> float:
@@ -327,8 +335,14 @@ def _innovation_in_blocks(innovation_fn, W: np.ndarray, theta_pred: np.ndarray, 
     return out
 
 
-def _track_group(subspaces, theta_minus1, theta_0, design: SubspaceTrackerDesign, strategy: str) -> dict:
-    """Steps 3–5 for a group of runs with the same number of tracks ``n`` (outputs (B, K, n, ...))."""
+def _track_group(subspaces, theta_minus1, theta_0, design: SubspaceTrackerDesign, strategy: str,
+                 instant_offset_s: np.ndarray | None = None) -> dict:
+    """Steps 3–5 for a group of runs with the same number of tracks ``n`` (outputs (B, K, n, ...)).
+
+    ``instant_offset_s`` (K,) δ_k: scan k's subspace describes the scene δ_k after its time
+    stamp, so the bearing it gives is θ + δ_k θ̇ (``H = [1, δ_k]``), and the angular innovation
+    is taken about that prediction; None is the paper's ``H = [1, 0]``.
+    """
     B, K, M, n = subspaces.shape
     F, Q, H, R = design.model()
     innovation_fn = INNOVATIONS[strategy]
@@ -352,7 +366,11 @@ def _track_group(subspaces, theta_minus1, theta_0, design: SubspaceTrackerDesign
     for k in range(STARTUP_SCANS, K):
         x, P = kf_predict(x, P, F, Q)
         out["predicted_rad"][:, k] = x[..., 0]
-        dtheta = _innovation_in_blocks(innovation_fn, subspaces[:, k], x[..., 0], design.spacing_wavelengths)
+        measured_at = x[..., 0]
+        if instant_offset_s is not None:
+            H = np.array([[1.0, float(instant_offset_s[k])]])
+            measured_at = x[..., 0] + instant_offset_s[k] * x[..., 1]
+        dtheta = _innovation_in_blocks(innovation_fn, subspaces[:, k], measured_at, design.spacing_wavelengths)
         gain, S = kalman_gain(P, H, R)
         ok = np.isfinite(dtheta)
         x_new, P_new = apply_gain(x, P, gain, np.where(ok, dtheta, 0.0)[..., None], H, R)
@@ -425,8 +443,11 @@ def track_bearings(snapshots: np.ndarray, design: SubspaceTrackerDesign, strateg
     }
     flops = {key: np.full((B, K), nan) for key in ("innovation_flops_model", "innovation_flops_counted",
                                                    "steering_flops_counted")}
+    offset = (subspace_instant_offset(design.subspace, design.forgetting, design.scan_period_s, Ns, K)
+              if design.align_subspace_instant else None)
     for sel, n, subspaces in fe.groups:
-        part = _track_group(subspaces, fe.start.theta_minus1[sel, :n], fe.start.theta_0[sel, :n], design, strategy)
+        part = _track_group(subspaces, fe.start.theta_minus1[sel, :n], fe.start.theta_0[sel, :n], design, strategy,
+                            offset)
         if whole:
             out = part
         else:
@@ -466,6 +487,9 @@ PARAMS = (
     Param("subspace_tracker", None, "", "past (the paper) | batch (per-scan EVD, reference)"),
     Param("max_coasted_scans", 3, "scans", "a track without a usable innovation this many scans in a row is deleted "
           "(0: never; a track whose bearing leaves the field is always deleted)", low=-1),
+    Param("align_subspace_instant", False, "", "measure each bearing at the instant the scan's subspace describes "
+          "(PAST's memory reaches back before the scan's time stamp); false: the paper as printed (a WAV "
+          "recording's conversion records true)"),
 )
 
 
@@ -502,7 +526,7 @@ class _AngularInnovationTracker(Tracker):
             innovation_variance=float(self.innovation_variance_deg2) * deg2, forgetting=float(self.past_forgetting),
             source_count=str(self.source_count_criterion).lower(), n_sources=int(self.n_sources),
             grid_step_rad=np.deg2rad(float(self.music_grid_step_deg)), subspace=str(self.subspace_tracker),
-            max_coasted_scans=int(self.max_coasted_scans))
+            max_coasted_scans=int(self.max_coasted_scans), align_subspace_instant=bool(self.align_subspace_instant))
 
     def track(self, snapshots: ArraySnapshots) -> dict:
         design = dataclasses.replace(self.tracker_design, spacing_wavelengths=float(snapshots.spacing_wavelengths))

@@ -198,3 +198,41 @@ def largest_principal_angle(A: np.ndarray, B: np.ndarray, b_orthonormal: bool = 
         cos = np.where(wide, 0.0, cos)  # a new array (also for a single pair)
         cos[wide] = np.linalg.svd(cross[wide], compute_uv=False)[..., -1]
     return np.arctan2(np.sqrt(sin2), cos)
+
+
+def subspace_instant_offset(subspace: str, forgetting: float, scan_period_s: float, snapshots_per_scan: int,
+                            n_scans: int) -> np.ndarray:
+    """When, relative to its scan's time stamp, each scan's subspace estimate describes the scene (s).
+
+    A scan's time stamp is the centre of its snapshots, which are ``T / Ns`` apart. The batch
+    EVD weighs the scan's snapshots equally: it describes the centre (offset 0). PAST at the end
+    of a scan weighs the snapshot i steps before the last by (1 − β) βⁱ (Yang 1995's
+    exponentially weighted correlation), and the EVD of scan 0 it starts from (:func:`initial_state`,
+    run from scan 1 on) by what is left, β^n after n snapshots. The mean age of the weights is
+
+        m = (1 − β) Σ_{i<n} i βⁱ + βⁿ (n + (Ns − 1)/2),
+
+    which tends to β / (1 − β) snapshots (32.3 at β = 0.97); the scan's centre is
+    ``(Ns − 1)/2`` snapshots before its last, so PAST describes the scene
+    ``(T / Ns) · (m − (Ns − 1)/2)`` before the time stamp (0.59 T at β = 0.97, Ns = 30, once
+    the start is forgotten). A source moving at θ̇ is trailed by θ̇ times that, unless the
+    filters measure θ at that instant (``docs/papers/array-bearing.md``, "PAST lags"). Scans 0
+    and 1 are the start-up's per-scan EVDs (offset 0). Without forgetting (β = 1) the memory
+    has no fixed age: 0 throughout.
+
+    Returns
+    -------
+    ndarray, shape (n_scans,)
+        The offset δ of each scan (s, negative: earlier than the time stamp).
+    """
+    out = np.zeros(int(n_scans))
+    if subspace == "batch" or forgetting >= 1.0 or n_scans <= 2:
+        return out
+    beta, Ns = float(forgetting), int(snapshots_per_scan)
+    n = Ns * np.arange(1, int(n_scans))  # snapshots PAST has run over at the end of scans 1, 2, …
+    # (1 − β) Σ_{i<n} i βⁱ in closed form: β (1 − βⁿ) / (1 − β) − n βⁿ
+    decayed = beta ** n
+    mean_age = beta * (1.0 - decayed) / (1.0 - beta) - n * decayed + decayed * (n + (Ns - 1) / 2.0)
+    out[1:] = -float(scan_period_s) / Ns * (mean_age - (Ns - 1) / 2.0)
+    out[:2] = 0.0  # the start-up's scans: per-scan EVDs
+    return out

@@ -49,9 +49,7 @@ import numpy as np
 
 from pipeline.cores.array.music import information_criterion
 
-# the spread eigenvalue the count window is sized for, relative to the noise: a tenth of it is
-# far below what MDL can tell from the noise eigenvalues (their sampling spread is larger)
-DEFAULT_MARGIN = 0.1
+DIRECTION_GRID_POINTS = 1801  # 0.1° steps over the half-plane for the directions of the count
 
 
 def hann_window(nfft: int) -> np.ndarray:
@@ -138,27 +136,6 @@ def bin_leakage_ratio(n_sensors: int, sensor_delay_s: float, window_s: float) ->
     return float(beta2 * sensor_delay_s ** 2 * (n_sensors ** 2 - 1) / 12.0)
 
 
-def count_window_length(n_sensors: int, sensor_delay_s: float, sample_rate_hz: float, n_samples: int,
-                        min_nfft: int, min_frames: int, leakage: float) -> int:
-    """Window length (samples, a power of two ≥ ``min_nfft``) of the count's STFT.
-
-    The shortest with :func:`bin_leakage_ratio` at endfire ≤ ``leakage``, shortened (not below
-    ``min_nfft``) until the recording holds ``min_frames`` frames at 50 % overlap: the per-bin
-    covariances need more snapshots than sensors.
-    """
-    # ratio ∝ 1 / T_w²: the duration that meets the target, then the next power of two
-    needed_s = window_s_for(n_sensors, sensor_delay_s, leakage)
-    nfft = max(int(min_nfft), 1 << int(np.ceil(np.log2(max(needed_s * sample_rate_hz, 1.0)))))
-    while nfft > min_nfft and frame_count(n_samples, nfft, nfft // 2) < min_frames:
-        nfft = max(int(min_nfft), nfft // 2)
-    return nfft
-
-
-def window_s_for(n_sensors: int, sensor_delay_s: float, leakage: float) -> float:
-    """Hann duration whose :func:`bin_leakage_ratio` equals ``leakage`` (inverse of it)."""
-    return float(np.sqrt(bin_leakage_ratio(n_sensors, sensor_delay_s, 1.0) / leakage))
-
-
 def band_source_count(covariances: np.ndarray, n_snapshots: float, criterion: str = "mdl",
                       max_sources: int | None = None):
     """Source count of a band: the k minimising the sum over its bins of the per-bin criterion.
@@ -186,19 +163,82 @@ def band_source_count(covariances: np.ndarray, n_snapshots: float, criterion: st
     return int(np.argmin(scores)), scores
 
 
+def band_null_spectrum(covariances: np.ndarray, dimension: int, spacing_wavelengths, grid: np.ndarray) -> np.ndarray:
+    """Share of each direction's steering vector outside the band's signal subspaces.
+
+    ``Q(θ) = (1/J) Σ_j ‖(I − E_j E_jᴴ) a_j(θ)‖² / M``, E_j the ``dimension`` leading
+    eigenvectors of bin j's covariance and a_j the steering vector at bin j's own electrical
+    spacing (the incoherent wideband MUSIC of Wax, Shan & Kailath 1984, normalised to [0, 1]):
+    0 where a direction lies in every bin's signal subspace, 1 where it is orthogonal to all.
+
+    Parameters
+    ----------
+    covariances : ndarray, complex, shape (J, M, M)
+        Per-bin covariances in the trackers' convention (a(θ) = exp(j κ m sin θ)).
+    dimension : int
+        Signal-subspace dimension k (≥ 1).
+    spacing_wavelengths : array_like, shape (J,)
+        d/λ at each bin's frequency.
+    grid : ndarray, shape (G,)
+        Directions (rad from broadside).
+
+    Returns
+    -------
+    ndarray, shape (G,)
+    """
+    from pipeline.cores.array.linear_array import steering_vectors
+
+    J, M, _ = covariances.shape
+    vectors = np.linalg.eigh(covariances)[1][..., ::-1][..., :dimension]  # (J, M, k), leading first
+    spacing = np.broadcast_to(np.asarray(spacing_wavelengths, float), (J,))
+    inside = np.zeros(np.shape(grid))
+    for j in range(J):
+        a = steering_vectors(grid[None, :], M, spacing[j])[0]  # (M, G)
+        inside += np.sum(np.abs(np.conj(vectors[j]).T @ a) ** 2, axis=0)
+    return 1.0 - inside / (J * M)
+
+
+def distinct_directions(null_spectrum: np.ndarray, grid: np.ndarray, dimension: int, n_sensors: int) -> np.ndarray:
+    """Directions of the sources a band's signal subspace holds: one per separate dip of
+    :func:`band_null_spectrum` below half the value a direction unrelated to the signals has.
+
+    A direction picked at random leaves ``(M − k)/M`` of its steering vector's energy outside a
+    k-dimensional subspace of C^M; a source's direction leaves almost none. The grid points
+    below half of ``(M − k)/M`` form runs, and each run is one source, at its deepest point.
+    What this is for: the signal subspace of wideband or moving sources has more dimensions than
+    there are sources (each spreads into the derivatives of its steering vector,
+    ``docs/papers/array-bearing.md``), but those dimensions lie along the steering vectors near
+    the source, so they widen and flatten its dip instead of adding one (a flat bottom may ripple
+    into several local minima: they are one run); a dimension of noise taken for a signal points
+    elsewhere in every bin and averages out over the band. Two sources whose dips merge (closer
+    than about a beamwidth) count as one.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        The directions (rad, ascending).
+    """
+    q = np.asarray(null_spectrum, float)
+    below = np.concatenate([[False], q < 0.5 * (n_sensors - dimension) / n_sensors, [False]])
+    edges = np.flatnonzero(np.diff(below.astype(np.int8)))  # starts and ends of the runs, alternately
+    runs = edges.reshape(-1, 2)
+    return np.asarray([grid[a + int(np.argmin(q[a:b]))] for a, b in runs], dtype=float)
+
+
 @dataclass(frozen=True)
 class BandCount:
     """What :func:`count_sources_in_band` found and how."""
 
-    count: int
+    count: int  # the most common count over the segments
     band_hz: tuple  # centres of the first and last bin used
-    nfft: int  # the count window (samples)
+    nfft: int  # the window (samples)
     n_bins: int
-    n_frames: int
-    effective_snapshots: float
-    dynamic_range: float  # median over the band of λ_max / λ_min at the tracked resolution
-    leakage_endfire: float  # predicted in-bin eigenvalue ratio at endfire for the count window
-    scores: np.ndarray  # per-bin mean criterion per k
+    n_frames: int  # frames per segment
+    effective_snapshots: float  # per segment
+    segment_counts: np.ndarray  # (S,) distinct directions per segment
+    dimensions: np.ndarray  # (S,) signal-subspace dimension per segment by the band's MDL (≥ count)
+    directions_rad: np.ndarray  # the first segment's directions (ascending)
+    leakage_endfire: float  # predicted in-bin eigenvalue ratio at endfire for the window
 
 
 def _bins(band_hz, sample_rate_hz: float, nfft: int) -> np.ndarray:
@@ -213,62 +253,78 @@ def _bins(band_hz, sample_rate_hz: float, nfft: int) -> np.ndarray:
     return bins
 
 
+def segment_count(covariances: np.ndarray, n_snapshots: float, bin_spacing_wavelengths, criterion: str = "mdl"):
+    """Sources seen by one segment: the band's MDL dimension k, then the distinct directions of
+    its k-dimensional signal subspaces (:func:`band_null_spectrum`, :func:`distinct_directions`).
+
+    ``covariances`` (J, M, M) in the trackers' convention; returns ``(k, directions_rad)``.
+    """
+    M = covariances.shape[-1]
+    dimension, _ = band_source_count(covariances, n_snapshots, criterion, M - 1)
+    if dimension == 0:
+        return 0, np.empty(0)
+    grid = np.linspace(-np.pi / 2, np.pi / 2, DIRECTION_GRID_POINTS)
+    null = band_null_spectrum(covariances, dimension, bin_spacing_wavelengths, grid)
+    return dimension, distinct_directions(null, grid, dimension, M)
+
+
 def count_sources_in_band(samples: np.ndarray, sample_rate_hz: float, sensor_delay_s: float, band_hz,
-                          min_nfft: int, span_samples: int, min_frames: int, criterion: str = "mdl",
-                          max_sources: int | None = None, margin: float = DEFAULT_MARGIN) -> BandCount:
+                          nfft: int, hop: int, segment_frames: int, span_samples: int,
+                          criterion: str = "mdl", max_sources: int | None = None) -> BandCount:
     """Count the sources of a multichannel recording over a band (the module's method, end to end).
 
-    1. A pilot at the tracked resolution (``min_nfft``) measures how far the strongest source
-       stands above the noise: r = median over the band's bins of λ_max / λ_min.
-    2. The count window is the shortest power of two ≥ ``min_nfft`` whose predicted spread
-       (:func:`bin_leakage_ratio` at endfire) puts the spread eigenvalue at most ``margin`` times
-       the noise: ratio · r ≤ margin (:func:`count_window_length`). Weak sources keep the short
-       window and its many snapshots; strong ones get the resolution they need.
-    3. The band's MDL (:func:`band_source_count`) over the frames of the first ``span_samples``
-       (extended to ``min_frames`` frames if the window needs it and the recording has them).
+    The recording's first ``span_samples`` are cut into segments of ``segment_frames`` frames of
+    the tracked STFT (window ``nfft``, hop ``hop``): over one segment the sources are taken to
+    stay put, as the trackers take them within a scan. In every segment, :func:`segment_count`
+    over every bin of the band; the count is the one most segments give (the smaller on a tie).
 
     Parameters
     ----------
     samples : ndarray, shape (n_samples, M)
-        The sensors in order along the line.
+        The sensors in order along the line, the reference (the one a positive bearing's wave
+        reaches last) first.
     sample_rate_hz : float
     sensor_delay_s : float
-        d / c, the largest delay between adjacent sensors (endfire).
+        d / c, the delay between adjacent sensors at endfire (d/λ at f is f · d / c).
     band_hz : (float, float)
         The band; every bin of the STFT inside it is used (the nearest one to its centre if
         none is).
-    min_nfft : int
-        The tracked STFT's window: the pilot's and the shortest count window.
+    nfft, hop : int
+        The tracked STFT's window and hop.
+    segment_frames : int
+        Frames per segment (more than M).
     span_samples : int
-        Samples from the start over which the sources are taken to stay put.
-    min_frames : int
-        Frames the count window should leave (more than M).
+        Samples from the start that are cut into segments (one segment at least, when the
+        recording holds it).
     criterion : {"mdl", "aic"}
     max_sources : int, optional
-        Largest count considered (default M − 1).
-    margin : float
-        Largest predicted spread eigenvalue, relative to the noise.
+        Largest count reported (default M − 1).
 
     Returns
     -------
     BandCount
     """
     n, M = samples.shape
-    head = samples[: max(int(span_samples), min_nfft)]
-    pilot_bins = _bins(band_hz, sample_rate_hz, min_nfft)
-    pilot, _ = band_covariances(head, min_nfft, min_nfft // 2, pilot_bins)
-    lam = np.linalg.eigvalsh(pilot)
-    dynamic = float(np.median(lam[:, -1] / np.maximum(lam[:, 0], np.finfo(float).tiny)))
-    nfft = count_window_length(M, sensor_delay_s, sample_rate_hz, n, min_nfft, min_frames, margin / max(dynamic, 1.0))
-    hop = nfft // 2
-    frames = max(frame_count(head.shape[0], nfft, hop), min(int(min_frames), frame_count(n, nfft, hop)))
     bins = _bins(band_hz, sample_rate_hz, nfft)
-    cov, frames = band_covariances(samples, nfft, hop, bins, frames)
-    n_eff = effective_snapshots(frames, nfft, hop)
-    kmax = M - 1 if max_sources is None else int(max_sources)
-    count, scores = band_source_count(cov, n_eff, criterion, min(kmax, frames - 1))
     width = sample_rate_hz / nfft
-    return BandCount(count=count, band_hz=(float(bins[0] * width), float(bins[-1] * width)), nfft=nfft,
-                     n_bins=int(bins.size), n_frames=int(frames), effective_snapshots=float(n_eff),
-                     dynamic_range=dynamic, leakage_endfire=bin_leakage_ratio(M, sensor_delay_s, nfft / sample_rate_hz),
-                     scores=scores)
+    spacing = sensor_delay_s * bins * width
+    frames = min(frame_count(n, nfft, hop), max(frame_count(min(n, int(span_samples)), nfft, hop), segment_frames))
+    X = np.conj(stft_at_bins(samples, nfft, hop, bins, frames))  # the trackers' exp(+jωτ)
+    per_segment = max(1, min(int(segment_frames), frames))
+    n_eff = effective_snapshots(per_segment, nfft, hop)
+    counts, dimensions, first = [], [], None
+    for start in range(0, max(frames - per_segment, 0) + 1, per_segment):
+        part = X[start:start + per_segment]
+        cov = np.einsum("kmj,knj->jmn", part, np.conj(part)) / per_segment
+        dimension, directions = segment_count(cov, n_eff, spacing, criterion)
+        counts.append(directions.size)
+        dimensions.append(dimension)
+        first = directions if first is None else first
+    counts = np.asarray(counts)
+    kmax = M - 1 if max_sources is None else int(max_sources)
+    values, votes = np.unique(counts, return_counts=True)
+    count = min(int(values[np.argmax(votes)]), kmax)  # argmax: the first, smallest, of the ties
+    return BandCount(count=count, band_hz=(float(bins[0] * width), float(bins[-1] * width)), nfft=int(nfft),
+                     n_bins=int(bins.size), n_frames=int(per_segment), effective_snapshots=float(n_eff),
+                     segment_counts=counts, dimensions=np.asarray(dimensions), directions_rad=first,
+                     leakage_endfire=bin_leakage_ratio(M, sensor_delay_s, nfft / sample_rate_hz))
