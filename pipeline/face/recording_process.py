@@ -135,10 +135,22 @@ class RecordingProcess:
             self._child.stdin.close()
         except OSError:  # the child has gone: its status and message say why
             pass
-        if self._child.wait() != 0:
+        try:  # a watchdog: a child that stalls (a writer waiting on a full disk) is not waited for forever
+            status = self._child.wait(timeout=RECORDING_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            from pipeline.paths import stalled_writer_error
+
+            self.close()
+            raise stalled_writer_error(rrd_path, f"the recording process did not finish within "
+                                                 f"{RECORDING_TIMEOUT_S:g} s") from None
+        if status != 0:
             self._errors.seek(0)
-            said = [line[len(_MESSAGE):] for line in self._errors.read().decode(errors="replace").splitlines()
-                    if line.startswith(_MESSAGE)]
+            lines = self._errors.read().decode(errors="replace").splitlines()
+            failed = [line[len(_DISK):].split("\t", 2) for line in lines if line.startswith(_DISK)]
+            if failed:  # the file system's answer, raised as such: it names the file
+                number, filename, problem = failed[-1]
+                raise OSError(int(number) if number.lstrip("-").isdigit() else None, problem, filename)
+            said = [line[len(_MESSAGE):] for line in lines if line.startswith(_MESSAGE)]
             if said:
                 raise InputError(said[-1])
             raise InputError(f"the Rerun recording was not written (its process ended with status "
@@ -163,8 +175,15 @@ class RecordingProcess:
 
 #: How long :meth:`RecordingProcess.close` gives the child to clean up before it is killed.
 STOP_SECONDS = 5.0
+#: The longest the replay waits for the child once it has its payload (it draws a small
+#: replay's recording in about a second; its own writer calls are bounded tighter, see
+#: ``pipeline/face/timeline.py``): beyond it the child is stopped and the replay fails naming
+#: the recording, instead of waiting forever.
+RECORDING_TIMEOUT_S = float(os.environ.get("TRACKREPLAY_RECORDING_TIMEOUT_S", "300"))
 #: What starts the line a child writes for the user (anything else on its stderr is not for them).
 _MESSAGE = "replay-recording: "
+#: What starts the line a child writes for a file-system failure: errno, file, problem (tab-separated).
+_DISK = "replay-recording-oserror: "
 
 
 def _record(data_path: str, recover: bool) -> None:
@@ -215,10 +234,22 @@ def main() -> None:
     except InputError as exc:
         print(f"{_MESSAGE}{exc}", file=sys.stderr)
         sys.exit(1)
-    except OSError as exc:  # the file system's answer, as the command line words it
-        where = f"{exc.filename}: " if exc.filename else ""
-        print(f"{_MESSAGE}{where}{exc.strerror or exc}", file=sys.stderr)
-        sys.exit(1)
+    except OSError as exc:  # the file system's answer: the replay raises it as its own
+        if exc.filename is None:
+            print(f"{_MESSAGE}{exc.strerror or exc}", file=sys.stderr)
+        else:
+            print(f"{_DISK}{exc.errno}\t{exc.filename}\t{exc.strerror or exc}", file=sys.stderr)
+        _exit(1)
     except Exception as exc:  # a bug of ours: one line, naming what failed
         print(f"{_MESSAGE}the Rerun recording was not written: {type(exc).__name__}: {exc}", file=sys.stderr)
-        sys.exit(1)
+        _exit(1)
+
+
+def _exit(status: int) -> None:
+    """End the child; at once when a Rerun writer thread stalled (a normal exit would wait for it)."""
+    from pipeline import paths
+
+    if paths.STALLED_WRITERS:
+        sys.stderr.flush()
+        os._exit(status)
+    sys.exit(status)

@@ -171,17 +171,34 @@ def north_up_bounds(lo, hi, pad: float):
 @contextmanager
 def recording(path: str | Path, app_id: str, recording_id: str, blueprint=None):
     """A recording stream saved to ``path`` atomically when the block ends without error."""
+    from pipeline.paths import bounded_call, disk_error
+
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    rec = rr.RecordingStream(app_id, recording_id=recording_id, send_properties=False)
+    tmp = None
     try:
-        rec.save(tmp, default_blueprint=blueprint)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+        os.close(fd)
+        rec = rr.RecordingStream(app_id, recording_id=recording_id, send_properties=False)
+        # Rerun's file sink writes in a thread of its own and, on a full disk, can stall in
+        # save() or flush() instead of failing: both are bounded, and the failure names the file
+        bounded_call(lambda: rec.save(tmp, default_blueprint=blueprint), WRITER_TIMEOUT_S, path, "Rerun's save")
         yield rec
-        rec.flush()
-        rec.disconnect()
+        rec.flush(timeout_sec=WRITER_TIMEOUT_S)
+        bounded_call(rec.disconnect, WRITER_TIMEOUT_S, path, "Rerun's disconnect")
         publish(tmp, path)
+    except BaseException as exc:
+        if isinstance(exc, OSError) and "did not return within" in str(exc):
+            rr.unregister_shutdown()  # its flush at exit would wait on the stalled sink forever
+        named = disk_error(exc, path)
+        if named is not None:
+            raise named from None
+        raise
     finally:
-        if os.path.exists(tmp):
+        if tmp is not None and os.path.exists(tmp):
             os.unlink(tmp)
+
+
+#: The longest a Rerun file-sink call may take before the recording counts as failed (a
+#: recording of a large replay flushes in seconds; a stalled one never returns).
+WRITER_TIMEOUT_S = float(os.environ.get("TRACKREPLAY_RERUN_WRITER_TIMEOUT_S", "60"))
