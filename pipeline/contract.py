@@ -806,18 +806,26 @@ def atomic_output(path: str | Path, mode: str = "wb"):
 
     A crash or an exception leaves any existing ``path`` untouched and removes the temporary.
     """
+    from pipeline.paths import disk_error
+
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+    except OSError as exc:  # a read-only or full disk: the output is named, not its temporary
+        raise (disk_error(exc, path) or exc) from None
     try:
         with os.fdopen(fd, mode) as f:
             yield f
             f.flush()
             os.fsync(f.fileno())
         publish(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         if os.path.exists(tmp):
             os.unlink(tmp)
+        named = disk_error(exc, path)  # a writer of an open file reports a full disk without a name
+        if named is not None:
+            raise named from None
         raise
 
 

@@ -23,6 +23,9 @@ from pathlib import Path
 # on 500 coloured-noise or 10 radar runs (docs/benchmarks.md). numpy reads this when it is first
 # imported, which the command line does lazily, after this line; a value the user set stands.
 os.environ.setdefault("NUMPY_MADVISE_HUGEPAGE", "0")
+# the Rerun SDK logs its own failures (a full disk, say) as lines on stderr; they reach the user
+# as the one line naming the file (pipeline.paths.disk_error), so its log stays off unless asked
+os.environ.setdefault("RUST_LOG", "off")
 
 import click
 
@@ -714,6 +717,11 @@ def _draw_figures_in_background(data: Path, tracks: Path, recover: bool) -> None
                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
 
 
+def _say(line: str) -> None:
+    """A one-line note of an output set (leftovers of an interrupted run removed, files kept), on stderr."""
+    _echo_wrapped(f"replay: note: {line}", err=True)
+
+
 def _echo_wrapped(text: str, indent: str = "", err: bool = False) -> None:
     """``text`` wrapped at :data:`TABLE_WIDTH` columns (paths are never broken)."""
     import textwrap
@@ -885,7 +893,8 @@ def _run(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, sets
     # every output is staged and moved into place at the end: a crash or a kill leaves the
     # previous set untouched, never a mix (a recording elsewhere than the folder is one atomic file)
     rrd_inside = rrd_path is not None and rrd_path.parent.resolve() == out_dir.resolve()
-    with OutputSet(out_dir, replaces=[out_path.with_suffix(".rrd").name, *REPORT_FILES], inputs=[data]) as outputs, \
+    with OutputSet(out_dir, replaces=[out_path.with_suffix(".rrd").name, *REPORT_FILES], inputs=[data, map_path],
+                   name="replay", say=_say) as outputs, \
             contextlib.closing(recorder) if recorder else contextlib.nullcontext():  # stopped before the set goes
         staged_rrd = outputs.path(rrd_path.name) if rrd_inside else rrd_path
         with progress.Phases(f"replaying {data.name}", ("filter", "evaluate", "write", "rerun")) as phases:
@@ -1174,8 +1183,16 @@ def plot_cmd(data, outputs, recover):
 
     refuse_input_overwrite([data, outputs], [outputs.parent / n for n in REPORT_FILES if n.endswith(".png")])
     res = replay_of_files(data, outputs, recover=recover)
+    from pipeline.paths import link_into_set, set_version_folder
+
+    # outputs of a published set (links into its version folder): the figures join that set
+    version = set_version_folder(outputs)
     with progress.timed("plots"):
-        plots = _report_plot(res, outputs.parent)
+        plots = _report_plot(res, version or outputs.parent)
+    if version is not None:
+        for p in plots:
+            link_into_set(outputs, p.name)
+        plots = [outputs.parent / p.name for p in plots]
     _list_outputs(outputs.parent, [("plots", plots)])
 
 
