@@ -334,6 +334,10 @@ MIN_BLOCK_SCANS = 4
 #: Run-scans per block: bounds the block's temporaries (a few dozen arrays of this size) at any
 #: number of runs.
 BLOCK_RUN_SCANS = 1 << 18
+#: Blocks are for few runs: beyond this many the scan loop's own calls are already over arrays long
+#: enough to pay for themselves, and at 500 runs a block measured a third slower than the loop
+#: (its temporaries no longer fit in the cache; docs/benchmarks.md).
+BLOCK_MAX_RUNS = 256
 
 
 def _steady_stretches(counts):
@@ -449,9 +453,10 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
         One of :data:`STRATEGIES`.
     scan_blocks : bool
         Take stretches of steady scans (every run has a confirmed track and one plot a scan, no
-        gate) as blocks (:func:`_steady_block`): the same outputs, to the bit, with a few NumPy
-        calls per block instead of a few hundred per scan (``docs/benchmarks.md``). False: scan by
-        scan throughout (the reference form the tests hold the blocks to).
+        gate) as blocks (:func:`_steady_block`) when the runs are few (at most
+        :data:`BLOCK_MAX_RUNS`): the same outputs, to the bit, with a few NumPy calls per block
+        instead of a few hundred per scan (``docs/benchmarks.md``). False: scan by scan throughout
+        (the reference form the tests hold the blocks to).
 
     Returns
     -------
@@ -497,8 +502,8 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
     # stretches of scans where nothing decided depends on the states go as blocks (_steady_block):
     # no gate, one plot a scan at most (so none is chosen by distance), an ending rule that only
     # counts coasted scans
-    blocks = (scan_blocks and not gated and plot_range.shape[2] == 1 and design.ending.field is None
-              and not np.isfinite(design.ending.max_position_variance))
+    blocks = (scan_blocks and n_runs <= BLOCK_MAX_RUNS and not gated and plot_range.shape[2] == 1
+              and design.ending.field is None and not np.isfinite(design.ending.max_position_variance))
     stretch = _steady_stretches(counts) if blocks else None
     longest = max(MIN_BLOCK_SCANS, BLOCK_RUN_SCANS // max(n_runs, 1))
     out = dict(state=state, cov=cov, alpha=alpha, beta=beta, lam=lam, innov=innov, used=used, s_cov=s_cov,
