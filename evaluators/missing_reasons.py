@@ -23,6 +23,8 @@ from pipeline.batched_linalg import cholesky_lower, positive_definite
 from pipeline.vocabulary import DELETED, INITIALISING, NO_TRACK, NOT_POSITIVE_DEFINITE, flag_names
 
 NOTE = "note"
+#: the reason of a metric that compares with a truth the data set does not have
+NO_TRUTH = "the data set has no truth to compare the estimates with"
 
 #: metrics taken over the emitter family's estimates in its ``truth`` class (evaluators.emitter_localisation)
 TRUTH_CLASS_METRICS = ("rmse_position_m", "crlb_position_m", "position_efficiency", "inside_50pct_position",
@@ -111,7 +113,7 @@ def _class_counts(rows: dict, tracker: str, scope: str) -> dict | None:
 
 
 def _reason(tracker: str, metric: str, scope: str, facts: _TrackerFacts | None, rows: dict, out,
-            compared=None) -> str:
+            compared=None, truthless=False) -> str:
     """The first cause that holds, from the most basic to the most specific."""
     if scope.startswith("no "):  # the standard measures' own convention: the scope says it
         return f"{scope}: the tracker reports none"
@@ -123,6 +125,8 @@ def _reason(tracker: str, metric: str, scope: str, facts: _TrackerFacts | None, 
         if common == "NO_TRACK":
             return "no track in any run or scan (every scan NO_TRACK): no plot ever started one"
         return "no estimate in any run or scan" + (f" (every cell flagged {common})" if common else "")
+    if truthless and not metric.startswith(INNOVATION_METRICS):
+        return NO_TRUTH
     if metric in TRUTH_CLASS_METRICS:
         counts = _class_counts(rows, tracker, scope)
         if counts is not None and counts["runs_truth"] == 0:
@@ -133,7 +137,7 @@ def _reason(tracker: str, metric: str, scope: str, facts: _TrackerFacts | None, 
         base = metric.rsplit("_", 1)[0]
         if (tracker, base, scope) in rows:
             if _missing(rows[(tracker, base, scope)]):
-                return f"derived from {base}, which has no value: {_reason(tracker, base, scope, facts, rows, out, compared)}"
+                return f"derived from {base}, which has no value: {_reason(tracker, base, scope, facts, rows, out, compared, truthless)}"
             if _missing(rows.get((tracker, base, scope, "ci"))):
                 return (f"the bounds of {base} come from its interval over Monte Carlo runs, which needs "
                         "values in at least two runs")
@@ -167,7 +171,7 @@ def _reason(tracker: str, metric: str, scope: str, facts: _TrackerFacts | None, 
 
 
 def explain_missing(summary: pl.DataFrame, tracks: dict, innovations: dict | None = None,
-                    compared=None) -> pl.DataFrame:
+                    compared=None, truthless: bool = False) -> pl.DataFrame:
     """``summary`` with a ``note`` column: the reason of every metric without a value.
 
     Parameters
@@ -183,6 +187,8 @@ def explain_missing(summary: pl.DataFrame, tracks: dict, innovations: dict | Non
     compared : sequence of int, optional
         The state components the standard measures compare with the truth (and a NEES reads);
         without it a covariance counts as not positive definite where its flags say so.
+    truthless : bool
+        The data set has no truth: a metric that compares with it has none to compare.
 
     Returns
     -------
@@ -212,7 +218,7 @@ def explain_missing(summary: pl.DataFrame, tracks: dict, innovations: dict | Non
         if t not in facts:
             facts[t] = (_TrackerFacts(out, (innovations or {}).get(t) if innovations is not None else _innovation(out))
                         if out is not None and "state" in out else None)
-        notes.append(_reason(t, m, s or "", facts[t], rows, out, compared))
+        notes.append(_reason(t, m, s or "", facts[t], rows, out, compared, truthless))
     return summary.with_columns(pl.Series(NOTE, notes, dtype=pl.String))
 
 

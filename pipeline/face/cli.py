@@ -423,7 +423,13 @@ def _print_summary(summary: pl.DataFrame, title: str, family_metrics=()) -> None
         summary = summary.with_columns(pl.lit("family").alias("kind"))
     summary = summary.with_columns(
         section=pl.when(pl.col("kind") == "standard").then(pl.lit("standard measures")).otherwise(pl.col("scope")))
-    missing = summary.filter(~pl.col("scope").str.starts_with("no "))  # those say why in their cell
+    # rows starting "no " say why in their cell; errors without truth are left out of the report
+    # (the track summary stands in for them)
+    missing = summary.filter(~pl.col("scope").str.starts_with("no ")) if "note" in summary.columns else summary
+    if "note" in missing.columns:
+        from evaluators.missing_reasons import NO_TRUTH
+
+        missing = missing.filter(~(pl.col("note") == NO_TRUTH).any().over("metric"))
     sections = summary["section"].unique(maintain_order=True).to_list()
     sections = [s for s in dict.fromkeys([*_declared_scopes(summary), *sections]) if s is not None]
     if not (summary["kind"] == "family").any():

@@ -592,7 +592,7 @@ class Stage:
         return per_scan, explain_missing(pl.concat([summary.with_columns(kind=pl.lit("family")),
                                                     std_summary.with_columns(kind=pl.lit("standard")), lives],
                                                    how="diagonal_relaxed"), result["tracks"], innovations,
-                                         list(space.truth_components))
+                                         list(space.truth_components), truthless=truth is None)
 
     def life_tables(self, dataset, result: dict, design: dict):
         """``(targets, tracks)`` tables of :mod:`evaluators.life_tables` for the trackers of
