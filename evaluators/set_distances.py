@@ -923,7 +923,10 @@ def _bipartite_components(r_node, c_node, n_rows: int, n_cols: int):
 
     graph = coo_matrix((np.ones(a.size, bool), (a, b)), shape=(nodes, nodes))
     n_comp, label = connected_components(graph, directed=False)
-    # scipy numbers them as its search meets them: renumbered by their smallest node
+    label = label.astype(np.int64, copy=False)
+    if nodes and label[0] == 0 and np.all(np.diff(np.maximum.accumulate(label)) <= 1):
+        return n_comp, label         # already numbered by smallest node (each first seen in node order)
+    # numbered as the search met them: renumbered by their smallest node
     smallest = np.full(n_comp, nodes, np.int64)
     np.minimum.at(smallest, label, np.arange(nodes))
     return _numbered(smallest[label], nodes)
