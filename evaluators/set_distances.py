@@ -491,19 +491,21 @@ def global_identities(ids, present):
     out = np.full(present.shape, -1, np.int64)
     if not present.any():
         return out, 0, np.zeros(0, np.int64)
-    value = np.where(present, ids, 0).astype(np.int64, copy=False)
-    big = np.iinfo(np.int64).max
-    low = int(np.min(np.where(present, value, big)))
-    span = int(np.max(np.where(present, value, low))) - low + 1
+    if ids.dtype != np.int64:
+        ids = ids.astype(np.int64)
+    values = ids[present]
+    low = int(values.min())
+    span = int(values.max()) - low + 1
     if R * span <= 1 << 26:
         # (run, identity) as one integer, numbered by marking: no list of the present elements
-        key = np.where(present, value - low + np.arange(R).reshape((R,) + (1,) * (present.ndim - 1)) * span, 0)
+        # (absent elements get some key too, read nowhere)
+        key = ids + (np.arange(R, dtype=np.int64) * span - low).reshape((R,) + (1,) * (present.ndim - 1))
         mark = np.zeros(R * span, bool)
         mark[key[present]] = True
         number = np.cumsum(mark) - 1
-        np.copyto(out, number[key], where=present)
+        np.copyto(out, np.take(number, key, mode="clip"), where=present)
         return out, int(number[-1]) + 1, np.flatnonzero(mark) // span
-    return _global_identities_sorted(value, present, low, span)
+    return _global_identities_sorted(np.where(present, ids, 0), present, low, span)
 
 
 def _global_identities_sorted(value, present, low, span):
