@@ -145,9 +145,17 @@ def bench_filterpy(data: Path, repeats: int) -> dict:
         t0 = time.perf_counter()
         fp_state, _ = filterpy_loop(z, R, T, F, Q, H)
         theirs.append(time.perf_counter() - t0)
-    d = np.nanmax(np.abs(fp_state[:, 1:] - out["state"][:, 1:]))
+    # FilterPy takes the converted covariance as it is; ours floors a plot's along-range variance
+    # where it falls below 10⁻⁶ of the cross-range one (FLOORED: beyond ~5,700 km at σ_r = 100 m,
+    # σ_θ = 1°, which a 100,000-scan flight reaches), so the two agree up to the first such scan
+    from pipeline.vocabulary import FLOORED
+
+    floored = np.cumsum((out["flags"] & FLOORED) > 0, axis=1) > 0
+    same = ~floored
+    same[:, 0] = False
+    d = np.nanmax(np.abs(fp_state - out["state"])[same])
     steps = counts.shape[0] * (counts.shape[1] - 2)
-    return {"ours": ours, "theirs": theirs, "steps": steps, "max_diff": float(d)}
+    return {"ours": ours, "theirs": theirs, "steps": steps, "max_diff": float(d), "compared": int(same.sum())}
 
 
 def bench_read_floor(data: Path, repeats: int) -> dict:
@@ -259,9 +267,9 @@ def main() -> int:
             ratio = median(fp["theirs"]) / median(fp["ours"])
             rows.append([label, spread(fp["ours"], 1e6 / fp["steps"], 3, "µs"),
                          spread(fp["theirs"], 1e6 / fp["steps"], 3, "µs"), f"{ratio:.2f}×", f"≥ {target:g}×",
-                         f"{fp['max_diff']:.1e} m", "PASS" if ratio >= target else "MISS"])
+                         f"{fp['max_diff']:.1e} m over {fp['compared']:,}", "PASS" if ratio >= target else "MISS"])
         print_table(["data set", "ours per run-scan", "FilterPy per run-scan", "ratio", "target",
-                     "max |Δstate|", ""], rows)
+                     "max |Δstate| (scans before any FLOORED)", ""], rows)
 
         print(f"\n3. reading the one-run recording (read_dataset) against its zstd floor; median [min–max] of "
               f"{args.repeats}")
