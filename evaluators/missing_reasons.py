@@ -152,6 +152,16 @@ def _reason(tracker: str, metric: str, scope: str, facts: _TrackerFacts | None, 
         if finite == 0:
             return ("no finite NIS: the innovation covariance is not positive definite (or its inverse overflows) "
                     "wherever there is an innovation")
+        if metric.startswith("whiteness"):
+            w = np.asarray(facts.innovation[0])
+            largest = float(np.max(np.abs(w[np.isfinite(w)]), initial=0.0))
+            # a correlation over lags multiplies pairs of whitened innovations: beyond √(float max)
+            # their products overflow
+            if largest == 0:
+                return "every whitened innovation is 0: a correlation has no spread to divide by"
+            if largest > np.sqrt(np.finfo(float).max):
+                return f"the whitened innovations overflow when multiplied (largest |w| = {largest:.3g})"
+            return "no two scans at any lag both have a whitened innovation"
     if metric.startswith(COVARIANCE_METRICS):
         flagged = facts.not_positive_definite(compared)
         if flagged:

@@ -53,6 +53,8 @@ MISSING_SETTINGS = [
     ("radar-tws", {"sigma_bearing_deg": "1e-9", "n_scans": "16"}, "kalman", "position_efficiency",
      "pcrb_position_m has no value"),
     ("colored-ar", {"measurement_variance_m2": "1e-300"}, "ar_estimator", "alpha_rmse", "NaN in every run"),
+    ("colored-ar", {"measurement_variance_m2": "1e-300", "n_samples": "200"}, "kf", "whiteness_max_abs_rho",
+     "every whitened innovation is 0"),
 ]
 
 
