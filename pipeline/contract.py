@@ -624,7 +624,7 @@ class Dataset:
         if "params" in out:
             try:
                 out["params"] = json.loads(out["params"])
-            except ValueError:
+            except (ValueError, RecursionError):  # (RecursionError: nested deeper than json recurses)
                 raise InputError(f"{METADATA_SCENARIO} metadata: params is not valid JSON", self.path) from None
             if not isinstance(out["params"], dict):
                 raise InputError(f"{METADATA_SCENARIO} metadata: params must be a JSON object", self.path)
@@ -1430,7 +1430,7 @@ def _parse_layout(record: Mapping[str, str] | None) -> dict | None:
         try:
             v = json.loads(text)
             out[topic] = {k: int(v[k]) for k in ("runs", "scans", "frames")}
-        except (ValueError, TypeError, KeyError):
+        except (ValueError, TypeError, KeyError, RecursionError):
             raise ValueError(f"{METADATA_LAYOUT} metadata is unreadable (channel {topic!r})") from None
         if min(out[topic].values()) < 0:
             raise ValueError(f"{METADATA_LAYOUT} metadata holds a negative count (channel {topic!r})")
@@ -1474,9 +1474,7 @@ class _Source:
         if chunk.compression == "zstd":
             raw = self._zstd.decompress(chunk.data, max_output_size=chunk.uncompressed_size)
         elif chunk.compression == "lz4":
-            import lz4.frame
-
-            raw = lz4.frame.decompress(chunk.data)
+            raw = _lz4_decompress(chunk.data, chunk.uncompressed_size)
         else:
             raw = chunk.data
         if len(raw) != chunk.uncompressed_size:
@@ -1539,9 +1537,9 @@ class _Source:
                     if route is not None:
                         out.append(self._decode_message(route, data))
                 elif isinstance(rec, Schema):
-                    schemas[rec.id] = rec
+                    _define(schemas, rec)
                 elif isinstance(rec, Channel):
-                    channels[rec.id] = rec
+                    _define(channels, rec)
                     self.known_channels[rec.id] = rec.topic
             return out
         except InputError:
@@ -1643,11 +1641,14 @@ class _Source:
                 else:
                     self.stream_problem = f"truncated or corrupt MCAP ({type(exc).__name__}{after})"
                 break
-            if isinstance(rec, Schema):
-                schemas[rec.id] = rec
-            elif isinstance(rec, Channel):
-                channels[rec.id] = rec
-                self.known_channels[rec.id] = rec.topic
+            if isinstance(rec, (Schema, Channel)):
+                try:
+                    _define(schemas if isinstance(rec, Schema) else channels, rec)
+                except _BadData as exc:
+                    self.problems.append(f"record at byte {start}: {exc}")
+                    continue
+                if isinstance(rec, Channel):
+                    self.known_channels[rec.id] = rec.topic
             elif isinstance(rec, Metadata):
                 metadata[rec.name] = dict(rec.metadata)
                 self._set_metadata(dict(metadata))
@@ -1684,6 +1685,37 @@ class _Source:
         first = self.stream_problem or problems[0]
         more = len(problems) - (0 if self.stream_problem else 1)
         return first + (f" (and {more} more problem(s))" if more > 0 else "")
+
+
+def _define(table: dict, rec) -> None:
+    """Keep a Schema or Channel record by its id. The same record again is fine (writers repeat
+    them in every chunk); the same id defined differently is damage: MCAP ids are unique in a
+    file, and readers trusting one definition or the other would read different data (a channel
+    renamed in one chunk would move its messages to another topic)."""
+    old = table.get(rec.id)
+    if old is not None and old != rec:
+        kind, name = ("schema", "name") if isinstance(rec, Schema) else ("channel", "topic")
+        raise _BadData(f"{kind} id {rec.id} is defined twice, differently ({kind} {getattr(old, name)!r}, then "
+                       f"{getattr(rec, name)!r})")
+    table[rec.id] = rec
+
+
+def _lz4_decompress(data: bytes, size: int) -> bytes:
+    """An lz4 chunk's bytes decompressed, never more than one byte beyond the ``size`` its record
+    declares (a small chunk cannot expand to fill the memory); lz4 reports bytes that are not an
+    lz4 frame as a RuntimeError, which becomes the chunk's problem here."""
+    import lz4.frame
+
+    decompressor = lz4.frame.LZ4FrameDecompressor()
+    try:
+        raw = decompressor.decompress(data, max_length=size + 1)
+    except RuntimeError as exc:
+        raise _BadData(f"is marked lz4 but does not decompress ({str(exc).strip() or type(exc).__name__})") from None
+    if len(raw) == size and not decompressor.eof:
+        raise _BadData("is marked lz4 but its lz4 frame ends early or holds more than its record declares")
+    if decompressor.eof and decompressor.unused_data:
+        raise _BadData(f"holds {len(decompressor.unused_data)} byte(s) after its lz4 frame")
+    return raw
 
 
 def _chunk_records(raw: bytes) -> Iterator:
@@ -1936,8 +1968,10 @@ def read_dataset(path: str | Path, topics: Iterable[str] | None = None, recover:
 
 def check_values(channels: Mapping[str, "ChannelData"], path=None) -> None:
     """Refuse input values outside the declared table :data:`pipeline.vocabulary.VALUES`
-    (wrong number kind, NaN/Inf, out of range) and scan times that are not finite or not
-    within ±:data:`pipeline.vocabulary.TIME_LIMIT_S`.
+    (wrong number kind, NaN/Inf, out of range) and scan times that are not finite, negative or
+    beyond :data:`pipeline.vocabulary.TIME_LIMIT_S` (times count from the recording's start, as
+    every importer writes them: an MCAP log time is unsigned, so no output could carry a
+    negative one).
 
     Raises
     ------
@@ -1952,8 +1986,12 @@ def check_values(channels: Mapping[str, "ChannelData"], path=None) -> None:
         bad = ~np.isfinite(t) | (np.abs(t) > vocab.TIME_LIMIT_S)
         if bad.any():
             i = int(np.argmax(bad))
-            raise InputError(f"{topic}: scan time {t[i]!r} s at run {ch.run[i]} scan {ch.scan[i]} is not a finite "
+            raise InputError(f"{topic}: scan time {float(t[i])!r} s at run {ch.run[i]} scan {ch.scan[i]} is not a finite "
                              f"time within ±{vocab.TIME_LIMIT_S:g} s", path)
+        if np.any(t < 0):
+            i = int(np.argmax(t < 0))
+            raise InputError(f"{topic}: scan time {t[i]:g} s at run {ch.run[i]} scan {ch.scan[i]} is negative; scan "
+                             "times count from the recording's start (MCAP log times cannot be negative)", path)
         if ch.n_frames and not ch._scan_major():  # (every run and scan once: nothing to look for)
             # one frame per run and scan: a second one would silently replace or shadow the first
             key = ch.run.astype(np.int64) * (int(ch.scan.max()) + 1) + ch.scan.astype(np.int64)

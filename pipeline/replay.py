@@ -441,6 +441,12 @@ def _outputs_of(ds, out_path, recover=False):
     if stage is None:
         raise InputError("holds no tracker output channels (expected /tracks/...)", out_path)
     provenance = out.metadata.get(METADATA_PROVENANCE, {})
+    try:  # the design each stage used, read again by _used_design: a JSON object of objects
+        design = json.loads(provenance.get("design", "{}"))
+    except (ValueError, RecursionError):  # (RecursionError: JSON nested deeper than the parser recurses)
+        design = None
+    if not isinstance(design, dict) or not all(isinstance(v, dict) for v in design.values()):
+        raise InputError(f"{METADATA_PROVENANCE} metadata: 'design' is not a JSON object of design values", out_path)
     made_from = provenance.get("input_sha256", "")
     identity = dataset_identity(ds)
     if made_from and identity and made_from != identity:

@@ -102,7 +102,7 @@ def recorded_sources(scenario: dict) -> dict:
     if isinstance(raw, str):
         try:
             sources = json.loads(raw)
-        except ValueError:
+        except (ValueError, RecursionError):  # (RecursionError: nested deeper than json recurses)
             sources = {}
     if not isinstance(sources, dict):
         sources = {}

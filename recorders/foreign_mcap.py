@@ -436,8 +436,9 @@ def _column_spec(name: str, spec, where: str, path) -> ColumnSpec:
 # --------------------------------------------------------------------------- decoding
 
 BATCH = 4096  # messages decoded and gathered at a time: bounded memory, numpy-sized work
+# RecursionError: a message nested deeper than the decoders recurse (JSON arrays in arrays, say)
 _DECODE_ERRORS = (struct.error, EOFError, ValueError, KeyError, IndexError, OverflowError, TypeError,
-                  UnicodeDecodeError, NotImplementedError, AssertionError)
+                  UnicodeDecodeError, NotImplementedError, AssertionError, RecursionError)
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
@@ -821,13 +822,15 @@ def _json_batch(datas: list, topic: str, first: int, src: Path) -> list:
         out = json.loads(b"[" + b",".join(datas) + b"]")
         if len(out) == len(datas):
             return out
-    except (ValueError, UnicodeDecodeError):
+    except (ValueError, UnicodeDecodeError, RecursionError):
         pass
     for i, d in enumerate(datas):
         try:
             json.loads(d)
         except (ValueError, UnicodeDecodeError) as exc:
             raise InputError(f"topic {topic}, message {first + i}: not valid JSON ({exc})", src) from None
+        except RecursionError:  # the json module recurses once per level
+            raise InputError(f"topic {topic}, message {first + i}: JSON nested too deeply to read", src) from None
     raise InputError(f"topic {topic}, message {first}: the batch of JSON messages does not parse", src)
 
 
