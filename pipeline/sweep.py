@@ -30,6 +30,13 @@ process pool or a Dask cluster.
   paths, :func:`pipeline.registry.canonical_spec`) and are loaded again there, so serial, process
   pool and Dask runs load the same file. A tracker that fails on a point is reported with its
   message (tracker, run, scan) while the other trackers' metrics of that point are kept.
+* A point that fails, or is stopped, leaves nothing of its own: the files it wrote in its folder
+  (data set, outputs, recording) are removed, and only those (:func:`discard_point_files`). A
+  worker process that dies under a point is that point's failure; the other points finish
+  (:func:`_iter_process`; on Dask after its retries). A point whose files cannot be written (a
+  full or read-only disk, a file size limit: :data:`DISK_ERRNOS`) stops the whole sweep with
+  one line naming the file, since every other point would fail the same way; finished points
+  are kept for ``--resume``.
 * Dask is the engine beyond one machine (``Client(address)``); locally a ``LocalCluster``
   whose scheduler, nannies and workers (and their HTTP routes, on a random port) listen on
   127.0.0.1 only, without dashboard. No home-made scheduler.
@@ -37,6 +44,7 @@ process pool or a Dask cluster.
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import itertools
 import json
@@ -60,6 +68,7 @@ import polars as pl
 from pipeline import __version__
 from pipeline.contract import atomic_output
 from pipeline.errors import InputError
+from pipeline.isolation import DEFAULT_TRACKER_TIME_LIMIT_S
 
 EXECUTORS = ("serial", "process", "dask")
 
@@ -86,6 +95,9 @@ class PointTask:
     base_seed: int | None = None  # the sweep's --seed (``seed`` is the point's, derived from it)
     params: tuple = ()  # ((name, value), ...): every parameter of the point's scenario, resolved
     recorder: str = ""
+    # seconds a plugged tracker may take on this point (pipeline/isolation.py); how long the
+    # work may take, not what it computes, so not part of the point's record
+    tracker_time_limit_s: float | None = DEFAULT_TRACKER_TIME_LIMIT_S
 
     def record(self) -> dict:
         """What this point computes, as JSON (``points/<label>/point.json``): a resumed sweep
@@ -120,6 +132,14 @@ class PointResult:
     tracker_errors: list = field(default_factory=list)
     # stage name → {evaluation design value: value} the point was scored with
     evaluation: dict = field(default_factory=dict)
+    # (errno, problem, file) when the point failed because its files could not be written (a full
+    # or read-only disk, a file size limit): every point would, so the sweep stops (DISK_ERRNOS)
+    disk_error: tuple | None = None
+
+
+#: errors of writing a point's files that no other point would escape: the sweep stops at the
+#: first, with one line naming the file, instead of failing every point the same way
+DISK_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.EACCES, errno.EPERM})
 
 
 def point_seed(base_seed: int, overrides) -> int:
@@ -158,7 +178,8 @@ def parse_param_specs(items) -> dict[str, list[str]]:
 
 def build_grid(scenario_name: str, specs: dict, runs: int, seed: int, trackers=None,
                out_dir: Path | None = None, keep_data: bool = True, fixed: dict | None = None,
-               tracker_specs=(), design_defaults: dict | None = None) -> list[PointTask]:
+               tracker_specs=(), design_defaults: dict | None = None,
+               tracker_time_limit_s: float | None = DEFAULT_TRACKER_TIME_LIMIT_S) -> list[PointTask]:
     """The grid's tasks, every point validated before anything runs.
 
     Parameters
@@ -172,6 +193,8 @@ def build_grid(scenario_name: str, specs: dict, runs: int, seed: int, trackers=N
         plugged tracker's own ``params``: a swept or fixed name found here goes to the replay's
         design overrides instead of the scenario, and does not change the point's seed (every
         design value of a scenario point sees the same data).
+    tracker_time_limit_s : float, optional
+        Seconds a plugged tracker may take on a point before it is stopped (0 or None: no limit).
     """
     from pipeline.registry import canonical_spec
     from recorders import recorder_module
@@ -204,7 +227,7 @@ def build_grid(scenario_name: str, specs: dict, runs: int, seed: int, trackers=N
         tasks.append(PointTask(index, label, scenario_name, tuple(fixed.items()) + scenario_values,
                                runs, point_seed(seed, scenario_values), tuple(trackers) if trackers else None,
                                point_dir, specs_canon, tuple({**fixed_design, **design}.items()),
-                               int(seed), tuple(sorted(sc.params.items())), sc.recorder))
+                               int(seed), tuple(sorted(sc.params.items())), sc.recorder, tracker_time_limit_s))
     return tasks
 
 
@@ -233,6 +256,10 @@ def run_point(task: PointTask) -> PointResult:
                            [(f.path or "", str(f)) for f in failures], evaluation)
     except TrackerError as exc:  # no tracker of the point ran (e.g. the plugged one alone failed)
         return PointResult(task.index, task.label, [], None, time.perf_counter() - t0, [(exc.path or "", str(exc))])
+    except OSError as exc:
+        msg = f"{exc.filename}: {exc.strerror or exc}" if exc.filename else str(exc)
+        disk = (exc.errno, exc.strerror or str(exc), str(exc.filename or "")) if exc.errno in DISK_ERRNOS else None
+        return PointResult(task.index, task.label, [], msg, time.perf_counter() - t0, disk_error=disk)
     except Exception as exc:  # isolate the point: the sweep reports it and goes on
         msg = str(exc) if isinstance(exc, InputError) else "".join(
             traceback.format_exception_only(type(exc), exc)).strip()
@@ -247,20 +274,91 @@ def _run_point(task: PointTask) -> tuple[list[dict], list, dict]:
     sc = load_scenario(task.scenario).with_overrides(dict(task.overrides))
     keep = task.point_dir is not None
     work = Path(task.point_dir) if keep else Path(tempfile.mkdtemp(prefix="sweep-point-"))
+    before = _point_files(work) if keep else None
+    writing = [work]  # the file being written, named in an error that names none
+
+    def recording(*args):  # the Rerun recording is written last, after tracks.mcap
+        from pipeline.face.rerun_views import write_recording
+
+        writing[0] = work / "tracks.rrd"
+        return write_recording(*args)
+
+    done = False
     try:
         work.mkdir(parents=True, exist_ok=True)
-        data = work / "data.mcap"
+        data = writing[0] = work / "data.mcap"
         record(data, sc, task.runs, task.seed)
+        writing[0] = work / "tracks.mcap"
         res = replay(data, list(task.trackers) if task.trackers else None,
                      out_path=work / "tracks.mcap" if keep else None,
                      rrd_path=work / "tracks.rrd" if keep else None,
-                     design_overrides=dict(task.design) or None, tracker_specs=task.tracker_specs)
+                     design_overrides=dict(task.design) or None, tracker_specs=task.tracker_specs,
+                     recorder=recording, tracker_time_limit_s=task.tracker_time_limit_s)
+        done = True
+    except OSError as exc:
+        if exc.filename is None and exc.errno is not None:
+            raise OSError(exc.errno, exc.strerror or str(exc), str(writing[0])) from None
+        raise
     finally:
         if not keep:
             shutil.rmtree(work, ignore_errors=True)
+        elif not done:  # a point is complete or leaves nothing: what this point wrote goes
+            discard_point_files(work, before)
     overall = res.summary.filter(pl.col("scope") == "overall")
     records = [{k: r.get(k) for k in RECORD_COLUMNS} for r in overall.iter_rows(named=True)]
     return records, res.failures, evaluation_used(res)
+
+
+#: what a point writes into its folder (with --keep-data): removed again when the point fails
+POINT_FILES = ("data.mcap", "tracks.mcap", "tracks.rrd")
+
+
+def _point_files(folder: Path) -> dict:
+    """What a point's folder holds of :data:`POINT_FILES` now: whether it exists, and each file's
+    identity (inode, modification time, size), to tell later which files a run put there."""
+    files = {}
+    for name in POINT_FILES:
+        try:
+            st = (folder / name).stat()
+        except OSError:
+            continue
+        files[name] = (st.st_ino, st.st_mtime_ns, st.st_size)
+    return {"folder": folder.is_dir(), "files": files}
+
+
+def discard_point_files(folder, before: dict | None) -> list[Path]:
+    """Remove what a failed or stopped point wrote into ``folder``: each of :data:`POINT_FILES`
+    that is not the file ``before`` (:func:`_point_files` taken before the point ran) saw, their
+    half-written temporaries, and the folder when the point made it and it is left empty. Files
+    the point did not write stay, whatever their names."""
+    folder = Path(folder)
+    before = before or {"folder": False, "files": {}}
+    now = _point_files(folder)
+    removed = []
+    for name, identity in now["files"].items():
+        if before["files"].get(name) != identity:
+            try:
+                (folder / name).unlink()
+                removed.append(folder / name)
+            except OSError:
+                pass
+    try:
+        entries = list(folder.iterdir()) if now["folder"] else []
+    except OSError:
+        entries = []
+    for f in entries:
+        if _TEMPORARY.fullmatch(f.name) and f.name.startswith(tuple(n + "." for n in POINT_FILES)):
+            try:
+                f.unlink()
+                removed.append(f)
+            except OSError:
+                pass
+    if now["folder"] and not before["folder"]:
+        try:
+            folder.rmdir()  # only when empty
+        except OSError:
+            pass
+    return removed
 
 
 def evaluation_used(res) -> dict:
@@ -410,9 +508,13 @@ def _pool_run_point(task: PointTask) -> PointResult:
 
 
 def _stop_pool(pool, grace_s: float = 5.0) -> None:
-    """Cancel what has not started and stop the workers now (SIGTERM, then SIGKILL)."""
+    """Stop the workers now (SIGTERM, then SIGKILL), then cancel what has not started.
+
+    The workers go first: shutting the pool down releases its queues, whose named semaphores
+    a worker still starting (unpickling them in the forkserver's child) would then miss, with a
+    traceback on the terminal; a worker stopped first never gets there.
+    """
     procs = list((getattr(pool, "_processes", None) or {}).values())
-    pool.shutdown(wait=False, cancel_futures=True)
     for p in procs:
         if p.is_alive():
             p.terminate()
@@ -423,24 +525,87 @@ def _stop_pool(pool, grace_s: float = 5.0) -> None:
         if p.is_alive():
             p.kill()
             p.join(2.0)
+    pool.shutdown(wait=False, cancel_futures=True)
 
 
 def _iter_process(tasks, workers):
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+    """Every task's :class:`PointResult`, from a pool of ``workers`` processes, as they finish.
 
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=_forkserver_context(),
-                               initializer=_pool_worker_init, initargs=(os.getpid(),))
-    finished = False
-    try:
-        futures = [pool.submit(_pool_run_point, t) for t in tasks]
-        for f in as_completed(futures):
-            yield f.result()
-        finished = True
-    finally:
-        if finished:
-            pool.shutdown(wait=True)
-        else:  # interrupted, or the consumer stopped early
-            _stop_pool(pool)
+    At most ``workers`` points are handed to the pool at a time, so that the points a pool
+    holds are the ones its workers compute. A worker that dies (the interpreter crashes, the
+    kernel's out-of-memory killer, code that calls ``os._exit`` outside a plugged tracker's own
+    child process) breaks the whole pool: the points not handed out yet go on in a new pool;
+    of the ones it held, a lone one is that point's failure (saying how its worker ended), and
+    several are computed again one at a time, each in a pool of its own, so that only the point
+    that kills its worker again fails and no other point is blamed or lost.
+    """
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+    from concurrent.futures.process import BrokenProcessPool
+
+    ctx = _forkserver_context()
+    waiting, suspects = list(tasks), []
+    while waiting or suspects:
+        alone = bool(suspects)
+        queue = iter([suspects.pop(0)] if alone else waiting)
+        size = 1 if alone else workers
+        if not alone:
+            waiting = []
+        pool = ProcessPoolExecutor(max_workers=size, mp_context=ctx, initializer=_pool_worker_init,
+                                   initargs=(os.getpid(),))
+        held, processes, lost = {}, {}, []
+        finished = False
+        try:
+            while True:
+                while len(held) < size and (task := next(queue, None)) is not None:
+                    with _signals_held():  # a submit may start a worker
+                        held[pool.submit(_pool_run_point, task)] = task
+                        processes.update(getattr(pool, "_processes", None) or {})
+                if not held:
+                    break
+                done, _ = wait(held, return_when=FIRST_COMPLETED)
+                for f in done:
+                    task = held.pop(f)
+                    try:
+                        res = f.result()
+                    except BrokenProcessPool:
+                        lost.append(task)
+                        continue
+                    yield res
+                if lost:  # every point the pool held is lost with it
+                    lost += list(held.values())
+                    held.clear()
+                    break
+            finished = True
+        finally:
+            if not finished:  # interrupted, or the consumer stopped early
+                _stop_pool(pool)
+            else:
+                pool.shutdown(wait=True)
+        waiting += list(queue)  # not handed out: they go on in the next pool
+        if len(lost) == 1:
+            how = _how_workers_ended(list(processes.values()))
+            yield PointResult(lost[0].index, lost[0].label, [], f"its worker process ended ({how}) while computing it")
+        else:
+            suspects += lost
+
+
+def _how_workers_ended(processes) -> str:
+    """How a broken pool's worker ended: the exit status or the signal of the first that died on
+    its own (the pool terminates the others with SIGTERM)."""
+    codes = []
+    for p in processes:
+        p.join(5.0)
+        codes.append(p.exitcode)
+    own = [c for c in codes if c is not None and c != -signal.SIGTERM] or [c for c in codes if c is not None]
+    if not own:
+        return "unknown how"
+    code = own[0]
+    if code < 0:
+        try:
+            return f"killed by {signal.Signals(-code).name}"
+        except ValueError:
+            return f"killed by signal {-code}"
+    return f"exit status {code}"
 
 
 def _preload_worker(specs=()) -> None:
@@ -509,8 +674,16 @@ def _iter_dask(tasks, workers, scheduler):
         # forkserver preload does for the process pool
         client.run(_preload_worker, sorted({s for t in tasks for s in t.tracker_specs}))
         futures = client.map(run_point, tasks, pure=False)
+        task_of = {f.key: t for f, t in zip(futures, tasks)}
         for f in as_completed(futures):
-            yield f.result()
+            try:
+                res = f.result()
+            except Exception as exc:  # noqa: BLE001 - its worker died (KilledWorker), more than once
+                t = task_of[f.key]
+                first = str(exc).split(". ")[0]  # Dask's KilledWorker goes on for lines
+                res = PointResult(t.index, t.label, [], f"its worker process ended while computing it "
+                                                        f"({type(exc).__name__}: {first})")
+            yield res
         finished = True
     finally:
         _close_dask(client, cluster, futures, finished)
@@ -651,6 +824,9 @@ def _stop_on_signals():
     fired = []
 
     def handler(signum, frame):
+        if _HELD["depth"]:  # in a step that must not be cut (starting a worker): after it
+            _HELD["pending"].append(signum)
+            return
         if fired:  # already stopping: let the clean-up finish
             return
         fired.append(signum)
@@ -669,11 +845,41 @@ def _stop_on_signals():
     for s in sigs:
         if old[s] is not signal.SIG_IGN:
             signal.signal(s, handler)
+    outer = _HELD["handler"]
+    _HELD["handler"] = handler
     try:
         yield
     finally:
+        _HELD["handler"] = outer
         for s, h in old.items():
             signal.signal(s, h if h is not None else signal.SIG_DFL)
+
+
+# the stop signals held back while a worker starts (see _signals_held): its depth, the signals
+# that came meanwhile, and the handler of the sweep running (None outside one)
+_HELD = {"depth": 0, "pending": [], "handler": None}
+
+
+@contextmanager
+def _signals_held():
+    """Hold back the sweep's stop signals (:func:`_stop_on_signals`) for a step that must not be
+    cut, and act on them after it.
+
+    Starting a pool worker is such a step: a signal that lands inside ``Process.start`` stops
+    the sweep after the forkserver made the worker but before the pool recorded it, so it is
+    never stopped; it goes on starting, finds its queues' semaphores gone with the sweep, and
+    prints a traceback on the terminal.
+    """
+    _HELD["depth"] += 1
+    try:
+        yield
+    finally:
+        _HELD["depth"] -= 1
+        if not _HELD["depth"] and _HELD["pending"]:
+            signum = _HELD["pending"][0]
+            _HELD["pending"].clear()
+            if _HELD["handler"] is not None:
+                _HELD["handler"](signum, None)
 
 
 def _short(value, limit: int = 60) -> str:
@@ -861,6 +1067,12 @@ def _run_sweep(tasks, swept, out_dir, executor, workers, scheduler, resume, prog
         todo.append(t)
     by_index = {t.index: t for t in tasks}
     failed, work, tracker_failures = {}, [], {}
+    # what each point's folder held before this sweep: a point that fails or is stopped leaves
+    # nothing of its own there, and nothing else is touched (discard_point_files)
+    before = {t.index: _point_files(Path(t.point_dir)) for t in todo if t.point_dir is not None}
+    points_dir = out_dir / "points" if out_dir is not None else None
+    points_existed = points_dir is not None and points_dir.is_dir()
+    kept: set[int] = set()  # points whose files stay: their result arrived and is written
     if todo:
         if executor == "serial" or (executor == "process" and workers == 1):
             it = _iter_serial(todo)
@@ -873,27 +1085,42 @@ def _run_sweep(tasks, swept, out_dir, executor, workers, scheduler, resume, prog
                 work.append(res.work_s)
                 if res.tracker_errors:
                     tracker_failures[res.label] = res.tracker_errors
+                disk = getattr(res, "disk_error", None)  # a worker of an older installed copy may not send it
+                if disk is not None:  # every point would fail the same way: stop, in one line
+                    _, problem, where = disk
+                    failed[res.label] = res.error
+                    raise InputError(f"{problem}; the sweep stopped (finished points kept: {len(kept)}; the "
+                                     "unfinished ones leave nothing)", where or by_index[res.index].point_dir)
                 if res.error is not None:
                     failed[res.label] = res.error
                 elif res.records or not res.tracker_errors:
                     task = by_index[res.index]
                     frame = _point_frame(task, res.records, swept)
                     frames[res.index] = frame
-                    # a worker of an older installed copy may not send it
                     used = evaluation[res.label] = getattr(res, "evaluation", None) or {}
                     # a point where a tracker failed is not recorded as done: resume computes it
                     # again. The record goes last: metrics without their record are not reused.
                     if out_dir is not None and not res.tracker_errors:
-                        with atomic_output(_metrics_file(out_dir, res.label)) as fh:
+                        with _named_output(_metrics_file(out_dir, res.label)) as fh:
                             frame.write_parquet(fh, metadata={EVALUATION_METADATA: json.dumps(used)})
-                        with atomic_output(_record_file(out_dir, res.label), "w") as fh:
+                        with _named_output(_record_file(out_dir, res.label), "w") as fh:
                             json.dump({**task.record(), "evaluation": used}, fh, indent=1)
+                if res.error is None:  # its files are complete (and its record written)
+                    kept.add(res.index)
                 if progress:
                     progress(1)
                 if outcome:
                     outcome("failed" if res.error is not None else "done")
         finally:
             it.close()  # stops the workers when interrupted here rather than in the executor
+            for t in todo:  # failed, stopped or never started: what they wrote goes
+                if t.point_dir is not None and t.index not in kept:
+                    discard_point_files(t.point_dir, before.get(t.index))
+            if points_dir is not None and not points_existed:
+                try:
+                    points_dir.rmdir()  # only when no point is left in it
+                except OSError:
+                    pass
     table = (pl.concat([frames[i] for i in sorted(frames)], how="vertical_relaxed") if frames
              else pl.DataFrame(schema={"point_index": pl.Int64, "point": pl.Utf8, **RECORD_SCHEMA}))
     order = {t.label: t.index for t in tasks}
@@ -905,6 +1132,19 @@ def _run_sweep(tasks, swept, out_dir, executor, workers, scheduler, resume, prog
 #: key of the Parquet metadata (sweep.parquet, a point's metrics.parquet) holding the evaluation
 #: design values the metrics were scored with, as JSON
 EVALUATION_METADATA = "replay.evaluation"
+
+
+@contextmanager
+def _named_output(path: Path, mode: str = "wb"):
+    """:func:`~pipeline.contract.atomic_output`, whose errors name the file: a write that fails
+    (a full disk) raises an ``OSError`` without a file name, and the user's line must name it."""
+    try:
+        with atomic_output(path, mode) as fh:
+            yield fh
+    except OSError as exc:
+        if exc.filename is None and exc.errno is not None:
+            raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from None
+        raise
 
 
 def write_sweep_outputs(report: SweepReport, swept: list[str], spec: dict) -> list[Path]:
@@ -926,12 +1166,12 @@ def _write_sweep_outputs(report: SweepReport, swept: list[str], spec: dict) -> l
 
     out = report.out_dir
     paths = []
-    with atomic_output(out / "sweep.parquet") as f:
+    with _named_output(out / "sweep.parquet") as f:
         report.table.write_parquet(f, metadata={EVALUATION_METADATA: json.dumps(spec.get("evaluation", {}),
                                                                                 default=str)})
-    with atomic_output(out / "sweep.csv") as f:
+    with _named_output(out / "sweep.csv") as f:
         report.table.write_csv(f)
-    with atomic_output(out / "sweep.json", "w") as f:
+    with _named_output(out / "sweep.json", "w") as f:
         json.dump(spec, f, indent=1, default=str)
     paths += [out / "sweep.parquet", out / "sweep.csv", out / "sweep.json"]
     if report.table.height == 0:

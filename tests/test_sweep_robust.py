@@ -7,6 +7,8 @@
 * A sweep stopped by SIGINT, SIGTERM or SIGKILL keeps its finished points and leaves no process
   behind (process pool and Dask), no temporaries (or the next sweep removes them), and the
   resumed sweep's table equals an uninterrupted one.
+* A point whose worker process dies is that point's failure; the other points finish. A full
+  disk stops the sweep with one line naming the file (exit 2), and no point leaves data behind.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from __future__ import annotations
 import json
 import os
 import random
+import re
 import shutil
 import signal
 import subprocess
@@ -404,3 +407,92 @@ def test_killed_dask_sweep_leaves_no_workers(tmp_path, sig):
     if sig == signal.SIGTERM:
         assert message_lines(err) == ["sweep: stopped by SIGTERM; finished points are kept"], err
         assert not temporaries(out), temporaries(out)
+
+
+# --------------------------------------------------------------------------- lost workers, full disks
+
+
+DOOMED = '''
+import os, signal
+import numpy as np
+from pipeline.trackers.interface import Param, Tracker
+
+
+class Doomed(Tracker):
+    """Kills the process that runs it (its parent: the sweep's worker) where doom > 0."""
+
+    name, family = "doomed", "radar-plots"
+    params = (Param("doom", 0.0),)
+
+    def track(self, plots):
+        if self.doom > 0:
+            os.kill(os.getppid(), signal.SIGKILL)
+        r, b = plots.range_m[..., 0], plots.bearing_rad[..., 0]
+        z = np.stack([r * np.cos(b), r * np.sin(b)], axis=-1)
+        state = np.concatenate([z, np.zeros_like(z)], axis=-1)
+        return {"state": state, "flags": np.zeros(state.shape[:2], np.uint16)}
+'''
+
+
+def point_data(out: Path) -> list[Path]:
+    """Every file a point writes (data set, outputs, recording), half-written ones included."""
+    return sorted(p for p in out.rglob("*") if p.is_file() and p.name.split(".")[0] in ("data", "tracks"))
+
+
+def test_a_point_whose_worker_dies_is_that_points_failure_and_the_others_finish(tmp_path):
+    """A worker killed under a point (here by the point's own tracker) broke the whole pool
+    (BrokenProcessPool, exit 3, data left behind): now that point fails by name, every other
+    point finishes, and the failed points leave nothing."""
+    (tmp_path / "doomed.py").write_text(DOOMED)
+    out = tmp_path / "s"
+    marker = uuid.uuid4().hex
+    specs = {"doom": ["0", "1"], "sigma_bearing_deg": ["0.5", "1"]}
+    proc = start_sweep(out, marker, "process", "--tracker", str(tmp_path / "doomed.py") + ":Doomed", runs=3,
+                       specs=specs)
+    try:
+        stdout, stderr = proc.communicate(timeout=240)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    err = stderr.decode()
+    assert proc.returncode == 1, err
+    assert "Traceback" not in err and "BrokenProcessPool" not in err
+    failed = sorted(ln for ln in message_lines(err))
+    assert failed == [f"FAILED doom=1,sigma_bearing_deg={s}: its worker process ended (killed by SIGKILL) while "
+                      "computing it" for s in ("0.5", "1")], err
+    assert finished(out) == {"doom=0,sigma_bearing_deg=0.5", "doom=0,sigma_bearing_deg=1"}
+    assert "2 done, 0 resumed, 2 failed" in stdout.decode()
+    assert {p.parent.name for p in point_data(out)} == finished(out)  # nothing of the failed points
+    assert pl.read_parquet(out / "sweep.parquet")["point"].unique().sort().to_list() == sorted(finished(out))
+    assert not marked(marker)
+
+
+def run_with_file_size_limit(limit: int, args, timeout=240):
+    """The command line under RLIMIT_FSIZE (every file it writes stops at ``limit`` bytes, as on a
+    disk that fills up), with SIGXFSZ ignored so that a write beyond it fails with EFBIG."""
+    import resource
+
+    def limited():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+    cmd = [sys.executable, "-m", "pipeline.face.cli", *map(str, args)]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, preexec_fn=limited)
+
+
+@pytest.mark.parametrize("limit, file", [(10_000, "data.mcap"), (100_000, "tracks.mcap")])
+@pytest.mark.parametrize("executor", ["serial", "process"])
+def test_a_sweep_on_a_full_disk_stops_with_one_line_and_leaves_no_point_data(tmp_path, executor, limit, file):
+    """Four FAILED lines, exit 1 and the points' data left behind before; now one line naming
+    the file, exit 2, and nothing of the points (their data sets are 27 kB, outputs 165 kB)."""
+    out = tmp_path / "s"
+    done = run_with_file_size_limit(limit, ["sweep", "radar-tws", "--param", "sigma_bearing_deg=0.5,1,2,3", "--runs",
+                                            "3", "--executor", executor, "--workers", "2", "-o", out])
+    assert done.returncode == 2, done.stderr
+    lines = message_lines(done.stderr)
+    assert len(lines) == 1 and "Traceback" not in done.stderr, done.stderr
+    assert re.fullmatch(rf"replay: error: {re.escape(str(out))}/points/sigma_bearing_deg=[0-9.]+/{re.escape(file)}: "
+                        r"File too large; the sweep stopped \(finished points kept: 0; the unfinished ones leave "
+                        r"nothing\)", lines[0]), lines[0]
+    assert point_data(out) == [] and not temporaries(out)
+    assert not (out / "points").exists()

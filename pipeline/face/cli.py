@@ -1427,8 +1427,9 @@ def check_cmd(data_dir, update, sets, tracker_specs):
 @click.option("--resume", is_flag=True, help="Reuse the points already in the output folder whose record (scenario parameters, runs, seed, trackers, version) is unchanged; refuses a folder that holds another sweep.")
 @click.option("--force", is_flag=True, help="Compute every point again in a folder that holds an earlier sweep.")
 @tracker_option
+@tracker_time_limit_option
 def sweep_cmd(scenario, params, sets, runs, seed, trackers, out_dir, executor, workers, scheduler, keep_data, resume,
-              force, tracker_specs):
+              force, tracker_specs, tracker_time_limit_s=None):
     """Simulate, replay and evaluate every point of a parameter grid.
 
     Writes sweep.parquet / sweep.csv (one row per point × tracker × metric), a PNG per metric
@@ -1459,7 +1460,7 @@ def sweep_cmd(scenario, params, sets, runs, seed, trackers, out_dir, executor, w
     specs = parse_param_specs(params)
     fixed = parse_assignments(sets)
     wanted = [t.strip() for t in trackers.split(",")] if trackers else None
-    plugged = [canonical_spec(s) for s in resolve_tracker_specs(tracker_specs)]
+    plugged = [canonical_spec(s) for s in resolve_tracker_specs(tracker_specs, tracker_time_limit_s)]
     from recorders.scenarios import load_scenario
 
     scenario_keys = load_scenario(scenario).defaults
@@ -1476,7 +1477,8 @@ def sweep_cmd(scenario, params, sets, runs, seed, trackers, out_dir, executor, w
                              f"({', '.join(evaluation) or 'none'})")
     check_evaluation_values({n: [fixed[n]] if n in fixed else specs[n] for n in (*fixed, *specs)
                              if n in evaluation and n not in scenario_keys})
-    tasks = build_grid(scenario, specs, runs, seed, wanted, out_dir, keep_data, fixed, plugged, design_defaults)
+    tasks = build_grid(scenario, specs, runs, seed, wanted, out_dir, keep_data, fixed, plugged, design_defaults,
+                       **({} if tracker_time_limit_s is None else {"tracker_time_limit_s": tracker_time_limit_s}))
     if wanted:
         from pipeline.registry import available_trackers
         from pipeline.stages import STAGES
