@@ -793,10 +793,55 @@ def identity_pairs(first, second, first_run, second_run):
     R = int(max(np.max(first_run, initial=-1), np.max(second_run, initial=-1))) + 1
     start = np.searchsorted(second_run, np.arange(R))                # each run's first second identity
     per_run = max(int(np.max(np.diff(np.append(start, second_run.size)), initial=0)), 1)
-    run = np.asarray(first_run)[first]
-    keys, inverse, count = unique_pairs(first, second - start[run], per_run)
-    pair_first = keys // per_run
-    return pair_first, keys % per_run + start[np.asarray(first_run)[pair_first]], inverse, count
+    first_run = np.asarray(first_run)
+    run = first_run[first]
+    local = second - start[run]
+    first_start = np.searchsorted(first_run, np.arange(R + 1))
+    space = int(first_start[-1]) * per_run
+    if run.size and space <= DENSE_PAIRS_PER_EVENT * run.size and np.all(run[1:] >= run[:-1]):
+        pair_first, pair_local, inverse, count = _identity_pairs_dense(first, local, run, first_start, per_run)
+    else:
+        keys, inverse, count = unique_pairs(first, local, per_run)
+        pair_first, pair_local = keys // per_run, keys % per_run
+    return pair_first, pair_local + start[first_run[pair_first]], inverse, count
+
+
+#: :func:`identity_pairs` counts on dense keys while the key space is at most this many per event
+DENSE_PAIRS_PER_EVENT = 16
+#: keys of one block of runs there (32 MB of counts)
+DENSE_PAIRS_BLOCK = 1 << 22
+
+
+def _identity_pairs_dense(first, local, run, first_start, per_run):
+    """:func:`identity_pairs` of events in run order: each block of runs' pairs counted with one
+    ``bincount`` over the block's (first, local second) keys, whose nonzero entries are the
+    pairs, in order."""
+    R = first_start.size - 1
+    cuts, keys = [0], 0
+    for r, n in enumerate((np.diff(first_start) * per_run).tolist()):
+        # blocks of whole runs, each within DENSE_PAIRS_BLOCK keys (or one run)
+        if keys + n > DENSE_PAIRS_BLOCK and r > cuts[-1]:
+            cuts.append(r)
+            keys = 0
+        keys += n
+    cuts.append(R)
+    event_cuts = np.searchsorted(run, cuts)
+    pair_first, pair_local, counts = [], [], []
+    inverse = np.empty(run.size, np.int64)
+    found = 0
+    for (a, b), (ea, eb) in zip(zip(cuts[:-1], cuts[1:]), zip(event_cuts[:-1], event_cuts[1:])):
+        base = int(first_start[a])
+        key = (first[ea:eb] - base) * per_run + local[ea:eb]
+        count = np.bincount(key, minlength=(int(first_start[b]) - base) * per_run)
+        at = np.flatnonzero(count)
+        number = np.empty(count.size, np.int64)        # each key's pair: the rank of its entry
+        number[at] = np.arange(found, found + at.size)
+        inverse[ea:eb] = number[key]
+        pair_first.append(at // per_run + base)
+        pair_local.append(at % per_run)
+        counts.append(count[at])
+        found += at.size
+    return np.concatenate(pair_first), np.concatenate(pair_local), inverse, np.concatenate(counts)
 
 
 def pairs_within(pairs, radius: float):

@@ -412,11 +412,18 @@ def test_stable_order_is_numpys_stable_argsort(top):
     np.testing.assert_array_equal(set_distances.stable_order(keys, top), np.argsort(keys, kind="stable"))
 
 
-def test_identity_pairs_are_the_unique_keys():
+@pytest.mark.parametrize("in_run_order,block", [(False, 1 << 22), (True, 1 << 22), (True, 700)])
+def test_identity_pairs_are_the_unique_keys(monkeypatch, in_run_order, block):
+    """Counted on dense keys (events in run order; in one block of runs or several) or by
+    sorting: the pairs, indices and counts of np.unique."""
+    monkeypatch.setattr(set_distances, "DENSE_PAIRS_BLOCK", block)
+    monkeypatch.setattr(set_distances, "DENSE_PAIRS_PER_EVENT", 16 if in_run_order else 0)
     rng = np.random.default_rng(8)
     runs, targets, tracks = 6, rng.integers(1, 30, 6), rng.integers(1, 300, 6)
     first_run, second_run = np.repeat(np.arange(runs), targets), np.repeat(np.arange(runs), tracks)
     event_run = rng.integers(0, runs, 4000)
+    if in_run_order:
+        event_run.sort()
     first = np.cumsum(targets)[event_run] - 1 - rng.integers(0, targets[event_run])
     second = np.cumsum(tracks)[event_run] - 1 - rng.integers(0, tracks[event_run])
     pair_first, pair_second, inverse, count = set_distances.identity_pairs(first, second, first_run, second_run)
