@@ -2094,6 +2094,7 @@ def iter_frames(path: str | Path, recover: bool = False, meta: dict | None = Non
             meta["metadata"] = dict(source.metadata)
             meta["topics"] = [t for _, t in sorted(source.known_channels.items())]
         if contract == CONTRACT_V1:
+            _check_frame_time(topic, payload[0], payload[1], payload[2], path)
             yield (topic, *payload)
             continue
         block = payload
@@ -2112,6 +2113,7 @@ def iter_frames(path: str | Path, recover: bool = False, meta: dict | None = Non
                     arrays[name] = partial[name][i]
             t = float(block.times[i]) if block.times is not None else block.time_s
             scan = block.scan if block.scan_count == 1 else block.scan + i // (block.n // block.scan_count)
+            _check_frame_time(topic, int(block.runs[i]), scan, t, path)
             yield topic, int(block.runs[i]), scan, t, arrays, 1
     meta.setdefault("metadata", dict(source.metadata))
     meta["messages"] = source.messages
@@ -2119,6 +2121,16 @@ def iter_frames(path: str | Path, recover: bool = False, meta: dict | None = Non
     meta["problem"] = source.problem()
     if meta["problem"] is not None and not recover:
         raise InputError(_unreadable(meta["problem"], source.messages), path)
+
+
+def _check_frame_time(topic: str, run: int, scan: int, t: float, path: Path) -> None:
+    """The scan-time rule of :func:`check_values` for one frame read by :func:`iter_frames` (whose
+    frames are written again, and an MCAP log time cannot hold a negative or non-finite time)."""
+    from pipeline.vocabulary import TIME_LIMIT_S
+
+    if not (math.isfinite(t) and 0 <= t <= TIME_LIMIT_S):
+        raise InputError(f"{topic}: scan time {t:g} s at run {run} scan {scan} is not a time from the recording's "
+                         f"start within 0 … {TIME_LIMIT_S:g} s", path)
 
 
 def _unreadable(problem: str, messages: int) -> str:
