@@ -23,14 +23,21 @@ Conventions:
   recorded as ``bearing_positive_toward``;
 * the STFT uses a Hann window of ``nfft`` samples and hop ``hop``; only the chosen bin is
   computed (one windowed DFT row per frame, not a full FFT);
+* a scan's time stamp is the centre of its frames (the mean of the frame centres), the instant
+  its snapshots describe as a whole; the first is ((Ns − 1) · hop + nfft) / (2 fs);
 * the number of sources is counted over a band around the bin (default ±10 % of its frequency,
-  or ``band_hz``) by the wideband MDL of :mod:`pipeline.cores.array.wideband_count`, from its own
-  STFT with a window long enough that a wideband source's spread within one bin stays well below
-  the noise, over the first ``COUNT_SPAN_S`` seconds (longer if the window needs
-  ``COUNT_MIN_FRAMES`` frames per sensor and the recording has them). The count is recorded as
-  the trackers' ``n_sources``, so a replay starts that many tracks (``--set n_sources=…``
-  overrides it; 0 makes the trackers count at start-up from the tracked bin, as before), with how
-  it was obtained (``source_count_*``).
+  or ``band_hz``) by :mod:`pipeline.cores.array.wideband_count`: per scan of the first
+  ``COUNT_SPAN_S`` seconds (of 2M frames if a scan has fewer), the band's null spectrum gives the
+  distinct directions in the signal subspace, whose dimension the band's MDL over the whole span
+  gives (a wideband or moving source fills more than one dimension but is one direction); the
+  count most scans give
+  is recorded as the trackers' ``n_sources``, so a replay starts that many tracks (``--set
+  n_sources=…`` overrides it; 0 makes the trackers count at start-up from the tracked bin, as
+  before), with how it was obtained (``source_count_*``);
+* the record also sets the trackers' ``align_subspace_instant``: the frames are a continuous
+  timeline, and PAST's memory reaches back before each time stamp, so the trackers measure each
+  bearing at the instant the scan's subspace describes
+  (:func:`pipeline.cores.array.past_subspace.subspace_instant_offset`).
 """
 
 from __future__ import annotations
@@ -51,9 +58,9 @@ POSITIVE_TOWARD = ("last", "first")
 # the count's fine bins (the criterion averages over them), narrow enough that the sources
 # counted are the ones the tracked bin sees
 BAND_RELATIVE = 0.10
-COUNT_SPAN_S = 4.0       # the count looks at the start of the recording, over which the sources are
-                         # taken to stay put (a mover spreads like a wideband source in one bin)
-COUNT_MIN_FRAMES = 2     # frames per sensor the count window should leave (the covariances need > M)
+COUNT_SPAN_S = 4.0       # the count looks at the scans of the start of the recording, where the
+                         # trackers start, and takes the count most of them give
+COUNT_MIN_FRAMES = 2     # frames per sensor of each counted segment (the covariances need > M)
 
 
 def read_wav(path: str | Path) -> tuple[int, np.ndarray]:
@@ -195,11 +202,12 @@ def convert_array_wav(src, dst, spacing_m: float, frequency_hz: float, sound_spe
               "source_count_band_hz": [counted.band_hz[0], counted.band_hz[1]], "source_count_bins": counted.n_bins,
               "source_count_frames": counted.n_frames, "source_count_effective_snapshots": counted.effective_snapshots,
               "source_count_per_segment": [int(c) for c in counted.segment_counts],
-              "source_count_dimensions": [int(k) for k in counted.dimensions],
+              "source_count_dimension": counted.dimension,
               "source_count_leakage_db": float(10 * np.log10(counted.leakage_endfire))}
     n = write_simulated(dst, data, scenario_metadata("array-wav", params, 0))
     return {"messages": n, "scans": K, "sensors": M, "bin_hz": bin_hz,
             "spacing_wavelengths": spacing_wavelengths, "scan_period_s": scan_period_s,
             "unambiguous_field_deg": unambiguous_deg, "n_sources": int(counted.count),
             "count_band_hz": counted.band_hz, "count_bins": counted.n_bins, "count_frames": counted.n_frames,
-            "count_segments": int(counted.segment_counts.size), "count_dimensions": counted.dimensions, "count_leakage_db": float(10 * np.log10(counted.leakage_endfire))}
+            "count_segments": int(counted.segment_counts.size), "count_dimension": counted.dimension,
+            "count_leakage_db": float(10 * np.log10(counted.leakage_endfire))}

@@ -67,14 +67,9 @@ def array_wav_cmd(wav_path, output, spacing_m, frequency_hz, sound_speed_mps, nf
                "no source (the trackers will count at start-up from the tracked bin)")
     click.echo(f"{counted} by wideband MDL over {low:.0f}–{high:.0f} Hz ({info['count_bins']} bins; the most common "
                f"count of {info['count_segments']} scan(s) of {info['count_frames']} frames, signal subspace of "
-               f"{_dimensions(info['count_dimensions'])} dimensions); recorded as n_sources "
+               f"{info['count_dimension']} dimension(s)); recorded as n_sources "
                "(replay --set n_sources=… overrides it)")
 
-
-def _dimensions(values) -> str:
-    """``3`` or ``3–5``: the range of the per-scan signal-subspace dimensions."""
-    low, high = int(min(values)), int(max(values))
-    return str(low) if low == high else f"{low}–{high}"
 
 
 def _band(text):

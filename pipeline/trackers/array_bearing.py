@@ -25,7 +25,11 @@ Scan 0 is the paper's k = −1, scan 1 is k = 0, tracking starts at scan 2 (k = 
    ``Q = q [[T³/3, T²/2], [T²/2, T]]``, ``H = [1, 0]``, variance σ_z² (eqs. (14)–(22),
    :mod:`pipeline.cores.filters.kalman`); the update uses the angular innovation δθ(k) from W(k)
    and the prediction θ̂(k|k−1) in place of z − Hx. A non-finite innovation (prediction at
-   end-fire) leaves the track coasting (flag ``COASTED``).
+   end-fire) leaves the track coasting (flag ``COASTED``). With ``align_subspace_instant`` (a
+   converted recording records it) W(k) is taken for the scene at the instant its weights
+   describe, δ_k from the scan's time stamp
+   (:func:`pipeline.cores.array.past_subspace.subspace_instant_offset`): ``H = [1, δ_k]`` and the
+   innovation is taken about θ̂ + δ_k θ̂̇, so a source moving at a constant rate is not trailed.
 
 The N of each run comes from its own start-up, so runs are processed in groups of equal N, each
 group in one vectorised pass (no loop per run). Track slots are padded to the largest N (flag

@@ -14,31 +14,44 @@ is ≈ β² τ² (M² − 1) / 12 (:func:`bin_leakage_ratio`). For 8 sensors 0.1
 this is −26 dB at 40°: at a per-sensor SNR in the bin of 20 dB or more the second eigenvalue stands
 well above the noise and MDL counts it as a source. Averaging covariances over neighbouring bins
 does not help (the steering vector changes with frequency, so the average spreads each source
-further), nor does a sum of per-bin criteria at the same resolution (every bin has the same
-spread, so more bins only make the false eigenvalue more certain).
+further), nor does a sum of per-bin criteria (every bin has the same spread, so more bins only
+make the false eigenvalue more certain).
 
-What helps is resolution: the ratio falls as 1/T_w², at the price of fewer snapshots. The count
-therefore uses its own STFT, with a Hann window just long enough that the predicted spread at
-endfire, scaled by how far the strongest source stands above the noise, stays a tenth of the noise
-(:func:`count_sources_in_band`, :func:`count_window_length`): weak sources keep the tracked
-window and its many snapshots, strong ones get a longer window. It gathers the evidence of every
-bin of a band around the tracked frequency incoherently, bin by bin, as the wideband eigenstructure methods of Wax, Shan &
-Kailath (1984) treat the bins of a wideband array: each bin j is an independent zero-mean Gaussian
-model with its own covariance, so the description length of the whole band for k sources is the
-sum over the bins of the per-bin MDL of Wax & Kailath (1985),
+So the dimension of the signal subspace is not the number of sources. A source that moves
+does the same over time: over the frames of a covariance it sweeps a small arc, and to first
+order its snapshots span a(θ) and its derivative ∂a/∂θ. At 25 dB a source moving 3°/s fills a
+second dimension within half a second (8 sensors at half a wavelength), and over a few seconds
+it sweeps far enough that its dip splits in two. A longer window, which would shrink the
+wideband spread, needs more time per frame and so more motion per covariance: beyond some SNR no
+window removes both.
 
-    MDL_band(k) = Σ_j [ −N (M − k) log(g_jk / a_jk) + ½ k (2M − k) log N ],
+The count therefore asks how many *directions* the signal subspace holds, not how many
+dimensions:
 
-and the count is the minimising k (:func:`band_source_count`). Each term is invariant to the scale
-of its bin's covariance, so the noise level may differ from bin to bin (no whitening needed).
-N is the effective number of independent snapshots of overlapping Hann frames (Welch 1967:
-frames / (1 + 2 Σ_l (1 − l/K) ρ_l²), ρ_l the window's overlap correlation at l hops;
-:func:`effective_snapshots`), 0.95 of the frames for Hann at 50 % overlap.
+1. the band's MDL over the first seconds gives the signal subspace's dimension k, spread
+   included: each bin j is an independent zero-mean Gaussian model with its own covariance (the
+   bins treated incoherently, as the wideband eigenstructure methods of Wax, Shan & Kailath
+   (1984) do), so the description length of the whole band is the sum over the bins of the
+   per-bin MDL of Wax & Kailath (1985),
 
-The count assumes the sources stay put over the frames it uses (a moving source spreads over
-angle the way a wideband one spreads over a bin); the caller keeps that span short (a few seconds
-at the start of the recording, where the tracker's start-up is). See ``docs/papers/array-bearing.md``
-and the WAV section of ``docs/importers.md``.
+       MDL_band(k) = Σ_j [ −N (M − k) log(g_jk / a_jk) + ½ k (2M − k) log N ]
+
+   (:func:`band_source_count`; each term is invariant to its bin's scale, so the noise level may
+   change across the band). N is the effective number of independent snapshots of overlapping
+   Hann frames (Welch 1967: frames / (1 + 2 Σ_l (1 − l/K) ρ_l²), ρ_l the window's overlap
+   correlation at l hops; :func:`effective_snapshots`), 0.95 of the frames at 50 % overlap;
+2. per segment of one scan of the tracked STFT (the trackers too take the sources to stay put
+   within a scan), the share of each direction's steering vector outside the k-dimensional
+   signal subspaces, averaged over the bins with each bin's own d/λ (:func:`band_null_spectrum`,
+   the incoherent wideband MUSIC null spectrum), dips where a source is. The spread dimensions lie along the
+   derivatives of the steering vector at the source, so they deepen and widen the source's dip
+   instead of adding one; a noise dimension taken for a signal points elsewhere in each bin and
+   averages out. Each separate dip below half the level of an unrelated direction is a source
+   (:func:`distinct_directions`).
+
+The count recorded is the one most segments of the first few seconds give
+(:func:`count_sources_in_band`). See ``docs/papers/array-bearing.md`` (Recordings: wideband
+sources) and the WAV section of ``docs/importers.md``.
 """
 
 from __future__ import annotations
@@ -236,7 +249,7 @@ class BandCount:
     n_frames: int  # frames per segment
     effective_snapshots: float  # per segment
     segment_counts: np.ndarray  # (S,) distinct directions per segment
-    dimensions: np.ndarray  # (S,) signal-subspace dimension per segment by the band's MDL (≥ count)
+    dimension: int  # the signal subspace's dimension by the band's MDL over the span (≥ count: spread included)
     directions_rad: np.ndarray  # the first segment's directions (ascending)
     leakage_endfire: float  # predicted in-bin eigenvalue ratio at endfire for the window
 
@@ -253,19 +266,22 @@ def _bins(band_hz, sample_rate_hz: float, nfft: int) -> np.ndarray:
     return bins
 
 
-def segment_count(covariances: np.ndarray, n_snapshots: float, bin_spacing_wavelengths, criterion: str = "mdl"):
-    """Sources seen by one segment: the band's MDL dimension k, then the distinct directions of
-    its k-dimensional signal subspaces (:func:`band_null_spectrum`, :func:`distinct_directions`).
+def segment_count(covariances: np.ndarray, n_snapshots: float, bin_spacing_wavelengths, criterion: str = "mdl",
+                  dimension: int | None = None):
+    """Sources seen by one segment: the band's MDL dimension k (unless given), then the distinct
+    directions of its k-dimensional signal subspaces (:func:`band_null_spectrum`,
+    :func:`distinct_directions`).
 
     ``covariances`` (J, M, M) in the trackers' convention; returns ``(k, directions_rad)``.
     """
     M = covariances.shape[-1]
-    dimension, _ = band_source_count(covariances, n_snapshots, criterion, M - 1)
+    if dimension is None:
+        dimension, _ = band_source_count(covariances, n_snapshots, criterion, M - 1)
     if dimension == 0:
         return 0, np.empty(0)
     grid = np.linspace(-np.pi / 2, np.pi / 2, DIRECTION_GRID_POINTS)
     null = band_null_spectrum(covariances, dimension, bin_spacing_wavelengths, grid)
-    return dimension, distinct_directions(null, grid, dimension, M)
+    return int(dimension), distinct_directions(null, grid, dimension, M)
 
 
 def count_sources_in_band(samples: np.ndarray, sample_rate_hz: float, sensor_delay_s: float, band_hz,
@@ -275,8 +291,12 @@ def count_sources_in_band(samples: np.ndarray, sample_rate_hz: float, sensor_del
 
     The recording's first ``span_samples`` are cut into segments of ``segment_frames`` frames of
     the tracked STFT (window ``nfft``, hop ``hop``): over one segment the sources are taken to
-    stay put, as the trackers take them within a scan. In every segment, :func:`segment_count`
-    over every bin of the band; the count is the one most segments give (the smaller on a tie).
+    stay put, as the trackers take them within a scan. The signal subspace's dimension k is the
+    band's MDL over the whole span (each bin's covariance over all the frames: the most
+    snapshots behind one estimate, which weak sources need; motion over the span only adds
+    spread dimensions, which do not add directions). In every segment, the distinct directions
+    of its k-dimensional signal subspaces over the band (:func:`segment_count`); the count is
+    the one most segments give (the smaller on a tie).
 
     Parameters
     ----------
@@ -312,13 +332,17 @@ def count_sources_in_band(samples: np.ndarray, sample_rate_hz: float, sensor_del
     X = np.conj(stft_at_bins(samples, nfft, hop, bins, frames))  # the trackers' exp(+jωτ)
     per_segment = max(1, min(int(segment_frames), frames))
     n_eff = effective_snapshots(per_segment, nfft, hop)
-    counts, dimensions, first = [], [], None
-    for start in range(0, max(frames - per_segment, 0) + 1, per_segment):
-        part = X[start:start + per_segment]
-        cov = np.einsum("kmj,knj->jmn", part, np.conj(part)) / per_segment
-        dimension, directions = segment_count(cov, n_eff, spacing, criterion)
+    covariances = np.stack([np.einsum("kmj,knj->jmn", X[a:a + per_segment], np.conj(X[a:a + per_segment])) / per_segment
+                            for a in range(0, max(frames - per_segment, 0) + 1, per_segment)])  # (S, J, M, M)
+    # one dimension for the whole span, from each bin's covariance over all its frames (the most
+    # snapshots behind one estimate: weak sources need them; motion only adds spread dimensions)
+    whole = covariances.mean(axis=0)
+    dimension, _ = band_source_count(whole, effective_snapshots(per_segment * len(covariances), nfft, hop),
+                                     criterion, M - 1)
+    counts, first = [], None
+    for cov in covariances:
+        _, directions = segment_count(cov, n_eff, spacing, criterion, dimension)
         counts.append(directions.size)
-        dimensions.append(dimension)
         first = directions if first is None else first
     counts = np.asarray(counts)
     kmax = M - 1 if max_sources is None else int(max_sources)
@@ -326,5 +350,5 @@ def count_sources_in_band(samples: np.ndarray, sample_rate_hz: float, sensor_del
     count = min(int(values[np.argmax(votes)]), kmax)  # argmax: the first, smallest, of the ties
     return BandCount(count=count, band_hz=(float(bins[0] * width), float(bins[-1] * width)), nfft=int(nfft),
                      n_bins=int(bins.size), n_frames=int(per_segment), effective_snapshots=float(n_eff),
-                     segment_counts=counts, dimensions=np.asarray(dimensions), directions_rad=first,
+                     segment_counts=counts, dimension=int(dimension), directions_rad=first,
                      leakage_endfire=bin_leakage_ratio(M, sensor_delay_s, nfft / sample_rate_hz))
