@@ -110,7 +110,7 @@ def read_baseline(path: str | Path) -> dict:
     try:
         doc = json.loads(path.read_text())
         doc["metrics"]
-    except (OSError, json.JSONDecodeError, KeyError, TypeError) as exc:
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError) as exc:  # not text: named too
         raise InputError(f"unreadable baseline ({type(exc).__name__})", path) from None
     return doc
 
