@@ -123,7 +123,7 @@ def _reason(tracker: str, metric: str, scope: str, facts: _TrackerFacts | None, 
     if not facts.estimate.any():
         common = facts.common_flags()
         if common == "NO_TRACK":
-            return "no track in any run or scan (every scan NO_TRACK): no plot ever started one"
+            return "no track in any run or scan (every scan NO_TRACK)"
         return "no estimate in any run or scan" + (f" (every cell flagged {common})" if common else "")
     if truthless and not metric.startswith(INNOVATION_METRICS):
         return NO_TRUTH
@@ -139,8 +139,8 @@ def _reason(tracker: str, metric: str, scope: str, facts: _TrackerFacts | None, 
             if _missing(rows[(tracker, base, scope)]):
                 return f"derived from {base}, which has no value: {_reason(tracker, base, scope, facts, rows, out, compared, truthless)}"
             if _missing(rows.get((tracker, base, scope, "ci"))):
-                return (f"the bounds of {base} come from its interval over Monte Carlo runs, which needs "
-                        "values in at least two runs")
+                return (f"the bounds of {base} come from its interval over Monte Carlo runs, which has no value "
+                        "(it needs finite values in at least two runs)")
     if metric.startswith(MATCHED_METRICS + ("track_lifetime",)) and facts.confirmed() == 0:
         tentative = facts.tentative()
         return ("no scan with a confirmed track" +
