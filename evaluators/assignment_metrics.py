@@ -185,10 +185,11 @@ def _matches_keeping_previous(X, Y, vx, vy, tid, ids, gate, angular, pairs=None)
     match = np.full((R, K, T), -1, np.intp)
     dist = np.full((R, K, T), np.nan)
     p, t, s, d = _gated_pairs(X, Y, vx, vy, gate, angular) if pairs is None else pairs
-    r, k = p // K, p % K
+    r, k = np.divmod(p, K)
     weight = gate ** 2 - d ** 2           # the assignment minimises Σ min(d, gate)²
     target, _, _ = global_identities(tid, vx)
-    u, v = target[r, k, t], np.asarray(ids)[r, k, s]
+    # one index per element (run · K + scan) · slots + slot: gathers of one index, not three
+    u, v = target.reshape(-1)[p * T + t], np.asarray(ids).reshape(-1)[p * S + s]
     by_scan = stable_order(k, K)
     bounds = np.searchsorted(k[by_scan], np.arange(K + 1))
     n_targets = int(target.max()) + 1 if target.size else 0
@@ -398,11 +399,13 @@ def _identity_metrics(tracks, truths, gate, ids, truth_ids, matches, convention,
     matched_id = np.where(matched, np.take_along_axis(ids, np.maximum(match, 0), axis=-1), -1)
 
     # one event per target presence, in the order (run, identity, scan): each identity's history
-    r, k, t = np.nonzero(present)                                  # in (run, scan) order
+    at = np.flatnonzero(present)                                   # in (run, scan) order
     number, n_numbers, _ = global_identities(tid, present)          # in (run, identity) order
-    u, v = number[r, k, t], matched_id[r, k, t]
+    u = number.reshape(-1)[at]
     order = stable_order(u, n_numbers)                              # scans stay in order
-    r, k, u, v = r[order], k[order], u[order], v[order]
+    at, u = at[order], u[order]
+    v = matched_id.reshape(-1)[at]
+    r, k = np.divmod(at // T, K)
     n = r.size
     first = np.ones(n, bool)
     first[1:] = (r[1:] != r[:-1]) | (u[1:] != u[:-1])
