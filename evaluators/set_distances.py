@@ -733,7 +733,8 @@ def _window_block(X, Y, radius, angular):
         return _close_pairs_dense(X, Y, radius, angular)
     y_key = y_problem * spacing + (y_at - low)
     x_key = px * spacing + (x_at - low)
-    by_key = np.argsort(y_key)
+    copies = y_at.size // max(py.size, 1)
+    by_key = _order_within_problems(y_at, y_problem, np.concatenate([jy + c * n for c in range(copies)]), copies * n, P)
     y_key = y_key[by_key]
     start = np.searchsorted(y_key, x_key - width, side="left")
     count = np.searchsorted(y_key, x_key + width, side="right") - start
@@ -850,6 +851,19 @@ def pairs_within(pairs, radius: float):
     p, i, j, d = pairs
     keep = d < radius
     return p[keep], i[keep], j[keep], d[keep]
+
+
+def _order_within_problems(position, problem, column, columns: int, P: int) -> np.ndarray:
+    """The entries (``position`` in ``problem`` 0…P−1, each at its own ``column`` < ``columns``
+    of its problem) in the order of (problem, position): what ``argsort`` of
+    ``problem · spacing + position`` gives, up to the order of equal keys, from one short sort
+    per problem on a (P, columns) table instead of one sort of every entry."""
+    table = np.full((P, columns), np.inf)
+    table[problem, column] = position
+    entry = np.full((P, columns), -1, np.int64)
+    entry[problem, column] = np.arange(position.size)
+    ordered = np.take_along_axis(entry, np.argsort(table, axis=1), axis=1).reshape(-1)
+    return ordered[ordered >= 0]
 
 
 def _no_pairs():
