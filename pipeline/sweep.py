@@ -34,9 +34,9 @@ process pool or a Dask cluster.
   (data set, outputs, recording) are removed, and only those (:func:`discard_point_files`). A
   worker process that dies under a point is that point's failure; the other points finish
   (:func:`_iter_process`; on Dask after its retries). A point whose files cannot be written (a
-  full or read-only disk, a file size limit: :data:`DISK_ERRNOS`) stops the whole sweep with
-  one line naming the file, since every other point would fail the same way; finished points
-  are kept for ``--resume``.
+  full or read-only disk, a file size limit: :data:`pipeline.paths.DISK_ERRNOS`) stops the
+  whole sweep with one line naming the file, since every other point would fail the same way;
+  finished points are kept for ``--resume``.
 * Dask is the engine beyond one machine (``Client(address)``); locally a ``LocalCluster``
   whose scheduler, nannies and workers (and their HTTP routes, on a random port) listen on
   127.0.0.1 only, without dashboard. No home-made scheduler.
@@ -44,7 +44,6 @@ process pool or a Dask cluster.
 
 from __future__ import annotations
 
-import errno
 import hashlib
 import itertools
 import json
@@ -69,6 +68,9 @@ from pipeline import __version__
 from pipeline.contract import atomic_output
 from pipeline.errors import InputError
 from pipeline.isolation import DEFAULT_TRACKER_TIME_LIMIT_S
+# errors of writing a point's files that no other point would escape (a full or read-only disk, a
+# file size limit): the sweep stops at the first, with one line naming the file
+from pipeline.paths import DISK_ERRNOS, disk_error
 
 EXECUTORS = ("serial", "process", "dask")
 
@@ -135,11 +137,6 @@ class PointResult:
     # (errno, problem, file) when the point failed because its files could not be written (a full
     # or read-only disk, a file size limit): every point would, so the sweep stops (DISK_ERRNOS)
     disk_error: tuple | None = None
-
-
-#: errors of writing a point's files that no other point would escape: the sweep stops at the
-#: first, with one line naming the file, instead of failing every point the same way
-DISK_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.EACCES, errno.EPERM})
 
 
 def point_seed(base_seed: int, overrides) -> int:
@@ -295,9 +292,10 @@ def _run_point(task: PointTask) -> tuple[list[dict], list, dict]:
                      design_overrides=dict(task.design) or None, tracker_specs=task.tracker_specs,
                      recorder=recording, tracker_time_limit_s=task.tracker_time_limit_s)
         done = True
-    except OSError as exc:
-        if exc.filename is None and exc.errno is not None:
-            raise OSError(exc.errno, exc.strerror or str(exc), str(writing[0])) from None
+    except (OSError, RuntimeError) as exc:  # a writer's failure that names no file (Rerun's: RuntimeError)
+        named = disk_error(exc, writing[0])
+        if named is not None:
+            raise named from None
         raise
     finally:
         if not keep:
