@@ -149,12 +149,17 @@ def _reason(tracker: str, metric: str, scope: str, facts: _TrackerFacts | None, 
         finite = facts.finite_nis()
         if finite is None:
             return "the tracker reports no innovation covariance"
+        if finite == 0 and not np.isfinite(np.asarray(facts.out["innovation"])).any():
+            return "no innovation in any run or scan: no measurement was used (every scan coasted)"
         if finite == 0:
             return ("no finite NIS: the innovation covariance is not positive definite (or its inverse overflows) "
                     "wherever there is an innovation")
         if metric.startswith("whiteness"):
             w = np.asarray(facts.innovation[0])
-            largest = float(np.max(np.abs(w[np.isfinite(w)]), initial=0.0))
+            finite_w = np.abs(w[np.isfinite(w)])
+            if not finite_w.size:
+                return "no whitened innovation in any run or scan"
+            largest = float(finite_w.max())
             # a correlation over lags multiplies pairs of whitened innovations: beyond √(float max)
             # their products overflow
             if largest == 0:
@@ -171,6 +176,10 @@ def _reason(tracker: str, metric: str, scope: str, facts: _TrackerFacts | None, 
                       and k[1].startswith(BOUND_METRICS) and k[1].split("_")[1] == metric.split("_")[0]), None)
         if bound is not None and _missing(rows[(tracker, bound, scope)]):
             return f"its bound {bound} has no value"
+    if metric.endswith("_held") and not (rows.get((tracker, "held_rate", scope)) or 0) > 0:
+        # taken over the tracks held (on their own target at the last scan, never swapped:
+        # evaluators.track_association)
+        return "no track held its target to the last scan, over which it is taken"
     if metric.startswith(BOUND_METRICS):
         return ("the bound is not finite at any scan scored here: its information matrix is singular or overflows "
                 "at these design values")

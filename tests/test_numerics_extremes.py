@@ -53,6 +53,8 @@ MISSING_SETTINGS = [
     ("radar-tws", {"sigma_bearing_deg": "1e-9", "n_scans": "16"}, "kalman", "position_efficiency",
      "pcrb_position_m has no value"),
     ("colored-ar", {"measurement_variance_m2": "1e-300"}, "ar_estimator", "alpha_rmse", "NaN in every run"),
+    ("xcorr-crossing", {"detection_probability": "1e-9"}, "jpda", "rmse_bearing_deg_held", "no track held"),
+    ("xcorr-crossing", {"amplitude_threshold": "5e9"}, "jpda", "mean_nis", "no innovation in any run"),
     ("colored-ar", {"measurement_variance_m2": "1e-300", "n_samples": "200"}, "kf", "whiteness_max_abs_rho",
      "every whitened innovation is 0"),
 ]
@@ -139,7 +141,7 @@ def test_every_metric_without_a_value_says_why(tmp_path, scenario, overrides, tr
     assert missing.any()
     assert s.filter(missing)["note"].is_null().sum() == 0, "a metric without a value has no note"
     assert s.filter(~missing)["note"].is_null().all(), "a metric with a value has a note"
-    notes = s.filter((pl.col("tracker") == tracker) & (pl.col("metric") == metric))["note"].to_list()
+    notes = s.filter(missing & (pl.col("tracker") == tracker) & (pl.col("metric") == metric))["note"].to_list()
     assert notes and all(reason in n for n in notes), notes
 
 
