@@ -414,7 +414,7 @@ def _identity_metrics(tracks, truths, gate, ids, truth_ids, matches, convention,
     hit = v >= 0
     # the latest earlier event of the same identity with a match (any number of scans back)
     last_hit = np.maximum.accumulate(np.where(hit, np.arange(n), -1))
-    before = np.concatenate([[-1], last_hit[:-1]])
+    before = np.concatenate([[-1], last_hit[:-1]])[:n]          # (nothing when no target is present)
     earlier = before >= group_start
     prev_v = np.where(earlier, v[np.maximum(before, 0)], -1)
     switches = hit & earlier & (prev_v != v)

@@ -375,6 +375,19 @@ def test_measures_on_gated_pairs_found_once_equal_their_own(seed, runs, scans, t
     siap_shared = siap_sums(positions, truths, gate, times, *ids, angular, pairs=pairs)
     for key, value in siap.items():
         assert siap_shared[key].tobytes() == value.tobytes(), key
+    # HOTA's sparse form from pairs found out to a wider gate (those within d₀ kept), as
+    # evaluate_standard hands them over, and the matching from those within the gate
+    from evaluators.hota import hota_sums
+    from evaluators.set_distances import pairs_within
+
+    d0 = 1.5 * gate
+    wide = gated_pairs(positions, truths, 2.0 * gate, angular, *ids)
+    hota = hota_sums(positions, truths, d0, *ids, angular, method="sparse")
+    hota_shared = hota_sums(positions, truths, d0, *ids, angular, method="sparse", pairs=wide)
+    for key in hota:
+        assert hota_shared[key].tobytes() == hota[key].tobytes(), key
+    for g, w in zip(pairs_within(wide, gate), pairs):
+        assert g.tobytes() == w.tobytes()
 
 
 # ------------------------------------------------------------------ identity helpers
@@ -457,3 +470,16 @@ def test_components_by_propagation_are_scipys(monkeypatch, edges, rows, cols, ch
     renumber = np.empty(want_n, np.int64)
     renumber[np.argsort(first)] = np.arange(want_n)
     np.testing.assert_array_equal(label, renumber[want])
+
+
+def test_identity_measures_of_runs_without_any_target():
+    """No target present anywhere (truth identities given): no presence, every track a false
+    positive and a false track, no error (hypothesis found this case)."""
+    from evaluators.assignment_metrics import assignment_metrics
+
+    tracks = np.random.default_rng(1).normal(size=(2, 3, 2, 2))
+    truths = np.full((2, 3, 1, 2), np.nan)
+    out = assignment_metrics(tracks, truths, 1.0, np.broadcast_to([[0, 1]], (2, 3, 2)), truth_ids=np.full((2, 3, 1), -1))
+    assert out["presences"].tolist() == [0, 0] and out["matches"].tolist() == [0, 0]
+    assert out["false_positives"].tolist() == [6, 6] and out["idfp"].tolist() == [6, 6]
+    assert out["false_tracks"].tolist() == [2, 2] and out["id_switches"].tolist() == [0, 0]
