@@ -181,12 +181,12 @@ def test_a_long_recording_groups_scans_and_reads_as_one_message_per_scan(tmp_pat
     _same_channels(read_dataset(tmp_path / "again.mcap"), plain)
 
 
-@pytest.mark.parametrize("runs", [1, 5])
-def test_replay_outputs_of_a_long_recording_group_scans(tmp_path, runs):
+@pytest.mark.parametrize("runs, extra", [(1, 1), (5, 700)])  # (1, 1): the last message holds one scan
+def test_replay_outputs_of_a_long_recording_group_scans(tmp_path, runs, extra):
     from pipeline.contract import GROUP_MIN_SCANS, read_dataset, scans_per_message, write_dataset
 
     rng = np.random.default_rng(2)
-    n_scans = GROUP_MIN_SCANS + 700
+    n_scans = GROUP_MIN_SCANS + extra
     A = rng.normal(size=(runs, n_scans, 4, 4))
     arrays = {"state": rng.normal(size=(runs, n_scans, 4)), "covariance": A @ np.swapaxes(A, -1, -2),
               "flags": rng.integers(0, 9, size=(runs, n_scans)).astype(np.uint32),
