@@ -1162,9 +1162,11 @@ def eval_cmd(data, outputs, as_json, per_scan, export_dir, recover, trackers, se
         _print_stage_reports(res)
         _print_design_notes(res)
     if export_dir:
-        with progress.timed("export"):
-            tables = _export_tables(res, export_dir)
-            plots = _report_plot(res, export_dir)
+        # the tables and figures as one set (pipeline.paths.OutputSet): all of them or none
+        with progress.timed("export"), OutputSet(export_dir, replaces=REPORT_FILES, inputs=[data, outputs],
+                                                 name="export", say=_say) as staged:
+            tables = [staged.final(p) for p in _export_tables(res, staged.stage)]
+            plots = [staged.final(p) for p in _report_plot(res, staged.stage)]
         # with --json, stdout stays pure JSON: the paths go to stderr
         click.echo("", err=as_json)
         _list_outputs(export_dir, [("tables", tables), ("plots", plots)], err=as_json)
