@@ -29,7 +29,8 @@ Conventions:
   or ``band_hz``) by :mod:`pipeline.cores.array.wideband_count`: per scan of the first
   ``COUNT_SPAN_S`` seconds (of 2M frames if a scan has fewer), the band's null spectrum gives the
   distinct directions in the signal subspace, whose dimension the band's MDL over the whole span
-  gives (a wideband or moving source fills more than one dimension but is one direction); the
+  gives, with the noise taken as white or as diffuse over white, whichever describes the band
+  better (a wideband or moving source fills more than one dimension but is one direction); the
   count most scans give
   is recorded as the trackers' ``n_sources``, so a replay starts that many tracks (``--set
   n_sources=…`` overrides it; 0 makes the trackers count at start-up from the tracked bin, as
@@ -203,6 +204,8 @@ def convert_array_wav(src, dst, spacing_m: float, frequency_hz: float, sound_spe
               "source_count_frames": counted.n_frames, "source_count_effective_snapshots": counted.effective_snapshots,
               "source_count_per_segment": [int(c) for c in counted.segment_counts],
               "source_count_dimension": counted.dimension,
+              "source_count_noise_model": ("white" if counted.diffuse_to_white_db is None else
+                                           f"diffuse {counted.diffuse_to_white_db:g} dB over white"),
               "source_count_leakage_db": float(10 * np.log10(counted.leakage_endfire))}
     n = write_simulated(dst, data, scenario_metadata("array-wav", params, 0))
     return {"messages": n, "scans": K, "sensors": M, "bin_hz": bin_hz,

@@ -17,17 +17,20 @@ from click.testing import CliRunner
 
 import independent_array_generator as gen
 from pipeline.contract import read_dataset
+from pipeline.cores.array import wideband_count as wc
 from pipeline.cores.array.past_subspace import subspace_instant_offset
 from pipeline.face.cli import main
 from pipeline.replay import replay
 
 SPACING_M, FREQUENCY_HZ, SECONDS = 0.05, 3430.0, 10.0
 D = np.deg2rad
-RECORDINGS = {  # name: (sources, SNR per sensor and source in the source band (dB), seed)
+RECORDINGS = {  # name: (sources, SNR per sensor and source in the source band (dB), seed[, frequency])
     "static-25dB": ([gen.Source(D(-35.0)), gen.Source(D(5.0)), gen.Source(D(40.0))], 25.0, 11),
     "static-15dB": ([gen.Source(D(-50.0)), gen.Source(D(-10.0)), gen.Source(D(30.0))], 15.0, 12),
     "moving-25dB": ([gen.Source(D(-40.0), D(3.2)), gen.Source(D(45.0), D(-2.5))], 25.0, 13),
     "moving-15dB": ([gen.Source(D(-45.0), D(2.0)), gen.Source(D(0.0)), gen.Source(D(50.0), D(-3.0))], 15.0, 14),
+    # d = 0.29 λ: the diffuse noise is far from white there (neighbours correlate by 0.47)
+    "moving-20dB-2kHz": ([gen.Source(D(-40.0), D(3.0)), gen.Source(D(35.0), D(-2.0))], 20.0, 5, 2000.0),
 }
 TOLERANCE_DEG = 0.5
 
@@ -37,11 +40,11 @@ def converted(tmp_path_factory):
     """Every recording written, converted at the defaults and replayed at the defaults."""
     folder = tmp_path_factory.mktemp("foreign")
     out = {}
-    for name, (sources, snr_db, seed) in RECORDINGS.items():
+    for name, (sources, snr_db, seed, *frequency) in RECORDINGS.items():
         wav, mcap = folder / f"{name}.wav", folder / f"{name}.mcap"
         gen.write_wav(wav, gen.record(sources, snr_db, SECONDS, seed))
         r = CliRunner().invoke(main, ["convert", "array-wav", str(wav), "-o", str(mcap), "--spacing-m", str(SPACING_M),
-                                      "--frequency-hz", str(FREQUENCY_HZ)])
+                                      "--frequency-hz", str(frequency[0] if frequency else FREQUENCY_HZ)])
         assert r.exit_code == 0, r.output
         out[name] = (mcap, sources, r.output, replay(mcap))
     return out
@@ -95,6 +98,24 @@ def test_scans_are_stamped_at_their_centre_and_moving_tracks_do_not_trail(conver
                 assert abs(signed) < 0.1, signed
             else:
                 assert abs(signed - lag) < abs(lag) / 3, (signed, lag)
+
+
+def test_diffuse_noise_alone_is_no_source_once_modelled():
+    """Diffuse noise at d = 0.29 λ has eigenvalues spread by tens of dB: MDL taking it as white
+    counts sources in noise alone, the count with the noise model chosen by description length
+    (:func:`noise_model_and_dimension`) counts none, and the model it picks is a diffuse one."""
+    fs, M, frequency = 16000, 8, 2000.0
+    noise = gen.diffuse_noise(fs * 3, fs, M, SPACING_M, 343.0, np.random.default_rng(3)).T
+    noise += 0.01 * np.random.default_rng(4).standard_normal(noise.shape)  # sensor noise, 20 dB below
+    bins = wc._bins((0.9 * frequency, 1.1 * frequency), fs, 512)
+    X = np.conj(wc.stft_at_bins(noise[:, ::-1], 512, 256, bins))
+    cov = np.einsum("kmj,knj->jmn", X, np.conj(X)) / X.shape[0]
+    n_eff = wc.effective_snapshots(X.shape[0], 512, 256)
+    spacing = SPACING_M / 343.0 * bins * fs / 512
+    assert wc.band_source_count(cov, n_eff)[0] >= M // 2  # white-noise MDL: noise taken for sources
+    ratio_db, dimension, _ = wc.noise_model_and_dimension(cov, n_eff, spacing)
+    assert dimension == 0 and ratio_db is not None and ratio_db >= 10.0
+    assert wc.segment_count(cov, n_eff, spacing)[1].size == 0
 
 
 def test_past_instant_offset_is_the_mean_age_of_its_weights():

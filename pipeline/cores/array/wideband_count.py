@@ -39,7 +39,10 @@ dimensions:
    (:func:`band_source_count`; each term is invariant to its bin's scale, so the noise level may
    change across the band). N is the effective number of independent snapshots of overlapping
    Hann frames (Welch 1967: frames / (1 + 2 Σ_l (1 − l/K) ρ_l²), ρ_l the window's overlap
-   correlation at l hops; :func:`effective_snapshots`), 0.95 of the frames at 50 % overlap;
+   correlation at l hops; :func:`effective_snapshots`), 0.95 of the frames at 50 % overlap.
+   The noise is taken as white or as diffuse over white (spherically isotropic noise is
+   correlated between neighbours below d = λ/2), whichever model describes the band better
+   (:func:`noise_model_and_dimension`); the next step works on the data whitened by it;
 2. per segment of one scan of the tracked STFT (the trackers too take the sources to stay put
    within a scan), the share of each direction's steering vector outside the k-dimensional
    signal subspaces, averaged over the bins with each bin's own d/λ (:func:`band_null_spectrum`,
@@ -63,6 +66,9 @@ import numpy as np
 from pipeline.cores.array.music import information_criterion
 
 DIRECTION_GRID_POINTS = 1801  # 0.1° steps over the half-plane for the directions of the count
+# diffuse-to-white noise power ratios the count tries (dB; none first): from white sensor noise
+# alone to a diffuse field 40 dB above the sensors' own noise
+DIFFUSE_TO_WHITE_DB = (None, -10.0, -5.0, 0.0, 5.0, 10.0, 15.0, 20.0, 25.0, 30.0, 35.0, 40.0)
 
 
 def hann_window(nfft: int) -> np.ndarray:
@@ -176,7 +182,8 @@ def band_source_count(covariances: np.ndarray, n_snapshots: float, criterion: st
     return int(np.argmin(scores)), scores
 
 
-def band_null_spectrum(covariances: np.ndarray, dimension: int, spacing_wavelengths, grid: np.ndarray) -> np.ndarray:
+def band_null_spectrum(covariances: np.ndarray, dimension: int, spacing_wavelengths, grid: np.ndarray,
+                       whiteners: np.ndarray | None = None) -> np.ndarray:
     """Share of each direction's steering vector outside the band's signal subspaces.
 
     ``Q(θ) = (1/J) Σ_j ‖(I − E_j E_jᴴ) a_j(θ)‖² / M``, E_j the ``dimension`` leading
@@ -194,6 +201,10 @@ def band_null_spectrum(covariances: np.ndarray, dimension: int, spacing_waveleng
         d/λ at each bin's frequency.
     grid : ndarray, shape (G,)
         Directions (rad from broadside).
+    whiteners : ndarray, complex, shape (J, M, M), optional
+        W_j with W_j N_j W_jᴴ = I for the noise covariance N_j of each bin
+        (:func:`noise_whiteners`): the subspaces and steering vectors are then those of the
+        whitened data, W_j R_j W_jᴴ and W_j a_j(θ), and each share is taken of ‖W_j a_j(θ)‖².
 
     Returns
     -------
@@ -202,13 +213,71 @@ def band_null_spectrum(covariances: np.ndarray, dimension: int, spacing_waveleng
     from pipeline.cores.array.linear_array import steering_vectors
 
     J, M, _ = covariances.shape
+    if whiteners is not None:
+        covariances = whiteners @ covariances @ np.conj(np.swapaxes(whiteners, -1, -2))
     vectors = np.linalg.eigh(covariances)[1][..., ::-1][..., :dimension]  # (J, M, k), leading first
     spacing = np.broadcast_to(np.asarray(spacing_wavelengths, float), (J,))
-    inside = np.zeros(np.shape(grid))
+    outside = np.zeros(np.shape(grid))
     for j in range(J):
         a = steering_vectors(grid[None, :], M, spacing[j])[0]  # (M, G)
-        inside += np.sum(np.abs(np.conj(vectors[j]).T @ a) ** 2, axis=0)
-    return 1.0 - inside / (J * M)
+        if whiteners is not None:
+            a = whiteners[j] @ a
+        norm = np.sum(np.abs(a) ** 2, axis=0)
+        outside += 1.0 - np.sum(np.abs(np.conj(vectors[j]).T @ a) ** 2, axis=0) / norm
+    return outside / J
+
+
+def diffuse_coherence(n_sensors: int, spacing_wavelengths) -> np.ndarray:
+    """Coherence of spherically isotropic (diffuse) noise between the sensors of a uniform linear
+    array: ``sin(k r) / (k r)`` at distance r = |m − n| d (Cook, Waterhouse, Edwards & Thompson
+    1955), ``np.sinc(2 (d/λ) |m − n|)``; shape ``(..., M, M)`` for d/λ of shape ``(...)``.
+    It vanishes between neighbours at d = λ/2 and tends to 1 as d/λ falls."""
+    gaps = np.abs(np.subtract.outer(np.arange(n_sensors), np.arange(n_sensors)))
+    return np.sinc(2.0 * np.asarray(spacing_wavelengths, float)[..., None, None] * gaps)
+
+
+def noise_whiteners(n_sensors: int, spacing_wavelengths, diffuse_to_white_db: float) -> np.ndarray:
+    """W with ``W N Wᴴ = I`` for the noise covariance ``N = I + ρ Γ`` of each bin: diffuse noise
+    (:func:`diffuse_coherence`) ρ = 10^(dB/10) times the power of the spatially white sensor
+    noise under it (the scale of N does not matter). ``N^(−1/2)`` from its eigen-decomposition;
+    shape ``(J, M, M)``."""
+    ratio = 10.0 ** (float(diffuse_to_white_db) / 10.0)
+    N = np.eye(n_sensors) + ratio * diffuse_coherence(n_sensors, spacing_wavelengths)
+    values, vectors = np.linalg.eigh(N)
+    return (vectors / np.sqrt(values)[..., None, :]) @ np.conj(np.swapaxes(vectors, -1, -2))
+
+
+def noise_model_and_dimension(covariances: np.ndarray, n_snapshots: float, spacing_wavelengths,
+                              criterion: str = "mdl", ratios_db=DIFFUSE_TO_WHITE_DB):
+    """The noise model (diffuse over white) and the signal subspace's dimension that describe a
+    band best.
+
+    MDL takes the noise as spatially white. Diffuse noise is not, below d = λ/2: neighbours are
+    correlated, and its eigenvalues spread (by 37 dB for 8 sensors at d = 0.29 λ), so MDL counts
+    noise as signals. For every diffuse-to-white ratio of :data:`DIFFUSE_TO_WHITE_DB` the band's
+    covariances are whitened by :func:`noise_whiteners`; the per-bin MDL of the whitened
+    covariances is the likelihood ratio of the model against the unconstrained covariance (an
+    invertible whitening leaves that ratio as it is), which makes the ratios comparable, and a
+    diffuse part pays one parameter more (½ log N). The pair (ratio, k) of least description
+    length wins (:func:`band_source_count`).
+
+    Returns
+    -------
+    ratio_db : float or None
+        None: white noise alone.
+    dimension : int
+    whiteners : ndarray, shape (J, M, M), or None for white noise
+    """
+    M = covariances.shape[-1]
+    best = None
+    for ratio_db in ratios_db:
+        W = None if ratio_db is None else noise_whiteners(M, spacing_wavelengths, ratio_db)
+        cov = covariances if W is None else W @ covariances @ np.conj(np.swapaxes(W, -1, -2))
+        k, scores = band_source_count(cov, n_snapshots, criterion, M - 1)
+        length = scores[k] * covariances.shape[0] + (0.0 if W is None else 0.5 * np.log(n_snapshots))
+        if best is None or length < best[0]:
+            best = (length, ratio_db, int(k), W)
+    return best[1], best[2], best[3]
 
 
 def distinct_directions(null_spectrum: np.ndarray, grid: np.ndarray, dimension: int, n_sensors: int) -> np.ndarray:
@@ -250,6 +319,7 @@ class BandCount:
     effective_snapshots: float  # per segment
     segment_counts: np.ndarray  # (S,) distinct directions per segment
     dimension: int  # the signal subspace's dimension by the band's MDL over the span (≥ count: spread included)
+    diffuse_to_white_db: float | None  # the noise model that describes the band best (None: white)
     directions_rad: np.ndarray  # the first segment's directions (ascending)
     leakage_endfire: float  # predicted in-bin eigenvalue ratio at endfire for the window
 
@@ -267,20 +337,22 @@ def _bins(band_hz, sample_rate_hz: float, nfft: int) -> np.ndarray:
 
 
 def segment_count(covariances: np.ndarray, n_snapshots: float, bin_spacing_wavelengths, criterion: str = "mdl",
-                  dimension: int | None = None):
-    """Sources seen by one segment: the band's MDL dimension k (unless given), then the distinct
-    directions of its k-dimensional signal subspaces (:func:`band_null_spectrum`,
-    :func:`distinct_directions`).
+                  dimension: int | None = None, whiteners: np.ndarray | None = None):
+    """Sources seen by one segment: the band's MDL dimension k (unless given, with the noise model
+    of :func:`noise_model_and_dimension`), then the distinct directions of its k-dimensional
+    signal subspaces (:func:`band_null_spectrum`, :func:`distinct_directions`).
 
-    ``covariances`` (J, M, M) in the trackers' convention; returns ``(k, directions_rad)``.
+    ``covariances`` (J, M, M) in the trackers' convention; ``whiteners`` (J, M, M) the noise
+    model's whitening (None: white noise, or the model chosen here when ``dimension`` is None);
+    returns ``(k, directions_rad)``.
     """
     M = covariances.shape[-1]
     if dimension is None:
-        dimension, _ = band_source_count(covariances, n_snapshots, criterion, M - 1)
+        _, dimension, whiteners = noise_model_and_dimension(covariances, n_snapshots, bin_spacing_wavelengths, criterion)
     if dimension == 0:
         return 0, np.empty(0)
     grid = np.linspace(-np.pi / 2, np.pi / 2, DIRECTION_GRID_POINTS)
-    null = band_null_spectrum(covariances, dimension, bin_spacing_wavelengths, grid)
+    null = band_null_spectrum(covariances, dimension, bin_spacing_wavelengths, grid, whiteners)
     return int(dimension), distinct_directions(null, grid, dimension, M)
 
 
@@ -334,14 +406,14 @@ def count_sources_in_band(samples: np.ndarray, sample_rate_hz: float, sensor_del
     n_eff = effective_snapshots(per_segment, nfft, hop)
     covariances = np.stack([np.einsum("kmj,knj->jmn", X[a:a + per_segment], np.conj(X[a:a + per_segment])) / per_segment
                             for a in range(0, max(frames - per_segment, 0) + 1, per_segment)])  # (S, J, M, M)
-    # one dimension for the whole span, from each bin's covariance over all its frames (the most
-    # snapshots behind one estimate: weak sources need them; motion only adds spread dimensions)
-    whole = covariances.mean(axis=0)
-    dimension, _ = band_source_count(whole, effective_snapshots(per_segment * len(covariances), nfft, hop),
-                                     criterion, M - 1)
+    # one noise model and dimension for the whole span, from each bin's covariance over all its
+    # frames (the most snapshots behind one estimate: weak sources need them; motion over the
+    # span only adds spread dimensions, which add no direction)
+    share, dimension, whiteners = noise_model_and_dimension(
+        covariances.mean(axis=0), effective_snapshots(per_segment * len(covariances), nfft, hop), spacing, criterion)
     counts, first = [], None
     for cov in covariances:
-        _, directions = segment_count(cov, n_eff, spacing, criterion, dimension)
+        _, directions = segment_count(cov, n_eff, spacing, criterion, dimension, whiteners)
         counts.append(directions.size)
         first = directions if first is None else first
     counts = np.asarray(counts)
@@ -350,5 +422,5 @@ def count_sources_in_band(samples: np.ndarray, sample_rate_hz: float, sensor_del
     count = min(int(values[np.argmax(votes)]), kmax)  # argmax: the first, smallest, of the ties
     return BandCount(count=count, band_hz=(float(bins[0] * width), float(bins[-1] * width)), nfft=int(nfft),
                      n_bins=int(bins.size), n_frames=int(per_segment), effective_snapshots=float(n_eff),
-                     segment_counts=counts, dimension=int(dimension), directions_rad=first,
+                     segment_counts=counts, dimension=int(dimension), diffuse_to_white_db=share, directions_rad=first,
                      leakage_endfire=bin_leakage_ratio(M, sensor_delay_s, nfft / sample_rate_hz))
