@@ -154,10 +154,13 @@ def run_in_child(job, time_limit_s: float | None = None):
 
 def _child(job, write_end: int, parent: int) -> None:
     """The child's whole life: signals, the job, the answer."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's; it ends this process
-    for name in ("SIGTERM", "SIGHUP"):  # the parent's handlers (a sweep's) are not this process's
-        if hasattr(signal, name):
-            signal.signal(getattr(signal, name), signal.SIG_DFL)
+    try:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's; it ends this process
+        for name in ("SIGTERM", "SIGHUP"):  # the parent's handlers (a sweep's) are not this process's
+            if hasattr(signal, name):
+                signal.signal(getattr(signal, name), signal.SIG_DFL)
+    except (ValueError, OSError):  # not the main thread of an embedding interpreter: left as they are
+        pass
     _die_with(parent)
     try:
         answer = ("ok", job())
