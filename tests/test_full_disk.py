@@ -160,3 +160,63 @@ def test_a_full_or_read_only_disk_gives_one_line_naming_the_file(tmp_path, small
         {Path(rel).parts[0] for rel in placed}), (kind, case)
     assert _snapshot(elsewhere) == before_elsewhere and not any(elsewhere.iterdir()), (kind, case)
     assert hashlib.sha256(small.read_bytes()).hexdigest() == data_before
+
+
+def test_writer_failures_without_a_file_name_name_the_output(tmp_path):
+    """What writers say on a full disk (no file name, a temporary's name, Rerun's own words)
+    becomes an OSError naming the output; other failures are left alone."""
+    import errno
+
+    from pipeline.paths import disk_error
+
+    out = tmp_path / "tracks.rrd"
+    cases = [OSError(errno.ENOSPC, "No space left on device"),
+             OSError(errno.EFBIG, "File too large", str(tmp_path / "tracks.rrd.k2j4h1.tmp")),
+             RuntimeError("Failed to encode LogMsg: Failed to write: No space left on device (os error 28)")]
+    for exc in cases:
+        named = disk_error(exc, out)
+        assert isinstance(named, OSError) and named.filename == str(out) and named.errno == getattr(exc, "errno", 28)
+    stopped = disk_error(RuntimeError("File-writer thread shut down prematurely"), out)
+    assert stopped.filename == str(out) and "Rerun writer stopped" in stopped.strerror
+    assert disk_error(OSError(errno.EACCES, "Permission denied", str(tmp_path / "other")), out) is None
+    assert disk_error(ValueError("a bug"), out) is None
+
+
+def test_a_writer_call_that_never_returns_is_abandoned_in_bounded_time(tmp_path):
+    import threading
+    import time
+
+    from pipeline import paths
+
+    never = threading.Event()
+    t0 = time.monotonic()
+    with pytest.raises(OSError) as caught:
+        paths.bounded_call(never.wait, 0.5, tmp_path / "x.rrd", "a stalled save")
+    assert time.monotonic() - t0 < 5 and caught.value.filename == str(tmp_path / "x.rrd")
+    assert "did not return" in caught.value.strerror
+    assert paths.bounded_call(lambda: 42, 5, tmp_path / "x.rrd", "a quick call") == 42
+    never.set()
+
+
+def test_the_recording_process_is_not_waited_for_forever(tmp_path, monkeypatch):
+    """A child that stalls after its payload (as Rerun's writer did on a full disk) is stopped
+    at the watchdog's limit, and the replay fails naming the recording."""
+    import time
+
+    from pipeline.face import recording_process
+
+    monkeypatch.setattr(recording_process, "RECORDING_TIMEOUT_S", 1.0)
+    recorder = recording_process.RecordingProcess.__new__(recording_process.RecordingProcess)
+    recorder._data_path, recorder._input_stamp = tmp_path / "data.mcap", None
+    recorder._errors = __import__("tempfile").TemporaryFile()
+    recorder._child = subprocess.Popen([sys.executable, "-c", "import sys, time; sys.stdin.buffer.read(); time.sleep(60)"],
+                                       stdin=subprocess.PIPE)
+
+    class Data:
+        cache = {}
+
+    t0 = time.monotonic()
+    with pytest.raises(OSError) as caught:
+        recorder(tmp_path / "tracks.rrd", Data(), [], {}, None)
+    assert time.monotonic() - t0 < 15 and caught.value.filename == str(tmp_path / "tracks.rrd")
+    assert recorder._child.poll() is not None  # stopped, not left behind
