@@ -188,3 +188,24 @@ def test_a_regular_file_at_an_output_name_is_replaced_without_a_moment_of_absenc
         del os.environ["TRACKREPLAY_PUBLISH_TRACE"]
     assert seen == [("links", "old"), ("swap", "old"), ("swapped", "new"), ("done", "new")]
     assert (folder / "errors.png").read_text() == "old figure" and len(notes) == 1 and "errors.png" in notes[0]
+
+
+def test_figures_drawn_later_join_the_set_and_leave_with_it(tmp_path, radar_small, monkeypatch):
+    """``replay plot`` adds its figures to the published set (links into its version folder), so
+    the next replay's set replaces them like the rest instead of leaving old figures beside it."""
+    from click.testing import CliRunner
+
+    from pipeline.face.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    out = tmp_path / "o"
+    run = ["--out", str(out / "tracks.mcap"), "--no-rrd", "--figures", "none"]
+    assert CliRunner().invoke(main, [str(radar_small), *run]).exit_code == 0
+    assert not (out / "report.png").exists()
+    res = CliRunner().invoke(main, ["plot", str(radar_small), str(out / "tracks.mcap")])
+    assert res.exit_code == 0, res.output
+    version = out / os.readlink(out / ".replay-current")
+    assert (out / "report.png").is_symlink() and (version / "report.png").is_file()
+    assert CliRunner().invoke(main, [str(radar_small), *run, "--force"]).exit_code == 0
+    assert not (out / "report.png").exists() and not (out / "report.png").is_symlink()
+    assert len(_hidden(out)) == 2
