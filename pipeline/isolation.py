@@ -34,6 +34,7 @@ import struct
 import sys
 import threading
 import time
+import warnings
 
 from pipeline.errors import InputError
 
@@ -108,8 +109,6 @@ def run_in_child(job, time_limit_s: float | None = None):
             pass
     read_end, write_end = os.pipe()
     parent = os.getpid()
-    import warnings
-
     with warnings.catch_warnings():  # Python ≥ 3.12 warns about fork with threads; the child runs no other
         warnings.simplefilter("ignore", DeprecationWarning)
         pid = os.fork()
@@ -148,7 +147,11 @@ def run_in_child(job, time_limit_s: float | None = None):
         return answer[1]
     if kind == "input":
         _, cls, problem, path = answer
-        raise cls(problem, path)
+        try:
+            error = cls(problem, path)
+        except TypeError:  # a subclass built another way: its message all the same
+            error = InputError(problem, path)
+        raise error
     raise ChildRaised(answer[1])
 
 
