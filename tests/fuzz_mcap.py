@@ -1166,7 +1166,7 @@ def run(mutants: int, seed: int, folder: Path | None = None, jobs: int = 1, time
                 by_kind[kind][outcome] += 1
                 by_base.setdefault(base, {}).setdefault(outcome, 0)
                 by_base[base][outcome] += 1
-                if outcome in FAILURES or outcome == "inconsistent":
+                if outcome in FAILURES or outcome == "inconsistent" or outcome == "refused_per_tracker":
                     examples.append(f"mutant {i} ({base}, {kind}): {outcome}: {text}")
                 if progress == 1:
                     print(f"  mutant {i} ({base}, {kind}): {outcome}: {text[:200]}", flush=True)
