@@ -5,8 +5,9 @@ project's simulator: speech-like sources, time-varying fractional delays by a wi
 interpolator (sources that move during the recording), spherically isotropic (diffuse) noise.
 Each is converted as a user would (``replay convert array-wav REC.wav --spacing-m 0.05
 --frequency-hz 3430``) and replayed with no ``--set``: the source count must be right and every
-source tracked within 0.5° of the truth at the scans' time stamps, by both trackers, static and
-moving, at two SNRs. See ``docs/papers/array-bearing.md`` (Recordings: wideband sources).
+source tracked within 0.5° of the truth at the scans' time stamps, start-up included, by both
+trackers, static and moving, at 15, 20 and 25 dB, at d = λ/2 and at d = 0.29 λ (where the diffuse
+noise is far from white). See ``docs/papers/array-bearing.md`` (Recordings: wideband sources).
 """
 
 from __future__ import annotations
