@@ -42,7 +42,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from evaluators.set_distances import (BRUTE_FORCE_MAX, assign_edges, close_pairs, global_identities,
+from evaluators.set_distances import (BRUTE_FORCE_MAX, absent_as_nan, assign_edges, close_pairs, global_identities,
                                       identity_pairs, optimal_assignment, pairwise_distance, single_pair_distance,
                                       stable_order)
 from pipeline.batched_linalg import all_finite
@@ -172,8 +172,8 @@ def _gated_pairs(truths, tracks, present, track_present, gate, angular):
     present track closer than the gate."""
     R, K, T = present.shape
     S = track_present.shape[-1]
-    X = np.where(present[..., None], truths, np.nan).reshape(R * K, T, -1)
-    Y = np.where(track_present[..., None], tracks, np.nan).reshape(R * K, S, -1)
+    X = absent_as_nan(truths, present).reshape(R * K, T, -1)
+    Y = absent_as_nan(tracks, track_present).reshape(R * K, S, -1)
     return close_pairs(X, Y, gate, angular)
 
 

@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from evaluators.set_distances import (assign_edges, close_pairs, global_identities, identity_pairs,
+from evaluators.set_distances import (absent_as_nan, assign_edges, close_pairs, global_identities, identity_pairs,
                                       optimal_assignment, pairs_within, pairwise_distance, single_pair_distance)
 from pipeline.batched_linalg import all_finite
 
@@ -178,9 +178,8 @@ def _sums_sparse(tracks, truths, d0, track_ids, truth_ids, angular, alphas, pair
     track_count = np.bincount(h_id[vy], minlength=n_h).astype(float)
     n_truth, n_track = vx.sum(axis=(1, 2)), vy.sum(axis=(1, 2))
     if pairs is None:
-        X = np.where(vx[..., None], truths, np.nan).reshape(R * K, T, -1)
-        Y = np.where(vy[..., None], tracks, np.nan).reshape(R * K, S, -1)
-        pairs = close_pairs(X, Y, d0, angular)
+        pairs = close_pairs(absent_as_nan(truths, vx).reshape(R * K, T, -1),
+                            absent_as_nan(tracks, vy).reshape(R * K, S, -1), d0, angular)
     p, i, j, d = pairs_within(pairs, d0)
     sim = point_similarity(d, d0)
     # 1. global alignment from each scan's normalised similarity

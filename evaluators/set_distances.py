@@ -845,6 +845,17 @@ def _identity_pairs_dense(first, local, run, first_start, per_run):
     return np.concatenate(pair_first), np.concatenate(pair_local), inverse, np.concatenate(counts)
 
 
+def absent_as_nan(rows, present):
+    """``rows`` (…, d) with NaN where not ``present`` (present rows are finite): the rows
+    themselves when every row not present has a NaN first component already (no identity hides
+    a finite row, the usual case), else a copy."""
+    hidden = ~np.asarray(present)
+    hidden &= np.isfinite(rows[..., 0])
+    if not hidden.any():
+        return rows
+    return np.where(present[..., None], rows, np.nan)
+
+
 def pairs_within(pairs, radius: float):
     """The pairs of :func:`close_pairs` (found at a radius at least ``radius``) closer than
     ``radius``, in their order: the pairs :func:`close_pairs` finds at ``radius`` itself."""

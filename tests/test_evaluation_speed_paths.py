@@ -258,7 +258,8 @@ def _one_pair_sets(seed: int, runs: int = 6, scans: int = 30, angular: bool = Fa
         track_ids = np.where(np.isfinite(track[..., 0]), rng.integers(0, 9, size=(runs, 1, 1)), -1)
     times = np.cumsum(rng.uniform(0.5, 2.0, size=scans))
     truth_velocity = rng.normal(size=(runs, scans, 1, 2))
-    return track, truth, track_ids, truth_ids, times, truth_velocity + rng.normal(size=truth_velocity.shape), truth_velocity
+    track_velocity = truth_velocity + rng.normal(size=truth_velocity.shape)
+    return track, truth, track_ids, truth_ids, times, track_velocity, truth_velocity
 
 
 def _assert_same_values(fast: dict, plain: dict, rtol: float = 0.0):

@@ -479,7 +479,8 @@ def test_identity_measures_of_runs_without_any_target():
 
     tracks = np.random.default_rng(1).normal(size=(2, 3, 2, 2))
     truths = np.full((2, 3, 1, 2), np.nan)
-    out = assignment_metrics(tracks, truths, 1.0, np.broadcast_to([[0, 1]], (2, 3, 2)), truth_ids=np.full((2, 3, 1), -1))
+    track_ids = np.broadcast_to([[0, 1]], (2, 3, 2))
+    out = assignment_metrics(tracks, truths, 1.0, track_ids, truth_ids=np.full((2, 3, 1), -1))
     assert out["presences"].tolist() == [0, 0] and out["matches"].tolist() == [0, 0]
     assert out["false_positives"].tolist() == [6, 6] and out["idfp"].tolist() == [6, 6]
     assert out["false_tracks"].tolist() == [2, 2] and out["id_switches"].tolist() == [0, 0]
