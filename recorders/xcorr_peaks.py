@@ -55,6 +55,8 @@ ORIGIN_CLUTTER = -1
 ROLES = ("strong", "weak")
 GEOMETRIES = ("crossing", "maneuver")
 MAX_SCANS = 20000
+#: clutter peaks a scan the simulator draws at the most (expected, over the whole field)
+MAX_CLUTTER_PER_SCAN = 10_000
 MAX_TARGETS = 100
 DEFAULT_N_TARGETS = 2  # the paper's pair; data sets recorded before n_targets existed hold two
 DEFAULT_PAIR_SPACING_DEG = 20.0
@@ -173,6 +175,14 @@ def validate(p: dict) -> None:
             (p["turn_duration_s"] >= 0, "turn_duration_s must be ≥ 0"),
         ]
     check_all(checks)
+    # clutter is drawn per scan at the highest density over the whole field: a tiny gate or a huge
+    # count per gate asks for more peaks than any correlator reports (and than memory holds)
+    densest = max([p["background_clutter_per_gate"]] + [p[f"{role}_clutter_per_gate"] for role in ROLES])
+    expected = densest / np.deg2rad(p["gate_deg"]) * np.deg2rad(p["field_max_deg"] - p["field_min_deg"])
+    check_all([(expected <= MAX_CLUTTER_PER_SCAN,
+                f"the clutter density (clutter per gate {densest:g} over a gate of {p['gate_deg']:g}°) gives "
+                f"{expected:.3g} clutter peaks a scan over the field; at most {MAX_CLUTTER_PER_SCAN:,} are "
+                "simulated (raise gate_deg or lower the clutter per gate)")])
     n = _duration_s(p) / p["scan_period_s"] + 1
     if n > MAX_SCANS:
         raise InputError(f"the geometry needs {n:.0f} scans (> {MAX_SCANS}); use a larger angle/rate "

@@ -127,3 +127,34 @@ def test_an_input_named_like_a_stale_output_is_never_removed(runner, radar_small
     assert res.exit_code == 0, res.output
     assert Path("o/tracks.rrd").read_bytes() == before
     assert "/tracks/radar/kalman" in read_dataset(Path("o/tracks.mcap")).channels
+
+
+@pytest.mark.parametrize("setting", ["gate_deg=1e-300", "gate_deg=1e-9", "strong_clutter_per_gate=2e6"])
+def test_a_clutter_density_beyond_any_correlator_is_refused_before_any_work(runner, tmp_path, setting):
+    # a tiny gate or a huge count per gate asked for 10¹¹ peaks a scan or more: an internal error,
+    # a MemoryError or the system's out-of-memory kill
+    res = runner.invoke(main, ["simulate", "xcorr-crossing", "--runs", "2", "--set", setting, "-o", "x.mcap"])
+    assert res.exit_code == 2, res.output
+    errors = [line for line in res.stderr.splitlines() if line.startswith("replay: error: ")]
+    assert len(errors) == 1 and "clutter peaks a scan" in errors[0], res.output
+    assert not Path("x.mcap").exists()
+
+
+def test_a_design_value_a_tracker_refuses_is_that_trackers_failure(runner, tmp_path):
+    # the scenario accepts a zero process noise; the multi-target trackers' Param refuses it: one line
+    # naming the file (was: an internal error), the trackers that can run still write
+    assert runner.invoke(main, ["simulate", "radar-multi", "--runs", "2", "--set", "n_scans=20",
+                                "--set", "design_process_noise_m2ps3=0", "-o", "m.mcap"]).exit_code == 0
+    res = runner.invoke(main, ["m.mcap", "--no-rrd", "--out", "o/t.mcap", "--figures", "none"])
+    assert res.exit_code == 2, res.output
+    errors = [line for line in res.stderr.splitlines() if line.startswith("replay: error: ")]
+    assert errors and all("m.mcap" in e and "design_process_noise_m2ps3" in e for e in errors), res.output
+    assert "Traceback" not in res.output and "internal error" not in res.output
+
+
+def test_an_array_grid_finer_than_memory_allows_is_refused(runner, tmp_path):
+    assert runner.invoke(main, ["simulate", "array-crossing", "--runs", "1", "--set", "n_scans=5",
+                                "-o", "a.mcap"]).exit_code == 0
+    res = runner.invoke(main, ["a.mcap", "--no-rrd", "--out", "o/t.mcap", "--set", "music_grid_step_deg=1e-6"])
+    assert res.exit_code == 2, res.output
+    assert "music_grid_step_deg" in res.stderr and not Path("o/t.mcap").exists()

@@ -256,7 +256,7 @@ class Stage:
         """Construct ``entry``'s tracker with its design values."""
         values = {p.name: design[p.name] for p in entry.cls.params}
         if entry.builtin:
-            return entry.cls(**values)  # a built-in refuses bad design values with an InputError
+            return entry.cls(**values)  # a built-in's Param refuses a bad design value (ValueError)
         try:
             return entry.cls(**values)
         except InputError:
@@ -312,7 +312,12 @@ class Stage:
                 raise TrackerError(unknown_message(entry.name, unknown), dataset.path)
             # a plugged tracker that fails to construct is reported like one that fails to run
             if entry.builtin:
-                return call_tracker(self.build(entry, design), measurements, None)
+                try:
+                    tracker = self.build(entry, design)
+                except ValueError as exc:  # a design value its Param refuses (e.g. a data set's own)
+                    raise TrackerError(f"tracker {entry.name!r}: {exc}; change it with --set NAME=VALUE",
+                                       dataset.path) from None
+                return call_tracker(tracker, measurements, None)
             # a plugged one runs in a child process, stopped at time_limit_s (0 or None: never), so
             # that it cannot end or hang the replay (pipeline/isolation.py)
             return run_plugged_tracker(entry.name, entry.source, lambda: call_tracker(

@@ -497,6 +497,11 @@ PARAMS = (
 )
 
 
+#: the finest MUSIC start-up grid (0.001°: 180,001 angles; the start-up's bearing then stands far
+#: below any array's resolution)
+MIN_MUSIC_GRID_STEP_DEG = 1e-3
+
+
 def check_design(design: dict) -> None:
     """Refuse design values the tracker cannot run with (:class:`InputError`, one line)."""
     crit = str(design["source_count_criterion"]).lower()
@@ -509,6 +514,9 @@ def check_design(design: dict) -> None:
     for key in ("process_noise_q_deg2", "innovation_variance_deg2", "scan_period_s", "music_grid_step_deg"):
         if not design[key] > 0:
             raise InputError(f"{key} must be > 0")
+    if design["music_grid_step_deg"] < MIN_MUSIC_GRID_STEP_DEG:
+        raise InputError(f"music_grid_step_deg must be ≥ {MIN_MUSIC_GRID_STEP_DEG:g} (a finer grid holds more than "
+                         f"{int(180 / MIN_MUSIC_GRID_STEP_DEG):,} angles a scan, memory without a finer start)")
     if int(design["n_sources"]) < 0:
         raise InputError("n_sources must be ≥ 0 (0 estimates it)")
 
