@@ -24,7 +24,7 @@ What it measures
    and with them precomputed, ours one block per call and batched over all blocks; then the
    four speed-ups, paired per pass, with PASS/MISS against the ≥ 3× target, and how often both
    pick the same grid peaks. Ours runs on one core here, as the peer does
-   (``pipeline.batched_linalg.MAX_THREADS = 1``).
+   (``pipeline.stack_threads.MAX_THREADS = 1``).
 3. **Full Monte Carlo from MCAP to table.** ``replay simulate array-crossing --runs 100
    --snr-db 0,5,10`` is written to a temporary file (time shown separately), then
    ``replay eval`` of it (read, MUSIC start-up, PAST, both trackers, evaluation and the Table 1
@@ -145,15 +145,15 @@ def music_vs_pyroomacoustics(trials: int, repeats: int, grid_sizes=(361, 1801)) 
     all ``trials`` blocks for each of the four, in a rotating order, so that load on a shared
     machine falls on all four alike; the speed-ups are per repeat (same pass, paired). Ours runs
     on one core, as pyroomacoustics does: a replay shares a large stack's EVDs among the cores
-    (``pipeline.batched_linalg.MAX_THREADS``), which this per-core comparison turns off.
+    (``pipeline.stack_threads.MAX_THREADS``), which this per-core comparison turns off.
     """
-    import pipeline.batched_linalg
+    import pipeline.stack_threads
 
-    threads, pipeline.batched_linalg.MAX_THREADS = pipeline.batched_linalg.MAX_THREADS, 1
+    threads, pipeline.stack_threads.MAX_THREADS = pipeline.stack_threads.MAX_THREADS, 1
     try:
         _music_one_core(trials, repeats, grid_sizes)
     finally:
-        pipeline.batched_linalg.MAX_THREADS = threads
+        pipeline.stack_threads.MAX_THREADS = threads
 
 
 def _music_one_core(trials: int, repeats: int, grid_sizes) -> None:

@@ -20,8 +20,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.machine import usable_cores
-
 _sum = np.add.reduce   # without ndarray.sum's Python wrapper: these arrays are small
 
 
@@ -153,52 +151,16 @@ def all_finite(a):
     return ok
 
 
-#: work a thread takes at the least in :func:`split_over_threads`, in matrices × m³ (about 300
-#: EVDs of 15 × 15): below, the threads cost more than they save
-THREAD_MIN_WORK = 1 << 20
-#: threads :func:`split_over_threads` uses at the most (1: every stack in one call, on one core,
-#: as the per-core comparisons with peer libraries in ``benchmarks/`` set it)
-MAX_THREADS = 4
+#: how :func:`over_stack` computes a stack of independent matrix problems: ``None``, in one call.
+#: Cores start no threads; the replay layer installs a runner that shares a large stack among the
+#: cores (:func:`pipeline.stack_threads.split_over_threads`, the same bits), so where the work is
+#: parallel is decided by whoever runs the trackers, not by the algorithm
+stack_runner = None
 
 
-_cores = usable_cores  # (a module name of its own, so that tests can set the count)
-
-
-def split_over_threads(function, stack: np.ndarray):
+def over_stack(function, stack: np.ndarray):
     """``function(stack)`` for a numpy ``linalg`` function that works matrix by matrix over a
-    stack ``(..., m, m)`` (``eigh``, ``inv`` …), with the stack split across threads.
-
-    numpy's linalg loops release the GIL while LAPACK runs, but each call keeps to one core: a
-    stack of a few hundred small matrices or more is cut into one piece per available core (at
-    most :data:`MAX_THREADS`, at least :data:`THREAD_MIN_WORK` of work each) and the pieces
-    run at once. Every matrix goes through the same routine as in one call, so the result is
-    identical to the bit; an error a piece raises is raised here. Returns what ``function``
-    returns, arrays (or tuples of them) joined along the stack.
-
-    The caller waits for the pieces, so it must not hold a lock that a weak-reference callback
-    or finalizer may take: a garbage collection can run on a worker thread. The array front
-    end's memo (``pipeline.trackers.array_bearing.shared_front_end``) releases its lock before
-    the front end runs; an earlier front end that ran its EVDs on a thread of their own hung
-    once that way (commit 37f9e75).
-    """
-    stack = np.asarray(stack)
-    lead = stack.shape[:-2]
-    n = int(np.prod(lead, dtype=np.int64)) if lead else 1
-    threads = min(_cores(), MAX_THREADS, n * stack.shape[-1] ** 3 // THREAD_MIN_WORK)
-    if threads < 2:
-        return function(stack)
-    from concurrent.futures import ThreadPoolExecutor
-
-    flat = stack.reshape((n,) + stack.shape[-2:])
-    bounds = np.linspace(0, n, threads + 1).astype(int)
-    # a pool per call, not kept: a process forked later (a sweep's workers) must not inherit it
-    with ThreadPoolExecutor(threads) as pool:
-        parts = [f.result() for f in [pool.submit(function, flat[a:b]) for a, b in zip(bounds[:-1], bounds[1:])]]
-
-    def joined(pieces):
-        whole = np.concatenate(pieces)
-        return whole.reshape(lead + whole.shape[1:])
-
-    if isinstance(parts[0], tuple):
-        return tuple(joined([p[i] for p in parts]) for i in range(len(parts[0])))
-    return joined(parts)
+    stack ``(..., m, m)`` (``eigh``, ``inv`` …), through the installed :data:`stack_runner`
+    when there is one (every matrix meets the same routine either way)."""
+    runner = stack_runner
+    return function(stack) if runner is None else runner(function, stack)

@@ -7,7 +7,10 @@ traceback. Every other exception is a bug and keeps its traceback.
 
 from __future__ import annotations
 
-from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # annotations only: the cores import this module and do no file work
+    from pathlib import Path
 
 
 class InputError(Exception):

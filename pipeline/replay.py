@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from pipeline import __version__
+from pipeline import __version__, stack_threads
 from pipeline.contract import METADATA_PROVENANCE, OUTPUT_ZSTD_LEVEL, Dataset, read_dataset, write_dataset
 from pipeline.errors import InputError
 from pipeline.isolation import DEFAULT_TRACKER_TIME_LIMIT_S
@@ -152,6 +152,7 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
         failed (its message names the tracker, the run and the scan).
     """
     step = progress or (lambda n, seconds=None, note=None: None)
+    stack_threads.install()  # a replay shares large stacks of EVDs among the cores (the same bits)
     t0 = time.perf_counter()
     ds = dataset if dataset is not None else read_dataset(path, recover=recover)
     timings = {"read_s": time.perf_counter() - t0, "filter_s": 0.0, "evaluate_s": 0.0}

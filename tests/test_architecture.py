@@ -12,6 +12,7 @@
 from __future__ import annotations
 
 import ast
+from functools import lru_cache
 from pathlib import Path
 
 import pytest
@@ -20,31 +21,72 @@ ROOT = Path(__file__).resolve().parents[1]
 
 FRAMEWORKS = {"mcap", "mcap_protobuf", "rerun", "click", "polars", "matplotlib", "dask", "distributed"}
 TIMING_AND_IO = {"time", "timeit", "io", "tempfile", "shutil", "pathlib", "os"}
+THREADS_AND_PROCESSES = {"threading", "_thread", "concurrent", "multiprocessing", "asyncio", "subprocess", "signal"}
 NUMERIC_INTERNALS = {"pipeline.contract", "pipeline.stages", "pipeline.face", "pipeline.replay", "pipeline.sweep",
                      "evaluators", "recorders"}
 
 RULES = {
-    "pipeline/cores": FRAMEWORKS | TIMING_AND_IO | NUMERIC_INTERNALS | {"pipeline.trackers"},
-    "pipeline/trackers": FRAMEWORKS | TIMING_AND_IO | NUMERIC_INTERNALS,
+    "pipeline/cores": FRAMEWORKS | TIMING_AND_IO | THREADS_AND_PROCESSES | NUMERIC_INTERNALS | {"pipeline.trackers"},
+    "pipeline/trackers": FRAMEWORKS | TIMING_AND_IO | THREADS_AND_PROCESSES | NUMERIC_INTERNALS,
     "pipeline/stages": {"rerun", "click", "matplotlib", "dask", "distributed", "pipeline.face", "pipeline.sweep"},
     "evaluators": {"pipeline.cores", "pipeline.trackers", "pipeline.stages", "pipeline.face", "rerun", "click"},
     "pipeline/face": {"scipy"},
 }
 # the import-free vocabulary, the interface and the small-matrix linear algebra (numpy only) are what
 # cores, trackers and evaluators may use
+OUR_PACKAGES = {"pipeline", "evaluators", "recorders"}
 ALLOWED_EVERYWHERE = {"pipeline.vocabulary", "pipeline.errors", "pipeline.trackers.interface", "pipeline.batched_linalg"}
 
 
+@lru_cache(maxsize=None)
 def _imports(path: Path) -> list[tuple[int, str]]:
+    """(line, module) of every import in ``path``, function-level ones included; names imported
+    from a package that are modules of their own count as those modules; imports under
+    ``if TYPE_CHECKING:`` (annotations only, never run) do not count."""
     tree = ast.parse(path.read_text(), filename=str(path))
+    skipped = {id(n) for node in ast.walk(tree) if isinstance(node, ast.If) and _is_type_checking(node.test)
+               for inner in node.body for n in ast.walk(inner)}
     found = []
     for node in ast.walk(tree):
+        if id(node) in skipped:
+            continue
         if isinstance(node, ast.Import):
             found += [(node.lineno, a.name) for a in node.names]
         elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
             found.append((node.lineno, node.module))
-            if node.module == "pipeline":  # from pipeline import vocabulary
-                found += [(node.lineno, f"pipeline.{a.name}") for a in node.names]
+            found += [(node.lineno, f"{node.module}.{a.name}") for a in node.names
+                      if _module_file(f"{node.module}.{a.name}") is not None]
+    return found
+
+
+def _is_type_checking(test) -> bool:
+    return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or (
+        isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING")
+
+
+def _module_file(module: str) -> Path | None:
+    """The repository file of a module of ours (``pipeline``, ``evaluators``, ``recorders``)."""
+    if module.split(".")[0] not in OUR_PACKAGES:
+        return None
+    base = ROOT.joinpath(*module.split("."))
+    for candidate in (base.with_suffix(".py"), base / "__init__.py"):
+        if candidate.is_file():
+            return candidate
+    return None
+
+
+def _reached(path: Path) -> list[tuple[str, tuple[str, ...]]]:
+    """Every module ``path`` reaches, directly or through modules of ours, with the chain of our
+    modules that leads there (empty for a direct import)."""
+    found, seen, todo = [], {path}, [(path, ())]
+    while todo:
+        here, via = todo.pop()
+        for _, module in _imports(here):
+            found.append((module, via))
+            target = _module_file(module)
+            if target is not None and target not in seen:
+                seen.add(target)
+                todo.append((target, via + (module,)))
     return found
 
 
@@ -63,6 +105,21 @@ def test_import_rules(folder):
     assert _files(folder), f"{folder} holds no modules"
     broken = [f"{p.relative_to(ROOT)}:{line} imports {mod}" for p in _files(folder) for line, mod in _imports(p)
               if _forbidden(mod, RULES[folder])]
+    assert not broken, "\n".join(broken)
+
+
+# what a folder may not reach even through modules of ours (a core reaching a thread or a file
+# through a helper breaks its rule as much as importing it): the same rules, except that a stage
+# may call an evaluator that draws (figures live with the evaluators) and the face, the top,
+# reaches everything below it
+REACH_RULES = {folder: rule for folder, rule in RULES.items() if folder != "pipeline/face"}
+REACH_RULES["pipeline/stages"] = RULES["pipeline/stages"] - {"matplotlib"}
+
+
+@pytest.mark.parametrize("folder", sorted(REACH_RULES))
+def test_import_rules_hold_through_every_module_reached(folder):
+    broken = sorted({f"{p.relative_to(ROOT)} → {' → '.join(via)} → {module}" for p in _files(folder)
+                     for module, via in _reached(p) if via and _forbidden(module, REACH_RULES[folder])})
     assert not broken, "\n".join(broken)
 
 
@@ -100,9 +157,17 @@ def test_every_cited_document_exists():
 def test_the_rules_catch_a_violation(tmp_path):
     # the checker itself can fail: a core that imports polars and times itself is caught
     core = tmp_path / "bad_core.py"
-    core.write_text("import time\nimport polars as pl\nfrom pipeline import vocabulary\n")
+    core.write_text("import time\nimport polars as pl\nfrom pipeline import vocabulary\n"
+                    "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    import os\n")
     found = [m for _, m in _imports(core) if _forbidden(m, RULES["pipeline/cores"])]
     assert found == ["time", "polars"]
+    # and indirectly: a core that imports a module of ours which starts threads is caught, with
+    # the chain that leads there
+    helper = ROOT / "pipeline" / "stack_threads.py"
+    indirect = tmp_path / "bad_core_through_a_helper.py"
+    indirect.write_text("from pipeline import stack_threads\n")
+    reached = {(m, via) for m, via in _reached(indirect) if via and _forbidden(m, RULES["pipeline/cores"])}
+    assert helper.is_file() and ("concurrent.futures", ("pipeline.stack_threads",)) in reached
 
 
 def test_every_relative_link_in_the_documentation_exists():

@@ -56,7 +56,6 @@ snapshot array the stage decodes); the numbers are the same either way.
 from __future__ import annotations
 
 import dataclasses
-import threading
 import weakref
 from dataclasses import dataclass
 
@@ -289,16 +288,15 @@ def front_end(snapshots: np.ndarray, design: SubspaceTrackerDesign) -> FrontEnd:
     return fe
 
 
-_MEMO = {"ref": None, "key": None, "value": None}
-# re-entrant: replacing the memo's value can free the last reference to the previous snapshots,
-# whose weak-reference callback (_forget) then runs in this thread while it holds the lock
-_MEMO_LOCK = threading.RLock()
+# the last front end computed, as one tuple (weak reference to its snapshots, key, value): a tuple
+# is read and replaced whole, so no lock is needed (a second thread at worst recomputes one)
+_MEMO = [None]
 
 
 def _forget(ref) -> None:
-    with _MEMO_LOCK:
-        if _MEMO["ref"] is ref:
-            _MEMO.update(ref=None, key=None, value=None)
+    memo = _MEMO[0]
+    if memo is not None and memo[0] is ref:
+        _MEMO[0] = None
 
 
 def shared_front_end(snapshots: np.ndarray, design: SubspaceTrackerDesign) -> FrontEnd:
@@ -310,13 +308,11 @@ def shared_front_end(snapshots: np.ndarray, design: SubspaceTrackerDesign) -> Fr
     key = design.front_end_key()
     if not isinstance(snapshots, np.ndarray) or snapshots.flags.writeable:
         return front_end(snapshots, design)
-    with _MEMO_LOCK:
-        ref = _MEMO["ref"]
-        if ref is not None and ref() is snapshots and _MEMO["key"] == key:
-            return _MEMO["value"]
+    memo = _MEMO[0]
+    if memo is not None and memo[0]() is snapshots and memo[1] == key:
+        return memo[2]
     value = front_end(snapshots, design)
-    with _MEMO_LOCK:
-        _MEMO.update(ref=weakref.ref(snapshots, _forget), key=key, value=value)
+    _MEMO[0] = (weakref.ref(snapshots, _forget), key, value)
     return value
 
 

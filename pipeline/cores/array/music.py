@@ -28,12 +28,11 @@ few peaks ranked and refined with Python floats (the same bits as the batched ar
 from __future__ import annotations
 
 import math
-import threading
-from collections import OrderedDict
+from functools import lru_cache
 
 import numpy as np
 
-from pipeline.batched_linalg import split_over_threads
+from pipeline.batched_linalg import over_stack
 
 
 def sample_covariance(snapshots: np.ndarray) -> np.ndarray:
@@ -56,8 +55,9 @@ def eigen_decomposition(cov: np.ndarray):
     per call, goes to the same LAPACK routine through SciPy's thinner wrapper (about 4 µs less
     of the 25 µs at M = 15; the same routine, triangle and results); a failure falls back to
     numpy, which raises as it always did. A stack of many matrices (every run of a scan) is
-    shared among the available cores (:func:`pipeline.batched_linalg.split_over_threads`, the
-    same bits): the EVDs are most of an array replay's filtering.
+    shared among the available cores when the replay layer allows it
+    (:func:`pipeline.batched_linalg.over_stack`, the same bits): the EVDs are most of an array
+    replay's filtering.
     """
     if isinstance(cov, np.ndarray) and cov.ndim == 2 and cov.dtype == np.complex128 and cov.shape[0] == cov.shape[1]:
         if not _ZHEEVD:
@@ -67,7 +67,7 @@ def eigen_decomposition(cov: np.ndarray):
         values, vectors, info = _ZHEEVD[0](cov, compute_v=1, lower=1)
         if info == 0:
             return values, vectors
-    return split_over_threads(np.linalg.eigh, cov)
+    return over_stack(np.linalg.eigh, cov)
 
 
 def information_criterion(eigenvalues: np.ndarray, n_snapshots: float, criterion: str = "mdl",
@@ -158,25 +158,24 @@ def _is_scalar(value) -> bool:
     return isinstance(value, (int, np.integer)) or getattr(value, "ndim", None) == 0
 
 
-_TABLES: OrderedDict = OrderedDict()  # (M, d/λ, G) → [(grid bytes, [1; cos; sin] table), …], newest last
-_TABLES_KEYS, _TABLES_PER_KEY = 16, 2  # at most 32 tables (≈ 0.4 MB each at M = 15, G = 1801)
-_TABLES_LOCK = threading.Lock()
+#: tables kept at the most (≈ 0.4 MB each at M = 15, G = 1801), the least recently used dropped first
+_TABLES_KEPT = 32
 
 
 def _cached_polynomial_table(grid: np.ndarray, n_sensors: int, spacing_wavelengths: float) -> np.ndarray:
     """``[1; cos(κ l sin θ); sin(κ l sin θ)]``, ``(2M − 1, G)``: :func:`lag_exponentials` under a
-    row of ones (the constant term), kept per (M, d/λ, grid), the least recently used dropped
-    first. The grid is compared byte by byte, so a changed grid never reuses a stale table."""
+    row of ones (the constant term), kept per (M, d/λ, grid). The grid is part of the key byte by
+    byte, so a changed grid never reuses a stale table (functools' cache, safe from any thread)."""
     g = np.ascontiguousarray(grid, dtype=float)
-    key = (int(n_sensors), float(spacing_wavelengths), g.shape)
-    raw = g.tobytes()
-    with _TABLES_LOCK:
-        entries = _TABLES.get(key)
-        if entries is not None:
-            _TABLES.move_to_end(key)
-            for kept, table in entries:
-                if kept == raw:
-                    return table
+    return _polynomial_table(int(n_sensors), float(spacing_wavelengths), g.shape, g.tobytes())
+
+
+@lru_cache(maxsize=_TABLES_KEPT)
+def _polynomial_table(n_sensors: int, spacing_wavelengths: float, shape: tuple, grid_bytes: bytes) -> np.ndarray:
+    g = np.frombuffer(grid_bytes, dtype=float).reshape(shape)
+    table = np.concatenate([np.ones((1, g.shape[-1])), lag_exponentials(g, n_sensors, spacing_wavelengths)])
+    table.flags.writeable = False
+    return table
     table = np.concatenate([np.ones((1, g.shape[-1])), lag_exponentials(g, n_sensors, spacing_wavelengths)])
     table.flags.writeable = False
     with _TABLES_LOCK:
