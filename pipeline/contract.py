@@ -1910,6 +1910,21 @@ def _check_time_order(ch: ChannelData) -> None:
                          f"{t[k]:g} s", ch.path)
 
 
+def _check_scans_held(ch: ChannelData) -> None:
+    """Refuse a measurement channel on which no frame holds some scan below its last: that scan's
+    time is unknown, a filter cannot step over it, and no output could be written for it (such a
+    file was accepted by ``eval`` and failed in ``replay``). A missing truth frame is the stage's
+    to name; a file read with ``recover`` keeps the gaps its lost chunks leave."""
+    if not any(ch.topic in family.inputs for family in vocab.FAMILIES.values()):
+        return
+    held = np.zeros(ch.n_scans, bool)
+    held[ch._blocks.scan if ch._blocks is not None else ch._scan] = True  # per message where it can
+    if not held.all():
+        k = int(np.argmin(held))
+        raise InputError(f"{ch.topic}: no frame holds scan {k} (the channel's scans run 0 … {ch.n_scans - 1}), so "
+                         "its time is unknown; a scan without measurements is still a frame, with none", ch.path)
+
+
 def _check_density(ch: ChannelData) -> None:
     """Refuse run/scan indices that would size a [run, scan] grid far beyond the frames present."""
     frames = ch.n_frames
@@ -1951,6 +1966,9 @@ def read_dataset(path: str | Path, topics: Iterable[str] | None = None, recover:
         if problem is not None and not recover:
             raise InputError(_unreadable(problem, source.messages), path)
         channels = collected.channels(source.channel_ids)
+        if not recover:
+            for ch in channels.values():
+                _check_scans_held(ch)
         if source.layout is not None and problem is None:
             for topic, ch in channels.items():
                 declared = source.layout.get(topic, {}).get("frames")

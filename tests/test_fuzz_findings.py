@@ -198,3 +198,25 @@ def test_deeply_nested_json_in_any_metadata_value_is_never_an_internal_error(run
                 assert len(lines) == 1 and lines[0].startswith(f"replay: error: {path}: "), (name, key, lines)
             elif args[0] == "eval":
                 assert res.stdout == reference, (name, key)
+
+
+@pytest.mark.parametrize("gap", ["first", "middle"])
+def test_a_scan_no_frame_holds_is_one_line_in_eval_and_replay(runner, radar_model, tmp_path, gap):
+    """Scan indices from 1 (the fuzzer: every Scan's index + 1), or scan 5 dropped from the plots:
+    that scan's time is unknown. ``eval`` accepted it and ``replay`` failed writing the outputs
+    with a line naming a tracker's output channel, not the file."""
+    model, _ = radar_model
+    model = fz._copy(model)
+    plots_id = next(r.id for c in model.chunks for r in c if isinstance(r, Channel) and r.topic == "/radar/plots")
+    for ci, j in reversed(fz._messages(model)):
+        rec = model.chunks[ci][j]
+        msg = fz._scan_class(fz._schema_of(model, rec.channel_id)).FromString(rec.data)
+        if gap == "first":
+            msg.scan += 1
+            model.chunks[ci][j] = replace(rec, data=msg.SerializeToString())
+        elif msg.scan == 5 and rec.channel_id == plots_id:
+            del model.chunks[ci][j]
+    model.metadata_after = [m for m in model.metadata_after if m.name != fz.LAYOUT_RECORD]
+    path = tmp_path / f"gap-{gap}.mcap"
+    path.write_bytes(fz.assemble(model))
+    _refused_everywhere(runner, path, "/radar/plots: no frame holds scan " + ("0" if gap == "first" else "5"))
