@@ -191,7 +191,7 @@ def _matches_keeping_previous(X, Y, vx, vy, tid, ids, gate, angular, pairs=None)
     # one index per element (run · K + scan) · slots + slot: gathers of one index, not three
     u, v = target.reshape(-1)[p * T + t], np.asarray(ids).reshape(-1)[p * S + s]
     by_scan = stable_order(k, K)
-    bounds = np.searchsorted(k[by_scan], np.arange(K + 1))
+    bounds = np.r_[0, np.cumsum(np.bincount(k, minlength=K))]      # each scan's stretch of by_scan
     n_targets = int(target.max()) + 1 if target.size else 0
     last_track = np.full(n_targets, -1, np.int64)      # each target's track at its last match
     last_scan = np.full(n_targets, -2, np.int64)       # and that scan

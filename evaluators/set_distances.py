@@ -502,9 +502,13 @@ def global_identities(ids, present):
         key = ids + (np.arange(R, dtype=np.int64) * span - low).reshape((R,) + (1,) * (present.ndim - 1))
         mark = np.zeros(R * span, bool)
         mark[key[present]] = True
-        number = np.cumsum(mark) - 1
+        marked = np.flatnonzero(mark)
+        # each marked key's number, written where it is marked only (the untouched pages of the
+        # zeroed table cost nothing, where a running count would write all R · span entries)
+        number = np.zeros(R * span, np.int64)
+        number[marked] = np.arange(marked.size)
         np.copyto(out, np.take(number, key, mode="clip"), where=present)
-        return out, int(number[-1]) + 1, np.flatnonzero(mark) // span
+        return out, marked.size, marked // span
     return _global_identities_sorted(np.where(present, ids, 0), present, low, span)
 
 
