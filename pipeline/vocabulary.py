@@ -114,6 +114,9 @@ class Family:
         The state vector's components and units.
     space : str
         The space the generic evaluators compare tracks and truth in.
+    scenario : str
+        The bundled scenario whose parameters name the family's design values (and give their
+        defaults for its simulations; a recording's sensor values come from the recording).
     former_output_prefixes : tuple of str
         Prefixes earlier versions wrote the family's outputs on (their files still read).
     """
@@ -124,6 +127,7 @@ class Family:
     output_prefix: str
     state: str
     space: str
+    scenario: str
     former_output_prefixes: tuple[str, ...] = ()
 
     @property
@@ -135,18 +139,18 @@ class Family:
 FAMILIES = {
     f.name: f for f in (
         Family("radar-plots", (CHANNELS["radar_plots"],), CHANNELS["radar_truth"], "/tracks/radar/",
-               "[x, y, vx, vy] in m and m/s, one track per run or per track slot", "position (m)"),
+               "[x, y, vx, vy] in m and m/s, one track per run or per track slot", "position (m)", "radar-tws"),
         Family("bearing-peaks", (CHANNELS["xcorr_peaks"],), CHANNELS["xcorr_truth"], "/tracks/xcorr/",
-               "[bearing, bearing rate] in rad and rad/s per track slot", "bearing (rad)"),
+               "[bearing, bearing rate] in rad and rad/s per track slot", "bearing (rad)", "xcorr-crossing"),
         Family("array-snapshots", (CHANNELS["array_snapshots"],), CHANNELS["array_truth"], "/tracks/array/",
-               "[bearing, bearing rate] in rad and rad/s per track slot", "bearing (rad)"),
+               "[bearing, bearing rate] in rad and rad/s per track slot", "bearing (rad)", "array-crossing"),
         Family("tdoa-fdoa", (CHANNELS["emitter_measurements"], CHANNELS["emitter_sensors"]),
                CHANNELS["emitter_truth"], "/tracks/emitter/",
-               "[x, y, vx, vy] in m and m/s, one estimate per epoch", "position (m)",
+               "[x, y, vx, vy] in m and m/s, one estimate per epoch", "position (m)", "tdoa-fdoa",
                former_output_prefixes=("/emitter/estimates/",)),
         Family("colored-position", (CHANNELS["colored_measurements"],), CHANNELS["colored_truth"],
                "/tracks/colored/", "[p, v, a] in m, m/s, m/s² per axis, axes concatenated",
-               "position (m)"),
+               "position (m)", "colored-imm"),
     )
 }
 

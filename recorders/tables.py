@@ -238,11 +238,9 @@ def _check_family(family: str) -> TableFormat:
 
 
 def scenario_of(family: str) -> str:
-    """The bundled scenario whose parameters are the design defaults of ``family``'s stage."""
-    from pipeline.stages import STAGE_CLASSES, stage_named
-
+    """The bundled scenario whose parameters name ``family``'s design values (its declaration)."""
     _check_family(family)
-    return next(stage_named(name).scenario for name, fam, _ in STAGE_CLASSES if fam == family)
+    return vocab.FAMILIES[family].scenario
 
 
 # --------------------------------------------------------------------------- reading files

@@ -348,10 +348,10 @@ def test_the_samples_are_what_their_documented_commands_give(tmp_path):
 ])
 def test_each_sample_converts_and_replays(tmp_path, command, files):
     args = [SAMPLES / f if f.endswith((".csv", ".parquet")) else f for f in files]
-    from pipeline.face.cli_convert_tables import CONVERT_COMMANDS, SAMPLE_SENSOR_VALUES
+    from pipeline.face.cli_convert_tables import SAMPLE_SENSOR_VALUES, TABLE_COMMANDS
 
     # the sensor values the samples were simulated with: a recording says them, or they are unknown
-    given = [f"--set={k}={v}" for k, v in SAMPLE_SENSOR_VALUES.get(CONVERT_COMMANDS[command][0], {}).items()]
+    given = [f"--set={k}={v}" for k, v in SAMPLE_SENSOR_VALUES.get(TABLE_COMMANDS[command][0], {}).items()]
     ok(invoke("convert", command, *args, "-o", tmp_path / "d.mcap", *given))
     res = ok(invoke(tmp_path / "d.mcap", "--no-rrd", "--out", tmp_path / "o" / "tracks.mcap"))
     assert "rmse" in res.output  # the samples carry truth: errors are scored

@@ -1786,7 +1786,8 @@ def export_cmd(tracks, foxglove, table, table_format, output, runs_spec, data_pa
 
 # --------------------------------------------------------------------------- extensions
 # Paper-specific commands (e.g. `replay crlb`) live next to their paper's code; each module
-# listed here exposes COMMANDS, a list of click commands added to `replay`.
+# listed here exposes COMMANDS, a list of click commands added to `replay`, and may expose
+# CONVERT_COMMANDS, added under `replay convert` (the modules never import this one: no circle).
 EXTENSION_MODULES: tuple[str, ...] = (
     "pipeline.face.cli_emitter",
     "pipeline.face.cli_colored_noise",
@@ -1804,8 +1805,11 @@ def _register_extensions() -> None:
     import importlib
 
     for name in EXTENSION_MODULES:
-        for cmd in importlib.import_module(name).COMMANDS:
+        module = importlib.import_module(name)
+        for cmd in module.COMMANDS:
             main.add_command(cmd)
+        for cmd in getattr(module, "CONVERT_COMMANDS", ()):
+            convert_group.add_command(cmd)
 
 
 _register_extensions()

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import click
 
-COMMANDS: list = []  # defined first: importing pipeline.face.cli below may re-enter this module
+COMMANDS: list = []  # no top-level command
 
 
 @click.command("array-wav")
@@ -87,11 +87,4 @@ def _band(text):
         raise InputError(f"--band-hz must be LOW,HIGH in Hz (e.g. 1500,1900), got {text!r}") from None
 
 
-def _register() -> None:
-    from pipeline.face import cli
-
-    if "array-wav" not in cli.convert_group.commands:
-        cli.convert_group.add_command(array_wav_cmd)
-
-
-_register()
+CONVERT_COMMANDS = [array_wav_cmd]  # added under `replay convert` by pipeline.face.cli

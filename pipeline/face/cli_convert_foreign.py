@@ -13,7 +13,7 @@ from pathlib import Path
 
 import click
 
-COMMANDS: list = []  # defined first: importing pipeline.face.cli below may re-enter this module
+COMMANDS: list = []  # no top-level command
 
 
 @click.command("mcap")
@@ -102,11 +102,4 @@ def convert_for_replay(src: Path, map_path: Path) -> Path:
     return out
 
 
-def _register() -> None:
-    from pipeline.face import cli
-
-    if "mcap" not in cli.convert_group.commands:
-        cli.convert_group.add_command(convert_mcap_cmd)
-
-
-_register()
+CONVERT_COMMANDS = [convert_mcap_cmd]  # added under `replay convert` by pipeline.face.cli

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import click
 
-COMMANDS: list = []  # defined first: importing pipeline.face.cli below may re-enter this module
+COMMANDS: list = []  # no top-level command
 
 HELP_WIDTH = 100
 ITEMS = {"radar-plots": "plots", "bearing-peaks": "peaks", "tdoa-fdoa": "pair measurements",
@@ -167,21 +167,13 @@ def export_tables(data: Path, out_dir: Path, fmt: str, recover: bool, force: boo
                    "-o DATA.mcap")
 
 
-CONVERT_COMMANDS = {
+#: command → (family, the command it is an alias of)
+TABLE_COMMANDS = {
     "plots": ("radar-plots", None),
     "plots-csv": ("radar-plots", "plots"),
     "peaks": ("bearing-peaks", None),
     "tdoa-fdoa": ("tdoa-fdoa", None),
     "positions": ("colored-position", None),
 }
-
-
-def _register() -> None:
-    from pipeline.face import cli
-
-    for name, (family, alias_of) in CONVERT_COMMANDS.items():
-        if name not in cli.convert_group.commands:
-            cli.convert_group.add_command(_convert_command(name, family, alias_of))
-
-
-_register()
+# added under `replay convert` by pipeline.face.cli
+CONVERT_COMMANDS = [_convert_command(name, family, alias_of) for name, (family, alias_of) in TABLE_COMMANDS.items()]

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import click
 
-COMMANDS: list = []  # defined first: importing pipeline.face.cli below may re-enter this module
+COMMANDS: list = []  # no top-level command
 
 
 @click.command("upgrade")
@@ -44,11 +44,4 @@ def upgrade_cmd(src, output, recover, force):
         click.echo(f"recovered the intact chunks of {src}: {rep.problem}")
 
 
-def _register() -> None:
-    from pipeline.face import cli
-
-    if "upgrade" not in cli.convert_group.commands:
-        cli.convert_group.add_command(upgrade_cmd)
-
-
-_register()
+CONVERT_COMMANDS = [upgrade_cmd]  # added under `replay convert` by pipeline.face.cli

@@ -30,7 +30,6 @@ class ArrayBearingStage(Stage):
     name = "array-bearing"
     truth_channel = TRUTH  # without it, replay lists run 0's bearings per scan
     family = "array-snapshots"
-    scenario = "array-crossing"
     # decoding (the array's d/λ) and evaluation (the swap/loss gate)
     design_keys = ("spacing_wavelengths", "track_gate_deg")
     design_ranges = {"spacing_wavelengths": (0.0, 1e6), "track_gate_deg": (0.0, 180.0)}

@@ -99,7 +99,8 @@ class Stage:
         The measurement family (a key of :data:`pipeline.vocabulary.FAMILIES`); it fixes the
         input channels and the output channel prefix.
     scenario : str
-        Bundled scenario whose parameters give the design defaults.
+        Bundled scenario whose parameters give the design defaults (the family's, declared in
+        :data:`pipeline.vocabulary.FAMILIES`).
     design_keys : tuple of str
         Scenario parameters the stage itself uses (decoding, evaluation); each tracker's
         ``params`` add to them.
@@ -110,8 +111,11 @@ class Stage:
     # design values of the standard measures (docs/evaluation.md): OSPA/GOSPA cut-off c and order
     # p, and the largest track-to-truth distance of a match, in the family's own space
     evaluation_defaults: dict = {}
-    scenario = ""
     design_keys: tuple = ()
+
+    @property
+    def scenario(self) -> str:
+        return vocab.FAMILIES[self.family].scenario
 
     @property
     def input_topics(self) -> tuple:

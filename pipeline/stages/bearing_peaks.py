@@ -164,7 +164,6 @@ class BearingPeaksStage(Stage):
     name = "xcorr-peaks"
     truth_channel = TRUTH  # without it, replay lists run 0's bearings per scan
     family = "bearing-peaks"
-    scenario = "xcorr-crossing"
     # what the evaluator needs: the gate (judge of "on target") and the targets' roles; the
     # tracks to start on data without truth or labels
     design_keys = ("gate_deg", "pair", "roles", "n_targets")

@@ -34,7 +34,6 @@ TRUTH = vocab.CHANNELS["colored_truth"]
 class ColoredNoiseImmStage(Stage):
     name = "colored-noise-imm"
     family = "colored-position"
-    scenario = "colored-imm"
     # what the stage itself uses: the AR estimator's output (extras) and the evaluator
     design_keys = ("measurement_variance_m2", "ar_forgetting_factor", "ar_zero_pole")
 

@@ -124,7 +124,6 @@ def _state_channel(dataset, topic: str, shape) -> np.ndarray:
 class EmitterLocalisationStage(Stage):
     name = "tdoa-fdoa"
     family = "tdoa-fdoa"
-    scenario = "tdoa-fdoa"
     # what the stage itself uses: the start the decoder checks for, and the unknowns of the bound
     design_keys = ("initial_guess", "stationary_emitter")
     # the figures scatter every run's fix and the Rerun views show the convergence over runs

@@ -41,7 +41,6 @@ XY = "/xy/world"  # under the x/y view's origin, flipped north-up (see timeline.
 class RadarTwsStage(Stage):
     name = "radar-tws"
     family = "radar-plots"
-    scenario = "radar-tws"
     # what the evaluator needs: the bearing noise (cross-range error) and the fixed gains' design point
     design_keys = ("sigma_bearing_deg", "nominal_cross_range_m")
 
