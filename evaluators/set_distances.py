@@ -488,27 +488,28 @@ def global_identities(ids, present):
     present = np.asarray(present, bool)
     ids = np.asarray(ids)
     R = present.shape[0]
-    out = np.full(present.shape, -1, np.int64)
     if not present.any():
-        return out, 0, np.zeros(0, np.int64)
+        return np.full(present.shape, -1, np.int64), 0, np.zeros(0, np.int64)
     if ids.dtype != np.int64:
         ids = ids.astype(np.int64)
-    values = ids[present]
-    low = int(values.min())
-    span = int(values.max()) - low + 1
+    top = np.iinfo(np.int64).max
+    low = int(np.min(ids, where=present, initial=top))
+    span = int(np.max(ids, where=present, initial=low)) - low + 1
     if R * span <= 1 << 26:
-        # (run, identity) as one integer, numbered by marking: no list of the present elements
-        # (absent elements get some key too, read nowhere)
+        # (run, identity) as one integer, numbered by marking: no list of the present elements;
+        # the absent ones all get the key R · span, numbered −1
         key = ids + (np.arange(R, dtype=np.int64) * span - low).reshape((R,) + (1,) * (present.ndim - 1))
-        mark = np.zeros(R * span, bool)
-        mark[key[present]] = True
+        np.copyto(key, R * span, where=~present)
+        mark = np.zeros(R * span + 1, bool)
+        mark[key] = True
+        mark[-1] = False
         marked = np.flatnonzero(mark)
         # each marked key's number, written where it is marked only (the untouched pages of the
         # zeroed table cost nothing, where a running count would write all R · span entries)
-        number = np.zeros(R * span, np.int64)
+        number = np.zeros(R * span + 1, np.int64)
         number[marked] = np.arange(marked.size)
-        np.copyto(out, np.take(number, key, mode="clip"), where=present)
-        return out, marked.size, marked // span
+        number[-1] = -1
+        return number[key], marked.size, marked // span
     return _global_identities_sorted(np.where(present, ids, 0), present, low, span)
 
 
