@@ -1226,18 +1226,3 @@ def sweep_spec_scenario(spec_path: str | Path) -> str:
         return tomllib.loads(Path(spec_path).read_text())["scenario"]
     except (OSError, tomllib.TOMLDecodeError, KeyError) as exc:
         raise InputError(f"not a valid sweep spec ({type(exc).__name__}: {exc})", spec_path) from None
-
-
-def run_sweep_spec(spec_path: str | Path, executor: str = "serial", tracker_specs=()) -> pl.DataFrame:
-    """A bundled regression sweep (``data/sweeps/*.toml``): metrics only, no files kept.
-
-    Raises
-    ------
-    InputError
-        A point failed, or a tracker failed on a point.
-    """
-    report = sweep_spec_report(spec_path, executor, tracker_specs)
-    lines = report.tracker_failure_lines()
-    if lines:
-        raise InputError(lines[0])
-    return report.table

@@ -383,38 +383,6 @@ def test_recorders_use_the_shared_checks(tmp_path):
     assert not (tmp_path / "r.mcap").exists()
 
 
-# --------------------------------------------------------------------------- plots CSV
-
-
-def test_plots_csv_keeps_file_order_within_each_run_and_scan(tmp_path):
-    """The vectorised scatter agrees with a plain grouping of the rows in file order."""
-    from recorders.plots_csv import read_plots_csv
-
-    rng = np.random.default_rng(3)
-    n = 300
-    rows = {"time": rng.integers(0, 12, n) * 2.5 + 100.0, "range_m": rng.uniform(1e3, 2e4, n),
-            "bearing_deg": rng.uniform(-180, 180, n), "run": rng.integers(0, 3, n)}
-    path = tmp_path / "plots.csv"
-    pl.DataFrame(rows).write_csv(path)
-    data, t0 = read_plots_csv(path)
-    arrays, counts = data.ragged["/radar/plots"]
-    times = np.unique(rows["time"])
-    assert t0 == times[0]
-    groups: dict = {}
-    for t, r, b, run in zip(rows["time"], rows["range_m"], rows["bearing_deg"], rows["run"]):
-        groups.setdefault((int(run), int(np.searchsorted(times, t))), []).append((r, b))
-    assert counts.sum() == n and len(groups) == np.count_nonzero(counts)
-    for (run, scan), plots in groups.items():
-        c = counts[run, scan]
-        assert c == len(plots)
-        np.testing.assert_array_equal(arrays["range_m"][run, scan, :c], [p[0] for p in plots])
-        np.testing.assert_array_equal(arrays["bearing_rad"][run, scan, :c], np.deg2rad([p[1] for p in plots]))
-        assert np.all(np.isnan(arrays["range_m"][run, scan, c:]))
-
-
-# ---- outputs never replace inputs; usage errors are one line
-
-
 @pytest.mark.parametrize("args", [
     ["{data}", "--out", "{data}", "--no-rrd"],
     ["{data}", "--out", "{out}", "--rrd", "{data}"],

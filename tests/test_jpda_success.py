@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 
 from evaluators.track_association import paired_difference, track_outcomes
-from pipeline.stages.bearing_peaks import track_simulated
+from recorded_peaks import track_recorded
 from recorders import xcorr_peaks
 from recorders.scenarios import load_scenario
 
@@ -36,7 +36,7 @@ DISTANCES = (0.5, 1.0, 2.0, 4.0, 8.0)
 
 def success(scenario, key, value, pair, seed=11):
     p = load_scenario(scenario).with_overrides({key: value, "pair": pair}).params
-    res = track_simulated(xcorr_peaks.simulate(p, RUNS, seed), p)
+    res = track_recorded(xcorr_peaks.simulate(p, RUNS, seed), p, seed=seed, scenario=scenario)
     out = {}
     for name, tr in res["tracks"].items():
         held, swapped, lost = track_outcomes(tr["state"][..., 0], res["truth"], res["gate_rad"])

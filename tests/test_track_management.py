@@ -99,7 +99,7 @@ def test_an_unlabelled_start_does_as_well_as_the_labelled_one_and_as_the_truth_o
     reported in docs/papers/bearing-peaks.md, not hidden here.)"""
     from evaluators.track_association import paired_difference, track_outcomes
     from evaluators.tracking_metrics import nanmean
-    from pipeline.stages.bearing_peaks import track_simulated
+    from recorded_peaks import track_recorded
     from recorders import xcorr_peaks
     from recorders.scenarios import load_scenario
 
@@ -107,7 +107,7 @@ def test_an_unlabelled_start_does_as_well_as_the_labelled_one_and_as_the_truth_o
     data = xcorr_peaks.simulate(p, 100, 21)
     held, error = {}, {}
     for start in ("truth", "two-point", "peaks"):
-        res = track_simulated(data, p, trackers=("jpda_a",), overrides={"track_start": start})
+        res = track_recorded(data, p, trackers=("jpda_a",), overrides={"track_start": start}, seed=21)
         state = res["tracks"]["jpda_a"]["state"][..., 0]
         ok, _, _ = track_outcomes(state, res["truth"], res["gate_rad"])
         held[start] = ok.all(axis=1)

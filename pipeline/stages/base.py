@@ -125,10 +125,6 @@ class Stage:
     def output_prefix(self) -> str:
         return vocab.FAMILIES[self.family].output_prefix
 
-    @property
-    def truth_topic(self) -> str:
-        return vocab.FAMILIES[self.family].truth
-
     def applies(self, topics) -> bool:
         return all(t in topics for t in self.input_topics)
 

@@ -20,8 +20,7 @@ from pipeline import vocabulary as vocab
 from pipeline.errors import InputError, require_finite
 from pipeline.stages.base import Stage
 from evaluators.standard import bearing_space
-from pipeline.trackers.bearing_peaks import design_from
-from pipeline.trackers.interface import BearingPeaks, call_tracker
+from pipeline.trackers.interface import BearingPeaks
 from pipeline.trackers.peak_roles import roles_for
 
 PEAKS = vocab.CHANNELS["xcorr_peaks"]
@@ -222,32 +221,3 @@ class BearingPeaksStage(Stage):
         if "stage" in summary.columns:
             summary = summary.filter(pl.col("stage") == self.name)
         return assoc_eval.success_table(summary)
-
-
-def track_simulated(data, params: dict, trackers=("jpda", "jpda_a"), overrides: dict | None = None) -> dict:
-    """Run the trackers on an in-memory :class:`recorders.simulated.SimulatedData` (no MCAP
-    round trip; what a replay of the written file computes, for Monte Carlo studies).
-
-    Returns
-    -------
-    dict
-        ``{"tracks": {tracker: outputs}, "truth": (R, K, T) bearings, "gate_rad": V, "times": (K,)}``.
-    """
-    stage = BearingPeaksStage()
-    entries = {e.name: e for e in stage.entries()}
-    arr, counts = data.ragged[PEAKS]
-    truth = data.fixed[TRUTH]
-    peaks = BearingPeaks(bearing_rad=arr["bearing_rad"], amplitude=arr["amplitude"],
-                         origin=np.asarray(arr["origin"], np.int64), counts=counts, times_s=np.asarray(data.times),
-                         field_rad=(float(np.deg2rad(params["field_min_deg"])), float(np.deg2rad(params["field_max_deg"]))),
-                         n_targets=int(truth["bearing_rad"].shape[-1]), truth_bearing_rad=truth["bearing_rad"],
-                         truth_rate_radps=truth.get("bearing_rate_radps"))
-    gate_deg = (overrides or {}).get("gate_deg", params["gate_deg"])
-    tracks = {}
-    for name in trackers:
-        entry = entries[name]
-        design = design_from(params, entry.cls.params)
-        design.update({k: v for k, v in (overrides or {}).items() if k in design})
-        tracks[name] = call_tracker(stage.build(entry, design), peaks)
-    return {"tracks": tracks, "truth": truth["bearing_rad"], "gate_rad": float(np.deg2rad(gate_deg)),
-            "times": data.times}

@@ -129,10 +129,6 @@ class FlopTally:
     def total(self) -> int:
         return int(sum(self.by_step.values()))
 
-    def total_without(self, *labels: str) -> int:
-        return int(sum(v for k, v in self.by_step.items() if k not in labels))
-
-
 class _NoTally:
     """The do-nothing instrument the kernels use when nobody counts."""
 

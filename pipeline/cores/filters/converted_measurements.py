@@ -16,12 +16,6 @@ def polar_to_cartesian(range_m, bearing_rad):
     return np.stack([r * np.cos(th), r * np.sin(th)], axis=-1)
 
 
-def cartesian_to_polar(xy):
-    """Inverse of :func:`polar_to_cartesian`; returns ``(range_m, bearing_rad)``."""
-    xy = np.asarray(xy, dtype=float)
-    return np.hypot(xy[..., 0], xy[..., 1]), np.arctan2(xy[..., 1], xy[..., 0])
-
-
 def rotation(bearing_rad):
     """``D(θ)``: columns are the along-range and cross-range unit vectors, ``(..., 2, 2)``."""
     c = np.cos(bearing_rad)

@@ -120,11 +120,6 @@ class MotionModel:
     def common_size(self) -> int:
         return self.fill_mean.shape[0]
 
-    @property
-    def identity_embedding(self) -> bool:
-        return self.n == self.common_size and np.array_equal(self.index, np.arange(self.n))
-
-
 def _per_axis(block: np.ndarray, axes: int) -> np.ndarray:
     return np.kron(np.eye(axes), block)
 
