@@ -216,6 +216,23 @@ def _record(data_path: str, recover: bool) -> None:
                     payload["per_scan"], payload["rerun_run"])
 
 
+def _end_with_parent(period_s: float = 0.5) -> None:
+    """End this child when the replay that started it is gone (killed without stopping it):
+    a child stalled in a writer would otherwise wait forever, orphaned. What it had begun
+    lies in the replay's staging folder, which the next run cleans."""
+    import threading
+    import time
+
+    parent = os.getppid()
+
+    def watch():
+        while os.getppid() == parent:
+            time.sleep(period_s)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="end with the replay", daemon=True).start()
+
+
 def _stop(signum, frame):
     raise SystemExit(128 + signum)  # unwinds: the recording's temporary file is removed
 
@@ -228,6 +245,7 @@ def main() -> None:
     import warnings
 
     signal.signal(signal.SIGTERM, _stop)
+    _end_with_parent()
     warnings.filterwarnings("ignore", category=RuntimeWarning)  # as the command line does
     try:
         _record(sys.argv[1], sys.argv[2] == "1")

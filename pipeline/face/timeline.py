@@ -184,7 +184,7 @@ def recording(path: str | Path, app_id: str, recording_id: str, blueprint=None):
         # save() or flush() instead of failing: both are bounded, and the failure names the file
         bounded_call(lambda: rec.save(tmp, default_blueprint=blueprint), WRITER_TIMEOUT_S, path, "Rerun's save")
         yield rec
-        rec.flush(timeout_sec=WRITER_TIMEOUT_S)
+        bounded_call(lambda: rec.flush(timeout_sec=WRITER_TIMEOUT_S), WRITER_TIMEOUT_S, path, "Rerun's flush")
         bounded_call(rec.disconnect, WRITER_TIMEOUT_S, path, "Rerun's disconnect")
         publish(tmp, path)
     except BaseException as exc:
