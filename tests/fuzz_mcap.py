@@ -39,7 +39,6 @@ import argparse
 import io
 import json
 import math
-import os
 import random
 import shutil
 import struct

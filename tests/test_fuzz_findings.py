@@ -13,7 +13,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import pytest
-from mcap.records import Channel, Message
+from mcap.records import Channel
 
 import fuzz_mcap as fz
 from pipeline.face.cli import main
