@@ -185,7 +185,7 @@ def test_check_names_the_standard_errors_a_doctored_baseline_moved(runner, tmp_p
 
 def test_a_tracker_without_covariance_is_reported_as_such_not_as_zero(demo_result, capsys):
     from evaluators.standard import evaluate_standard
-    from pipeline.face.cli import _print_summary
+    from pipeline.face.cli_text import _print_summary
 
     result = demo_result.results["radar-tws"]
     bare = {"bare": {"state": result["tracks"]["kalman"]["state"], "flags": result["tracks"]["kalman"]["flags"]}}

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import pytest
 
-from pipeline.face.cli import TABLE_WIDTH, main
+from pipeline.face.cli import main
+from pipeline.face.cli_text import TABLE_WIDTH
 from recorders.scenarios import available_scenarios, load_scenario, parameter_docs, parameter_unit
 
 

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.face import cli, progress
+from pipeline.face import cli_eval, cli_text, progress
 from pipeline.face.cli import main
 
 SMALL_RADAR = ["--set", "n_scans=16"]
@@ -131,7 +131,7 @@ def test_check_update_refuses_an_installed_copy(runner, tmp_path, radar, monkeyp
     assert res.exit_code == 2 and res.output.count("\n") == 1, res.output
     assert "installed package" in res.output and "pass the data folder" in res.output
     assert not (installed / "baselines" / "a.json").exists()
-    monkeypatch.setattr(cli, "bundled_data_dir", lambda: installed)  # the default, outside a checkout
+    monkeypatch.setattr(cli_eval, "bundled_data_dir", lambda: installed)  # the default, outside a checkout
     res = invoke(runner, "check", "--update")
     assert res.exit_code == 2 and "installed package" in res.output
     assert invoke(runner, "check", installed).exit_code == 0  # reading it is fine
@@ -274,12 +274,12 @@ def test_fit_width_splits_a_wide_table_keeping_columns_whole():
             "-" * 130,
             "alpha     " + "".join(f"{i * 1.5:>12.3f}" for i in range(10)),
             "beta      " + "".join(f"{'nan':>12}" for _ in range(10))]
-    out = cli.fit_width("\n".join(rows), 100)
+    out = cli_text.fit_width("\n".join(rows), 100)
     lines = out.splitlines()
     assert max(len(line) for line in lines) <= 100
     assert sum(line.startswith("name") for line in lines) == 2 and sum(line.startswith("alpha") for line in lines) == 2
     assert all(f"col {i}" in out for i in range(10)) and "13.500" in out
-    prose = cli.fit_width("word " * 40, 100)
+    prose = cli_text.fit_width("word " * 40, 100)
     assert max(len(line) for line in prose.splitlines()) <= 100
 
 

@@ -2,7 +2,7 @@
 of the array-snapshot bearing trackers (Ryu, Lee & Lee 2001; ``docs/papers/array-bearing.md``).
 
 Registered under the existing ``replay convert`` group (this module is listed in
-``pipeline.face.cli.EXTENSION_MODULES``; it adds no top-level command).
+``pipeline.face.cli.EXTENSION_MODULES``; its CONVERT_COMMANDS join the group).
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 messages), mapped onto a measurement family by a small TOML file.
 
 Registered under the existing ``replay convert`` group (this module is listed in
-``pipeline.face.cli.EXTENSION_MODULES``; it adds no top-level command). ``replay FOREIGN.mcap
+``pipeline.face.cli.EXTENSION_MODULES``; its CONVERT_COMMANDS join the group). ``replay FOREIGN.mcap
 --map MAP.toml`` converts through :func:`convert_for_replay` and replays the result.
 """
 

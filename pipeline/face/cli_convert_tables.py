@@ -2,7 +2,7 @@
 data sets, and ``replay export --table``'s writing of them the other way.
 
 Registered under the existing ``replay convert`` group (this module is listed in
-``pipeline.face.cli.EXTENSION_MODULES``; it adds no top-level command). ``plots-csv``, the
+``pipeline.face.cli.EXTENSION_MODULES``; its CONVERT_COMMANDS join the group). ``plots-csv``, the
 earlier name of ``plots``, stays as an alias. The formats, the checks and the numbers are in
 :mod:`recorders.tables`; the help texts are written from its ``TABLE_FORMATS``.
 """

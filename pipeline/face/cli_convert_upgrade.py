@@ -1,7 +1,7 @@
 """``replay convert upgrade``: rewrite an MCAP file of an older contract in the current one.
 
 Registered under the existing ``replay convert`` group (this module is listed in
-``pipeline.face.cli.EXTENSION_MODULES``; it adds no top-level command).
+``pipeline.face.cli.EXTENSION_MODULES``; its CONVERT_COMMANDS join the group).
 """
 
 from __future__ import annotations
