@@ -35,7 +35,8 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from pipeline.cores.association.jpda import STRATEGIES, scans_from_padded, track_bearing_peaks, two_point_start  # noqa: E402
+from pipeline.cores.association.jpda import STRATEGIES, scans_from_padded, track_bearing_peaks  # noqa: E402
+from pipeline.cores.filters.kalman import two_point_start  # noqa: E402
 from pipeline.trackers.bearing_peaks import core_design, design_from  # noqa: E402
 from recorders.scenarios import load_scenario  # noqa: E402
 from recorders.xcorr_peaks import simulate  # noqa: E402

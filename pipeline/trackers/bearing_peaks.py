@@ -54,9 +54,9 @@ from dataclasses import replace
 import numpy as np
 
 from pipeline import vocabulary as vocab
-from pipeline.cores.association.jpda import (STRATEGIES, BearingTrackerDesign, scans_from_padded,
-                                             track_bearing_peaks, two_point_start)
+from pipeline.cores.association.jpda import STRATEGIES, BearingTrackerDesign, scans_from_padded, track_bearing_peaks
 from pipeline.cores.association.track_management import ConfirmationRule, EndingRule
+from pipeline.cores.filters.kalman import two_point_start
 from pipeline.errors import InputError, check_all
 from pipeline.trackers.interface import BearingPeaks, Param, Tracker
 from pipeline.trackers.peak_roles import roles_for, track_roles

@@ -47,7 +47,6 @@ from scipy.special import erf, ndtr
 
 from pipeline import vocabulary as vocab
 from pipeline.cores.filters.kalman import continuous_white_noise_model
-from pipeline.cores.filters.kalman import two_point_start  # noqa: F401  (eq. 8c; importable from here as before)
 from pipeline.cores.association.track_management import ConfirmationRule, EndingRule, TrackLife
 
 # Flag bits of the one table (pipeline.vocabulary.FLAGS), as this core uses them:
