@@ -12,8 +12,9 @@ from hypothesis import strategies as st
 
 from pipeline.cores.association.jpda import (FLAG_CLUSTER_SPLIT, STRATEGIES, BearingTrackerDesign, ScanPeaks, amplitude_likelihood_ratio,
                            association_marginals, cluster_tracks, joint_association_probabilities,
-                           position_likelihood_ratio, track_bearing_peaks, two_point_start, update_strength,
+                           position_likelihood_ratio, track_bearing_peaks, update_strength,
                            window_gate_probability)
+from pipeline.cores.filters.kalman import two_point_start
 
 
 def brute_force(ratio, miss, gated):

@@ -10,8 +10,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from pipeline.cores.association.jpda import (STRATEGIES, BearingTrackerDesign, ScanPeaks, association_marginals,
-                                             pair_marginals, track_bearing_peaks, two_point_start)
+                                             pair_marginals, track_bearing_peaks)
 from pipeline.cores.association.track_management import ConfirmationRule, EndingRule, TrackLife
+from pipeline.cores.filters.kalman import two_point_start
 
 
 def _closed_form(ratio, miss, gated):
