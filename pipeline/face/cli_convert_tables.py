@@ -153,7 +153,10 @@ def export_tables(data: Path, out_dir: Path, fmt: str, recover: bool, force: boo
     refuse_input_overwrite([data], [p for p, _ in plan])
     for p, _ in plan:
         refuse_replacing_file(p, force)
-    with OutputSet(out_dir, inputs=[data], name="tables") as outputs:
+    # a set per group of files (one family's tables in one format): exporting another family or
+    # format into the same folder adds its own set beside, and only the same files are replaced
+    set_name = "tables-" + "+".join(sorted(p.name for p, _ in plan))
+    with OutputSet(out_dir, inputs=[data], name=set_name) as outputs:
         for p, df in plan:
             write_table(df, outputs.path(p.name), fmt)
     for p, df in plan:
