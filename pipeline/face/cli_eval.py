@@ -180,7 +180,6 @@ def compare_cmd(a_path, b_path, data_path, pairs, as_json, out_dir, recover, set
     import polars as pl
 
     from evaluators.compare import write_comparison_figure
-    from pipeline.contract import atomic_output
     from pipeline.replay import compare_files, format_evaluation_values
     from recorders.scenarios import parse_assignments
 
@@ -213,17 +212,17 @@ def compare_cmd(a_path, b_path, data_path, pairs, as_json, out_dir, recover, set
             click.echo(shown.select("tracker_a", "tracker_b", "metric", "scope", "value_a", "value_b", "A − B", "verdict"))
         counts = table["verdict"].value_counts(sort=True)
         click.echo("verdicts: " + ", ".join(f"{r['verdict']} {r['count']}" for r in counts.iter_rows(named=True)))
-    out_dir.mkdir(parents=True, exist_ok=True)
-    with atomic_output(out_dir / "compare.csv", "w") as f:
-        table.write_csv(f)
     record = {"a": str(a_path), "b": str(b_path), "data": Path(cmp.dataset.path).name, "stage": cmp.stage.name,
               "evaluation": cmp.evaluation, "evaluation_set": list(cmp.evaluation_set)}
-    with atomic_output(out_dir / "compare.parquet", "wb") as f:
-        table.write_parquet(f, metadata={"replay.compare": json.dumps(record, default=str)})
-    write_comparison_figure(table, out_dir / "compare.png", f"A = {a_path.name}  vs  B = {b_path.name}")
     from pipeline.face.rerun_views import log_comparison
 
-    log_comparison(cmp, out_dir / "compare.rrd")
+    # the tables, the figure and the recording as one set (pipeline.paths.OutputSet): all or none
+    with OutputSet(out_dir, inputs=[a_path, b_path, data_path], name="compare", say=_say) as staged:
+        table.write_csv(staged.path("compare.csv"))
+        table.write_parquet(staged.path("compare.parquet"),
+                            metadata={"replay.compare": json.dumps(record, default=str)})
+        write_comparison_figure(table, staged.path("compare.png"), f"A = {a_path.name}  vs  B = {b_path.name}")
+        log_comparison(cmp, staged.path("compare.rrd"))
     if not as_json:
         click.echo(f"tables: {out_dir / 'compare.csv'} (+ .parquet); plot: {out_dir / 'compare.png'}; "
                    f"recording: {out_dir / 'compare.rrd'}")
