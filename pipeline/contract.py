@@ -804,14 +804,20 @@ def publish(tmp: str | Path, path: str | Path) -> None:
 def atomic_output(path: str | Path, mode: str = "wb"):
     """Open a temporary file next to ``path`` and rename it over ``path`` on success.
 
-    A crash or an exception leaves any existing ``path`` untouched and removes the temporary.
+    A crash or an exception leaves any existing ``path`` untouched and removes the temporary; the
+    temporary of a writer that was killed is removed by the next write of ``path``.
     """
     from pipeline.paths import disk_error
+
+    from pipeline.paths import remove_stale_temporaries
 
     path = Path(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+        # the writing process's id in the name: a killed writer's temporary is known as such and
+        # goes at the next write of the same output
+        remove_stale_temporaries(path)
+        fd, tmp = tempfile.mkstemp(prefix=f"{path.name}.{os.getpid()}.", suffix=".tmp", dir=path.parent)
     except OSError as exc:  # a read-only or full disk: the output is named, not its temporary
         raise (disk_error(exc, path) or exc) from None
     try:

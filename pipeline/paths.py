@@ -432,6 +432,22 @@ def _pause(step: str) -> None:
     time.sleep(float(os.environ.get("TRACKREPLAY_PUBLISH_PAUSE_S", "0")))
 
 
+def remove_stale_temporaries(output) -> list[Path]:
+    """Remove the temporaries ``NAME.<pid>.<random>.tmp`` that a killed writer of ``output`` left
+    beside it (their process no longer runs); returns what was removed."""
+    output = Path(output)
+    removed = []
+    for tmp in output.parent.glob(f"{output.name}.*.tmp"):
+        pid = tmp.name[len(output.name) + 1:].split(".", 1)[0]
+        if pid.isdigit() and int(pid) != os.getpid() and not _alive(int(pid)) and tmp.is_file():
+            try:
+                tmp.unlink()
+                removed.append(tmp)
+            except OSError:  # another process's, or gone already: not ours to insist on
+                pass
+    return removed
+
+
 def _alive(pid: int) -> bool:
     try:
         os.kill(pid, 0)

@@ -158,3 +158,30 @@ def test_an_array_grid_finer_than_memory_allows_is_refused(runner, tmp_path):
     res = runner.invoke(main, ["a.mcap", "--no-rrd", "--out", "o/t.mcap", "--set", "music_grid_step_deg=1e-6"])
     assert res.exit_code == 2, res.output
     assert "music_grid_step_deg" in res.stderr and not Path("o/t.mcap").exists()
+
+
+def test_a_killed_writers_temporary_goes_at_the_next_write(tmp_path):
+    # simulate and convert write through atomic_output: a writer killed mid-write left
+    # NAME.<random>.tmp that nothing removed; its process id in the name now marks it as stale
+    import subprocess
+    import sys
+    import time
+
+    from pipeline.contract import atomic_output
+
+    out = tmp_path / "data.mcap"
+    code = (f"import sys; sys.path.insert(0, {str(Path(__file__).resolve().parents[1])!r})\n"
+            "from pipeline.contract import atomic_output\n"
+            f"with atomic_output({str(out)!r}) as f:\n    f.write(b'half'); f.flush(); import time; time.sleep(60)\n")
+    child = subprocess.Popen([sys.executable, "-c", code])
+    deadline = time.monotonic() + 30
+    while not list(tmp_path.glob("data.mcap.*.tmp")) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    child.kill()
+    child.wait()
+    assert len(list(tmp_path.glob("data.mcap.*.tmp"))) == 1 and not out.exists()
+    (tmp_path / "data.mcap.notapid.x.tmp").write_bytes(b"mine")  # not a writer's: left alone
+    with atomic_output(out) as f:
+        f.write(b"whole")
+    assert out.read_bytes() == b"whole"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["data.mcap", "data.mcap.notapid.x.tmp"]
