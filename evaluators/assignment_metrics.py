@@ -177,9 +177,15 @@ def _gated_pairs(truths, tracks, present, track_present, gate, angular):
     return close_pairs(X, Y, gate, angular)
 
 
-def _matches_keeping_previous(X, Y, vx, vy, tid, ids, gate, angular, pairs=None):
+def _matches_keeping_previous(X, Y, vx, vy, tid, ids, gate, angular, pairs=None, contested_only: bool = True):
     """:func:`scan_matches` with ``keep_previous``: scan by scan, every run at once, on the pairs
-    closer than the gate alone (:func:`_gated_pairs`, or ``pairs`` when already found)."""
+    closer than the gate alone (:func:`_gated_pairs`, or ``pairs`` when already found).
+
+    A scan where no target and no track is in two pairs (a lone target near a lone track, the
+    single-target families' every scan) matches all its pairs whatever the previous scan did:
+    each pair is then its own optimal assignment, kept or not. Those scans are matched at once;
+    the scan loop visits only the contested ones (``contested_only=False`` visits every scan, the
+    plain form the tests hold this one against), loading what the scan before matched."""
     R, K, T = vx.shape
     S = vy.shape[-1]
     match = np.full((R, K, T), -1, np.intp)
@@ -192,11 +198,25 @@ def _matches_keeping_previous(X, Y, vx, vy, tid, ids, gate, angular, pairs=None)
     u, v = target.reshape(-1)[p * T + t], np.asarray(ids).reshape(-1)[p * S + s]
     by_scan = stable_order(k, K)
     bounds = np.r_[0, np.cumsum(np.bincount(k, minlength=K))]      # each scan's stretch of by_scan
+    contested = np.ones(K, bool)
+    if contested_only:
+        contested[:] = False
+        for key, slots in ((p * T + t, T), (p * S + s, S)):  # a target or a track in two pairs
+            ordered = np.sort(key)
+            twice = ordered[1:][ordered[1:] == ordered[:-1]]
+            contested[(twice // slots) % K] = True               # its (run · K + scan) → scan
+        calm = ~contested[k]
+        match[r[calm], k[calm], t[calm]] = s[calm]
+        dist[r[calm], k[calm], t[calm]] = d[calm]
     n_targets = int(target.max()) + 1 if target.size else 0
     last_track = np.full(n_targets, -1, np.int64)      # each target's track at its last match
     last_scan = np.full(n_targets, -2, np.int64)       # and that scan
-    for scan in range(K):
+    for scan in np.flatnonzero(contested):
         e = by_scan[bounds[scan]:bounds[scan + 1]]
+        if scan > 0 and not contested[scan - 1]:  # the scan before was matched at once: all its pairs
+            before = by_scan[bounds[scan - 1]:bounds[scan]]
+            last_track[u[before]] = v[before]
+            last_scan[u[before]] = scan - 1
         if e.size == 0:
             continue
         # a pair matched at the previous scan and still within the gate stays matched

@@ -484,3 +484,30 @@ def test_identity_measures_of_runs_without_any_target():
     assert out["presences"].tolist() == [0, 0] and out["matches"].tolist() == [0, 0]
     assert out["false_positives"].tolist() == [6, 6] and out["idfp"].tolist() == [6, 6]
     assert out["false_tracks"].tolist() == [2, 2] and out["id_switches"].tolist() == [0, 0]
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_matching_that_keeps_previous_matches_skips_only_uncontested_scans(seed):
+    # scans where no target and no track sits in two gated pairs are matched at once; the loop
+    # over every scan (the plain form) gives the same matches and distances, with identities that
+    # change slots, absent targets and tracks, and crowded scenes where most scans are contested
+    from evaluators import assignment_metrics as am
+    from evaluators.set_distances import all_finite
+
+    rng = np.random.default_rng(seed)
+    for trial in range(40):
+        R, K, T, S = (int(n) for n in (rng.integers(1, 4), rng.integers(1, 30), rng.integers(1, 5), rng.integers(1, 6)))
+        X = rng.uniform(0, 10, (R, K, T, 2))
+        crowded = trial % 2 == 1
+        Y = X[..., :1, :].repeat(S, 2) + rng.normal(0, 1.5, (R, K, S, 2)) if crowded else rng.uniform(0, 10, (R, K, S, 2))
+        X[rng.random((R, K, T)) < 0.2] = np.nan
+        Y[rng.random((R, K, S)) < 0.3] = np.nan
+        order = rng.permutation(T)[None, None, :].repeat(K, 1).repeat(R, 0)
+        tid = np.where(all_finite(X), order if trial % 3 == 0 else np.arange(T), -1)
+        ids = np.where(all_finite(Y), np.arange(S)[None, None] + (rng.random((R, K, 1)) < 0.2) * 10, -1)
+        present, tid = am._truth_identities(X, tid)
+        usable = all_finite(Y) & (ids >= 0)
+        gate = float(rng.uniform(0.5, 4.0))
+        fast = am._matches_keeping_previous(X, Y, present, usable, tid, ids, gate, False, contested_only=True)
+        plain = am._matches_keeping_previous(X, Y, present, usable, tid, ids, gate, False, contested_only=False)
+        assert np.array_equal(fast[0], plain[0]) and np.array_equal(fast[1], plain[1], equal_nan=True), (seed, trial)
