@@ -1026,10 +1026,19 @@ def judge(path: Path, result: dict, original: Content, original_ref: dict, folde
 
 
 def _worker(conn, bases_ref: dict, folder: Path) -> None:
-    """Runs mutants sent by the parent: (i, base, path) -> (i, outcome, description)."""
+    """Runs mutants sent by the parent: (i, base, path) -> (i, outcome, description).
+
+    The worker first runs the tool on every base file itself: a mutant is compared with what
+    the same code, in the same process, reports for its original (the project's modules may
+    change on disk during a long run; a reference from another process could then differ)."""
     import warnings
 
     warnings.filterwarnings("ignore")
+    bases_ref = {name: dict(b) for name, b in bases_ref.items()}
+    for name, b in bases_ref.items():
+        original = folder / f"base-{name}.mcap"
+        original.write_bytes(b["bytes"])
+        b["ref"] = reference(original, folder)
     while True:
         job = conn.recv()
         if job is None:
