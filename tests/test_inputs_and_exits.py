@@ -185,3 +185,23 @@ def test_a_killed_writers_temporary_goes_at_the_next_write(tmp_path):
         f.write(b"whole")
     assert out.read_bytes() == b"whole"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["data.mcap", "data.mcap.notapid.x.tmp"]
+
+
+def test_eval_export_and_compare_replace_an_earlier_runs_outputs_only_when_asked(runner, radar_small):
+    # as replay does: a second run into the same folder is refused with one line naming it, and
+    # --force replaces the set; compare's default folder moves on to compare-2
+    assert runner.invoke(main, [str(radar_small), "--no-rrd", "--out", "a/t.mcap", "--figures", "none"]).exit_code == 0
+    assert runner.invoke(main, [str(radar_small), "--no-rrd", "--out", "b/t.mcap", "--figures", "none",
+                                "--set", "sigma_bearing_deg=1.5"]).exit_code == 0
+    for args in (["eval", str(radar_small), "a/t.mcap", "--export", "x"],
+                 ["compare", "a/t.mcap", "b/t.mcap", "--data", str(radar_small), "-o", "c"]):
+        first = runner.invoke(main, args)
+        assert first.exit_code == 0, first.output
+        before = {p.name: p.resolve().read_bytes() for p in Path(args[-1]).iterdir() if not p.name.startswith(".")}
+        res = runner.invoke(main, args)
+        assert res.exit_code == 2 and "add --force" in res.stderr and args[-1] in res.stderr, res.output
+        assert {p.name: p.resolve().read_bytes() for p in Path(args[-1]).iterdir() if not p.name.startswith(".")} == before
+        assert runner.invoke(main, [*args, "--force"]).exit_code == 0
+    for _ in range(2):
+        assert runner.invoke(main, ["compare", "a/t.mcap", "b/t.mcap", "--data", str(radar_small)]).exit_code == 0
+    assert (Path("replay-out") / "compare-2" / "compare.csv").exists()

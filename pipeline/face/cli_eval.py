@@ -19,6 +19,7 @@ from pipeline.face.cli_common import (
     bundled_data_dir,
     checkout_data_dir,
     fail_on_tracker_errors,
+    force_option,
     inside_installed_package,
     resolve_tracker_specs,
     tracker_option,
@@ -52,7 +53,8 @@ from pipeline.paths import OutputSet, refuse_input_overwrite
               help="Override a design value: an evaluation value (assignment_gate_m, ospa_cutoff_m, ospa_order, "
                    "hota_distance_m, …) for any OUTPUTS, a tracker's too when replaying in memory.")
 @tracker_option
-def eval_cmd(data, outputs, as_json, per_scan, export_dir, recover, trackers, sets, tracker_specs):
+@force_option
+def eval_cmd(data, outputs, as_json, per_scan, export_dir, recover, trackers, sets, tracker_specs, force):
     """Metrics of a data set, from a replay output file or by replaying in memory.
 
     Replaying in memory (no OUTPUTS), --tracker adds a plugged tracker and --trackers picks some;
@@ -77,6 +79,7 @@ def eval_cmd(data, outputs, as_json, per_scan, export_dir, recover, trackers, se
                          f"{outputs} already ran")
     if export_dir:
         refuse_input_overwrite([data, outputs], [export_dir / n for n in REPORT_FILES])
+        _refuse_earlier([export_dir / n for n in REPORT_FILES], force, "--export folder")
     specs = resolve_tracker_specs(tracker_specs)
     overrides = parse_assignments(sets)
     if trackers and outputs is not None:
@@ -158,7 +161,8 @@ def plot_cmd(data, outputs, recover):
               help="Write compare.csv/.parquet, compare.png and compare.rrd here (default: replay-out/compare).")
 @click.option("--recover", is_flag=True, help="Accept truncated MCAP files.")
 @click.option("--set", "sets", multiple=True, metavar="NAME=VALUE", help=EVALUATION_SET_HELP)
-def compare_cmd(a_path, b_path, data_path, pairs, as_json, out_dir, recover, sets):
+@force_option
+def compare_cmd(a_path, b_path, data_path, pairs, as_json, out_dir, recover, sets, force):
     """Paired comparison of two replays of the same data set (A − B, run against run).
 
     Every metric of both, the difference with its 95 % interval from the paired runs, and a
@@ -189,10 +193,16 @@ def compare_cmd(a_path, b_path, data_path, pairs, as_json, out_dir, recover, set
         if p.count(":") != 1 or not all(p.split(":")):
             raise InputError(f"--pair {p!r}: expected A_NAME:B_NAME")
         parsed.append(tuple(p.split(":")))
-    out_dir = out_dir or Path.cwd() / "replay-out" / "compare"
-    refuse_input_overwrite([a_path, b_path, data_path],
-                           [out_dir / n for n in ("compare.csv", "compare.parquet", "compare.png", "compare.rrd")])
+    names = ("compare.csv", "compare.parquet", "compare.png", "compare.rrd")
+    if out_dir is None:  # the default folder: the next free replay-out/compare, compare-2, …
+        out_dir = base = Path.cwd() / "replay-out" / "compare"
+        k = 1
+        while not force and any((out_dir / n).exists() for n in names):
+            k += 1
+            out_dir = base.with_name(f"{base.name}-{k}")
+    refuse_input_overwrite([a_path, b_path, data_path], [out_dir / n for n in names])
     cmp = compare_files(a_path, b_path, data_path, parsed or None, recover, overrides)
+    _refuse_earlier([out_dir / n for n in names], force, "-o folder")  # after the --set values are checked
     table = cmp.table
     evaluation = ", ".join(format_evaluation_values({k: v}) + (" (--set)" if k in cmp.evaluation_set else "")
                            for k, v in cmp.evaluation.items())
@@ -226,6 +236,15 @@ def compare_cmd(a_path, b_path, data_path, pairs, as_json, out_dir, recover, set
     if not as_json:
         click.echo(f"tables: {out_dir / 'compare.csv'} (+ .parquet); plot: {out_dir / 'compare.png'}; "
                    f"recording: {out_dir / 'compare.rrd'}")
+
+
+def _refuse_earlier(paths, force: bool, what: str) -> None:
+    """An earlier run's outputs are replaced only when asked (``--force``), as replay's are."""
+    earlier = [p for p in paths if p.exists() or p.is_symlink()]
+    if earlier and not force:
+        shown = ", ".join(p.name for p in earlier[:3]) + (", …" if len(earlier) > 3 else "")
+        raise InputError(f"already holds the outputs of an earlier run ({shown}); add --force to replace them, "
+                         f"or choose another {what}", earlier[0].parent)
 
 
 @click.command("check", epilog=EVALUATION_VALUES_EPILOG)
