@@ -296,13 +296,7 @@ class OutputSet:
 
     def _replace_with_link(self, entry: Path, target: str) -> None:
         """Make ``entry`` a symbolic link to ``target`` with one atomic rename."""
-        tmp = entry.parent / f"{self._own('l')}{os.urandom(4).hex()}"
-        os.symlink(target, tmp)
-        try:
-            os.replace(tmp, entry)
-        except BaseException:
-            _unlink(tmp)
-            raise
+        _link_atomically(entry, target, f"{self._own('l')}{os.urandom(4).hex()}")
 
     def _remove_version(self, version: Path) -> None:
         if version.is_dir() and not version.is_symlink() \
@@ -376,7 +370,13 @@ def link_into_set(member, name: str) -> None:
     target = str(Path(os.readlink(member)).parent / name)
     if entry.is_symlink() and os.readlink(entry) == target:
         return
-    tmp = member.parent / f".link-{os.getpid()}-{os.urandom(4).hex()}"
+    _link_atomically(entry, target, f".link-{os.getpid()}-{os.urandom(4).hex()}")
+
+
+def _link_atomically(entry: Path, target: str, temporary_name: str) -> None:
+    """Make ``entry`` a symbolic link to ``target``: the link is made under ``temporary_name``
+    beside it and renamed over ``entry`` (one atomic step; a reader sees the old entry or the new)."""
+    tmp = entry.parent / temporary_name
     os.symlink(target, tmp)
     try:
         os.replace(tmp, entry)

@@ -28,14 +28,9 @@ from pipeline.face.cli_run import REPORT_FILES, _export_tables, _report_plot
 from pipeline.face.cli_text import (
     _cell,
     _echo_wrapped,
-    _headline_metrics,
     _list_outputs,
-    _metrics_title,
-    _print_design_notes,
-    _print_stage_reports,
-    _print_summary,
     _say,
-    _table_summary,
+    print_replay_report,
 )
 from pipeline.paths import OutputSet, refuse_input_overwrite
 
@@ -103,9 +98,7 @@ def eval_cmd(data, outputs, as_json, per_scan, export_dir, recover, trackers, se
             records += long.select("tracker", "metric", "scope", "value", "stage").to_dicts()
         click.echo(json.dumps([{k: _json_value(v) for k, v in r.items()} for r in records]))
     else:
-        _print_summary(_table_summary(res), _metrics_title(data, res.dataset), _headline_metrics(res))
-        _print_stage_reports(res)
-        _print_design_notes(res)
+        print_replay_report(res, data)
     if export_dir:
         # the tables and figures as one set (pipeline.paths.OutputSet): all of them or none
         with progress.timed("export"), OutputSet(export_dir, replaces=REPORT_FILES, inputs=[data, outputs],

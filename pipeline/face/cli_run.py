@@ -23,14 +23,9 @@ from pipeline.face.cli_common import (
 )
 from pipeline.face.cli_text import (
     _echo_wrapped,
-    _headline_metrics,
     _list_outputs,
-    _metrics_title,
-    _print_design_notes,
-    _print_stage_reports,
-    _print_summary,
     _say,
-    _table_summary,
+    print_replay_report,
 )
 from pipeline.paths import OutputSet, refuse_input_overwrite
 
@@ -263,9 +258,7 @@ def _run(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, sets
         res.timings["total_s"] += t_read
         if res.dataset.recovered_messages is not None:
             click.echo(f"recovered {res.dataset.recovered_messages} messages from complete chunks of {data}")
-        _print_summary(_table_summary(res), _metrics_title(data, res.dataset), _headline_metrics(res))
-        _print_stage_reports(res)
-        _print_design_notes(res)
+        print_replay_report(res, data)
         if figures_mode == "auto":  # a converted foreign file lives only as long as this call
             figures_mode = "background" if sys.stdout.isatty() and map_path is None else "now"
         elif figures_mode == "background" and map_path is not None:

@@ -468,3 +468,11 @@ def _table(header, rows, indent="") -> list[str]:
     for row in (header, *rows):
         out.append(indent + "  ".join(str(c).ljust(w) for c, w in zip(row, widths)).rstrip())
     return out
+
+
+def print_replay_report(res, data) -> None:
+    """What ``replay`` and ``replay eval`` print of a replay: the metric tables with their
+    verdicts, each stage's own report and the design notes."""
+    _print_summary(_table_summary(res), _metrics_title(data, res.dataset), _headline_metrics(res))
+    _print_stage_reports(res)
+    _print_design_notes(res)
