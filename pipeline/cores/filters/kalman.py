@@ -316,7 +316,12 @@ def cv_predict_components(x, c, dt: float, sigma_v: float):
     ``q₄ = σ_v² dt⁴/4``, ``q₃ = σ_v² dt³/2``, ``q₂ = σ_v² dt²`` (white-acceleration Q).
     """
     q = sigma_v * sigma_v
-    q4, q3, q2 = q * dt**4 / 4, q * dt**3 / 2, q * dt * dt
+    return _cv_predict_terms(x, c, dt, q * dt**4 / 4, q * dt**3 / 2, q * dt * dt)
+
+
+def _cv_predict_terms(x, c, dt, q4, q3, q2):
+    """The time update's terms, for a scalar ``dt`` (one scan) or a ``(L, 1)`` column of them
+    (many scans at once, :func:`_cv_predict_components_scans`): one written form for both."""
     dt2 = dt * dt
     xp = np.empty_like(x)
     xp[:2] = x[:2] + dt * x[2:]
@@ -649,24 +654,7 @@ def _cv_predict_components_scans(x, c, dt, sigma_v: float):
     q4 = np.array([q * d**4 / 4 for d in dts])[:, None]
     q3 = np.array([q * d**3 / 2 for d in dts])[:, None]
     q2 = np.array([q * d * d for d in dts])[:, None]
-    d = dt[:, None]
-    two_d = 2 * d
-    d2 = d * d
-    xp = np.empty_like(x)
-    xp[:2] = x[:2] + d * x[2:]
-    xp[2:] = x[2:]
-    n = np.empty_like(c)
-    n[A00] = c[A00] + two_d * c[B00] + d2 * c[C00] + q4
-    n[A01] = c[A01] + d * (c[B01] + c[B10]) + d2 * c[C01]
-    n[A11] = c[A11] + two_d * c[B11] + d2 * c[C11] + q4
-    n[B00] = c[B00] + d * c[C00] + q3
-    n[B01] = c[B01] + d * c[C01]
-    n[B10] = c[B10] + d * c[C01]
-    n[B11] = c[B11] + d * c[C11] + q3
-    n[C00] = c[C00] + q2
-    n[C01] = c[C01]
-    n[C11] = c[C11] + q2
-    return xp, n
+    return _cv_predict_terms(x, c, dt[:, None], q4, q3, q2)
 
 
 # --------------------------------------------------------------------------- stacks, runs last
