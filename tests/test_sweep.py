@@ -58,11 +58,13 @@ def test_resume_after_a_killed_sweep(tmp_path):
            "--runs", "150", "--executor", "serial", "--no-keep-data", "-o", str(out)]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     deadline = time.monotonic() + 120
-    while time.monotonic() < deadline and len(list(out.glob("points/*/metrics.parquet"))) < 2:
+    # a point is finished once its record is written, after its metrics (point.json last): a
+    # kill between the two leaves metrics that the resume computes again
+    while time.monotonic() < deadline and len(list(out.glob("points/*/point.json"))) < 2:
         time.sleep(0.05)
     os.killpg(proc.pid, signal.SIGKILL)
     proc.wait()
-    finished = len(list(out.glob("points/*/metrics.parquet")))
+    finished = len(list(out.glob("points/*/point.json")))
     assert 2 <= finished < points, finished
     for f in out.glob("points/*/metrics.parquet"):  # every result that appeared is whole
         pl.read_parquet(f)
