@@ -202,6 +202,22 @@ def test_eval_export_and_compare_replace_an_earlier_runs_outputs_only_when_asked
         assert res.exit_code == 2 and "add --force" in res.stderr and args[-1] in res.stderr, res.output
         assert {p.name: p.resolve().read_bytes() for p in Path(args[-1]).iterdir() if not p.name.startswith(".")} == before
         assert runner.invoke(main, [*args, "--force"]).exit_code == 0
-    for _ in range(2):
-        assert runner.invoke(main, ["compare", "a/t.mcap", "b/t.mcap", "--data", str(radar_small)]).exit_code == 0
+    Path("replay-out/compare").mkdir(parents=True)
+    Path("replay-out/compare/compare.csv").write_text("an earlier comparison")
+    assert runner.invoke(main, ["compare", "a/t.mcap", "b/t.mcap", "--data", str(radar_small)]).exit_code == 0
+    assert Path("replay-out/compare/compare.csv").read_text() == "an earlier comparison"
     assert (Path("replay-out") / "compare-2" / "compare.csv").exists()
+
+
+@pytest.mark.parametrize("setting", ["nominal_cross_range_m=0", "subspace_tracker=nope"])
+def test_a_design_value_refused_by_a_tracker_names_the_file(runner, radar_small, setting):
+    # the check lives in the tracker; its one line still names the data set it was replaying
+    data = radar_small if setting.startswith("nominal") else None
+    if data is None:
+        assert runner.invoke(main, ["simulate", "array-crossing", "--runs", "1", "--set", "n_scans=5",
+                                    "-o", "a.mcap"]).exit_code == 0
+        data = Path("a.mcap")
+    res = runner.invoke(main, [str(data), "--no-rrd", "--out", "o/t.mcap", "--figures", "none", "--set", setting])
+    assert res.exit_code == 2, res.output
+    errors = [line for line in res.stderr.splitlines() if line.startswith("replay: error: ")]
+    assert errors and all(f"{data.name}:" in e and setting.split("=")[0] in e for e in errors), res.output

@@ -211,7 +211,12 @@ class Stage:
         # from the values in force, --set ones included (a recording's noise may come only from there)
         derived = self.evaluation_defaults_from_data(dataset, out)
         out.update({k: v for k, v in derived.items() if k not in recorded and k not in (overrides or {})})
-        self.check_design(out)
+        try:
+            self.check_design(out)
+        except InputError as exc:  # a value of the file's record or of --set: named with the file
+            if exc.path is not None:
+                raise
+            raise InputError(exc.problem, dataset.path) from None
         dataset.cache[("design_notes", self.name)] = notes
         return out
 
@@ -314,8 +319,11 @@ class Stage:
             if entry.builtin:
                 try:
                     tracker = self.build(entry, design)
-                except ValueError as exc:  # a design value its Param refuses (e.g. a data set's own)
-                    raise TrackerError(f"tracker {entry.name!r}: {exc}; change it with --set NAME=VALUE",
+                except (ValueError, InputError) as exc:  # a design value it refuses (e.g. a data set's own)
+                    if isinstance(exc, InputError) and exc.path is not None:
+                        raise
+                    problem = exc.problem if isinstance(exc, InputError) else str(exc)
+                    raise TrackerError(f"tracker {entry.name!r}: {problem}; change it with --set NAME=VALUE",
                                        dataset.path) from None
                 return call_tracker(tracker, measurements, None)
             # a plugged one runs in a child process, stopped at time_limit_s (0 or None: never), so
