@@ -495,7 +495,19 @@ def _pool_worker_init(client_pid: int) -> None:
     # print tracebacks of their own.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, _worker_stop)
+    sys.unraisablehook = _quiet_when_stopped
     _watch_client(client_pid)
+
+
+def _quiet_when_stopped(unraisable) -> None:
+    """A worker's stop can land in a finalizer (Rerun's recording stream flushes in its
+    ``__del__``, after the recording was saved and disconnected): Python would print that as an
+    "Exception ignored" traceback on the sweep's stderr. Those are dropped; anything else is
+    reported as Python reports it."""
+    stopped = isinstance(unraisable.exc_value, _WorkerStop)
+    finalizer = getattr(unraisable.object, "__qualname__", "").endswith("RecordingStream.__del__")
+    if not (stopped or finalizer):
+        sys.__unraisablehook__(unraisable)
 
 
 def _pool_run_point(task: PointTask) -> PointResult:

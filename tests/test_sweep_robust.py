@@ -496,3 +496,25 @@ def test_a_sweep_on_a_full_disk_stops_with_one_line_and_leaves_no_point_data(tmp
                         r"nothing\)", lines[0]), lines[0]
     assert point_data(out) == [] and not temporaries(out)
     assert not (out / "points").exists()
+
+
+def test_a_stop_landing_in_a_finalizer_prints_no_traceback(monkeypatch):
+    # a worker's SIGTERM (or Rerun's recording stream flushing in __del__ after its save) inside a
+    # finalizer: Python would print "Exception ignored … Traceback" on the sweep's stderr
+    from types import SimpleNamespace
+
+    from pipeline import sweep as sw
+
+    reported = []
+    monkeypatch.setattr(sys, "__unraisablehook__", reported.append)
+
+    class RecordingStream:
+        def __del__(self):
+            pass
+
+    sw._quiet_when_stopped(SimpleNamespace(exc_value=sw._WorkerStop(143), object=None))
+    sw._quiet_when_stopped(SimpleNamespace(exc_value=RuntimeError("flush"), object=RecordingStream.__del__))
+    assert reported == []
+    other = SimpleNamespace(exc_value=ValueError("a bug of ours"), object=None)
+    sw._quiet_when_stopped(other)
+    assert reported == [other]
