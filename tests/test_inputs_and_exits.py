@@ -187,9 +187,12 @@ def test_a_killed_writers_temporary_goes_at_the_next_write(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["data.mcap", "data.mcap.notapid.x.tmp"]
 
 
-def test_eval_export_and_compare_replace_an_earlier_runs_outputs_only_when_asked(runner, radar_small):
+def test_eval_export_and_compare_replace_an_earlier_runs_outputs_only_when_asked(runner):
     # as replay does: a second run into the same folder is refused with one line naming it, and
     # --force replaces the set; compare's default folder moves on to compare-2
+    assert runner.invoke(main, ["simulate", "radar-tws", "--runs", "5", "--set", "n_scans=20", "-o",
+                                "small.mcap"]).exit_code == 0
+    radar_small = Path("small.mcap").resolve()
     assert runner.invoke(main, [str(radar_small), "--no-rrd", "--out", "a/t.mcap", "--figures", "none"]).exit_code == 0
     assert runner.invoke(main, [str(radar_small), "--no-rrd", "--out", "b/t.mcap", "--figures", "none",
                                 "--set", "sigma_bearing_deg=1.5"]).exit_code == 0
