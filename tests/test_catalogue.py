@@ -131,22 +131,9 @@ def _structured_files() -> dict:
 
 def _json_positions_with(first_message: str) -> bytes:
     """The bundled JSON positions sample (``replay convert mcap``'s input) with its first message replaced."""
-    import io
+    from sample_files import json_positions_with_first
 
-    from mcap.reader import make_reader
-    from mcap.writer import Writer
-
-    messages = list(make_reader(io.BytesIO((REPO / "data/samples/json_positions.mcap").read_bytes())).iter_messages())
-    out = io.BytesIO()
-    w = Writer(out)
-    w.start()
-    schema, channel, _ = messages[0]
-    sid = w.register_schema(schema.name, schema.encoding, schema.data)
-    cid = w.register_channel(channel.topic, channel.message_encoding, sid, channel.metadata)
-    for i, (_, _, m) in enumerate(messages):
-        w.add_message(cid, m.log_time, first_message.encode() if i == 0 else m.data, m.publish_time)
-    w.finish()
-    return out.getvalue()
+    return json_positions_with_first(first_message.encode())
 
 
 def _flip(data: bytes, at: int) -> bytes:

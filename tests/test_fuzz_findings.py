@@ -8,7 +8,6 @@ writes valid CRCs around the damage so that it reaches the decoder.
 
 from __future__ import annotations
 
-import io
 from dataclasses import replace
 from pathlib import Path
 
@@ -115,19 +114,9 @@ def test_negative_scan_times_are_one_line(runner, radar_model, tmp_path, shift):
 
 def _json_mcap(path: Path, first_payload: bytes) -> None:
     """The bundled JSON positions sample with its first message replaced."""
-    from mcap.reader import make_reader
-    from mcap.writer import Writer
+    from sample_files import json_positions_with_first
 
-    messages = list(make_reader(io.BytesIO((REPO / "data/samples/json_positions.mcap").read_bytes())).iter_messages())
-    with open(path, "wb") as f:
-        w = Writer(f)
-        w.start()
-        schema, channel, _ = messages[0]
-        sid = w.register_schema(schema.name, schema.encoding, schema.data)
-        cid = w.register_channel(channel.topic, channel.message_encoding, sid, channel.metadata)
-        for i, (_, _, m) in enumerate(messages):
-            w.add_message(cid, m.log_time, first_payload if i == 0 else m.data, m.publish_time)
-        w.finish()
+    path.write_bytes(json_positions_with_first(first_payload))
 
 
 @pytest.mark.parametrize("nesting", [b"[" * 100000 + b"]" * 100000, b'{"x":' * 100000 + b"1" + b"}" * 100000],
