@@ -3,16 +3,16 @@
 What it measures
 ----------------
 1. **Angular innovation, proposed vs Ryu, N = 1 … 10, M = 15.** Both kernels of
-   ``pipeline.cores.array.angular_innovation`` on the same random subspaces and predictions (the largest
+   ``trackreplay.cores.array.angular_innovation`` on the same random subspaces and predictions (the largest
    difference between their δθ is printed). Per N: the best time of one call for the N
    targets of one scan of one run (the paper's setting), the time per run-scan of one
    vectorised call over ``--batch`` runs, their proposed/Ryu ratios, and next to them the
    FLOP ratio of the paper's analytic model (Ryu, Lee & Lee 2001, section IV) and of the FLOPs
-   our kernels execute (counted by ``pipeline.cores.array.flop_counts.FlopTally`` from the
+   our kernels execute (counted by ``trackreplay.cores.array.flop_counts.FlopTally`` from the
    kernels' operand shapes). The timing lives here, not in the trackers: a replay reports FLOPs
    (``innovation_flops_*`` outputs), never wall-clock times.
 2. **MUSIC (spectrum + peaks), ours vs pyroomacoustics.** The same snapshot blocks (M = 15,
-   30 snapshots, 5 sources at 10 dB, λ/2 spacing) go through ``pipeline.cores.array.music.music``
+   30 snapshots, 5 sources at 10 dB, λ/2 spacing) go through ``trackreplay.cores.array.music.music``
    (called as shipped: its angle table is kept per grid) and through
    ``pyroomacoustics.doa.MUSIC.locate_sources`` on the same angle grid (pyroomacoustics' azimuth
    φ from the array axis is 90° − θ; one narrowband STFT bin carries the snapshots), on two grids
@@ -24,7 +24,7 @@ What it measures
    and with them precomputed, ours one block per call and batched over all blocks; then the
    four speed-ups, paired per pass, with PASS/MISS against the ≥ 3× target, and how often both
    pick the same grid peaks. Ours runs on one core here, as the peer does
-   (``pipeline.stack_threads.MAX_THREADS = 1``).
+   (``trackreplay.stack_threads.MAX_THREADS = 1``).
 3. **Full Monte Carlo from MCAP to table.** ``replay simulate array-crossing --runs 100
    --snr-db 0,5,10`` is written to a temporary file (time shown separately), then
    ``replay eval`` of it (read, MUSIC start-up, PAST, both trackers, evaluation and the Table 1
@@ -72,11 +72,11 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.cores.array.angular_innovation import INNOVATIONS
-from pipeline.cores.array.angular_innovation import counted_flops
-from pipeline.cores.array.flop_counts import ANALYTIC
-from pipeline.cores.array.linear_array import steering_vectors
-from pipeline.cores.array.music import angle_grid, music, pick_peaks
+from trackreplay.cores.array.angular_innovation import INNOVATIONS
+from trackreplay.cores.array.angular_innovation import counted_flops
+from trackreplay.cores.array.flop_counts import ANALYTIC
+from trackreplay.cores.array.linear_array import steering_vectors
+from trackreplay.cores.array.music import angle_grid, music, pick_peaks
 from timing import spread  # noqa: E402  (benchmarks/ is on sys.path when run as a script)
 
 
@@ -145,15 +145,15 @@ def music_vs_pyroomacoustics(trials: int, repeats: int, grid_sizes=(361, 1801)) 
     all ``trials`` blocks for each of the four, in a rotating order, so that load on a shared
     machine falls on all four alike; the speed-ups are per repeat (same pass, paired). Ours runs
     on one core, as pyroomacoustics does: a replay shares a large stack's EVDs among the cores
-    (``pipeline.stack_threads.MAX_THREADS``), which this per-core comparison turns off.
+    (``trackreplay.stack_threads.MAX_THREADS``), which this per-core comparison turns off.
     """
-    import pipeline.stack_threads
+    import trackreplay.stack_threads
 
-    threads, pipeline.stack_threads.MAX_THREADS = pipeline.stack_threads.MAX_THREADS, 1
+    threads, trackreplay.stack_threads.MAX_THREADS = trackreplay.stack_threads.MAX_THREADS, 1
     try:
         _music_one_core(trials, repeats, grid_sizes)
     finally:
-        pipeline.stack_threads.MAX_THREADS = threads
+        trackreplay.stack_threads.MAX_THREADS = threads
 
 
 def _music_one_core(trials: int, repeats: int, grid_sizes) -> None:
@@ -243,12 +243,12 @@ def full_monte_carlo(runs: int) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "array.mcap"
         t0 = time.perf_counter()
-        subprocess.run([sys.executable, "-m", "pipeline.face.cli", "simulate", "array-crossing", "--runs", str(runs),
+        subprocess.run([sys.executable, "-m", "trackreplay.face.cli", "simulate", "array-crossing", "--runs", str(runs),
                         "--snr-db", "0,5,10", "-o", str(path)], check=True, capture_output=True)
         t_sim = time.perf_counter() - t0
         print(f"simulate: {t_sim:.1f} s, file {path.stat().st_size / 1e6:.1f} MB")
         t0 = time.perf_counter()
-        out = subprocess.run([sys.executable, "-m", "pipeline.face.cli", "eval", str(path)], check=True,
+        out = subprocess.run([sys.executable, "-m", "trackreplay.face.cli", "eval", str(path)], check=True,
                              capture_output=True, text=True)
         wall = time.perf_counter() - t0
         text = out.stdout
@@ -267,11 +267,11 @@ def front_end_times(runs: int, repeats: int) -> None:
     variants measured against LAPACK's complex Hermitian ``eigh`` (zheevd) that it uses."""
     import threading
 
-    from pipeline.cores.array.music import eigen_decomposition, sample_covariance
-    from pipeline.cores.array.past_subspace import batch_signal_subspace, initial_state, largest_principal_angle, past_scans
-    from pipeline.trackers import array_bearing as ab
-    from recorders.array_snapshots import simulate
-    from recorders.scenarios import load_scenario
+    from trackreplay.cores.array.music import eigen_decomposition, sample_covariance
+    from trackreplay.cores.array.past_subspace import batch_signal_subspace, initial_state, largest_principal_angle, past_scans
+    from trackreplay.trackers import array_bearing as ab
+    from trackreplay.recorders.array_snapshots import simulate
+    from trackreplay.recorders.scenarios import load_scenario
 
     section(f"front end of the array trackers: {runs} runs of the array-crossing scenario")
     data = simulate(dict(load_scenario("array-crossing").params), runs, 7)
@@ -336,10 +336,10 @@ def front_end_times(runs: int, repeats: int) -> None:
 
 def crossing_rate_sensitivity(runs: int, factors=(1.0, 1.33, 2.0)) -> None:
     """Why the all-runs MSE is far above the paper's: tracks merge at slow crossings."""
-    from evaluators.array_bearing import evaluate
-    from pipeline.trackers.array_bearing import SubspaceTrackerDesign, track_bearings
-    from recorders.array_snapshots import float_list, simulate
-    from recorders.scenarios import load_scenario
+    from trackreplay.evaluators.array_bearing import evaluate
+    from trackreplay.trackers.array_bearing import SubspaceTrackerDesign, track_bearings
+    from trackreplay.recorders.array_snapshots import float_list, simulate
+    from trackreplay.recorders.scenarios import load_scenario
 
     section(f"crossing-rate sensitivity ({runs} runs per SNR, motion sped up by compressing the knot times)")
     base = load_scenario("array-crossing").params
@@ -364,9 +364,9 @@ def crossing_rate_sensitivity(runs: int, factors=(1.0, 1.33, 2.0)) -> None:
 
 def past_lag(runs: int = 50) -> None:
     """Bias of the tracks behind two targets at ±≈1°/s: PAST's exponential memory vs batch EVD."""
-    from pipeline.trackers.array_bearing import SubspaceTrackerDesign, track_bearings
-    from recorders.array_snapshots import simulate
-    from recorders.scenarios import load_scenario
+    from trackreplay.trackers.array_bearing import SubspaceTrackerDesign, track_bearings
+    from trackreplay.recorders.array_snapshots import simulate
+    from trackreplay.recorders.scenarios import load_scenario
 
     section(f"PAST lag: two targets at ±0.98°/s, {runs} runs, mean error over scans 5–19 (before they meet)")
     p = dict(load_scenario("array-crossing").params, snr_db=[0.0, 10.0, 20.0], n_targets=2,

@@ -10,7 +10,7 @@ Two denominators, both printed:
   process (start-up, reading, filtering, evaluating, writing the outputs, the Rerun recording,
   the tables and the figures); the evaluation time is the ``evaluate`` phase that ``--verbose``
   prints in that same process, so it includes its first-call costs;
-* **compute** — ``pipeline.replay.replay(path)`` in a warm process with nothing written: read,
+* **compute** — ``trackreplay.replay.replay(path)`` in a warm process with nothing written: read,
   filter and evaluate alone, the harshest view of the evaluation's cost.
 
 Medians with min–max over the repeats.
@@ -29,12 +29,12 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from pipeline.replay import replay  # noqa: E402
-from recorders.scenarios import load_scenario  # noqa: E402
-from recorders.simulated import record  # noqa: E402
+from trackreplay.replay import replay  # noqa: E402
+from trackreplay.recorders.scenarios import load_scenario  # noqa: E402
+from trackreplay.recorders.simulated import record  # noqa: E402
 from timing import spread  # noqa: E402  (benchmarks/ is on sys.path when run as a script)
 
-CLI = [sys.executable, "-c", "from pipeline.face.cli import main; main()"]
+CLI = [sys.executable, "-c", "from trackreplay.face.cli import main; main()"]
 
 
 def cli_replay(path: Path, out: Path) -> tuple[float, float]:

@@ -10,11 +10,11 @@ both see the same load on a shared machine.
 
 1. **Batched Monte Carlo** (``--runs``, default 50): the standard IMM (one 2-state CV, two 3-state
    CA models, the thesis's transition matrix, Kalman filters, plain measurements) over all runs in
-   one pass of :func:`pipeline.cores.filters.imm.imm_filter`, against FilterPy's ``IMMEstimator``
+   one pass of :func:`trackreplay.cores.filters.imm.imm_filter`, against FilterPy's ``IMMEstimator``
    stepped run by run, scan by scan (``predict(); update(z)``). FilterPy needs equal state sizes,
    so it gets three 3-state ``KalmanFilter`` objects, the CV model written as a 3-state model
    whose acceleration row and column of Φ are zero and whose process noise puts the CV model's q
-   on the acceleration: exactly the mixing rule of :mod:`pipeline.cores.filters.imm`, so both
+   on the acceleration: exactly the mixing rule of :mod:`trackreplay.cores.filters.imm`, so both
    compute the same numbers (the largest differences are printed). Target: ≥ 60× (issue 15).
 2. **One run** (run 0 of the same data): ours on that run alone against FilterPy on that run.
    Target: ≥ 1× (ours no slower).
@@ -24,9 +24,9 @@ both see the same load on a shared machine.
    and the peak memory of one pass over all five at the larger count with their outputs held
    (``tracemalloc``: numpy's allocations; measured apart from the timings).
 4. **SRIF vs KF cost per step** in our implementation, same CA model, all runs at once: the SRIF
-   carrying its factors (``pipeline.cores.filters.srif.srif_filter``) vs the Kalman filter
+   carrying its factors (``trackreplay.cores.filters.srif.srif_filter``) vs the Kalman filter
    (``kf_predict`` + ``kf_update`` + ``gaussian_log_likelihood``), and the same two as IMM model
-   strategies (one model through :func:`~pipeline.cores.filters.imm.single_model_filter`).
+   strategies (one model through :func:`~trackreplay.cores.filters.imm.single_model_filter`).
 
 How to run
 ----------
@@ -54,13 +54,13 @@ import tracemalloc
 
 import numpy as np
 
-from pipeline.cores.filters.imm import MeasurementStream, ModelFilter, imm_filter, kinematic_model, single_model_filter
-from pipeline.cores.filters.kalman import gaussian_log_likelihood, kf_predict, kf_update
-from pipeline.cores.filters.srif import srif_filter
-from pipeline.trackers.colored_noise import TRACKERS, parse_matrix
-from pipeline.trackers.interface import ColoredPositions
-from recorders.colored_noise import simulate
-from recorders.scenarios import load_scenario
+from trackreplay.cores.filters.imm import MeasurementStream, ModelFilter, imm_filter, kinematic_model, single_model_filter
+from trackreplay.cores.filters.kalman import gaussian_log_likelihood, kf_predict, kf_update
+from trackreplay.cores.filters.srif import srif_filter
+from trackreplay.trackers.colored_noise import TRACKERS, parse_matrix
+from trackreplay.trackers.interface import ColoredPositions
+from trackreplay.recorders.colored_noise import simulate
+from trackreplay.recorders.scenarios import load_scenario
 
 from timing import time_repeats, time_spread as fmt  # noqa: E402
 

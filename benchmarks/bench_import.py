@@ -4,14 +4,14 @@ What it measures
 ----------------
 For each importer an input of about ``--size-mb`` MB (default 100) is generated in a temporary
 folder (not timed), then the import is timed ``--repeats`` times (default 5): the file in, the
-validated arrays of the data set out (:class:`recorders.simulated.SimulatedData`, what is then
+validated arrays of the data set out (:class:`trackreplay.recorders.simulated.SimulatedData`, what is then
 written), without writing them.
 
-* **tables** (``recorders.tables``): ``read_table`` + ``dataset_from_table``, for radar plots
+* **tables** (``trackreplay.recorders.tables``): ``read_table`` + ``dataset_from_table``, for radar plots
   (CSV and Parquet, 100 runs, 20 plots per scan), cross-correlation peaks (CSV, 100 runs, 8
   peaks per scan), positions (CSV, 100 runs, 2 axes) and TDOA/FDOA (CSV measurements and
   sensors tables exported from a simulated data set, 4 sensors). Throughput in rows/s.
-* **foreign MCAP** (``recorders.foreign_mcap``): a ROS 2 recording (CDR, the sample's
+* **foreign MCAP** (``trackreplay.recorders.foreign_mcap``): a ROS 2 recording (CDR, the sample's
   ``demo_radar_msgs/msg/RadarScan``, 20 returns per scan, written with ``mcap_ros2.writer``)
   and a JSON recording of the same scans, each through its mapping file onto radar plots:
   decode (``mcap_ros2`` / ``json``), gather the fields, ``dataset_from_table``. Throughput in
@@ -22,7 +22,7 @@ Beside them, the read paths of MCAP itself:
 * **mcap iter_messages**: the ``mcap`` package's reader over the same foreign file without
   decoding (the floor of a foreign import), and ``iter_decoded_messages`` with the ROS 2
   decoder (the ecosystem's decode alone, the ceiling of the ROS 2 import);
-* **read_dataset**: ``pipeline.contract.read_dataset`` of a replay data set of about the same
+* **read_dataset**: ``trackreplay.contract.read_dataset`` of a replay data set of about the same
   size (radar-tws simulated with ``replay simulate``), what every replay starts with.
 
 MB/s are of the input file's size on disk. The table gives medians with min–max over the
@@ -115,8 +115,8 @@ def positions_table(n_rows: int, seed: int = 2) -> pl.DataFrame:
 
 def tdoa_tables(folder: Path, size_mb: float) -> tuple[Path, Path]:
     """A simulated tdoa-fdoa data set exported as tables, runs scaled to about ``size_mb``."""
-    from pipeline.contract import read_dataset
-    from recorders.tables import tables_from_dataset
+    from trackreplay.contract import read_dataset
+    from trackreplay.recorders.tables import tables_from_dataset
 
     def export(runs: int) -> tuple[Path, Path]:
         ds_path = folder / f"tdoa-{runs}.mcap"
@@ -136,7 +136,7 @@ def tdoa_tables(folder: Path, size_mb: float) -> tuple[Path, Path]:
 
 def _simulate(scenario: str, runs: int, out: Path) -> None:
     exe = shutil.which("replay")
-    cmd = [exe] if exe else [sys.executable, "-m", "pipeline.face.cli"]
+    cmd = [exe] if exe else [sys.executable, "-m", "trackreplay.face.cli"]
     subprocess.run([*cmd, "simulate", scenario, "--runs", str(runs), "--seed", "1", "-o", str(out), "--force", "-q"],
                    check=True, capture_output=True)
 
@@ -211,9 +211,9 @@ def main() -> int:
     from mcap.reader import make_reader
     from mcap_ros2.decoder import DecoderFactory
 
-    from pipeline.contract import read_dataset
-    from recorders.foreign_mcap import dataset_from_foreign, load_mapping
-    from recorders.tables import dataset_from_table, read_table
+    from trackreplay.contract import read_dataset
+    from trackreplay.recorders.foreign_mcap import dataset_from_foreign, load_mapping
+    from trackreplay.recorders.tables import dataset_from_table, read_table
 
     work = args.keep or Path(tempfile.mkdtemp(prefix="bench-import-"))
     work.mkdir(parents=True, exist_ok=True)

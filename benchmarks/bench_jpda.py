@@ -35,11 +35,11 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from pipeline.cores.association.jpda import STRATEGIES, scans_from_padded, track_bearing_peaks  # noqa: E402
-from pipeline.cores.filters.kalman import two_point_start  # noqa: E402
-from pipeline.trackers.bearing_peaks import core_design, design_from  # noqa: E402
-from recorders.scenarios import load_scenario  # noqa: E402
-from recorders.xcorr_peaks import simulate  # noqa: E402
+from trackreplay.cores.association.jpda import STRATEGIES, scans_from_padded, track_bearing_peaks  # noqa: E402
+from trackreplay.cores.filters.kalman import two_point_start  # noqa: E402
+from trackreplay.trackers.bearing_peaks import core_design, design_from  # noqa: E402
+from trackreplay.recorders.scenarios import load_scenario  # noqa: E402
+from trackreplay.recorders.xcorr_peaks import simulate  # noqa: E402
 from timing import spread, time_repeats  # noqa: E402
 
 SPEEDUP_TARGET = 30.0  # issue 15: "JPDA ≥ 30× Stone Soup" per scan, one run
@@ -240,7 +240,7 @@ def section_2(design, repeats, quick):
 def section_3():
     print("\n== 3. full crossing-angle sweep (5 angles × 2 filters × 100 runs), as a user runs it")
     with tempfile.TemporaryDirectory() as tmp:
-        cmd = [sys.executable, "-m", "pipeline.face.cli", "sweep", "xcorr-crossing", "--param",
+        cmd = [sys.executable, "-m", "trackreplay.face.cli", "sweep", "xcorr-crossing", "--param",
                "crossing_angle_deg=2,5,10,20,30", "--runs", "100", "-o", str(Path(tmp) / "study")]
         t = time.perf_counter()
         res = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO)

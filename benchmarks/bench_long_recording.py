@@ -8,7 +8,7 @@ Data sets are simulated with ``replay simulate`` (seed 7, one run; not timed) in
 ``--multi-scans`` scans. Then, side by side in one run, each figure the median [min–max] of
 ``--repeats``:
 
-1. **Replay, one run.** ``python -m pipeline.face.cli FILE --no-rrd --figures none -v`` in a fresh
+1. **Replay, one run.** ``python -m trackreplay.face.cli FILE --no-rrd --figures none -v`` in a fresh
    process, the four built-in radar trackers: wall time (target ≤ 10 s at 100,000 scans), the
    replay's own breakdown (read, filter, evaluate, write; ``-v``), and the growth exponent
    ``log(t₁₀₀ₖ / t₁₀ₖ) / log 10`` of the median wall times (target ≤ 1.02). The 10,000 and 100,000
@@ -77,7 +77,7 @@ def median(values) -> float:
 
 def simulate(scenario: str, runs: int, scans: int, out: Path, settings=()) -> Path:
     if not out.exists():
-        args = [sys.executable, "-m", "pipeline.face.cli", "simulate", scenario, "--runs", str(runs), "--seed", "7",
+        args = [sys.executable, "-m", "trackreplay.face.cli", "simulate", scenario, "--runs", str(runs), "--seed", "7",
                 "--set", f"n_scans={scans}", "-o", str(out)]
         for s in settings:
             args += ["--set", s]
@@ -90,7 +90,7 @@ TIMING = re.compile(r"timing: (read|filter|evaluate|write) ([0-9.]+) s")
 
 def replay_once(data: Path, out: Path) -> tuple[float, dict]:
     """(wall seconds, {phase: seconds}) of one ``replay --no-rrd -v`` in a fresh process."""
-    args = [sys.executable, "-m", "pipeline.face.cli", str(data), "--out", str(out / "tracks.mcap"), "--force",
+    args = [sys.executable, "-m", "trackreplay.face.cli", str(data), "--out", str(out / "tracks.mcap"), "--force",
             "--figures", "none", "--no-rrd", "-v"]
     t0 = time.perf_counter()
     done = subprocess.run(args, cwd=REPO, capture_output=True, text=True)
@@ -121,12 +121,12 @@ def bench_filterpy(data: Path, repeats: int) -> dict:
     from bench_radar import design_from, filterpy_loop
     from filterpy.common import Q_discrete_white_noise
 
-    from pipeline.contract import read_dataset
-    from pipeline.cores.filters.converted_measurements import converted_covariance, polar_to_cartesian
-    from pipeline.cores.filters.kalman import white_acceleration_model
-    from pipeline.stages.radar_tws import RadarTwsStage
-    from pipeline.trackers.radar_tws import STRATEGIES, track_plots
-    from recorders.scenarios import load_scenario
+    from trackreplay.contract import read_dataset
+    from trackreplay.cores.filters.converted_measurements import converted_covariance, polar_to_cartesian
+    from trackreplay.cores.filters.kalman import white_acceleration_model
+    from trackreplay.stages.radar_tws import RadarTwsStage
+    from trackreplay.trackers.radar_tws import STRATEGIES, track_plots
+    from trackreplay.recorders.scenarios import load_scenario
 
     ds = read_dataset(data)
     rng, brg, counts, times = RadarTwsStage().decode_plots(ds)
@@ -148,7 +148,7 @@ def bench_filterpy(data: Path, repeats: int) -> dict:
     # FilterPy takes the converted covariance as it is; ours floors a plot's along-range variance
     # where it falls below 10⁻⁶ of the cross-range one (FLOORED: beyond ~5,700 km at σ_r = 100 m,
     # σ_θ = 1°, which a 100,000-scan flight reaches), so the two agree up to the first such scan
-    from pipeline.vocabulary import FLOORED
+    from trackreplay.vocabulary import FLOORED
 
     floored = np.cumsum((out["flags"] & FLOORED) > 0, axis=1) > 0
     same = ~floored
@@ -162,7 +162,7 @@ def bench_read_floor(data: Path, repeats: int) -> dict:
     import zstandard
     from bench_read import compressed_chunks
 
-    from pipeline.contract import read_dataset
+    from trackreplay.contract import read_dataset
 
     chunks = compressed_chunks(data)
     reads, floors = [], []
@@ -189,8 +189,8 @@ def bench_gn_one_run(n_runs: int, repeats: int) -> dict:
     from bench_tdoa import gn_data, whitened
     from scipy import optimize
 
-    from pipeline.cores.localisation.gauss_newton import gauss_newton
-    from pipeline.cores.localisation.tdoa_fdoa_model import measurement_model
+    from trackreplay.cores.localisation.gauss_newton import gauss_newton
+    from trackreplay.cores.localisation.tdoa_fdoa_model import measurement_model
 
     es, u, _ = gn_data(n_runs, 11, geometry="line", emitter=1, initial_relative_mse=1e-4)
     theta0 = es.emitter[0] + 0.01 * np.abs(es.emitter[0]) * np.random.default_rng(12).standard_normal((n_runs, 4))

@@ -51,10 +51,10 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from evaluators.set_distances import gospa  # noqa: E402
-from pipeline import vocabulary as vocab  # noqa: E402
-from pipeline.trackers.interface import RadarPlots  # noqa: E402
-from pipeline.trackers.radar_multi_target import GnnTracker, JpdaTracker  # noqa: E402
+from trackreplay.evaluators.set_distances import gospa  # noqa: E402
+from trackreplay import vocabulary as vocab  # noqa: E402
+from trackreplay.trackers.interface import RadarPlots  # noqa: E402
+from trackreplay.trackers.radar_multi_target import GnnTracker, JpdaTracker  # noqa: E402
 from timing import print_table, spread  # noqa: E402
 
 E2E_TARGET_S, E2E_TARGET_MB = 20.0, 2000.0
@@ -79,8 +79,8 @@ OURS = {"gnn": GnnTracker, "jpda_mt": JpdaTracker}
 
 def _recorder():
     try:
-        from recorders import radar_multi
-        from recorders.scenarios import load_scenario
+        from trackreplay.recorders import radar_multi
+        from trackreplay.recorders.scenarios import load_scenario
 
         load_scenario("radar-multi")
         return radar_multi
@@ -95,7 +95,7 @@ _BIRTH_CACHE: dict = {}
 
 def scenario_params(targets: float, clutter: float, scans: int) -> dict:
     """``load_scenario('radar-multi').params`` with the benchmark's values."""
-    from recorders.scenarios import load_scenario
+    from trackreplay.recorders.scenarios import load_scenario
 
     p = dict(load_scenario("radar-multi").params)
     p.update(BASE, n_scans=int(scans), initial_targets_mean=float(targets), clutter_per_scan=float(clutter))
@@ -479,7 +479,7 @@ def section_3(args, repeats):
 
 
 def _cli(*a):
-    return [sys.executable, "-m", "pipeline.face.cli", *a]
+    return [sys.executable, "-m", "trackreplay.face.cli", *a]
 
 
 def _replay(data: Path, out: Path, timeout: float, *extra):
@@ -544,7 +544,7 @@ def section_4(args):
         wall, peak, err = _replay(short, tmp / "out_short", args.e2e_timeout)
         print(f"   the same at {Ks} scans: {wall:.1f} s, peak {peak:.0f} MB{'' if err is None else ' — ' + err}")
         prof = tmp / "replay.prof"
-        subprocess.run([sys.executable, "-m", "cProfile", "-o", str(prof), "-m", "pipeline.face.cli", "-q", str(short),
+        subprocess.run([sys.executable, "-m", "cProfile", "-o", str(prof), "-m", "trackreplay.face.cli", "-q", str(short),
                         "--no-rrd", "--out", str(tmp / "out_prof" / "tracks.mcap"), "--force", "--figures", "none"],
                        capture_output=True, env=dict(os.environ, PYTHONPATH=str(REPO)), cwd=tmp)
         print(f"   where the time goes (cProfile of that replay, top by own time):")

@@ -6,7 +6,7 @@ A radar-tws data set is simulated (``--runs``, default 10,000, seed 7) and repla
 with every built-in tracker. For the first ``--sample-runs`` runs (default 1,000) of each output
 array, laid out as the outputs file lays it out (scan by scan, every run), it compresses:
 
-* **zstd 1**: the level ``tracks.mcap`` uses (``pipeline.contract.OUTPUT_ZSTD_LEVEL``);
+* **zstd 1**: the level ``tracks.mcap`` uses (``trackreplay.contract.OUTPUT_ZSTD_LEVEL``);
 * **packed + zstd 1**: what ``tracks.mcap`` holds since the ``SYMMETRIC`` layout
   (``docs/contract.md``): covariances as their upper triangles, everything else as in zstd 1;
 * **zstd 9**: a slower level;
@@ -38,8 +38,8 @@ from pathlib import Path
 import numpy as np
 import zstandard
 
-from pipeline.contract import OUTPUT_ZSTD_LEVEL, upper_triangles
-from pipeline.replay import replay
+from trackreplay.contract import OUTPUT_ZSTD_LEVEL, upper_triangles
+from trackreplay.replay import replay
 from timing import print_table  # benchmarks/ is on sys.path when run as a script
 
 ISSUE_FILE_MB = 383.0  # tracks.mcap at 10,000 radar runs when the speed issue was filed
@@ -85,7 +85,7 @@ def main() -> None:
 
     with tempfile.TemporaryDirectory() as tmp:
         data = Path(tmp) / "radar.mcap"
-        subprocess.run([sys.executable, "-m", "pipeline.face.cli", "simulate", "radar-tws", "--runs", str(args.runs),
+        subprocess.run([sys.executable, "-m", "trackreplay.face.cli", "simulate", "radar-tws", "--runs", str(args.runs),
                         "--seed", "7", "-o", str(data)], check=True, capture_output=True)
         result = replay(data, out_path=Path(tmp) / "tracks.mcap")
         file_mb = (Path(tmp) / "tracks.mcap").stat().st_size / 1e6

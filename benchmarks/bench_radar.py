@@ -4,10 +4,10 @@ What it measures
 ----------------
 1. **Replay, MCAP to metrics table.** A Monte Carlo data set of the bundled ``radar-tws``
    scenario (default 500 runs) is simulated into a temporary MCAP file (not timed here).
-   ``pipeline.replay.replay(path, out_path=..., rrd_path=...)`` is then timed with all four
+   ``trackreplay.replay.replay(path, out_path=..., rrd_path=...)`` is then timed with all four
    trackers: wall time, the breakdown from ``ReplayResult.timings`` (read, filter, evaluate,
    write, rerun) and the Rerun logging share ``rerun_s / total_s`` (target < 10 %).
-2. **Filter only.** ``pipeline.trackers.radar_tws.track_plots`` with the ``"kalman"`` strategy
+2. **Filter only.** ``trackreplay.trackers.radar_tws.track_plots`` with the ``"kalman"`` strategy
    over all runs in one vectorised call, against FilterPy's ``filterpy.kalman.KalmanFilter``
    stepped run by run in a Python loop on the same data: the same converted measurements and
    per-scan converted covariance ``R = converted_covariance(r, θ, σ_r, σ_θ)``, the same ``F``
@@ -18,8 +18,8 @@ What it measures
    **floor** of this machine for the Kalman step: the arithmetic of one run-step
    (:data:`KALMAN_FLOPS_PER_STEP` flops, :data:`KALMAN_BYTES_PER_STEP` bytes) divided by one
    core's measured dgemm rate and copy bandwidth, and ours as a multiple of it (target ≤ 10×).
-3. **MCAP I/O.** Throughput of ``recorders.simulated.record`` (simulate + write; write alone
-   is shown too) and of ``pipeline.contract.read_dataset``, in MB/s of file on disk (zstd
+3. **MCAP I/O.** Throughput of ``trackreplay.recorders.simulated.record`` (simulate + write; write alone
+   is shown too) and of ``trackreplay.contract.read_dataset``, in MB/s of file on disk (zstd
    chunks, 1 MB = 10⁶ bytes) and messages/s.
 
 A compact summary table closes the output. Times come from ``time.perf_counter``; each figure
@@ -53,15 +53,15 @@ import numpy as np
 # every timed replay measures logging, not the one-time ~0.4 s import of the first replay.
 import rerun  # noqa: F401
 
-from pipeline.contract import read_dataset, scenario_metadata
-from pipeline.cores.filters.converted_measurements import converted_covariance, polar_to_cartesian
-from pipeline.trackers.radar_tws import STRATEGIES, TrackerDesign, track_plots
-from pipeline.cores.filters.kalman import white_acceleration_model
-from pipeline.replay import replay
-from pipeline.stages.radar_tws import RadarTwsStage
-from recorders import simulator_for
-from recorders.scenarios import load_scenario
-from recorders.simulated import record, write_simulated
+from trackreplay.contract import read_dataset, scenario_metadata
+from trackreplay.cores.filters.converted_measurements import converted_covariance, polar_to_cartesian
+from trackreplay.trackers.radar_tws import STRATEGIES, TrackerDesign, track_plots
+from trackreplay.cores.filters.kalman import white_acceleration_model
+from trackreplay.replay import replay
+from trackreplay.stages.radar_tws import RadarTwsStage
+from trackreplay.recorders import simulator_for
+from trackreplay.recorders.scenarios import load_scenario
+from trackreplay.recorders.simulated import record, write_simulated
 
 from timing import spread, time_repeats as timed  # noqa: E402
 

@@ -5,7 +5,7 @@ What it measures
 Three data sets are simulated with ``replay simulate`` into a temporary folder (not timed):
 radar-tws with 1,000 and 10,000 runs (64 scans, ragged plots + truth) and colored-imm with
 200 runs (1,200 scans). Each is also rewritten in contract ``replay.v1`` (one message per run
-and scan, as version 1 wrote it) with :func:`pipeline.contract.rewrite_dataset`; both files
+and scan, as version 1 wrote it) with :func:`trackreplay.contract.rewrite_dataset`; both files
 hold the same frames and decode to identical arrays (checked here before timing).
 
 For every file, ``--repeats`` times (default 5):
@@ -13,7 +13,7 @@ For every file, ``--repeats`` times (default 5):
 * **v1, 0.1 reader**: version 1's read loop, kept here as the "before": the mcap package's
   ``iter_messages(log_time_order=False)`` and one protobuf decode per message into per-frame
   lists (what ``read_dataset`` did up to contract v1);
-* **read**: ``pipeline.contract.read_dataset`` (v1 files frame by frame, v2 files in bulk;
+* **read**: ``trackreplay.contract.read_dataset`` (v1 files frame by frame, v2 files in bulk;
   every chunk CRC checked);
 * **+ arrays**: then every array of every channel as a stage takes it, ``grid`` (or ``ragged``
   for variable-length arrays): the decode a replay waits for;
@@ -47,8 +47,8 @@ from pathlib import Path
 import numpy as np
 import zstandard
 
-from pipeline.contract import CONTRACT_V1, decode_frame, read_dataset, rewrite_dataset
-from pipeline.errors import InputError
+from trackreplay.contract import CONTRACT_V1, decode_frame, read_dataset, rewrite_dataset
+from trackreplay.errors import InputError
 from timing import print_table, time_spread  # benchmarks/ is on sys.path when run as a script
 
 SETS = [  # (label, scenario, runs)
@@ -60,7 +60,7 @@ SETS = [  # (label, scenario, runs)
 
 def simulate(scenario: str, runs: int, out: Path) -> None:
     exe = shutil.which("replay")
-    cmd = [exe] if exe else [sys.executable, "-m", "pipeline.face.cli"]
+    cmd = [exe] if exe else [sys.executable, "-m", "trackreplay.face.cli"]
     subprocess.run([*cmd, "simulate", scenario, "--runs", str(runs), "--seed", "1", "-o", str(out)],
                    check=True, capture_output=True)
 

@@ -7,7 +7,7 @@ default radar-tws with 10 and 10,000 runs, colored-imm with 10 and 500 runs and 
 with 10 and 1,000 runs. The bundled radar demo (``data/radar_tws_demo.mcap``, 200 runs) is
 replayed too, as the README's first command replays it; ``--sets`` also takes ``xcorr-demo``,
 ``array-demo``, ``colored-demo`` and ``tdoa-demo``. Each is replayed ``--repeats`` times
-(default 5) in a fresh process, ``python -m pipeline.face.cli FILE --out … --force --figures
+(default 5) in a fresh process, ``python -m trackreplay.face.cli FILE --out … --force --figures
 none`` (figures are drawn after the result, in a process of their own, when ``replay`` runs on
 a terminal), with ``--no-rrd`` for simulated sets from 100 runs up (the demos keep their
 ``.rrd``). The packages of every tree measured are byte-compiled first, as ``pip install .``
@@ -82,7 +82,7 @@ def compile_bytecode(tree: str | None) -> None:
     import compileall
     import importlib.util
 
-    for package in ("pipeline", "evaluators", "recorders"):
+    for package in ("pipeline", "evaluators", "recorders"):  # the folders the package trackreplay maps
         if tree is not None:
             folder = Path(tree) / package
         else:
@@ -92,13 +92,13 @@ def compile_bytecode(tree: str | None) -> None:
 
 
 def simulate(scenario: str, runs: int, out: Path) -> None:
-    subprocess.run([sys.executable, "-m", "pipeline.face.cli", "simulate", scenario, "--runs", str(runs), "--seed",
+    subprocess.run([sys.executable, "-m", "trackreplay.face.cli", "simulate", scenario, "--runs", str(runs), "--seed",
                     "7", "-o", str(out)], check=True, capture_output=True)
 
 
 def replay_once(data: Path, out: Path, tree: str | None, recording: bool) -> tuple[float, float]:
     """(wall seconds, peak resident MB) of one ``replay`` in a fresh process."""
-    args = [sys.executable, "-m", "pipeline.face.cli", "-q", str(data), "--out", str(out / "tracks.mcap"), "--force",
+    args = [sys.executable, "-m", "trackreplay.face.cli", "-q", str(data), "--out", str(out / "tracks.mcap"), "--force",
             "--figures", "none"]
     if not recording:
         args.append("--no-rrd")
@@ -122,7 +122,7 @@ def help_once(tree: str | None, cwd: str) -> float:
     """Wall seconds of ``replay --help`` in a fresh process."""
     env = dict(os.environ, PYTHONPATH=tree) if tree else None
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "pipeline.face.cli", "--help"], env=env, cwd=cwd, check=True,
+    subprocess.run([sys.executable, "-m", "trackreplay.face.cli", "--help"], env=env, cwd=cwd, check=True,
                    stdout=subprocess.DEVNULL)
     return time.perf_counter() - t0
 

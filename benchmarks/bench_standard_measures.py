@@ -63,10 +63,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import trackeval  # noqa: E402
 
-from evaluators.assignment_metrics import assignment_metrics, gated_pairs, scan_matches  # noqa: E402
-from evaluators.hota import HOTA_ALPHAS, hota_sums, point_similarity, pooled_hota  # noqa: E402
-from evaluators.set_distances import pairs_within  # noqa: E402
-from evaluators.set_distances import pairwise_distance  # noqa: E402
+from trackreplay.evaluators.assignment_metrics import assignment_metrics, gated_pairs, scan_matches  # noqa: E402
+from trackreplay.evaluators.hota import HOTA_ALPHAS, hota_sums, point_similarity, pooled_hota  # noqa: E402
+from trackreplay.evaluators.set_distances import pairs_within  # noqa: E402
+from trackreplay.evaluators.set_distances import pairwise_distance  # noqa: E402
 from timing import print_table, spread  # noqa: E402
 
 TARGET_SPEEDUP = 10.0

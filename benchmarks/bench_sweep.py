@@ -5,7 +5,7 @@ What it measures
 A sweep of the bundled ``radar-tws`` scenario over ``--points`` values of one parameter
 (default: ``sigma_bearing_deg`` at 16 values evenly spaced over 0.4–2.0 deg, ``--runs 100``
 Monte Carlo runs per point, metrics only: ``keep_data=False``, ``out_dir=None``) is built once
-with :func:`pipeline.sweep.build_grid` and run with :func:`pipeline.sweep.run_sweep` on
+with :func:`trackreplay.sweep.build_grid` and run with :func:`trackreplay.sweep.run_sweep` on
 
 1. ``executor="serial"`` (one core, the baseline);
 2. ``executor="process"``, ``workers=2`` (``ProcessPoolExecutor``, forkserver context). The
@@ -25,13 +25,13 @@ the parallel executors) and the per-point overhead
 
     overhead = (wall_s × workers − Σ point_work_s) / n_points
 
-where ``point_work_s`` is measured inside the worker by :func:`pipeline.sweep.run_point`; it is
+where ``point_work_s`` is measured inside the worker by :func:`trackreplay.sweep.run_point`; it is
 shown in ms and as a share of the median point's work in the serial run (target < 5 %). The
 overhead is split with the completion time stamps of the ``progress`` callback: *start-up* (from
 the call until the work of the first finished point began), *tail* (after the last point
 finished: pool/cluster shutdown, table assembly) and the rest (dispatch, result transfer, load
 imbalance at the end). The cold-start time inside ``point_work_s`` (the first point of a fresh
-process imports ``pipeline.replay`` and Rerun; counted as work by the formula) is shown as
+process imports ``trackreplay.replay`` and Rerun; counted as work by the formula) is shown as
 Σ work − n × median. Up front, the cold start of a worker is timed in a fresh interpreter.
 
 Each executor is timed ``--repeats`` times, round robin (fewer if another round would take the
@@ -179,7 +179,7 @@ def _cold_import() -> dict:
         p = subprocess.run([sys.executable, *flags, "-c", code], capture_output=True, text=True, check=True)
         return time.perf_counter() - t, p.stderr
 
-    mods = "import pipeline.sweep, pipeline.replay, recorders.simulated"
+    mods = "import trackreplay.sweep, trackreplay.replay, trackreplay.recorders.simulated"
     python_s, _ = run("pass")
     total_s, _ = run(mods)
     _, log = run(mods, "-X", "importtime")
@@ -188,7 +188,7 @@ def _cold_import() -> dict:
         parts = line.split("|")
         if len(parts) == 3 and parts[1].strip().isdigit():
             name = parts[2].strip()
-            if name in ("numpy", "polars", "rerun", "pipeline.sweep", "pipeline.replay", "recorders.simulated"):
+            if name in ("numpy", "polars", "rerun", "trackreplay.sweep", "trackreplay.replay", "trackreplay.recorders.simulated"):
                 cum[name] = max(cum.get(name, 0.0), int(parts[1]) / 1e6)
     return {"python": python_s, "total": total_s, "top": sorted(cum.items(), key=lambda kv: -kv[1])}
 
@@ -274,7 +274,7 @@ def main() -> int:
     import polars as pl
     from dask.distributed import Client, LocalCluster
 
-    from pipeline.sweep import build_grid, run_point, run_sweep
+    from trackreplay.sweep import build_grid, run_point, run_sweep
 
     n, W = args.points, args.workers
     values = [f"{v:.4g}" for v in np.linspace(args.lo, args.hi, n)]
@@ -293,12 +293,12 @@ def main() -> int:
     print(f"  warm-up point in this process (untimed): {time.perf_counter() - t:.2f} s"
           + (f"  ERROR {warm.error}" if warm.error else ""))
     imp = _cold_import()
-    print(f"  cold start of a worker (fresh interpreter importing pipeline.sweep, pipeline.replay, "
-          f"recorders.simulated): {imp['total']:.2f} s")
+    print(f"  cold start of a worker (fresh interpreter importing trackreplay.sweep, trackreplay.replay, "
+          f"trackreplay.recorders.simulated): {imp['total']:.2f} s")
     print(f"    [bare interpreter {imp['python']:.2f} s; cumulative imports: "
           + ", ".join(f"{k} {v:.2f} s" for k, v in imp["top"]) + "]")
 
-    from pipeline.sweep import _preload_worker
+    from trackreplay.sweep import _preload_worker
 
     def dask_excl():
         t = time.perf_counter()

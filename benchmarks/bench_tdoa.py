@@ -5,14 +5,14 @@ eqs. 15–17; see ``docs/papers/tdoa-fdoa.md`` ("Speed").
 
 What it measures
 ----------------
-1. **CEP planes.** ``pipeline.cores.localisation.cep_plane.cep_plane`` on the paper's 201 × 201 grid (±50 km,
+1. **CEP planes.** ``trackreplay.cores.localisation.cep_plane.cep_plane`` on the paper's 201 × 201 grid (±50 km,
    500 m; position and velocity CEP from the 4-state CRLB at every point), for the line and
    triangle geometries, with the exact CEP and with the paper's eq. 21 (target ≤ 0.5 s).
    Side by side: a per-point Python loop doing the same with ``numpy.linalg.inv`` of the
    Fisher information and ``scipy.optimize.brentq`` on a ``scipy.integrate.quad`` of the 2-D
    Gaussian for the exact CEP, timed on ``--loop-points`` random grid points and scaled to the
    grid (printed as such); the largest relative difference between the two is printed.
-2. **Gauss-Newton.** ``pipeline.cores.localisation.gauss_newton.gauss_newton`` against
+2. **Gauss-Newton.** ``trackreplay.cores.localisation.gauss_newton.gauss_newton`` against
    ``scipy.optimize.least_squares(method="lm")`` called run by run on the same whitened
    residuals, the same analytic Jacobian and the same start; the line geometry, emitter 1, paper
    noise, start = truth + 1 % relative standard deviation, so every run has one basin and the
@@ -64,12 +64,12 @@ import scipy
 from scipy import integrate, optimize
 from scipy.stats import chi2
 
-from pipeline.cores.localisation.cep_plane import cep_plane, grid_axis
-from pipeline.cores.localisation.crlb import fisher_information
-from pipeline.cores.localisation.gauss_newton import CONVERGED, gauss_newton
-from pipeline.cores.localisation.tdoa_fdoa_model import measurement_model
-from recorders.scenarios import load_scenario
-from recorders.tdoa_fdoa import resolve, simulate
+from trackreplay.cores.localisation.cep_plane import cep_plane, grid_axis
+from trackreplay.cores.localisation.crlb import fisher_information
+from trackreplay.cores.localisation.gauss_newton import CONVERGED, gauss_newton
+from trackreplay.cores.localisation.tdoa_fdoa_model import measurement_model
+from trackreplay.recorders.scenarios import load_scenario
+from trackreplay.recorders.tdoa_fdoa import resolve, simulate
 
 
 def scenario(**overrides):

@@ -2,7 +2,7 @@
 
 A trivial tracker (it returns the first converted plot of each scan as its state) is written in
 both forms of the tracker interface (``docs/trackers.md``) and called through
-``pipeline.trackers.interface.call_tracker`` — the path every tracker takes in a replay, with
+``trackreplay.trackers.interface.call_tracker`` — the path every tracker takes in a replay, with
 the output validation — on a radar data set of 500 runs × 64 scans held in memory. The
 difference is what the pipeline's loop over runs and the stacking of per-run outputs cost.
 
@@ -20,8 +20,8 @@ import argparse
 
 import numpy as np
 
-from pipeline import vocabulary as vocab
-from pipeline.trackers.interface import RadarPlots, Tracker, call_tracker
+from trackreplay import vocabulary as vocab
+from trackreplay.trackers.interface import RadarPlots, Tracker, call_tracker
 from timing import time_repeats
 
 

@@ -11,7 +11,7 @@ steady state) and counts how often the printed bounds call it consistent:
 * the Wilson intervals of the fraction of scans whose ANEES / ANIS lies inside its per-scan band
   (do they contain 0.95?);
 
-then the rate intervals of the family tables (:func:`evaluators.confidence.summary_intervals`)
+then the rate intervals of the family tables (:func:`trackreplay.evaluators.confidence.summary_intervals`)
 on Bernoulli data sets: a one-outcome-per-run rate and a rate pooled over ten correlated
 outcomes per run. Every coverage is printed with its 95 % Wilson interval over the data sets.
 ``docs/evaluation.md`` quotes its output; ``tests/test_consistency_coverage.py`` checks the same
@@ -32,7 +32,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
-from evaluators.confidence import wilson_interval  # noqa: E402
+from trackreplay.evaluators.confidence import wilson_interval  # noqa: E402
 from test_consistency_coverage import consistency_coverage, rate_coverage  # noqa: E402
 
 # (runs, scans, q): q the white-acceleration density; the smaller, the longer the NEES stays

@@ -37,8 +37,8 @@ from __future__ import annotations
 import numpy as np
 import polars as pl
 
-from evaluators.tracking_metrics import long_form, nanmean, rms
-from pipeline import vocabulary as vocab
+from trackreplay.evaluators.tracking_metrics import long_form, nanmean, rms
+from trackreplay import vocabulary as vocab
 
 FLOP_TABLE_N = (5, 6)
 STARTUP_SCANS = 2  # scans 0 and 1 are the paper's k = −1 and k = 0 (MUSIC start-up); tracking from scan 2

@@ -1,7 +1,7 @@
 """Track-to-truth assignment metrics over whole runs: CLEAR MOT, identity measures, track quality.
 
 At every scan the tracks are assigned to the true targets by the minimum-cost assignment of
-:mod:`evaluators.set_distances` with cost ``min(d, gate)²``; a pair closer than the **gate** is a
+:mod:`trackreplay.evaluators.set_distances` with cost ``min(d, gate)²``; a pair closer than the **gate** is a
 match. Minimising that cost is maximising ``Σ (1 − (d/gate)²)`` over the matches, so it is
 TrackEval's CLEAR matching with the similarity ``s = max(0, 1 − (d/gate)²)``. From the matches, per
 run:
@@ -42,10 +42,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from evaluators.set_distances import (BRUTE_FORCE_MAX, absent_as_nan, assign_edges, close_pairs, global_identities,
+from trackreplay.evaluators.set_distances import (BRUTE_FORCE_MAX, absent_as_nan, assign_edges, close_pairs, global_identities,
                                       identity_pairs, optimal_assignment, pairwise_distance, single_pair_distance,
                                       stable_order)
-from pipeline.batched_linalg import all_finite
+from trackreplay.batched_linalg import all_finite
 
 MOSTLY_TRACKED = 0.8
 MOSTLY_LOST = 0.2
@@ -152,13 +152,13 @@ def gated_pairs(tracks, truths, gate: float, angular: bool = False, track_ids=No
     (run, scan).
 
     The matching that keeps previous matches, the identity pairing of TrackEval's convention
-    and SIAP's associations (:func:`evaluators.siap.siap_sums`) all start from these pairs:
+    and SIAP's associations (:func:`trackreplay.evaluators.siap.siap_sums`) all start from these pairs:
     found once, they can be handed to each (their ``pairs``). Arguments as :func:`scan_matches`.
 
     Returns
     -------
     problem, truth_slot, track_slot, distance : ndarray (E,)
-        :func:`evaluators.set_distances.close_pairs` of the targets (rows) and tracks (columns)
+        :func:`trackreplay.evaluators.set_distances.close_pairs` of the targets (rows) and tracks (columns)
         of every (run, scan) problem ``run · K + scan``.
     """
     tracks, truths = np.asarray(tracks, float), np.asarray(truths, float)
@@ -305,9 +305,9 @@ def _single_target_matches(tracks, truths, gate: float, angular: bool = False, t
                            distance=None):
     """:func:`scan_matches` (either convention) of sets of one track and one target slot
     ``(R, K, 1, d)`` whose identities are one per run
-    (:func:`evaluators.set_distances.one_identity_per_run`): the one pair is the match when
+    (:func:`trackreplay.evaluators.set_distances.one_identity_per_run`): the one pair is the match when
     both are present and closer than the gate, so keeping previous matches changes nothing.
-    ``distance`` (R, K): :func:`evaluators.set_distances.single_pair_distance`, when found."""
+    ``distance`` (R, K): :func:`trackreplay.evaluators.set_distances.single_pair_distance`, when found."""
     X, Y = np.asarray(truths, float), np.asarray(tracks, float)
     vx, _ = _truth_identities(X, truth_ids)
     vy = all_finite(Y)
@@ -474,7 +474,7 @@ def _identity_pairing(tracks, truths, gate, ids, tid, present, match, matched_id
                       pairs=None, numbered=None) -> dict:
     """IDTP/IDFP/IDFN per run from one global pairing of truth and track identities (Ristani et
     al. 2016), and the false tracks (track identities never matched at any scan). ``numbered``:
-    :func:`evaluators.set_distances.global_identities` of ``(tid, present)``, when found."""
+    :func:`trackreplay.evaluators.set_distances.global_identities` of ``(tid, present)``, when found."""
     R, K, T = tid.shape
     S = ids.shape[-1]
     track_present = ids >= 0
@@ -506,7 +506,7 @@ def _identity_true_positives(pair_run, pair_target, pair_track, count, target_ru
     track identities (Ristani et al. 2016), each run's :func:`_identity_true_positives_dense`.
 
     Most identities share scans with few others, so the pairing is solved on the pairs that
-    share any (:func:`evaluators.set_distances.assign_edges`: lone pairs directly, the rest by
+    share any (:func:`trackreplay.evaluators.set_distances.assign_edges`: lone pairs directly, the rest by
     connected components) instead of on the run's whole target × track matrix. The counts are
     integers, so the optimum's total is exact whichever optimal pairing either form picks.
     """

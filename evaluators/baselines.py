@@ -20,9 +20,9 @@ from pathlib import Path
 
 import polars as pl
 
-from pipeline import __version__
-from pipeline.contract import atomic_output
-from pipeline.errors import InputError
+from trackreplay import __version__
+from trackreplay.contract import atomic_output
+from trackreplay.errors import InputError
 
 DEFAULT_RTOL = 1e-6
 DEFAULT_ATOL = 1e-9

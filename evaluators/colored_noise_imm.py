@@ -15,7 +15,7 @@ reported: mean model probabilities and ``flagged_scans`` (scans whose flags are 
 the AR estimates per scan without a reference.
 
 Figures (thesis Figs. 8–9, 13–15, 19–24) come from :func:`write_figures` through
-:func:`evaluators.report_plots.plot_metrics_vs`.
+:func:`trackreplay.evaluators.report_plots.plot_metrics_vs`.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from evaluators.tracking_metrics import long_form, nanmean, rms, root, squared_error
+from trackreplay.evaluators.tracking_metrics import long_form, nanmean, rms, root, squared_error
 
 AR_TRACKER = "ar_estimator"
 KINEMATICS = (("position", "rmse_position_m", 0), ("velocity", "rmse_velocity_mps", 1),
@@ -254,7 +254,7 @@ def report_text(summary: pl.DataFrame, trackers, model_names) -> str:
 def write_figures(per_scan: pl.DataFrame, out_dir: str | Path, title: str = "") -> list[Path]:
     """PNG figures: RMSE per scan (Figs. 13–15, 19–21), model probabilities (Fig. 22) and AR
     estimates against the truth (Figs. 8–9, 23–24: one panel per true-α curve)."""
-    from evaluators.report_plots import plot_metrics_vs
+    from trackreplay.evaluators.report_plots import plot_metrics_vs
 
     out_dir = Path(out_dir)
     written = []

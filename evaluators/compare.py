@@ -2,7 +2,7 @@
 
 Both replays ran on the same Monte Carlo runs, so their metrics are compared run against run: the
 difference ``A − B`` of every metric is recomputed with each group of runs left out (the grouped
-jackknife of :mod:`evaluators.confidence`), and the interval of the difference, not of each
+jackknife of :mod:`trackreplay.evaluators.confidence`), and the interval of the difference, not of each
 metric, decides. Pairing removes the scenario's own run-to-run spread, which both share, so much
 smaller differences are resolved than by comparing two intervals side by side. See
 ``docs/evaluation.md``.
@@ -20,7 +20,7 @@ import re
 import numpy as np
 import polars as pl
 
-from evaluators.confidence import summary_intervals
+from trackreplay.evaluators.confidence import summary_intervals
 
 KEY = ["tracker", "metric", "scope"]
 

@@ -23,7 +23,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from evaluators.tracking_metrics import nanmean
+from trackreplay.evaluators.tracking_metrics import nanmean
 
 JACKKNIFE_GROUPS = 20
 ROUNDING_SPREAD = 1e-12  # a standard error this small relative to its value is rounding, reported as 0

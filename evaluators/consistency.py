@@ -25,8 +25,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from evaluators.tracking_metrics import nanmean
-from pipeline.batched_linalg import all_finite, sum_squares, whiten
+from trackreplay.evaluators.tracking_metrics import nanmean
+from trackreplay.batched_linalg import all_finite, sum_squares, whiten
 
 NORMAL_95 = 1.959963984540054  # the two-sided 95 % quantile of the standard normal
 
@@ -144,7 +144,7 @@ def run_mean_interval(nx, prob: float = 0.95):
     -------
     mean, se, low, high, runs : float, float, float, float, int
     """
-    from evaluators.confidence import t_quantile
+    from trackreplay.evaluators.confidence import t_quantile
 
     nx = np.asarray(nx, float)
     finite = np.isfinite(nx)
@@ -255,7 +255,7 @@ def consistency_summary(nx, dim: int, prob: float = 0.95, white: bool = False) -
         when ``dim`` lies inside ``time_ci_low``/``time_ci_high``, the time average's own
         interval over runs (``time_se`` its standard error). Lower ends below 0 read 0.
     """
-    from evaluators.confidence import wilson_interval
+    from trackreplay.evaluators.confidence import wilson_interval
 
     nx = np.asarray(nx, float)
     count = np.sum(np.isfinite(nx), axis=0)

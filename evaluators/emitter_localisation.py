@@ -38,9 +38,9 @@ from __future__ import annotations
 import numpy as np
 import polars as pl
 
-from evaluators.tracking_metrics import long_form, rmse_overall
-from pipeline.errors import InputError
-from pipeline.vocabulary import CONVERGED, DIVERGED, INVALID_START, RANK_DEFICIENT, UNDERDETERMINED
+from trackreplay.evaluators.tracking_metrics import long_form, rmse_overall
+from trackreplay.errors import InputError
+from trackreplay.vocabulary import CONVERGED, DIVERGED, INVALID_START, RANK_DEFICIENT, UNDERDETERMINED
 
 CLASSES = ("truth", "elsewhere", "diverged", "not_converged", "underdetermined", "unclassified")
 TRUTH, ELSEWHERE, DIVERGED_CLASS, NOT_CONVERGED_CLASS, UNDERDETERMINED_CLASS, UNCLASSIFIED = range(6)
@@ -79,7 +79,7 @@ def classify(flags, error, A_truth, singular, cost, dof, has_truth=True):
     Parameters
     ----------
     flags : ndarray of uint16 (...)
-        Bits of :data:`pipeline.vocabulary.FLAGS`.
+        Bits of :data:`trackreplay.vocabulary.FLAGS`.
     error : ndarray (..., q)
         Estimate − truth over the free components.
     A_truth : ndarray (..., m, q)

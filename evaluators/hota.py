@@ -23,7 +23,7 @@ Over Monte Carlo runs nothing is averaged per run: TP, FN, FP, the association s
 similarity sums of every α are **summed over runs** and the ratios formed from the totals (so
 AssA and LocA are weighted by |TP|, as TrackEval combines sequences). :func:`hota_sums` returns
 those per-run sums, so :func:`pooled_hota` gives the value of any subset of runs (Monte Carlo
-intervals by regrouping runs, :mod:`evaluators.confidence`).
+intervals by regrouping runs, :mod:`trackreplay.evaluators.confidence`).
 
 At an α without a single TP, AssA_α = 0 and LocA_α = 1: TrackEval's conventions, kept so that the
 averages over α agree with it. See ``docs/evaluation.md`` (section *HOTA*).
@@ -33,9 +33,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from evaluators.set_distances import (absent_as_nan, assign_edges, close_pairs, global_identities, identity_pairs,
+from trackreplay.evaluators.set_distances import (absent_as_nan, assign_edges, close_pairs, global_identities, identity_pairs,
                                       optimal_assignment, pairs_within, pairwise_distance, single_pair_distance)
-from pipeline.batched_linalg import all_finite
+from trackreplay.batched_linalg import all_finite
 
 #: the localisation thresholds α, built as TrackEval builds them (so every bit of α agrees)
 HOTA_ALPHAS = np.arange(0.05, 0.99, 0.05)
@@ -76,7 +76,7 @@ def hota_sums(tracks, truths, distance_scale: float, track_ids=None, truth_ids=N
         ``"sparse"``: all runs at once on the pairs with S > 0 only (the same sums up to
         rounding, tested); ``"auto"``: sparse from :data:`SPARSE_FROM_PAIRS` pairs on.
     pairs : tuple, optional
-        :func:`evaluators.assignment_metrics.gated_pairs` of the same sets at a gate of at
+        :func:`trackreplay.evaluators.assignment_metrics.gated_pairs` of the same sets at a gate of at
         least ``distance_scale`` (those closer than ``d₀`` are kept), when already found: the
         sparse form starts from them instead of searching again.
 
@@ -219,7 +219,7 @@ def _sums_sparse(tracks, truths, d0, track_ids, truth_ids, angular, alphas, pair
 def _sums_single(tracks, truths, d0, track_ids=None, truth_ids=None, angular=False, alphas=HOTA_ALPHAS,
                  distance=None) -> dict:
     """:func:`hota_sums` of sets of one track and one target slot ``(R, K, 1, d)`` whose
-    identities are one per run (:func:`evaluators.set_distances.one_identity_per_run`), from
+    identities are one per run (:func:`trackreplay.evaluators.set_distances.one_identity_per_run`), from
     the distance of the one pair per (run, scan) (``distance``, when already found).
 
     With one pair a scan, a scan's normalised similarity is 1 wherever S > ε (S / (S + S − S)),

@@ -1,6 +1,6 @@
 """Per-target and per-track tables: the first thing to read when a run went wrong.
 
-From the same per-scan matches the assignment measures use (:func:`evaluators.assignment_metrics.scan_matches`,
+From the same per-scan matches the assignment measures use (:func:`trackreplay.evaluators.assignment_metrics.scan_matches`,
 the gate of the family's evaluation space), one row per true target and one per track, per run:
 
 * **targets** — ``tracker, run, target_id``; ``first_s``/``last_s`` when the target was present;
@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 import polars as pl
 
-from evaluators.assignment_metrics import scan_matches
+from trackreplay.evaluators.assignment_metrics import scan_matches
 
 TARGET_SCHEMA = {"tracker": pl.String, "run": pl.Int64, "target_id": pl.Int64, "first_s": pl.Float64,
                  "last_s": pl.Float64, "first_tracked_s": pl.Float64, "last_tracked_s": pl.Float64,
@@ -192,8 +192,8 @@ LIFE_TABLE_RUNS = 100
 def tables_for(times, tracks: dict, truth, truth_ids, space, innovations: dict | None = None,
                runs: int = LIFE_TABLE_RUNS):
     """:func:`life_tables` of every tracker of ``tracks`` (the output vocabulary) on the first
-    ``runs`` runs, in the standard measures' space (:class:`evaluators.standard.EvaluationSpace`)."""
-    from evaluators.standard import NOT_A_TRACK, as_slots_with_ids
+    ``runs`` runs, in the standard measures' space (:class:`trackreplay.evaluators.standard.EvaluationSpace`)."""
+    from trackreplay.evaluators.standard import NOT_A_TRACK, as_slots_with_ids
 
     targets, lives = [], []
     truth = np.asarray(truth, float)

@@ -19,18 +19,18 @@ from __future__ import annotations
 import numpy as np
 import polars as pl
 
-from pipeline.batched_linalg import cholesky_lower, positive_definite
-from pipeline.vocabulary import DELETED, INITIALISING, NO_TRACK, NOT_POSITIVE_DEFINITE, flag_names
+from trackreplay.batched_linalg import cholesky_lower, positive_definite
+from trackreplay.vocabulary import DELETED, INITIALISING, NO_TRACK, NOT_POSITIVE_DEFINITE, flag_names
 
 NOTE = "note"
 #: the reason of a metric that compares with a truth the data set does not have
 NO_TRUTH = "the data set has no truth to compare the estimates with"
 
-#: metrics taken over the emitter family's estimates in its ``truth`` class (evaluators.emitter_localisation)
+#: metrics taken over the emitter family's estimates in its ``truth`` class (trackreplay.evaluators.emitter_localisation)
 TRUTH_CLASS_METRICS = ("rmse_position_m", "crlb_position_m", "position_efficiency", "inside_50pct_position",
                        "rmse_velocity_mps", "crlb_velocity_mps", "velocity_efficiency", "inside_50pct_velocity",
                        "mean_cost_per_dof", "mean_iterations", "converged_fraction")
-#: the emitter family's class counts, in the order of evaluators.emitter_localisation.CLASSES
+#: the emitter family's class counts, in the order of trackreplay.evaluators.emitter_localisation.CLASSES
 CLASS_COUNTS = ("runs_truth", "runs_elsewhere", "runs_diverged", "runs_not_converged", "runs_underdetermined",
                 "runs_unclassified")
 #: metrics that read a state's covariance (NEES and the error ellipses)
@@ -178,7 +178,7 @@ def _reason(tracker: str, metric: str, scope: str, facts: _TrackerFacts | None, 
             return f"its bound {bound} has no value"
     if metric.endswith("_held") and not (rows.get((tracker, "held_rate", scope)) or 0) > 0:
         # taken over the tracks held (on their own target at the last scan, never swapped:
-        # evaluators.track_association)
+        # trackreplay.evaluators.track_association)
         return "no track held its target to the last scan, over which it is taken"
     if metric.startswith(BOUND_METRICS):
         return ("the bound is not finite at any scan scored here: its information matrix is singular or overflows "
@@ -201,7 +201,7 @@ def explain_missing(summary: pl.DataFrame, tracks: dict, innovations: dict | Non
         ``name -> outputs`` in the vocabulary (``docs/contract.md``), the stage's own estimators'
         side outputs included.
     innovations : dict, optional
-        ``name ->`` :func:`evaluators.consistency.whitened_innovations` (``(w, nis)`` or None), when
+        ``name ->`` :func:`trackreplay.evaluators.consistency.whitened_innovations` (``(w, nis)`` or None), when
         already computed.
     compared : sequence of int, optional
         The state components the standard measures compare with the truth (and a NEES reads);
@@ -242,7 +242,7 @@ def explain_missing(summary: pl.DataFrame, tracks: dict, innovations: dict | Non
 
 
 def _innovation(out):
-    from evaluators.consistency import whitened_innovations
+    from trackreplay.evaluators.consistency import whitened_innovations
 
     return whitened_innovations(out)
 

@@ -15,9 +15,9 @@ from __future__ import annotations
 import numpy as np
 import polars as pl
 
-from evaluators.confidence import group_totals
-from evaluators.tracking_metrics import long_form, nanmean, npe_from_sums, root, squared_error
-from pipeline.vocabulary import CLAMPED as FLAG_CLAMPED, COASTED as FLAG_COASTED, INITIALISING as FLAG_INITIALISING, NO_TRACK as FLAG_NO_TRACK
+from trackreplay.evaluators.confidence import group_totals
+from trackreplay.evaluators.tracking_metrics import long_form, nanmean, npe_from_sums, root, squared_error
+from trackreplay.vocabulary import CLAMPED as FLAG_CLAMPED, COASTED as FLAG_COASTED, INITIALISING as FLAG_INITIALISING, NO_TRACK as FLAG_NO_TRACK
 
 SCOPES = ("overall", "cross_range_above_nominal", "cross_range_below_nominal")
 
@@ -53,9 +53,9 @@ def evaluate(times, tracks: dict, measured_xy, truth_state=None, cross_range_std
         is better: the efficiency of every family, ``docs/evaluation.md``).
     groups : int, optional
         Also return the summary of each of ``groups`` round-robin groups of runs
-        (:func:`evaluators.confidence.run_groups`), as this function would give it on the
+        (:func:`trackreplay.evaluators.confidence.run_groups`), as this function would give it on the
         group's runs alone, or with ``left_out`` on all runs but the group's
-        (``score_groups`` of :func:`evaluators.confidence.summary_intervals`).
+        (``score_groups`` of :func:`trackreplay.evaluators.confidence.summary_intervals`).
     left_out : bool
 
     Returns

@@ -11,7 +11,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import polars as pl  # noqa: E402
 
-from pipeline.contract import atomic_output  # noqa: E402
+from trackreplay.contract import atomic_output  # noqa: E402
 
 # line style and marker per series, cycled with the colours (see series_style)
 STYLES = [("-", "o"), ("--", "s"), ("-.", "^"), (":", "D"), ((0, (5, 1, 1, 1)), "v"), ((0, (3, 1)), "x")]

@@ -23,7 +23,7 @@ from itertools import permutations
 
 import numpy as np
 
-from pipeline.batched_linalg import all_finite, sum_squares
+from trackreplay.batched_linalg import all_finite, sum_squares
 
 BRUTE_FORCE_MAX = 6  # 6! = 720 permutations per scan, evaluated together
 BRUTE_FORCE_BLOCK_SUMS = 1 << 17  # permutation sums per block of problems: 1 MiB, in the cache
@@ -88,7 +88,7 @@ def pairwise_distance(tracks, truths, angular: bool = False) -> np.ndarray:
     With ``angular`` the components are angles and differences wrap to (−π, π].
     """
     X, Y = np.asarray(tracks, float), np.asarray(truths, float)
-    # a component at a time, left to right (the sum of pipeline.batched_linalg.sum_squares, bit
+    # a component at a time, left to right (the sum of trackreplay.batched_linalg.sum_squares, bit
     # for bit): no (..., m, n, d) difference array with a short strided last axis
     total = np.zeros(np.broadcast_shapes(X.shape[:-2], Y.shape[:-2]) + (X.shape[-2], Y.shape[-2]))
     for i in range(X.shape[-1]):

@@ -21,13 +21,13 @@ Implementation*, SIAP Task Force, 2001), in the form of Stone Soup's ``SIAPMetri
 ``consec_misses_end=1``): at every scan each reported track is associated with the nearest
 present target closer than the gate (``siap_gate_m``/``_deg``, default the assignment gate).
 Several tracks may share a target, which is what ambiguity counts; the one-to-one assignment of
-:mod:`evaluators.assignment_metrics` would keep A at 1. An *association segment* is a maximal run
+:mod:`trackreplay.evaluators.assignment_metrics` would keep A at 1. An *association segment* is a maximal run
 of a track's reports (consecutive scans at which it reports) associated with the same target;
 its duration is the time from its first to its last scan.
 
 Over Monte Carlo runs nothing is averaged per run: :func:`siap_sums` returns per-run sums and
 :func:`pooled_siap` forms the ratios from the totals of any subset of runs (intervals by
-re-grouping runs, :mod:`evaluators.confidence`).
+re-grouping runs, :mod:`trackreplay.evaluators.confidence`).
 
 Where this differs from Stone Soup 1.9 on purpose (``docs/evaluation.md``, section *SIAP*):
 
@@ -42,8 +42,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from evaluators.set_distances import close_pairs, global_identities, single_pair_distance, stable_order
-from pipeline.batched_linalg import all_finite
+from trackreplay.evaluators.set_distances import close_pairs, global_identities, single_pair_distance, stable_order
+from trackreplay.batched_linalg import all_finite
 
 SUM_KEYS = ("truths", "tracked_truths", "tracks", "associated_tracks", "position_error_sum",
             "velocity_error_sum", "track_number_changes", "time_tracked", "longest_segment_time",
@@ -57,7 +57,7 @@ def siap_associations(tracks, truths, gate: float, track_ids=None, truth_ids=Non
                       pairs=None):
     """Each reported track's target at every scan: the nearest present target closer than ``gate``.
 
-    ``pairs``, when given, are :func:`evaluators.assignment_metrics.gated_pairs` of the same
+    ``pairs``, when given, are :func:`trackreplay.evaluators.assignment_metrics.gated_pairs` of the same
     sets at the same gate (the pairs this search starts from), found once for several measures.
 
     Returns
@@ -122,7 +122,7 @@ def siap_sums(tracks, truths, gate: float, times=None, track_ids=None, truth_ids
     track_velocities, truth_velocities : ndarray (R, K, S, v) / (R, K, T, v), optional
         Velocities for the velocity accuracy; without them ``velocity_error_sum`` is NaN.
     pairs : tuple, optional
-        :func:`evaluators.assignment_metrics.gated_pairs` of the same sets at ``gate``, when
+        :func:`trackreplay.evaluators.assignment_metrics.gated_pairs` of the same sets at ``gate``, when
         already found.
 
     Returns
@@ -224,7 +224,7 @@ def siap_sums(tracks, truths, gate: float, times=None, track_ids=None, truth_ids
 def _sums_single(tracks, truths, gate: float, times=None, track_ids=None, truth_ids=None, angular: bool = False,
                  track_velocities=None, truth_velocities=None, distance=None) -> dict:
     """:func:`siap_sums` of sets of one track and one target slot ``(R, K, 1, d)`` whose
-    identities are one per run (:func:`evaluators.set_distances.one_identity_per_run`), from
+    identities are one per run (:func:`trackreplay.evaluators.set_distances.one_identity_per_run`), from
     per-scan arrays (``distance`` (R, K): the one pair's, when already found).
 
     The track is associated wherever both are present and closer than the gate. Its

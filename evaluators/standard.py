@@ -4,12 +4,12 @@ Reads only ``state``, ``covariance``, ``track_id``, ``innovation`` and
 ``innovation_covariance`` (``docs/contract.md``) and the truth in the tracker's state space, so it
 applies to any tracker, built in or plugged:
 
-* filter consistency (:mod:`evaluators.consistency`): ANEES and ANIS per scan with their χ²
+* filter consistency (:mod:`trackreplay.evaluators.consistency`): ANEES and ANIS per scan with their χ²
   bounds for the runs present, the fraction of scans inside, time averages with bounds, and the
   whiteness of the innovations;
-* OSPA and GOSPA per scan with GOSPA's parts (:mod:`evaluators.set_distances`);
-* assignment metrics over whole runs (:mod:`evaluators.assignment_metrics`);
-* a 95 % interval over Monte Carlo runs on every number (:mod:`evaluators.confidence`).
+* OSPA and GOSPA per scan with GOSPA's parts (:mod:`trackreplay.evaluators.set_distances`);
+* assignment metrics over whole runs (:mod:`trackreplay.evaluators.assignment_metrics`);
+* a 95 % interval over Monte Carlo runs on every number (:mod:`trackreplay.evaluators.confidence`).
 
 With several targets, the NEES pairs each target with the track matched to it at that scan (the
 same gated assignment the assignment metrics use); targets without a match add nothing.
@@ -23,19 +23,19 @@ from dataclasses import dataclass
 import numpy as np
 import polars as pl
 
-from evaluators import hota as hota_module, siap as siap_module
-from evaluators.assignment_metrics import (_single_target_matches, _single_target_metrics, assignment_metrics,
+from trackreplay.evaluators import hota as hota_module, siap as siap_module
+from trackreplay.evaluators.assignment_metrics import (_single_target_matches, _single_target_metrics, assignment_metrics,
                                            gated_pairs, scan_matches)
-from evaluators.confidence import group_totals, jackknife, mean_interval, ratio_jackknife, rms_interval, run_groups
-from evaluators.consistency import (consistency_summary, innovation_whiteness, normalised_squared,
+from trackreplay.evaluators.confidence import group_totals, jackknife, mean_interval, ratio_jackknife, rms_interval, run_groups
+from trackreplay.evaluators.consistency import (consistency_summary, innovation_whiteness, normalised_squared,
                                    whitened_innovations)
-from evaluators.hota import SUM_KEYS as HOTA_SUMS, hota_sums, pooled_hota
-from evaluators.set_distances import (_gospa_switching_single, gospa_switching, one_identity_per_run,
+from trackreplay.evaluators.hota import SUM_KEYS as HOTA_SUMS, hota_sums, pooled_hota
+from trackreplay.evaluators.set_distances import (_gospa_switching_single, gospa_switching, one_identity_per_run,
                                       pairs_within, single_pair_distance)
-from evaluators.siap import SUM_KEYS as SIAP_SUMS, pooled_siap, siap_sums
-from evaluators.tracking_metrics import nanmean
-from pipeline.batched_linalg import all_finite, sum_squares
-from pipeline.vocabulary import DELETED, INITIALISING, NO_TRACK
+from trackreplay.evaluators.siap import SUM_KEYS as SIAP_SUMS, pooled_siap, siap_sums
+from trackreplay.evaluators.tracking_metrics import nanmean
+from trackreplay.batched_linalg import all_finite, sum_squares
+from trackreplay.vocabulary import DELETED, INITIALISING, NO_TRACK
 
 # What a tracker reports is its confirmed tracks: a tentative track (INITIALISING) is a hypothesis
 # under test, not yet an estimate a user would see, and scoring it would charge a multi-target
@@ -67,13 +67,13 @@ class EvaluationSpace:
     scale : float
         Factor from the space's SI units to ``unit`` (180/π for angles reported in degrees).
     hota_distance : float, optional
-        HOTA's ``d₀``, where the point similarity reaches 0 (:mod:`evaluators.hota`); default
+        HOTA's ``d₀``, where the point similarity reaches 0 (:mod:`trackreplay.evaluators.hota`); default
         ``cutoff``.
     gospa_switch_penalty : float, optional
-        γ of the per-scan GOSPA switching term (:func:`evaluators.set_distances.gospa_switching`);
+        γ of the per-scan GOSPA switching term (:func:`trackreplay.evaluators.set_distances.gospa_switching`);
         default ``cutoff``.
     siap_gate : float, optional
-        Largest distance of a SIAP track-to-target association (:mod:`evaluators.siap`); default
+        Largest distance of a SIAP track-to-target association (:mod:`trackreplay.evaluators.siap`); default
         ``gate``.
     velocity_components : tuple of int, optional
         Components holding the velocities of the positions (the SIAP velocity accuracy); None
@@ -230,9 +230,9 @@ def _put_runs(joined, part, runs: slice) -> None:
 
 
 def _pooled_jackknife(pooled, sums: dict, keys, n_runs: int, groups: int = 10):
-    """:func:`evaluators.confidence.jackknife` of ``pooled(sums, runs)`` (a measure formed from
+    """:func:`trackreplay.evaluators.confidence.jackknife` of ``pooled(sums, runs)`` (a measure formed from
     per-run sums added over ``runs``: HOTA, SIAP) from the totals of each group of runs
-    (:func:`evaluators.confidence.group_totals`): a group left out is all groups but one, so
+    (:func:`trackreplay.evaluators.confidence.group_totals`): a group left out is all groups but one, so
     the G + 1 poolings add G totals instead of nearly every run G + 1 times. The same
     estimates up to the order of the additions."""
     G = len(run_groups(n_runs, groups))
@@ -259,12 +259,12 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
     prob : float
         Level of every interval and bound.
     innovations : dict, optional
-        ``name ->`` :func:`evaluators.consistency.whitened_innovations`, when already computed.
+        ``name ->`` :func:`trackreplay.evaluators.consistency.whitened_innovations`, when already computed.
     truth_ids : ndarray of int (R, K, [T]), optional
         Target identity of every truth slot (−1 empty) when the truth is a set per scan whose
         slots change hands; default: truth slot t is target t for the whole run. With it the
         CLEAR and identity measures follow TrackEval's convention
-        (:mod:`evaluators.assignment_metrics`).
+        (:mod:`trackreplay.evaluators.assignment_metrics`).
 
     Returns
     -------

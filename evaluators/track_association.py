@@ -20,7 +20,7 @@ Run outcome (a partition of the runs, so the three rates sum to one):
 track lost, none swapped). ``coalescence_rate`` (a part of the swaps) counts runs whose final
 scan has two or more tracks on one target, the classic JPDA failure for similar targets. ``success_rate_stderr`` is the binomial standard error
 ``√(p(1−p)/n)``; the interval of every rate is Wilson's with the runs as the trials (one outcome
-per run: :func:`evaluators.confidence.proportion_intervals`), which stays inside [0, 1] where
+per run: :func:`trackreplay.evaluators.confidence.proportion_intervals`), which stays inside [0, 1] where
 ``p ± 1.96·stderr`` does not (a loss rate of 0.01 over 100 runs: [0.002, 0.054], not
 [−0.010, 0.030]). A difference between two trackers on the same runs is judged with the paired
 standard error of the per-run success indicators (:func:`paired_difference`).
@@ -34,8 +34,8 @@ from __future__ import annotations
 import numpy as np
 import polars as pl
 
-from evaluators.tracking_metrics import long_form, nanmean, rms
-from pipeline.vocabulary import INITIALISING
+from trackreplay.evaluators.tracking_metrics import long_form, nanmean, rms
+from trackreplay.vocabulary import INITIALISING
 
 SUCCESS, SWAP, LOSS = 0, 1, 2
 
@@ -141,7 +141,7 @@ def paired_difference(success_a: np.ndarray, success_b: np.ndarray) -> tuple[flo
 def first_update_scan(flags: np.ndarray) -> int:
     """The first scan at which no track of any run is still ``INITIALISING``.
 
-    ``flags`` (R, K, T) of :data:`pipeline.vocabulary.FLAGS`: a tracker flags the scans up to
+    ``flags`` (R, K, T) of :data:`trackreplay.vocabulary.FLAGS`: a tracker flags the scans up to
     and including its track start (state NaN before it, start values at it), so this is 1 when
     tracks start at scan 0 and 2 after a two-point start on scans 0 and 1.
     """
@@ -228,7 +228,7 @@ def evaluate(times, tracks: dict, truth_bearing: np.ndarray | None, gate_rad: fl
 def success_table(summary: pl.DataFrame) -> str:
     """Fig. 8 style text: success / swap / loss per tracker, the success rate with its 95 %
     Wilson interval over runs (one outcome per run; inside 0–100 %)."""
-    from evaluators.confidence import wilson_interval
+    from trackreplay.evaluators.confidence import wilson_interval
 
     ov = summary.filter(pl.col("scope") == "overall")
     if "success_rate" not in set(ov["metric"].to_list()):

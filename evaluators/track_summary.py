@@ -27,9 +27,9 @@ from __future__ import annotations
 import numpy as np
 import polars as pl
 
-from evaluators.confidence import jackknife, mean_interval
-from evaluators.consistency import average_bounds, whitened_innovations
-from pipeline.vocabulary import COASTED, DELETED, INITIALISING, NO_TRACK
+from trackreplay.evaluators.confidence import jackknife, mean_interval
+from trackreplay.evaluators.consistency import average_bounds, whitened_innovations
+from trackreplay.vocabulary import COASTED, DELETED, INITIALISING, NO_TRACK
 
 #: the per-run counts, in the order they are reported, and the event of :func:`track_life` each counts
 COUNTS = {"tracks_started": "start", "tracks_confirmed": "confirm", "tracks_deleted": "deleted",
@@ -148,7 +148,7 @@ def tracker_summary(name: str, times, out: dict, prob: float = 0.95, groups: int
     groups : int
         Groups of runs of the jackknife.
     innovations : tuple, optional
-        :func:`evaluators.consistency.whitened_innovations` of ``out``, when already computed.
+        :func:`trackreplay.evaluators.consistency.whitened_innovations` of ``out``, when already computed.
 
     Returns
     -------
@@ -223,7 +223,7 @@ def track_summary(times, tracks: dict, prob: float = 0.95, innovations: dict | N
     prob : float
         Level of every interval.
     innovations : dict, optional
-        ``name ->`` :func:`evaluators.consistency.whitened_innovations`, when already computed.
+        ``name ->`` :func:`trackreplay.evaluators.consistency.whitened_innovations`, when already computed.
 
     Returns
     -------

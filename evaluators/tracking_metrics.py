@@ -35,7 +35,7 @@ def root(mean_square):
 def squared_error(estimate, truth):
     """``‖estimate − truth‖²`` over the last axis, ``(runs, scans)``."""
     e, t = np.broadcast_arrays(np.asarray(estimate, float), np.asarray(truth, float))
-    # a component at a time, as pipeline.batched_linalg.sum_squares sums: no full-size
+    # a component at a time, as trackreplay.batched_linalg.sum_squares sums: no full-size
     # difference or square is held, and numpy's slow reduction over a short axis is avoided
     total = np.zeros(e.shape[:-1])
     for i in range(e.shape[-1]):

@@ -36,8 +36,8 @@ from __future__ import annotations
 import numpy as np
 from filterpy.kalman import KalmanFilter
 
-from pipeline import vocabulary as vocab
-from pipeline.trackers.interface import Param, Tracker
+from trackreplay import vocabulary as vocab
+from trackreplay.trackers.interface import Param, Tracker
 
 
 def _cv(dt: float, sigma_v: float):
@@ -92,7 +92,7 @@ class FilterPyKF(Tracker):
         self.sigma_b = float(np.deg2rad(self.sigma_bearing_deg))
 
     def track_run(self, plots):
-        """Filter one run (:class:`~pipeline.trackers.interface.RadarPlots` without its run axis:
+        """Filter one run (:class:`~trackreplay.trackers.interface.RadarPlots` without its run axis:
         ``range_m``, ``bearing_rad`` ``(K, W)``, ``counts`` ``(K,)``).
 
         Returns

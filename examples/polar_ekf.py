@@ -14,7 +14,7 @@ Bar-Shalom, Li & Kirubarajan 2001, §10.3):
   σ_v (Bar-Shalom et al. 2001, §6.3.2), per axis ``Q = σ_v² [[dt⁴/4, dt³/2], [dt³/2, dt²]]`` with
   the scan's own interval ``dt`` — the same Q as the built-ins;
 * measurement ``z = h(x) + w`` with ``h(x) = (√(x² + y²), atan2(y, x))`` (bearing from the +x axis
-  towards +y, as in :class:`pipeline.trackers.interface.RadarPlots`) and
+  towards +y, as in :class:`trackreplay.trackers.interface.RadarPlots`) and
   ``R = diag(σ_r², σ_θ²)``;
 * Jacobian ``H = [[x/ρ, y/ρ, 0, 0], [−y/ρ², x/ρ², 0, 0]]`` at the prediction, ``ρ = √(x² + y²)``;
 * bearing innovation wrapped to (−π, π], so a target crossing the ±π bearing does not see a 2π jump;
@@ -42,8 +42,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline import vocabulary as vocab
-from pipeline.trackers.interface import Param, Tracker
+from trackreplay import vocabulary as vocab
+from trackreplay.trackers.interface import Param, Tracker
 
 
 def wrap_angle(a):
@@ -164,7 +164,7 @@ class PolarEKF(Tracker):
         self.sigma_b = float(np.deg2rad(self.sigma_bearing_deg))
 
     def track(self, plots):
-        """Filter every run of ``plots`` (:class:`~pipeline.trackers.interface.RadarPlots`).
+        """Filter every run of ``plots`` (:class:`~trackreplay.trackers.interface.RadarPlots`).
 
         Returns
         -------

@@ -12,7 +12,7 @@ for tracking and state estimation", Proc. SPIE 11018, 2019) and feeds it our plo
   ``q = σ_v²`` (Stone Soup's state order is ``[x, ẋ, y, ẏ]``);
 * measurement: ``CartesianToBearingRange`` with ``R = diag(σ_θ², σ_r²)`` (Stone Soup measures
   bearing first). Its bearing is ``atan2(y, x)``, the same convention as ours (x = r cos θ,
-  y = r sin θ, see :class:`pipeline.trackers.interface.RadarPlots`), so plots go in unchanged;
+  y = r sin θ, see :class:`trackreplay.trackers.interface.RadarPlots`), so plots go in unchanged;
 * ``ExtendedKalmanPredictor`` / ``ExtendedKalmanUpdater``;
 * association: ``DistanceHypothesiser`` (Mahalanobis distance, ``gate_sigmas`` as the missed
   distance) with ``GNNWith2DAssignment``;
@@ -73,8 +73,8 @@ from stonesoup.types.prediction import Prediction
 from stonesoup.types.state import GaussianState, StateVector
 from stonesoup.updater.kalman import ExtendedKalmanUpdater
 
-from pipeline import vocabulary as vocab
-from pipeline.trackers.interface import Param, Tracker
+from trackreplay import vocabulary as vocab
+from trackreplay.trackers.interface import Param, Tracker
 
 EPOCH = datetime(2000, 1, 1)
 TO_OURS = [0, 2, 1, 3]  # Stone Soup [x, ẋ, y, ẏ] → ours [x, y, ẋ, ẏ]
@@ -141,7 +141,7 @@ class StoneSoupTracker(Tracker):
         return tracker, measurement
 
     def track_run(self, plots):
-        """Track one run (:class:`~pipeline.trackers.interface.RadarPlots` without its run axis).
+        """Track one run (:class:`~trackreplay.trackers.interface.RadarPlots` without its run axis).
 
         Returns
         -------

@@ -11,8 +11,8 @@ Layout: a stack of ``r × c`` matrices is an array ``(*lead, r, c, N)`` with the
 that an entry ``A[..., i, j, :]`` is a contiguous vector; constants broadcast as
 ``(*lead, r, c, 1)``, vectors are ``(*lead, r, N)``. :func:`whiten` takes the stack first, as the
 trackers' outputs hold it. Numpy only, no I/O: the IMM cores (Kwon 1997, ch. IV.3; Blom &
-Bar-Shalom 1988), the trackers' output checks (``pipeline.trackers.interface``) and the
-evaluators' NEES/NIS (``evaluators.consistency``) share it (``docs/evaluation.md``,
+Bar-Shalom 1988), the trackers' output checks (``trackreplay.trackers.interface``) and the
+evaluators' NEES/NIS (``trackreplay.evaluators.consistency``) share it (``docs/evaluation.md``,
 ``docs/papers/colored-noise-imm.md``).
 """
 
@@ -153,7 +153,7 @@ def all_finite(a):
 
 #: how :func:`over_stack` computes a stack of independent matrix problems: ``None``, in one call.
 #: Cores start no threads; the replay layer installs a runner that shares a large stack among the
-#: cores (:func:`pipeline.stack_threads.split_over_threads`, the same bits), so where the work is
+#: cores (:func:`trackreplay.stack_threads.split_over_threads`, the same bits), so where the work is
 #: parallel is decided by whoever runs the trackers, not by the algorithm
 stack_runner = None
 

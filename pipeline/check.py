@@ -25,8 +25,8 @@ from pathlib import Path
 
 import polars as pl
 
-from evaluators.baselines import baseline_path, compare, plugged_trackers, read_baseline, write_baseline
-from pipeline.errors import InputError
+from trackreplay.evaluators.baselines import baseline_path, compare, plugged_trackers, read_baseline, write_baseline
+from trackreplay.errors import InputError
 
 
 #: why ``replay check --update`` refuses ``--set``
@@ -57,7 +57,7 @@ class _Outcome:
 
 def _plugged_families(tracker_specs) -> dict[str, tuple[str, str]]:
     """spec → (tracker name, family) of every plugged tracker."""
-    from pipeline.registry import available_trackers
+    from trackreplay.registry import available_trackers
 
     table = available_trackers(tracker_specs)
     return {e.source: (e.name, e.family) for e in table.values() if e.source in tracker_specs}
@@ -74,9 +74,9 @@ def evaluation_values(overrides: dict | None) -> dict:
         refused too: the baselines hold the trackers as they are), listing the known ones; or a
         value out of its range.
     """
-    from pipeline.replay import evaluation_catalogue
-    from pipeline.stages import stage_named
-    from recorders.scenarios import coerce
+    from trackreplay.replay import evaluation_catalogue
+    from trackreplay.stages import stage_named
+    from trackreplay.recorders.scenarios import coerce
 
     catalogue = evaluation_catalogue()
     known = list(dict.fromkeys(k for values in catalogue.values() for k in values))
@@ -95,7 +95,7 @@ def evaluation_values(overrides: dict | None) -> dict:
 def evaluation_note(evaluation: dict) -> str:
     """The line a check with ``--set`` evaluation values prints first: which values, for which
     stages, and that the baselines hold the defaults'."""
-    from pipeline.replay import evaluation_catalogue, format_evaluation_values
+    from trackreplay.replay import evaluation_catalogue, format_evaluation_values
 
     catalogue = evaluation_catalogue()
     parts = [f"{format_evaluation_values({k: v})} ({', '.join(s for s, values in catalogue.items() if k in values)})"
@@ -112,9 +112,9 @@ def _datasets(data_dir: Path, plugged: dict, evaluation: dict | None = None, ech
 
 
 def _replay_summary(path: Path, plugged: dict, evaluation: dict | None = None, echo=print) -> _Outcome:
-    from pipeline.contract import read_dataset
-    from pipeline.replay import replay
-    from pipeline.stages import applicable_stages
+    from trackreplay.contract import read_dataset
+    from trackreplay.replay import replay
+    from trackreplay.stages import applicable_stages
 
     ds = read_dataset(path)
     stages = applicable_stages(ds.channels)
@@ -132,7 +132,7 @@ def _replay_summary(path: Path, plugged: dict, evaluation: dict | None = None, e
 
 
 def _sweep_summary(spec: Path, plugged: dict, evaluation: dict | None = None) -> _Outcome:
-    from pipeline.sweep import scenario_families, sweep_spec_report, sweep_spec_scenario
+    from trackreplay.sweep import scenario_families, sweep_spec_report, sweep_spec_scenario
 
     specs = []
     if plugged:

@@ -39,7 +39,7 @@ per-frame views of :meth:`ChannelData.array` are made only when asked for. Files
 read, frame by frame; ``replay convert upgrade IN -o OUT`` rewrites them in v2 with identical
 arrays. Every chunk's CRC is checked on every read; anything wrong in a file (a CRC mismatch, a
 corrupt chunk, an undecodable message, an implausible run or scan index) is an
-:class:`~pipeline.errors.InputError` naming the file and the chunk, and ``recover=True`` keeps
+:class:`~trackreplay.errors.InputError` naming the file and the chunk, and ``recover=True`` keeps
 every intact chunk. A reader refuses schemas it does not know instead of guessing.
 """
 
@@ -71,9 +71,9 @@ from mcap.stream_reader import CRCValidationError, StreamReader
 import mcap.writer
 from mcap.writer import CompressionType, Writer
 
-from pipeline import __version__
-from pipeline import vocabulary as vocab
-from pipeline.errors import InputError
+from trackreplay import __version__
+from trackreplay import vocabulary as vocab
+from trackreplay.errors import InputError
 
 CONTRACT_V1 = "replay.v1"
 CONTRACT_V2 = "replay.v2"
@@ -807,9 +807,9 @@ def atomic_output(path: str | Path, mode: str = "wb"):
     A crash or an exception leaves any existing ``path`` untouched and removes the temporary; the
     temporary of a writer that was killed is removed by the next write of ``path``.
     """
-    from pipeline.paths import disk_error
+    from trackreplay.paths import disk_error
 
-    from pipeline.paths import remove_stale_temporaries
+    from trackreplay.paths import remove_stale_temporaries
 
     path = Path(path)
     try:
@@ -982,7 +982,7 @@ class McapFrameWriter:
         return self._channels[topic]
 
     def _add_message(self, topic: str, time_s: float, data: bytes) -> None:
-        from pipeline.vocabulary import TIME_LIMIT_S
+        from trackreplay.vocabulary import TIME_LIMIT_S
 
         if not (np.isfinite(time_s) and abs(time_s) <= TIME_LIMIT_S):
             # MCAP log times are unsigned nanoseconds: refuse what cannot be a recording's time
@@ -1991,9 +1991,9 @@ def read_dataset(path: str | Path, topics: Iterable[str] | None = None, recover:
 
 
 def check_values(channels: Mapping[str, "ChannelData"], path=None) -> None:
-    """Refuse input values outside the declared table :data:`pipeline.vocabulary.VALUES`
+    """Refuse input values outside the declared table :data:`trackreplay.vocabulary.VALUES`
     (wrong number kind, NaN/Inf, out of range) and scan times that are not finite, negative or
-    beyond :data:`pipeline.vocabulary.TIME_LIMIT_S` (times count from the recording's start, as
+    beyond :data:`trackreplay.vocabulary.TIME_LIMIT_S` (times count from the recording's start, as
     every importer writes them: an MCAP log time is unsigned, so no output could carry a
     negative one).
 
@@ -2002,7 +2002,7 @@ def check_values(channels: Mapping[str, "ChannelData"], path=None) -> None:
     InputError
         Naming the channel, the array and the first offending run and scan.
     """
-    from pipeline import vocabulary as vocab
+    from trackreplay import vocabulary as vocab
 
     topic_key = {topic: key for key, topic in vocab.CHANNELS.items()}
     for topic, ch in channels.items():
@@ -2150,7 +2150,7 @@ def iter_frames(path: str | Path, recover: bool = False, meta: dict | None = Non
 def _check_frame_time(topic: str, run: int, scan: int, t: float, path: Path) -> None:
     """The scan-time rule of :func:`check_values` for one frame read by :func:`iter_frames` (whose
     frames are written again, and an MCAP log time cannot hold a negative or non-finite time)."""
-    from pipeline.vocabulary import TIME_LIMIT_S
+    from trackreplay.vocabulary import TIME_LIMIT_S
 
     if not (math.isfinite(t) and 0 <= t <= TIME_LIMIT_S):
         raise InputError(f"{topic}: scan time {t:g} s at run {run} scan {scan} is not a time from the recording's "

@@ -4,7 +4,7 @@ A plugged tracker (``--tracker``, an entry point) is code the package did not wr
 process, a tracker that calls ``os._exit`` ends the replay silently with status 0 and a tracker
 that never returns hangs it; a thread cannot be stopped from outside. So a plugged tracker's
 construction and its ``track()`` run in a *forked* child (:func:`run_in_child`), and so does a
-first, trial import of its file or module (:func:`pipeline.registry.load_spec`):
+first, trial import of its file or module (:func:`trackreplay.registry.load_spec`):
 
 * the child starts as a copy of this process (``fork``), so the measurements it reads cost
   nothing to hand over; only what it returns travels back, through a pipe, as pickle protocol 5
@@ -36,7 +36,7 @@ import threading
 import time
 import warnings
 
-from pipeline.errors import InputError
+from trackreplay.errors import InputError
 
 #: seconds a plugged tracker (its construction and ``track()`` together), or the trial import of
 #: its file, may take before it is stopped; ``--tracker-time-limit`` changes it, 0 means no limit
@@ -90,7 +90,7 @@ def run_in_child(job, time_limit_s: float | None = None):
     Raises
     ------
     InputError
-        (or a subclass, e.g. :class:`~pipeline.trackers.interface.TrackerError`) what ``job``
+        (or a subclass, e.g. :class:`~trackreplay.trackers.interface.TrackerError`) what ``job``
         raised, rebuilt with its message and file.
     ChildRaised
         ``job`` raised any other exception (``SystemExit`` included).
@@ -302,7 +302,7 @@ def plugged_failure_text(error: Exception) -> str:
 
 
 def run_plugged_tracker(name: str, where: str, job, time_limit_s: float | None = DEFAULT_TRACKER_TIME_LIMIT_S):
-    """``job()`` (a plugged tracker's construction and :func:`~pipeline.trackers.interface.call_tracker`)
+    """``job()`` (a plugged tracker's construction and :func:`~trackreplay.trackers.interface.call_tracker`)
     in a child process (:func:`run_in_child`); its checked outputs.
 
     Raises
@@ -313,7 +313,7 @@ def run_plugged_tracker(name: str, where: str, job, time_limit_s: float | None =
     InputError
         What ``job`` raised as an ``InputError`` (a design value the tracker refuses).
     """
-    from pipeline.trackers.interface import TrackerError
+    from trackreplay.trackers.interface import TrackerError
 
     try:
         return run_in_child(job, time_limit_s)

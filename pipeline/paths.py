@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from pipeline.errors import InputError
+from trackreplay.errors import InputError
 
 
 def _same(a: Path, b: Path) -> bool:

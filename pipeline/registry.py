@@ -7,10 +7,10 @@ by path loads the same way on a process-pool or Dask worker:
 * ``path/to/file.py:ClassName`` — a class in a plain Python file;
 * ``package.module:ClassName`` — a class in an importable module;
 * a name registered in the entry-point group ``trackreplay.trackers`` (the entry point's object
-  is a :class:`~pipeline.trackers.interface.Tracker` subclass, or a list of them).
+  is a :class:`~trackreplay.trackers.interface.Tracker` subclass, or a list of them).
 
 A file or module not yet imported is first imported in a child process
-(:func:`pipeline.isolation.run_in_child`) and only then here: an import that ends its process
+(:func:`trackreplay.isolation.run_in_child`) and only then here: an import that ends its process
 (``os._exit``) or never finishes is one line naming the file, not the end of the tool or a hang.
 
 See ``docs/trackers.md``.
@@ -25,21 +25,21 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from pipeline import vocabulary as vocab
-from pipeline.errors import InputError
-from pipeline.isolation import DEFAULT_TRACKER_TIME_LIMIT_S, ChildEnded, ChildRaised, ChildTimedOut, run_in_child
-from pipeline.trackers.interface import Tracker, tracker_name
+from trackreplay import vocabulary as vocab
+from trackreplay.errors import InputError
+from trackreplay.isolation import DEFAULT_TRACKER_TIME_LIMIT_S, ChildEnded, ChildRaised, ChildTimedOut, run_in_child
+from trackreplay.trackers.interface import Tracker, tracker_name
 
 ENTRY_POINT_GROUP = "trackreplay.trackers"
 
 # One line per family: the modules that hold its built-in trackers, each exposing TRACKERS (a
 # tuple of classes); a replay imports only its family's numerics
 BUILTIN_FAMILY_MODULES = {
-    "radar-plots": ("pipeline.trackers.radar_tws", "pipeline.trackers.radar_multi_target"),
-    "bearing-peaks": ("pipeline.trackers.bearing_peaks",),
-    "array-snapshots": ("pipeline.trackers.array_bearing",),
-    "tdoa-fdoa": ("pipeline.trackers.emitter",),
-    "colored-position": ("pipeline.trackers.colored_noise",),
+    "radar-plots": ("trackreplay.trackers.radar_tws", "trackreplay.trackers.radar_multi_target"),
+    "bearing-peaks": ("trackreplay.trackers.bearing_peaks",),
+    "array-snapshots": ("trackreplay.trackers.array_bearing",),
+    "tdoa-fdoa": ("trackreplay.trackers.emitter",),
+    "colored-position": ("trackreplay.trackers.colored_noise",),
 }
 BUILTIN_MODULES = tuple(m for modules in BUILTIN_FAMILY_MODULES.values() for m in modules)
 

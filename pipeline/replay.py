@@ -14,12 +14,12 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from pipeline import __version__, stack_threads
-from pipeline.contract import METADATA_PROVENANCE, OUTPUT_ZSTD_LEVEL, Dataset, read_dataset, write_dataset
-from pipeline.errors import InputError
-from pipeline.isolation import DEFAULT_TRACKER_TIME_LIMIT_S
-from pipeline.stages import applicable_stages, stage_for_outputs
-from pipeline.stages import base as stage_base
+from trackreplay import __version__, stack_threads
+from trackreplay.contract import METADATA_PROVENANCE, OUTPUT_ZSTD_LEVEL, Dataset, read_dataset, write_dataset
+from trackreplay.errors import InputError
+from trackreplay.isolation import DEFAULT_TRACKER_TIME_LIMIT_S
+from trackreplay.stages import applicable_stages, stage_for_outputs
+from trackreplay.stages import base as stage_base
 
 
 @dataclass
@@ -34,7 +34,7 @@ class ReplayResult:
     rrd_path: Path | None = None
     timings: dict = field(default_factory=dict)
     failures: list = field(default_factory=list)  # TrackerErrors of trackers left out
-    targets: pl.DataFrame | None = None      # one row per true target and tracker (evaluators.life_tables)
+    targets: pl.DataFrame | None = None      # one row per true target and tracker (trackreplay.evaluators.life_tables)
     track_lives: pl.DataFrame | None = None  # one row per track
 
 
@@ -49,14 +49,14 @@ def select_trackers(stages, names=None, specs=(), dataset=None,
     variant that does not run by default (``Tracker.runs_by_default``) runs when named.
     Plugged trackers always run; ``names`` picks any. A plugged file or module not yet imported
     is tried in a child process first, stopped at ``time_limit_s``
-    (:func:`pipeline.registry.load_spec`).
+    (:func:`trackreplay.registry.load_spec`).
 
     Raises
     ------
     InputError
         A name no applicable stage has, or a plugged tracker of a family the file does not hold.
     """
-    from pipeline.registry import available_trackers, trackers_of_family
+    from trackreplay.registry import available_trackers, trackers_of_family
 
     families = {s.family for s in stages}
     if specs:  # every tracker, so that a plugged one's name clash with any other is refused
@@ -88,7 +88,7 @@ def select_trackers(stages, names=None, specs=(), dataset=None,
 
 
 def _canonical(specs):
-    from pipeline.registry import canonical_spec
+    from trackreplay.registry import canonical_spec
 
     return [canonical_spec(s) for s in specs]
 
@@ -99,7 +99,7 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
            tracker_time_limit_s: float | None = DEFAULT_TRACKER_TIME_LIMIT_S) -> ReplayResult:
     """Replay every applicable stage over a data set.
 
-    Trackers go through in scoring units (:meth:`pipeline.stages.base.Stage.run_units`): once
+    Trackers go through in scoring units (:meth:`trackreplay.stages.base.Stage.run_units`): once
     the outputs gathered reach 64 MiB they are written (a large unit on a thread of its own,
     while the same outputs are scored), scored and released before the next tracker runs, so
     that on many runs the memory a replay needs grows with one tracker's outputs, not with all
@@ -125,25 +125,25 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
         ``progress(1)`` after the Rerun recording, and ``progress(1, seconds, note)`` for each of
         filter, evaluate and write (which run interleaved, tracker by tracker) with its time and
         a note saying when writing ran beside the scoring
-        (:meth:`pipeline.face.progress.Phases.step`).
+        (:meth:`trackreplay.face.progress.Phases.step`).
     tracker_specs : sequence of str
         Plugged trackers (``file.py:Class`` or ``module:Class``) to run beside the built-ins.
     keep_runs : int, optional
         Keep only the first ``keep_runs`` runs of each tracker's outputs in the result once they
         are written and scored (what the per-run views and figures read); None keeps them all.
-        A stage whose views read every run (:attr:`~pipeline.stages.base.Stage.views_read_all_runs`)
+        A stage whose views read every run (:attr:`~trackreplay.stages.base.Stage.views_read_all_runs`)
         keeps them all regardless.
     recorder : callable, optional
         What writes the Rerun recording, called as ``recorder(rrd_path, dataset, stages,
         results, per_scan, rerun_run)`` once everything is scored, returning when the recording
         is written (or raising :class:`InputError`): by default
-        :func:`pipeline.face.rerun_views.write_recording`, in this process; the command line
-        may pass a :class:`pipeline.face.recording_process.RecordingProcess` instead.
+        :func:`trackreplay.face.rerun_views.write_recording`, in this process; the command line
+        may pass a :class:`trackreplay.face.recording_process.RecordingProcess` instead.
     tracker_time_limit_s : float, optional
         Seconds a plugged tracker may take (its construction and ``track()``, and the first
         import of its file) before it is stopped and reported as failed; 0 or None: no limit.
         Plugged trackers run in a child process, so one that ends its process or hangs is
-        that tracker's failure (:mod:`pipeline.isolation`); built-in trackers run here, unlimited.
+        that tracker's failure (:mod:`trackreplay.isolation`); built-in trackers run here, unlimited.
 
     Raises
     ------
@@ -224,7 +224,7 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
         res.out_path = Path(out_path)
     if rrd_path is not None:
         if recorder is None:
-            from pipeline.face.rerun_views import write_recording as recorder
+            from trackreplay.face.rerun_views import write_recording as recorder
 
         t4 = time.perf_counter()
         recorder(rrd_path, ds, stages, results, res.per_scan, rerun_run)
@@ -239,10 +239,10 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
 def measure_isolated(stage, ds, times, unit: dict, own, design: dict):
     """:meth:`Stage.measure` of a unit of trackers, one tracker's failure kept to that tracker.
 
-    A tracker whose outputs pass :func:`~pipeline.trackers.interface.validate_outputs` may still
+    A tracker whose outputs pass :func:`~trackreplay.trackers.interface.validate_outputs` may still
     hold something a measure cannot score (a plugged tracker's layout no evaluator foresaw).
     When the unit fails as a whole, each tracker is scored alone; the ones that still fail get
-    one :class:`~pipeline.trackers.interface.TrackerError` each and the others are kept.
+    one :class:`~trackreplay.trackers.interface.TrackerError` each and the others are kept.
 
     Returns
     -------
@@ -251,7 +251,7 @@ def measure_isolated(stage, ds, times, unit: dict, own, design: dict):
     per_scan, summary : polars.DataFrame or None
     errors : list of TrackerError
     """
-    from pipeline.trackers.interface import TrackerError
+    from trackreplay.trackers.interface import TrackerError
 
     try:
         p, s = stage.measure(ds, {"times": times, "tracks": unit}, design)
@@ -337,7 +337,7 @@ class _OutputWriter:
     zstd compresses without holding the GIL, so the chunks of one tracker's outputs are
     compressed while the main thread scores them; :meth:`wait` joins before the outputs are
     released. The file is opened on the first write (its provenance records the run count)
-    and appears complete or not at all (:func:`pipeline.contract.write_dataset`). Without a
+    and appears complete or not at all (:func:`trackreplay.contract.write_dataset`). Without a
     path nothing is written.
     """
 
@@ -474,7 +474,7 @@ def evaluate_files(data_path, out_path=None, recover=False, tracker_specs=(), ev
     stage, result, provenance = _outputs_of(ds, out_path, recover)
     design = _used_design(stage, ds, provenance)
     if evaluation_overrides:
-        from recorders.scenarios import coerce
+        from trackreplay.recorders.scenarios import coerce
 
         allowed = stage.evaluation_defaults
         for key, value in evaluation_overrides.items():
@@ -533,7 +533,7 @@ def evaluation_catalogue(stages=None) -> dict:
     """Stage name → its evaluation design values (name → default, :attr:`Stage.evaluation_defaults`):
     the values ``--set`` changes on ``replay compare``, ``check`` and ``sweep``."""
     if stages is None:
-        from pipeline.stages import STAGES as stages
+        from trackreplay.stages import STAGES as stages
     return {s.name: dict(s.evaluation_defaults) for s in stages}
 
 
@@ -553,7 +553,7 @@ def evaluation_overrides(stage, overrides: dict | None, command: str) -> dict:
         again) or no design value at all, listing the stage's evaluation values; or a value
         out of its range.
     """
-    from recorders.scenarios import coerce
+    from trackreplay.recorders.scenarios import coerce
 
     allowed = stage.evaluation_defaults
     known = ", ".join(allowed)
@@ -575,7 +575,7 @@ def evaluation_overrides(stage, overrides: dict | None, command: str) -> dict:
 
 
 def compare_files(a_path, b_path, data_path=None, pairs=None, recover=False, evaluation=None) -> Comparison:
-    """Paired comparison of two replay outputs of the same data set (see :mod:`evaluators.compare`).
+    """Paired comparison of two replay outputs of the same data set (see :mod:`trackreplay.evaluators.compare`).
 
     Parameters
     ----------
@@ -591,7 +591,7 @@ def compare_files(a_path, b_path, data_path=None, pairs=None, recover=False, eva
         sides are scored with, over those recorded in A's provenance; a tracker's design value
         is refused (:func:`evaluation_overrides`), since both replays already ran.
     """
-    from evaluators.compare import pair_trackers, paired_differences
+    from trackreplay.evaluators.compare import pair_trackers, paired_differences
 
     if data_path is None:
         data_path = _find_input(a_path, recover)
@@ -623,7 +623,7 @@ def compare_files(a_path, b_path, data_path=None, pairs=None, recover=False, eva
     def score(tracks, reference_runs):
         """The family's own measures and the standard ones (which every tracker has, a
         multi-target or plugged multi-slot one included) of one replay's trackers."""
-        from evaluators.standard import evaluate_standard
+        from trackreplay.evaluators.standard import evaluate_standard
 
         result = {"times": result_a["times"], "tracks": tracks}
         ref = {"runs": reference_runs, "fixed": fixed}

@@ -68,7 +68,7 @@ def _record(scenario: dict) -> dict:
 
 
 def is_recording(scenario: dict) -> bool:
-    """Whether a ``replay.scenario`` record (as :attr:`pipeline.contract.Dataset.scenario`
+    """Whether a ``replay.scenario`` record (as :attr:`trackreplay.contract.Dataset.scenario`
     gives it) is a converted recording's rather than a simulation's.
 
     A record written by a converter says ``origin = "recording"``; earlier converters wrote seed

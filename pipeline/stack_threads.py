@@ -3,8 +3,8 @@
 numpy's ``linalg`` loops release the GIL while LAPACK runs but keep to one core. The array
 trackers' EVDs (one per run and scan) are most of an array replay's filtering, so a replay
 shares such a stack among the cores this process may use. The cores themselves start no
-threads: they call :func:`pipeline.batched_linalg.over_stack`, which computes the stack in one
-call until :func:`install` (called by :func:`pipeline.replay.replay`) hands it the splitter
+threads: they call :func:`trackreplay.batched_linalg.over_stack`, which computes the stack in one
+call until :func:`install` (called by :func:`trackreplay.replay.replay`) hands it the splitter
 below. Benchmarks against single-core peers leave it uninstalled or set :data:`MAX_THREADS` to 1.
 """
 
@@ -12,12 +12,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline import batched_linalg
-from pipeline.machine import usable_cores
+from trackreplay import batched_linalg
+from trackreplay.machine import usable_cores
 
 
 def install() -> None:
-    """Let :func:`pipeline.batched_linalg.over_stack` share large stacks among the cores."""
+    """Let :func:`trackreplay.batched_linalg.over_stack` share large stacks among the cores."""
     batched_linalg.stack_runner = split_over_threads
 
 

@@ -20,21 +20,21 @@ process pool or a Dask cluster.
   a SIGKILL leaves behind are removed by the next sweep into the folder, which holds a lock on
   it while it runs.
 * Evaluation design values (the matching gate, the GOSPA cut-off and order, HOTA's distance
-  scale, the SIAP gate: :attr:`pipeline.stages.base.Stage.evaluation_defaults`) go with
+  scale, the SIAP gate: :attr:`trackreplay.stages.base.Stage.evaluation_defaults`) go with
   ``--set`` or ``--param`` like the trackers' design values: to every point's replay, without
   changing its seed. A name that is also a parameter of the scenario is the scenario's (it goes
   into the data set, whose scenario record the evaluation reads as well, and into the seed).
   Every point's ``point.json`` (and its ``metrics.parquet``'s metadata) records the evaluation
   values it was scored with; ``sweep.json`` and ``sweep.parquet``'s metadata the sweep's.
 * Plugged trackers (``--tracker``) travel to the workers as canonical specs (absolute file
-  paths, :func:`pipeline.registry.canonical_spec`) and are loaded again there, so serial, process
+  paths, :func:`trackreplay.registry.canonical_spec`) and are loaded again there, so serial, process
   pool and Dask runs load the same file. A tracker that fails on a point is reported with its
   message (tracker, run, scan) while the other trackers' metrics of that point are kept.
 * A point that fails, or is stopped, leaves nothing of its own: the files it wrote in its folder
   (data set, outputs, recording) are removed, and only those (:func:`discard_point_files`). A
   worker process that dies under a point is that point's failure; the other points finish
   (:func:`_iter_process`; on Dask after its retries). A point whose files cannot be written (a
-  full or read-only disk, a file size limit: :data:`pipeline.paths.DISK_ERRNOS`) stops the
+  full or read-only disk, a file size limit: :data:`trackreplay.paths.DISK_ERRNOS`) stops the
   whole sweep with one line naming the file, since every other point would fail the same way;
   finished points are kept for ``--resume``.
 * Dask is the engine beyond one machine (``Client(address)``); locally a ``LocalCluster``
@@ -64,13 +64,13 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from pipeline import __version__
-from pipeline.contract import atomic_output
-from pipeline.errors import InputError
-from pipeline.isolation import DEFAULT_TRACKER_TIME_LIMIT_S
+from trackreplay import __version__
+from trackreplay.contract import atomic_output
+from trackreplay.errors import InputError
+from trackreplay.isolation import DEFAULT_TRACKER_TIME_LIMIT_S
 # errors of writing a point's files that no other point would escape (a full or read-only disk, a
 # file size limit): the sweep stops at the first, with one line naming the file
-from pipeline.paths import DISK_ERRNOS, disk_error
+from trackreplay.paths import DISK_ERRNOS, disk_error
 
 EXECUTORS = ("serial", "process", "dask")
 
@@ -193,9 +193,9 @@ def build_grid(scenario_name: str, specs: dict, runs: int, seed: int, trackers=N
     tracker_time_limit_s : float, optional
         Seconds a plugged tracker may take on a point before it is stopped (0 or None: no limit).
     """
-    from pipeline.registry import canonical_spec
-    from recorders import recorder_module
-    from recorders.scenarios import coerce, load_scenario
+    from trackreplay.registry import canonical_spec
+    from trackreplay.recorders import recorder_module
+    from trackreplay.recorders.scenarios import coerce, load_scenario
 
     scenario = load_scenario(scenario_name)
     design_defaults = {k: v for k, v in (design_defaults or {}).items() if k not in scenario.defaults}
@@ -229,12 +229,12 @@ def build_grid(scenario_name: str, specs: dict, runs: int, seed: int, trackers=N
 
 
 def scenario_families(scenario_name: str, fixed: dict | None = None) -> set[str]:
-    """Measurement families (:data:`pipeline.vocabulary.FAMILIES`) a scenario's data set holds,
+    """Measurement families (:data:`trackreplay.vocabulary.FAMILIES`) a scenario's data set holds,
     from the channels of a one-run simulation (to refuse a plugged tracker of another family
     before a sweep starts)."""
-    from pipeline import vocabulary as vocab
-    from recorders import simulator_for
-    from recorders.scenarios import load_scenario
+    from trackreplay import vocabulary as vocab
+    from trackreplay.recorders import simulator_for
+    from trackreplay.recorders.scenarios import load_scenario
 
     sc = load_scenario(scenario_name).with_overrides(fixed or {})
     data = simulator_for(sc.recorder)(sc.params, 1, 0)
@@ -244,7 +244,7 @@ def scenario_families(scenario_name: str, fixed: dict | None = None) -> set[str]
 
 def run_point(task: PointTask) -> PointResult:
     """Simulate, replay and evaluate one grid point; errors come back in the result."""
-    from pipeline.trackers.interface import TrackerError
+    from trackreplay.trackers.interface import TrackerError
 
     t0 = time.perf_counter()
     try:
@@ -264,9 +264,9 @@ def run_point(task: PointTask) -> PointResult:
 
 
 def _run_point(task: PointTask) -> tuple[list[dict], list, dict]:
-    from pipeline.replay import replay
-    from recorders.scenarios import load_scenario
-    from recorders.simulated import record
+    from trackreplay.replay import replay
+    from trackreplay.recorders.scenarios import load_scenario
+    from trackreplay.recorders.simulated import record
 
     sc = load_scenario(task.scenario).with_overrides(dict(task.overrides))
     keep = task.point_dir is not None
@@ -275,7 +275,7 @@ def _run_point(task: PointTask) -> tuple[list[dict], list, dict]:
     writing = [work]  # the file being written, named in an error that names none
 
     def recording(*args):  # the Rerun recording is written last, after tracks.mcap
-        from pipeline.face.rerun_views import write_recording
+        from trackreplay.face.rerun_views import write_recording
 
         writing[0] = work / "tracks.rrd"
         return write_recording(*args)
@@ -362,7 +362,7 @@ def discard_point_files(folder, before: dict | None) -> list[Path]:
 def evaluation_used(res) -> dict:
     """Stage name → the evaluation design values a replay's scores used (defaults, the data
     set's scenario record and ``--set``, as :meth:`Stage.design` resolved them)."""
-    from pipeline.stages import stage_named
+    from trackreplay.stages import stage_named
 
     out = {}
     for name in res.results:
@@ -374,7 +374,7 @@ def evaluation_used(res) -> dict:
 def evaluation_defaults_of(families) -> dict:
     """Evaluation design value → default of the stages of ``families`` (measurement families):
     what ``--set`` may change in a sweep of a scenario that records them."""
-    from pipeline.stages import STAGES
+    from trackreplay.stages import STAGES
 
     out = {}
     for stage in STAGES:
@@ -392,8 +392,8 @@ def check_evaluation_values(values: dict) -> None:
     InputError
         One line naming the value.
     """
-    from pipeline.stages import STAGES
-    from recorders.scenarios import coerce
+    from trackreplay.stages import STAGES
+    from trackreplay.recorders.scenarios import coerce
 
     for stage in STAGES:
         for name, raws in values.items():
@@ -429,7 +429,7 @@ def _iter_serial(tasks):
         yield run_point(t)
 
 
-PRELOAD = ["pipeline.sweep", "pipeline.replay", "recorders.simulated"]
+PRELOAD = ["trackreplay.sweep", "trackreplay.replay", "trackreplay.recorders.simulated"]
 
 
 def _forkserver_context(extra=()):
@@ -619,11 +619,11 @@ def _how_workers_ended(processes) -> str:
 
 
 def _preload_worker(specs=()) -> None:
-    import pipeline.replay  # noqa: F401
-    import recorders.simulated  # noqa: F401
+    import trackreplay.replay  # noqa: F401
+    import trackreplay.recorders.simulated  # noqa: F401
 
     if specs:  # load the plugged trackers once per worker (a bad spec fails in the point, by name)
-        from pipeline.registry import available_trackers
+        from trackreplay.registry import available_trackers
 
         try:
             available_trackers(specs)
@@ -721,7 +721,7 @@ def _close_dask(client, cluster, futures, finished) -> None:
 
 
 def default_workers() -> int:
-    from pipeline.machine import usable_cores
+    from trackreplay.machine import usable_cores
 
     return usable_cores()
 
@@ -1146,7 +1146,7 @@ EVALUATION_METADATA = "replay.evaluation"
 
 @contextmanager
 def _named_output(path: Path, mode: str = "wb"):
-    """:func:`~pipeline.contract.atomic_output`, whose errors name the file: a write that fails
+    """:func:`~trackreplay.contract.atomic_output`, whose errors name the file: a write that fails
     (a full disk) raises an ``OSError`` without a file name, and the user's line must name it."""
     try:
         with atomic_output(path, mode) as fh:
@@ -1172,7 +1172,7 @@ def write_sweep_outputs(report: SweepReport, swept: list[str], spec: dict) -> li
 
 
 def _write_sweep_outputs(report: SweepReport, swept: list[str], spec: dict) -> list[Path]:
-    from evaluators.report_plots import plot_facets, plot_metrics_vs
+    from trackreplay.evaluators.report_plots import plot_facets, plot_metrics_vs
 
     out = report.out_dir
     paths = []

@@ -1,7 +1,7 @@
 """The shared vocabulary of the data contract: channel names, measurement families, the tracker
 output vocabulary and the one table of flag bits.
 
-This module is the *what* of the contract; :mod:`pipeline.contract` is the *how* (MCAP frames on
+This module is the *what* of the contract; :mod:`trackreplay.contract` is the *how* (MCAP frames on
 disk). It imports nothing but the standard library, so numerical cores, recorders, trackers,
 stages and evaluators can all name a channel or a flag without pulling in file I/O.
 See ``docs/contract.md`` for the full description with shapes and units.
@@ -43,7 +43,7 @@ TIME_ORDERED = frozenset(CHANNELS[k] for k in ("radar_plots", "radar_truth", "xc
 
 # --------------------------------------------------------------------------- values
 # What every input array may hold, declared once per channel and checked when a file is read
-# (pipeline.contract.check_values): the number kind (f float, c complex, i integer; a boolean
+# (trackreplay.contract.check_values): the number kind (f float, c complex, i integer; a boolean
 # or complex array where floats are expected is refused, not cast), and the range of its values.
 # Bounds are physical limits or, where physics sets none, sanity limits far beyond any real
 # recording that keep squares and products finite (1e12 m is seven times the Sun's distance).
@@ -214,7 +214,7 @@ FLAGS = {
     "DELETED": 1 << 13,         # the track ended at this scan (with NO_TRACK; NO_TRACK alone after)
     "FLOORED": 1 << 14,         # a variance was raised to its floor
     "LIMITED": 1 << 15,         # a coefficient was limited to its stable range
-    # set by the output check every tracker passes through (pipeline.trackers.interface), never
+    # set by the output check every tracker passes through (trackreplay.trackers.interface), never
     # by a tracker: the covariance written is not numerically positive definite (its smallest
     # eigenvalue is within rounding of zero or below it, e.g. a component known exactly), so its
     # inverse, and the NEES it would give, are not to be trusted

@@ -1,7 +1,7 @@
 """Recorders: simulators and converters that write sensor streams plus truth to MCAP.
 
 Each simulator module exposes ``validate(params)`` and ``simulate(params, runs, seed)``
-returning :class:`recorders.simulated.SimulatedData`. A scenario file's ``recorder`` key names
+returning :class:`trackreplay.recorders.simulated.SimulatedData`. A scenario file's ``recorder`` key names
 its module here.
 """
 
@@ -9,17 +9,17 @@ from __future__ import annotations
 
 import importlib
 
-from pipeline.errors import InputError
+from trackreplay.errors import InputError
 
 RECORDERS = {
-    "radar-tws": "recorders.radar_tws",
-    "xcorr-peaks": "recorders.xcorr_peaks",
-    "xcorr-signals": "recorders.xcorr_signals",
-    "array-snapshots": "recorders.array_snapshots",
-    "colored-noise": "recorders.colored_noise",
-    "tdoa-fdoa": "recorders.tdoa_fdoa",
-    "radar-multi": "recorders.radar_multi",
-    # one line per recorder: "name": "recorders.module",
+    "radar-tws": "trackreplay.recorders.radar_tws",
+    "xcorr-peaks": "trackreplay.recorders.xcorr_peaks",
+    "xcorr-signals": "trackreplay.recorders.xcorr_signals",
+    "array-snapshots": "trackreplay.recorders.array_snapshots",
+    "colored-noise": "trackreplay.recorders.colored_noise",
+    "tdoa-fdoa": "trackreplay.recorders.tdoa_fdoa",
+    "radar-multi": "trackreplay.recorders.radar_multi",
+    # one line per recorder: "name": "trackreplay.recorders.module",
 }
 
 

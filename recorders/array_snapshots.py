@@ -31,10 +31,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline import vocabulary as vocab
-from pipeline.errors import InputError, check_all, require_finite_params
-from pipeline.cores.array.linear_array import steering_vectors
-from recorders.simulated import SimulatedData
+from trackreplay import vocabulary as vocab
+from trackreplay.errors import InputError, check_all, require_finite_params
+from trackreplay.cores.array.linear_array import steering_vectors
+from trackreplay.recorders.simulated import SimulatedData
 
 SNAPSHOTS_TOPIC = vocab.CHANNELS["array_snapshots"]
 TRUTH_TOPIC = vocab.CHANNELS["array_truth"]

@@ -28,9 +28,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline import vocabulary as vocab
-from pipeline.errors import InputError, check_all, require_finite_params
-from recorders.simulated import SimulatedData
+from trackreplay import vocabulary as vocab
+from trackreplay.errors import InputError, check_all, require_finite_params
+from trackreplay.recorders.simulated import SimulatedData
 
 MEASUREMENTS_TOPIC = vocab.CHANNELS["colored_measurements"]
 TRUTH_TOPIC = vocab.CHANNELS["colored_truth"]

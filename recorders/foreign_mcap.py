@@ -2,7 +2,7 @@
 
 A small TOML *mapping file* says which topic holds the measurements, where each message keeps
 its time, which list field holds the items of a message (one row per item), and which field and
-unit give each column of the family's canonical table (``recorders.tables.TABLE_FORMATS``)::
+unit give each column of the family's canonical table (``trackreplay.recorders.tables.TABLE_FORMATS``)::
 
     family = "radar-plots"
 
@@ -24,7 +24,7 @@ empty, see :class:`_Collector`).
 The messages are decoded by the MCAP ecosystem's decoders chosen by the channel's encoding
 (``cdr`` with a ``ros2msg`` schema: ``mcap_ros2``; ``protobuf``: ``mcap_protobuf``; ``json``: the
 standard library, a whole batch of messages in one call), their fields gathered column by column
-into numpy arrays, converted to SI and handed to :func:`recorders.tables.dataset_from_table`,
+into numpy arrays, converted to SI and handed to :func:`trackreplay.recorders.tables.dataset_from_table`,
 which validates them as it validates a CSV. What is checked here is only what is specific to a
 foreign MCAP: the topic, the field paths, that a field holds a number, the units and the time.
 """
@@ -43,7 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.errors import InputError
+from trackreplay.errors import InputError
 
 # --------------------------------------------------------------------------- units
 
@@ -207,7 +207,7 @@ TIME_COLUMN = "time_s"
 TRUTH_TABLE = "truth"
 TRUTH_FAMILIES = ("radar-plots",)
 # the optional table of values the recording's sensor had (its noise, scan period, …), recorded
-# with the source "mapping file" (pipeline.sensor_values); what it does not say stays unknown
+# with the source "mapping file" (trackreplay.sensor_values); what it does not say stays unknown
 SENSOR_TABLE = "sensor"
 TRUTH_COLUMNS = ("truth_id", "truth_x_m", "truth_y_m", "truth_vx_mps", "truth_vy_mps")
 # families whose message with an empty item list is still a scan (a row with these columns
@@ -252,7 +252,7 @@ class Mapping:
 
 
 def _formats() -> dict:
-    from recorders.tables import TABLE_FORMATS
+    from trackreplay.recorders.tables import TABLE_FORMATS
 
     return TABLE_FORMATS
 
@@ -338,7 +338,7 @@ def load_mapping(path: str | Path) -> Mapping:
     if TRUTH_TABLE in specs:
         _check_truth_spec(specs, path)
     if sensor:  # names and types checked here, so that a bad value names the mapping file
-        from recorders.tables import _given_values
+        from trackreplay.recorders.tables import _given_values
 
         try:
             _given_values(family, sensor, f"[{SENSOR_TABLE}]")
@@ -838,13 +838,13 @@ def _json_batch(datas: list, topic: str, first: int, src: Path) -> list:
 
 
 def dataset_from_foreign(src: str | Path, mapping: Mapping):
-    """The foreign file's rows as a data set (:class:`recorders.simulated.SimulatedData`).
+    """The foreign file's rows as a data set (:class:`trackreplay.recorders.simulated.SimulatedData`).
 
     Returns
     -------
     (SimulatedData, ForeignTables)
     """
-    from recorders.tables import dataset_from_table
+    from trackreplay.recorders.tables import dataset_from_table
 
     got = read_foreign_mcap(src, mapping)
     rows, origin = _measurement_rows(got, mapping, Path(src))
@@ -999,7 +999,7 @@ def convert_foreign_mcap(src, mapping_path, dst, overrides: dict | None = None) 
     dict
         ``family``, ``messages_in`` (per table), ``rows`` (per table), ``messages_out``.
     """
-    from recorders import tables
+    from trackreplay.recorders import tables
 
     mapping = load_mapping(mapping_path)
     data, got = dataset_from_foreign(src, mapping)

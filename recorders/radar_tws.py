@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline import vocabulary as vocab
-from pipeline.errors import check_all, require_finite_params
-from recorders.simulated import SimulatedData
+from trackreplay import vocabulary as vocab
+from trackreplay.errors import check_all, require_finite_params
+from trackreplay.recorders.simulated import SimulatedData
 
 PLOTS_TOPIC = vocab.CHANNELS["radar_plots"]
 TRUTH_TOPIC = vocab.CHANNELS["radar_truth"]

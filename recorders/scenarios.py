@@ -25,7 +25,7 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from pipeline.errors import InputError
+from trackreplay.errors import InputError
 
 
 def scenario_dir() -> Path:
@@ -137,7 +137,7 @@ def _complete_user_params(recorder: str, params: dict, path: Path) -> dict:
     """A user's scenario file checked against the bundled scenario of its recorder: parameters
     it leaves out take the bundled defaults, each value is read as its default's type, and a
     parameter the recorder does not know is refused (a typo would otherwise be ignored)."""
-    from recorders import RECORDERS
+    from trackreplay.recorders import RECORDERS
 
     if recorder not in RECORDERS:
         raise InputError(f"unknown recorder {recorder!r} (known: {', '.join(sorted(RECORDERS))})", path)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.contract import CONTRACT_V2, CONTRACT_VERSION, scans_per_message, scenario_metadata, write_dataset
+from trackreplay.contract import CONTRACT_V2, CONTRACT_VERSION, scans_per_message, scenario_metadata, write_dataset
 
 
 @dataclass
@@ -78,7 +78,7 @@ def write_simulated(path: str | Path, data: SimulatedData, metadata: dict, progr
 
 def record(path, scenario, runs: int, seed: int, progress=None, contract: str = CONTRACT_VERSION) -> int:
     """Simulate ``scenario`` and write it with its scenario/seed/version metadata."""
-    from recorders import simulator_for
+    from trackreplay.recorders import simulator_for
 
     data = simulator_for(scenario.recorder)(scenario.params, runs, seed)
     return write_simulated(path, data, scenario_metadata(scenario.name, scenario.params, seed), progress, contract)

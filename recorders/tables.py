@@ -9,16 +9,16 @@ command-line help is written from it (and ``docs/importers.md`` is tested to lis
 
 * :func:`read_table` reads a ``.csv`` or ``.parquet`` file into a polars DataFrame;
 * :func:`dataset_from_table` validates a table and builds exactly the arrays the family's
-  simulator builds (:class:`recorders.simulated.SimulatedData`);
+  simulator builds (:class:`trackreplay.recorders.simulated.SimulatedData`);
 * :func:`tables_from_dataset` is the way back: a data set's input channels (and the truth the
   tables carry) as tables in the import format, so that simulate → export → import gives the
   same arrays bit for bit;
 * :func:`convert_table` is what ``replay convert plots|peaks|tdoa-fdoa|positions`` runs: read,
   validate, record the sensor and design values the user gave with ``--set`` (nothing from a
-  bundled scenario: :mod:`pipeline.sensor_values`) and what the data hold, and write the data
+  bundled scenario: :mod:`trackreplay.sensor_values`) and what the data hold, and write the data
   set.
 
-Rules every importer applies (a broken rule is one :class:`~pipeline.errors.InputError` naming
+Rules every importer applies (a broken rule is one :class:`~trackreplay.errors.InputError` naming
 the file and the first row at fault; rows are counted from 1 after the header):
 
 * ``run`` is optional (default 0); runs are numbered 0, 1, … without gaps. ``time_s`` is
@@ -32,7 +32,7 @@ the file and the first row at fault; rows are counted from 1 after the header):
   plots (or peaks).
 * A value a whole scan shares (truth, the prior fix, the carrier) is repeated on every row of
   the scan and must agree.
-* Values lie within the contract's declared bounds (``pipeline.vocabulary.VALUES``): no
+* Values lie within the contract's declared bounds (``trackreplay.vocabulary.VALUES``): no
   negative range, amplitude or σ.
 
 The MCAP log times are unsigned, so the data set's scan times start at 0: the first time of
@@ -50,9 +50,9 @@ from typing import NamedTuple
 import numpy as np
 import polars as pl
 
-from pipeline import vocabulary as vocab
-from pipeline.errors import InputError
-from recorders.simulated import SimulatedData, write_simulated
+from trackreplay import vocabulary as vocab
+from trackreplay.errors import InputError
+from trackreplay.recorders.simulated import SimulatedData, write_simulated
 
 # --------------------------------------------------------------------------- formats
 
@@ -74,7 +74,7 @@ class TableFormat:
     Attributes
     ----------
     family : str
-        A key of :data:`pipeline.vocabulary.FAMILIES`.
+        A key of :data:`trackreplay.vocabulary.FAMILIES`.
     command : str
         ``replay convert <command>`` reads it.
     stem : str
@@ -1039,10 +1039,10 @@ class ConvertReport:
 def _given_values(family: str, given: dict, what: str) -> dict:
     """``given`` (``--set`` or a mapping file's ``[sensor]`` table) parsed to each value's type:
     a parameter of the family's bundled scenario takes its default's type, another sensor value
-    of the family (:data:`pipeline.sensor_values.SENSOR_KEYS`, e.g. a multi-target radar's
+    of the family (:data:`trackreplay.sensor_values.SENSOR_KEYS`, e.g. a multi-target radar's
     clutter) a number. Anything else is refused, naming the known values."""
-    from pipeline.sensor_values import SENSOR_KEYS
-    from recorders.scenarios import coerce, load_scenario
+    from trackreplay.sensor_values import SENSOR_KEYS
+    from trackreplay.recorders.scenarios import coerce, load_scenario
 
     defaults = load_scenario(scenario_of(family)).params
     out = {}
@@ -1076,9 +1076,9 @@ def table_parameters(family: str, overrides: dict | None = None,
     params : dict
     notes : list of str
     sources : dict
-        ``{parameter: source}`` (:data:`pipeline.sensor_values.SOURCES`) of every value of ``params``.
+        ``{parameter: source}`` (:data:`trackreplay.sensor_values.SOURCES`) of every value of ``params``.
     """
-    from pipeline import sensor_values as sv
+    from trackreplay import sensor_values as sv
 
     mapped = _given_values(family, dict(mapped or {}), "mapping file [sensor]")
     flagged = _given_values(family, dict(overrides or {}), "--set")
@@ -1101,8 +1101,8 @@ def table_parameters(family: str, overrides: dict | None = None,
 
 def sensor_summary(family: str, params: dict, sources: dict) -> str:
     """One line saying which sensor values a converted data set records and which it leaves
-    unknown (:data:`pipeline.sensor_values.SENSOR_KEYS`), for the converters to print."""
-    from pipeline.sensor_values import ESTIMABLE, SENSOR_KEYS
+    unknown (:data:`trackreplay.sensor_values.SENSOR_KEYS`), for the converters to print."""
+    from trackreplay.sensor_values import ESTIMABLE, SENSOR_KEYS
 
     keys = SENSOR_KEYS.get(family, ())
     if not keys:
@@ -1144,7 +1144,7 @@ def write_imported(family: str, data: SimulatedData, dst, overrides, scenario: s
     file) and what the data hold (:func:`table_parameters`), ``source`` (the input files'
     names) and the first time ``first_time_s`` (scan times start at 0: MCAP log times are
     unsigned), marks the record a recording with the source of every value
-    (:mod:`pipeline.sensor_values`), and refuses peaks outside the sensor's field
+    (:mod:`trackreplay.sensor_values`), and refuses peaks outside the sensor's field
     (:func:`check_peak_field`, naming ``path``). Written atomically.
 
     Returns
@@ -1159,8 +1159,8 @@ def write_imported(family: str, data: SimulatedData, dst, overrides, scenario: s
     """
     import json
 
-    from pipeline import sensor_values as sv
-    from pipeline.contract import METADATA_SCENARIO, scenario_metadata
+    from trackreplay import sensor_values as sv
+    from trackreplay.contract import METADATA_SCENARIO, scenario_metadata
 
     params, notes, sources = table_parameters(family, overrides, data, mapped)
     t0 = float(data.times[0])
@@ -1392,8 +1392,8 @@ def tables_from_dataset(dataset, family: str) -> dict[str, pl.DataFrame]:
 
     Parameters
     ----------
-    dataset : pipeline.contract.Dataset, str or Path
-        A data set read with :func:`pipeline.contract.read_dataset`, or its file.
+    dataset : trackreplay.contract.Dataset, str or Path
+        A data set read with :func:`trackreplay.contract.read_dataset`, or its file.
     family : str
 
     Returns
@@ -1408,7 +1408,7 @@ def tables_from_dataset(dataset, family: str) -> dict[str, pl.DataFrame]:
         The data set lacks the family's channels, or holds what a table cannot (truth with
         gaps, pairs that change between epochs, more than three position axes).
     """
-    from pipeline.contract import read_dataset
+    from trackreplay.contract import read_dataset
 
     _check_family(family)
     if isinstance(dataset, (str, Path)):
@@ -1438,7 +1438,7 @@ def table_file_names(family: str, suffix: str) -> dict[str, str]:
 def write_table(df: pl.DataFrame, path, fmt: str) -> None:
     """Write a table atomically as ``csv`` or ``parquet`` (floats written so they read back
     exactly)."""
-    from pipeline.contract import atomic_output
+    from trackreplay.contract import atomic_output
 
     if fmt not in ("csv", "parquet"):
         raise InputError(f"unknown table format {fmt!r} (csv or parquet)")

@@ -1,7 +1,7 @@
 """TDOA/FDOA simulator: moving sensors, one (moving) emitter, measurements per epoch, truth.
 
 Kim et al. (2013): the measurement model of eqs. 1–5
-(:func:`pipeline.cores.localisation.tdoa_fdoa_model.measurement_model`) plus Gaussian noise of
+(:func:`trackreplay.cores.localisation.tdoa_fdoa_model.measurement_model`) plus Gaussian noise of
 σ_TDOA and σ_FDOA, in the paper's simulated experiments (Tables 1–3, Fig. 7); see
 ``docs/papers/tdoa-fdoa.md``. Presets:
 
@@ -36,10 +36,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.errors import InputError, check_all, require_finite_params
-from pipeline.cores.localisation.tdoa_fdoa_model import all_pairs, measurement_model
-from pipeline.vocabulary import CHANNELS
-from recorders.simulated import SimulatedData
+from trackreplay.errors import InputError, check_all, require_finite_params
+from trackreplay.cores.localisation.tdoa_fdoa_model import all_pairs, measurement_model
+from trackreplay.vocabulary import CHANNELS
+from trackreplay.recorders.simulated import SimulatedData
 
 MEASUREMENTS_TOPIC = CHANNELS["emitter_measurements"]
 SENSORS_TOPIC = CHANNELS["emitter_sensors"]

@@ -26,7 +26,7 @@ Conventions:
 * a scan's time stamp is the centre of its frames (the mean of the frame centres), the instant
   its snapshots describe as a whole; the first is ((Ns − 1) · hop + nfft) / (2 fs);
 * the number of sources is counted over a band around the bin (default ±10 % of its frequency,
-  or ``band_hz``) by :mod:`pipeline.cores.array.wideband_count`: per scan of the first
+  or ``band_hz``) by :mod:`trackreplay.cores.array.wideband_count`: per scan of the first
   ``COUNT_SPAN_S`` seconds (of 2M frames if a scan has fewer), the band's null spectrum gives the
   distinct directions in the signal subspace, whose dimension the band's MDL over the whole span
   gives, with the noise taken as white or as diffuse over white, whichever describes the band
@@ -38,7 +38,7 @@ Conventions:
 * the record also sets the trackers' ``align_subspace_instant``: the frames are a continuous
   timeline, and PAST's memory reaches back before each time stamp, so the trackers measure each
   bearing at the instant the scan's subspace describes
-  (:func:`pipeline.cores.array.past_subspace.subspace_instant_offset`).
+  (:func:`trackreplay.cores.array.past_subspace.subspace_instant_offset`).
 """
 
 from __future__ import annotations
@@ -47,11 +47,11 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline import vocabulary as vocab
-from pipeline.contract import scenario_metadata
-from pipeline.cores.array import wideband_count
-from pipeline.errors import InputError, check_all, require_finite
-from recorders.simulated import SimulatedData, write_simulated
+from trackreplay import vocabulary as vocab
+from trackreplay.contract import scenario_metadata
+from trackreplay.cores.array import wideband_count
+from trackreplay.errors import InputError, check_all, require_finite
+from trackreplay.recorders.simulated import SimulatedData, write_simulated
 
 SNAPSHOTS_TOPIC = vocab.CHANNELS["array_snapshots"]
 POSITIVE_TOWARD = ("last", "first")
@@ -101,7 +101,7 @@ def narrowband_snapshots(samples: np.ndarray, fs: int, frequency_hz: float, nfft
     n, C = samples.shape
     k = int(round(frequency_hz * nfft / fs))
     frames = 1 + (n - nfft) // hop if n >= nfft else 0
-    # the count's STFT (pipeline.cores.array.wideband_count) uses the same window; this one DFT
+    # the count's STFT (trackreplay.cores.array.wideband_count) uses the same window; this one DFT
     # row per frame is kept as it was so that a recording converts to the same bytes
     window = wideband_count.hann_window(nfft)  # Hann without the zero end points
     kernel = window * np.exp(-2j * np.pi * k * np.arange(nfft) / nfft)

@@ -28,24 +28,24 @@ band, delays as phase ramps, so fractional delays are exact for the circular win
 into time series by an inverse FFT and correlated from those time series. Random numbers are
 drawn block by block in a fixed order, so a seed fixes every byte. Geometry (``n_targets``
 targets in crossing pairs, default the paper's two), the strength roles (``roles`` cycled, else
-``pair``) and the filter design keys are those of :mod:`recorders.xcorr_peaks`.
+``pair``) and the filter design keys are those of :mod:`trackreplay.recorders.xcorr_peaks`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from pipeline.errors import check_all
-from recorders.simulated import SimulatedData
-from recorders.xcorr_peaks import (ORIGIN_CLUTTER, PEAKS_TOPIC, TRUTH_TOPIC, pack_peaks, target_bearings,
+from trackreplay.errors import check_all
+from trackreplay.recorders.simulated import SimulatedData
+from trackreplay.recorders.xcorr_peaks import (ORIGIN_CLUTTER, PEAKS_TOPIC, TRUTH_TOPIC, pack_peaks, target_bearings,
                                    track_roles)
-from recorders.xcorr_peaks import validate as validate_geometry
+from trackreplay.recorders.xcorr_peaks import validate as validate_geometry
 
 BLOCK_SAMPLES = 1 << 21  # snapshots × samples per FFT block (bounded memory)
 
 
 def validate(p: dict) -> None:
-    """Geometry checks of :mod:`recorders.xcorr_peaks` plus the signal chain's own."""
+    """Geometry checks of :mod:`trackreplay.recorders.xcorr_peaks` plus the signal chain's own."""
     validate_geometry(p)
     checks = [
         (p["sample_rate_hz"] > 0, "sample_rate_hz must be > 0"),
@@ -107,7 +107,7 @@ def simulate(p: dict, runs: int, seed: int) -> SimulatedData:
     Returns
     -------
     SimulatedData
-        Same channels as :func:`recorders.xcorr_peaks.simulate`: ``/xcorr/peaks``
+        Same channels as :func:`trackreplay.recorders.xcorr_peaks.simulate`: ``/xcorr/peaks``
         (``bearing_rad``, ``amplitude``, ``origin``) and ``/xcorr/truth``.
     """
     validate(p)

@@ -45,8 +45,8 @@ def sha():
 @pytest.fixture(scope="session")
 def radar_small(tmp_path_factory) -> Path:
     """A 30-run radar-tws data set written through the real recorder."""
-    from recorders.scenarios import load_scenario
-    from recorders.simulated import record
+    from trackreplay.recorders.scenarios import load_scenario
+    from trackreplay.recorders.simulated import record
 
     path = tmp_path_factory.mktemp("data") / "radar_small.mcap"
     record(path, load_scenario("radar-tws"), runs=30, seed=5)
@@ -60,7 +60,7 @@ def demo_mcap() -> Path:
 
 def _strip_truth(src: Path, dst: Path) -> None:
     """``src`` with its truth channels left out (a recording as a sensor would give it)."""
-    from pipeline.contract import McapFrameWriter, iter_frames
+    from trackreplay.contract import McapFrameWriter, iter_frames
 
     meta: dict = {}
     with open(dst, "wb") as f:
@@ -88,8 +88,8 @@ def _replay_without_truth(folder: Path, scenario: str, seed: int, options=()):
     recording would be; returns the command's result and the outputs path (it must succeed)."""
     from click.testing import CliRunner
 
-    from pipeline.contract import read_dataset
-    from pipeline.face.cli import main
+    from trackreplay.contract import read_dataset
+    from trackreplay.face.cli import main
 
     runner = CliRunner()
     full, bare = folder / "full.mcap", folder / "bare.mcap"
@@ -117,7 +117,7 @@ def assert_mapped_recording_refused(folder, how: str, case: str, named: str, fra
     holding every fragment, exit 2, no traceback, the inputs unchanged and no output written."""
     from click.testing import CliRunner
 
-    from pipeline.face.cli import main
+    from trackreplay.face.cli import main
 
     before = {p.name: p.read_bytes() for p in folder.iterdir() if p.is_file()}
     args = (["convert", "mcap", "in.mcap", "--map", "map.toml", "-o", "out.mcap"] if how == "convert"

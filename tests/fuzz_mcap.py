@@ -7,7 +7,7 @@ written here, independent of the reader under test: the plain ``mcap`` reader fo
 and protobuf classes built from the schema the file itself carries, decoded into frames as
 ``docs/contract.md`` lays them out. An accepted mutant whose frames equal the original's must
 give the original's metrics; one holding other frames must give the metrics of those frames
-written afresh (``pipeline.contract.write_dataset``, the writer) and replayed; anything else is
+written afresh (``trackreplay.contract.write_dataset``, the writer) and replayed; anything else is
 a silent corruption.
 
 The mutations know the file's structure (see ``docs/contract.md``):
@@ -75,8 +75,8 @@ BASES = (
 def small_dataset(folder: Path, scenario: str = "radar-tws", runs: int = 3, overrides: dict | None = None,
                   name: str = "small") -> Path:
     """A small data set written through the real recorder."""
-    from recorders.scenarios import load_scenario
-    from recorders.simulated import record
+    from trackreplay.recorders.scenarios import load_scenario
+    from trackreplay.recorders.simulated import record
 
     path = folder / f"{name}.mcap"
     record(path, load_scenario(scenario).with_overrides(overrides or {"n_scans": 10}), runs=runs, seed=9)
@@ -453,7 +453,7 @@ def decode_independently(path: Path) -> Content:
 def write_content(content: Content, path: Path) -> None:
     """The frames written afresh by the project's writer, scan by scan (the reference a mutant
     holding other frames is judged against)."""
-    from pipeline.contract import write_dataset
+    from trackreplay.contract import write_dataset
 
     order = sorted({(k[1], k[0], topic) for topic, frames in content.frames.items() for k in frames})
     with write_dataset(path, content.metadata) as w:
@@ -926,7 +926,7 @@ def _invoke(args: list[str]) -> dict:
     """The CLI in this process: exit code, stdout, stderr, and a traceback if one escaped."""
     from click.testing import CliRunner
 
-    from pipeline.face.cli import main
+    from trackreplay.face.cli import main
 
     res = CliRunner().invoke(main, args)
     tb = None

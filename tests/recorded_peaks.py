@@ -10,16 +10,16 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.contract import read_dataset, scenario_metadata
-from pipeline.stages import stage_named
-from recorders.simulated import write_simulated
+from trackreplay.contract import read_dataset, scenario_metadata
+from trackreplay.stages import stage_named
+from trackreplay.recorders.simulated import write_simulated
 
 _FILES = itertools.count()
 
 
 def track_recorded(data, params: dict, trackers=("jpda", "jpda_a"), overrides: dict | None = None,
                    seed: int = 0, scenario: str = "xcorr-crossing") -> dict:
-    """Write ``data`` (a :class:`recorders.simulated.SimulatedData` of the bearing-peaks
+    """Write ``data`` (a :class:`trackreplay.recorders.simulated.SimulatedData` of the bearing-peaks
     ``scenario`` with ``params``) and run its trackers through the family's stage.
 
     Returns

@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.linalg import solve_discrete_are
 
-from pipeline.cores.filters.alpha_beta_gains import (
+from trackreplay.cores.filters.alpha_beta_gains import (
     approximate_gains,
     clamp_to_stability,
     kalata_gain_slopes,

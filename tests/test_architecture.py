@@ -22,20 +22,24 @@ ROOT = Path(__file__).resolve().parents[1]
 FRAMEWORKS = {"mcap", "mcap_protobuf", "rerun", "click", "polars", "matplotlib", "dask", "distributed"}
 TIMING_AND_IO = {"time", "timeit", "io", "tempfile", "shutil", "pathlib", "os"}
 THREADS_AND_PROCESSES = {"threading", "_thread", "concurrent", "multiprocessing", "asyncio", "subprocess", "signal"}
-NUMERIC_INTERNALS = {"pipeline.contract", "pipeline.stages", "pipeline.face", "pipeline.replay", "pipeline.sweep",
-                     "evaluators", "recorders"}
+NUMERIC_INTERNALS = {"trackreplay.contract", "trackreplay.stages", "trackreplay.face", "trackreplay.replay", "trackreplay.sweep",
+                     "trackreplay.evaluators", "trackreplay.recorders"}
 
 RULES = {
-    "pipeline/cores": FRAMEWORKS | TIMING_AND_IO | THREADS_AND_PROCESSES | NUMERIC_INTERNALS | {"pipeline.trackers"},
+    "pipeline/cores": FRAMEWORKS | TIMING_AND_IO | THREADS_AND_PROCESSES | NUMERIC_INTERNALS | {"trackreplay.trackers"},
     "pipeline/trackers": FRAMEWORKS | TIMING_AND_IO | THREADS_AND_PROCESSES | NUMERIC_INTERNALS,
-    "pipeline/stages": {"rerun", "click", "matplotlib", "dask", "distributed", "pipeline.face", "pipeline.sweep"},
-    "evaluators": {"pipeline.cores", "pipeline.trackers", "pipeline.stages", "pipeline.face", "rerun", "click"},
+    "pipeline/stages": {"rerun", "click", "matplotlib", "dask", "distributed", "trackreplay.face", "trackreplay.sweep"},
+    "evaluators": {"trackreplay.cores", "trackreplay.trackers", "trackreplay.stages", "trackreplay.face", "rerun", "click"},
     "pipeline/face": {"scipy"},
 }
 # the import-free vocabulary, the interface and the small-matrix linear algebra (numpy only) are what
 # cores, trackers and evaluators may use
-OUR_PACKAGES = {"pipeline", "evaluators", "recorders"}
-ALLOWED_EVERYWHERE = {"pipeline.vocabulary", "pipeline.errors", "pipeline.trackers.interface", "pipeline.batched_linalg"}
+# the installed package ``trackreplay`` maps its subpackages onto the repository's top-level folders
+# (pyproject.toml's package-dir): trackreplay.recorders -> recorders/, trackreplay.evaluators ->
+# evaluators/, everything else of trackreplay -> pipeline/
+FOLDER_OF_PACKAGE = {"trackreplay.recorders": "recorders", "trackreplay.evaluators": "evaluators",
+                     "trackreplay": "pipeline"}
+ALLOWED_EVERYWHERE = {"trackreplay.vocabulary", "trackreplay.errors", "trackreplay.trackers.interface", "trackreplay.batched_linalg"}
 
 
 @lru_cache(maxsize=None)
@@ -65,10 +69,11 @@ def _is_type_checking(test) -> bool:
 
 
 def _module_file(module: str) -> Path | None:
-    """The repository file of a module of ours (``pipeline``, ``evaluators``, ``recorders``)."""
-    if module.split(".")[0] not in OUR_PACKAGES:
+    """The repository file of a module of ours (``trackreplay`` and its subpackages)."""
+    package = next((p for p in FOLDER_OF_PACKAGE if module == p or module.startswith(p + ".")), None)
+    if package is None:
         return None
-    base = ROOT.joinpath(*module.split("."))
+    base = ROOT.joinpath(FOLDER_OF_PACKAGE[package], *module[len(package):].split(".")[1:])
     for candidate in (base.with_suffix(".py"), base / "__init__.py"):
         if candidate.is_file():
             return candidate
@@ -91,7 +96,7 @@ def _reached(path: Path) -> list[tuple[str, tuple[str, ...]]]:
 
 
 def _forbidden(module: str, rule: set[str]) -> bool:
-    if module in ALLOWED_EVERYWHERE or module == "pipeline":
+    if module in ALLOWED_EVERYWHERE or module == "trackreplay":
         return False
     return any(module == f or module.startswith(f + ".") for f in rule)
 
@@ -157,7 +162,7 @@ def test_every_cited_document_exists():
 def test_the_rules_catch_a_violation(tmp_path):
     # the checker itself can fail: a core that imports polars and times itself is caught
     core = tmp_path / "bad_core.py"
-    core.write_text("import time\nimport polars as pl\nfrom pipeline import vocabulary\n"
+    core.write_text("import time\nimport polars as pl\nfrom trackreplay import vocabulary\n"
                     "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    import os\n")
     found = [m for _, m in _imports(core) if _forbidden(m, RULES["pipeline/cores"])]
     assert found == ["time", "polars"]
@@ -165,9 +170,9 @@ def test_the_rules_catch_a_violation(tmp_path):
     # the chain that leads there
     helper = ROOT / "pipeline" / "stack_threads.py"
     indirect = tmp_path / "bad_core_through_a_helper.py"
-    indirect.write_text("from pipeline import stack_threads\n")
+    indirect.write_text("from trackreplay import stack_threads\n")
     reached = {(m, via) for m, via in _reached(indirect) if via and _forbidden(m, RULES["pipeline/cores"])}
-    assert helper.is_file() and ("concurrent.futures", ("pipeline.stack_threads",)) in reached
+    assert helper.is_file() and ("concurrent.futures", ("trackreplay.stack_threads",)) in reached
 
 
 def test_every_relative_link_in_the_documentation_exists():
@@ -189,10 +194,10 @@ def test_the_paper_index_names_files_that_exist():
     # folder of the path before it
     import re
 
-    import pipeline.trackers
+    import trackreplay.trackers
 
     missing, folder = [], None
-    for name in re.findall(r"``([\w/]+\.(?:py|md)|[\w/]+/)``", pipeline.trackers.__doc__):
+    for name in re.findall(r"``([\w/]+\.(?:py|md)|[\w/]+/)``", trackreplay.trackers.__doc__):
         if "/" in name:
             folder = name if name.endswith("/") else name.rsplit("/", 1)[0] + "/"
             path = name

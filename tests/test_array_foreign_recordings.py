@@ -17,11 +17,11 @@ import pytest
 from click.testing import CliRunner
 
 import independent_array_generator as gen
-from pipeline.contract import read_dataset
-from pipeline.cores.array import wideband_count as wc
-from pipeline.cores.array.past_subspace import subspace_instant_offset
-from pipeline.face.cli import main
-from pipeline.replay import replay
+from trackreplay.contract import read_dataset
+from trackreplay.cores.array import wideband_count as wc
+from trackreplay.cores.array.past_subspace import subspace_instant_offset
+from trackreplay.face.cli import main
+from trackreplay.replay import replay
 
 SPACING_M, FREQUENCY_HZ, SECONDS = 0.05, 3430.0, 10.0
 D = np.deg2rad

@@ -5,20 +5,20 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pipeline.cores.array.angular_innovation import (
+from trackreplay.cores.array.angular_innovation import (
     INNOVATIONS,
     counted_flops,
     noise_projector,
     proposed_innovation,
     ryu_innovation,
 )
-from pipeline.cores.array.flop_counts import (
+from trackreplay.cores.array.flop_counts import (
     FlopTally,
     gaussian_elimination_flops,
     proposed_flops,
     ryu_flops,
 )
-from pipeline.cores.array.linear_array import steering_derivatives, steering_vectors
+from trackreplay.cores.array.linear_array import steering_derivatives, steering_vectors
 
 
 def random_subspace(rng, shape, M, N):

@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from pipeline.cores.array.linear_array import beamwidth_rad, steering_vectors
-from pipeline.cores.array.music import (
+from trackreplay.cores.array.linear_array import beamwidth_rad, steering_vectors
+from trackreplay.cores.array.music import (
     angle_grid,
     eigen_decomposition,
     music,
@@ -108,7 +108,7 @@ def test_fewer_peaks_than_asked_are_nan():
 def _trace_form_spectrum(vectors, n, grid, spacing):
     """The previous form of the spectrum, kept as the reference: c_l by ``np.trace`` per lag, then
     ``tr C + 2 [Re c, −Im c] · [cos; sin]``, one block at a time."""
-    from pipeline.cores.array.music import lag_exponentials
+    from trackreplay.cores.array.music import lag_exponentials
 
     m = vectors.shape[-1]
     E = lag_exponentials(grid, m, spacing)
@@ -128,7 +128,7 @@ def test_two_product_spectrum_equals_the_trace_form():
     block, a batch of 40 — split into row blocks for BLAS at both grids —, mixed counts) against the
     per-lag trace form, to 1e-10 relative at 10 and 20 dB (the difference is rounding in
     ‖E_nᴴa‖² = M − ‖E_sᴴa‖², relative size ≈ ε M P at a peak P)."""
-    from pipeline.cores.array.music import lag_exponentials
+    from trackreplay.cores.array.music import lag_exponentials
 
     rng = np.random.default_rng(16)
     theta = np.deg2rad([-30.0, -12.0, 5.0, 25.0, 45.0])
@@ -171,7 +171,7 @@ def test_cached_angle_table_follows_the_grid():
     assert np.allclose(music_spectrum(vectors, 2, grid, 0.25), _trace_form_spectrum(vectors, 2, grid, 0.25),
                        rtol=1e-10)
     assert np.array_equal(music_spectrum(vectors, 2, angle_grid(np.deg2rad(1.0)), 0.5), first)
-    from pipeline.cores.array import music as module
+    from trackreplay.cores.array import music as module
 
     for step in np.linspace(0.5, 1.5, 40):  # many grids and spacings: the kept tables stay bounded
         music_spectrum(vectors, 2, angle_grid(np.deg2rad(step)), 0.5)
@@ -229,7 +229,7 @@ def test_stacks_shared_among_threads_give_the_bits_of_one_call(monkeypatch):
     would have met in one call (EVDs, inverses; leading axes kept), and a piece's error is raised."""
     import pytest
 
-    import pipeline.stack_threads as bl
+    import trackreplay.stack_threads as bl
 
     monkeypatch.setattr(bl, "_cores", lambda: 3)
     monkeypatch.setattr(bl, "THREAD_MIN_WORK", 1)  # split even this small stack
@@ -247,11 +247,11 @@ def test_stacks_shared_among_threads_give_the_bits_of_one_call(monkeypatch):
     expected = np.linalg.eigh(R)
     assert values.shape == expected[0].shape and vectors.shape == expected[1].shape
     assert values.tobytes() == expected[0].tobytes() and vectors.tobytes() == expected[1].tobytes()
-    import pipeline.batched_linalg
+    import trackreplay.batched_linalg
 
-    monkeypatch.setattr(pipeline.batched_linalg, "stack_runner", None)
+    monkeypatch.setattr(trackreplay.batched_linalg, "stack_runner", None)
     bl.install()  # as a replay does: the core's EVDs go through the splitter, with the same bits
-    assert pipeline.batched_linalg.stack_runner is bl.split_over_threads
+    assert trackreplay.batched_linalg.stack_runner is bl.split_over_threads
     assert all(a.tobytes() == b.tobytes() for a, b in zip(eigen_decomposition(R), expected))
     assert bl.split_over_threads(np.linalg.inv, R).tobytes() == np.linalg.inv(R).tobytes()
     singular = R.copy()

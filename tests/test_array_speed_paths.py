@@ -11,9 +11,9 @@ of runs that are not consecutive.
 import numpy as np
 import pytest
 
-from pipeline.cores.array.linear_array import steering_vectors
-from pipeline.cores.array.music import eigen_decomposition, sample_covariance
-from pipeline.cores.array.past_subspace import (
+from trackreplay.cores.array.linear_array import steering_vectors
+from trackreplay.cores.array.music import eigen_decomposition, sample_covariance
+from trackreplay.cores.array.past_subspace import (
     batch_signal_subspace,
     initial_state,
     largest_principal_angle,
@@ -21,7 +21,7 @@ from pipeline.cores.array.past_subspace import (
     past_update,
     principal_angles,
 )
-from pipeline.trackers import array_bearing as ab
+from trackreplay.trackers import array_bearing as ab
 
 M = 8
 

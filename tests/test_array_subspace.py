@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from pipeline.cores.array.linear_array import steering_vectors
-from pipeline.cores.array.past_subspace import (
+from trackreplay.cores.array.linear_array import steering_vectors
+from trackreplay.cores.array.past_subspace import (
     batch_signal_subspace,
     initial_state,
     largest_principal_angle,

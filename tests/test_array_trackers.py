@@ -5,14 +5,14 @@ only the vocabulary."""
 import numpy as np
 import pytest
 
-from evaluators.array_bearing import evaluate
-from pipeline import vocabulary as vocab
-from pipeline.errors import InputError
-from pipeline.registry import trackers_of_family
-from pipeline.trackers import array_bearing as ab
-from pipeline.trackers.interface import ArraySnapshots, call_tracker
-from recorders.array_snapshots import simulate
-from recorders.scenarios import load_scenario
+from trackreplay.evaluators.array_bearing import evaluate
+from trackreplay import vocabulary as vocab
+from trackreplay.errors import InputError
+from trackreplay.registry import trackers_of_family
+from trackreplay.trackers import array_bearing as ab
+from trackreplay.trackers.interface import ArraySnapshots, call_tracker
+from trackreplay.recorders.array_snapshots import simulate
+from trackreplay.recorders.scenarios import load_scenario
 
 PARAMS = load_scenario("array-crossing").params
 
@@ -65,7 +65,7 @@ def test_padded_slots_are_no_track():
     X = np.zeros((2, 4, 6, 10), complex)
     rng = np.random.default_rng(0)
     X[:] = rng.standard_normal(X.shape) + 1j * rng.standard_normal(X.shape)
-    from pipeline.cores.array.linear_array import steering_vectors
+    from trackreplay.cores.array.linear_array import steering_vectors
 
     X[0] += steering_vectors(np.deg2rad([-20.0, 25.0]), 6, 0.5) @ (10 * rng.standard_normal((2, 10)))
     X[1] += steering_vectors(np.deg2rad([10.0]), 6, 0.5) @ (10 * rng.standard_normal((1, 10)))

@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from evaluators.array_bearing import associate, follow_events
-from pipeline.face.cli import main
-from pipeline.contract import read_dataset, scenario_metadata, write_dataset
-from pipeline.cores.array.linear_array import beamwidth_rad
-from pipeline.replay import replay
-from recorders.array_snapshots import truth_angles
-from recorders.scenarios import load_scenario
+from trackreplay.evaluators.array_bearing import associate, follow_events
+from trackreplay.face.cli import main
+from trackreplay.contract import read_dataset, scenario_metadata, write_dataset
+from trackreplay.cores.array.linear_array import beamwidth_rad
+from trackreplay.replay import replay
+from trackreplay.recorders.array_snapshots import truth_angles
+from trackreplay.recorders.scenarios import load_scenario
 
 RUNS = 40  # per SNR; the 100-run study is in benchmarks/bench_array.py
 
@@ -81,7 +81,7 @@ def test_same_seed_same_bytes(tmp_path):
 
 def test_signal_power_matches_the_snr(tmp_path):
     """Per-element SNR: E|x|² = σ² (1 + Σₙ 10^(SNRₙ/10)) with per-target offsets."""
-    from recorders.array_snapshots import simulate
+    from trackreplay.recorders.array_snapshots import simulate
 
     p = dict(load_scenario("array-crossing").params, snr_db=[3.0], n_scans=4, snapshot_dtype="complex128",
              target_snr_offset_db=[0.0, -3.0, 2.0, 0.0, 0.0, 0.0])

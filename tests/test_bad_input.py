@@ -1,6 +1,6 @@
 """Bad input gives one line ``replay: error: <file>: <problem>`` and exit 2, never a traceback.
 
-Every data set here is written by hand with :func:`pipeline.contract.write_dataset` (frames
+Every data set here is written by hand with :func:`trackreplay.contract.write_dataset` (frames
 as dicts), starting from a small valid set that replays cleanly, then broken in one way.
 """
 
@@ -14,19 +14,19 @@ import polars as pl
 import pytest
 from click.testing import CliRunner
 
-import pipeline.face.cli
-from pipeline.face.cli import main
+import trackreplay.face.cli
+from trackreplay.face.cli import main
 
 REPO = Path(__file__).resolve().parents[1]
-from pipeline.contract import ChannelData, METADATA_SCENARIO, scenario_metadata, write_dataset
-from pipeline.errors import InputError, check_all, require_finite_params
-from recorders.scenarios import load_scenario
+from trackreplay.contract import ChannelData, METADATA_SCENARIO, scenario_metadata, write_dataset
+from trackreplay.errors import InputError, check_all, require_finite_params
+from trackreplay.recorders.scenarios import load_scenario
 
 # --------------------------------------------------------------------------- helpers
 
 
 def invoke(*args):
-    return CliRunner().invoke(pipeline.face.cli.main, [str(a) for a in args])
+    return CliRunner().invoke(trackreplay.face.cli.main, [str(a) for a in args])
 
 
 def assert_one_line_error(res, path, *fragments):
@@ -112,14 +112,14 @@ def xcorr_frames(n_scans: int = 6) -> dict:
 
 @pytest.fixture(scope="module")
 def emitter_frames():
-    from recorders.tdoa_fdoa import simulate
+    from trackreplay.recorders.tdoa_fdoa import simulate
 
     return frames_from_simulated(simulate(load_scenario("tdoa-fdoa").params, 2, 0))
 
 
 @pytest.fixture(scope="module")
 def colored_frames():
-    from recorders.colored_noise import simulate
+    from trackreplay.recorders.colored_noise import simulate
 
     params = dict(load_scenario("colored-imm").params, n_samples=12, manoeuvre_first_sample=4,
                   manoeuvre_last_sample=7)
@@ -301,7 +301,7 @@ def test_colored_noise_missing_truth_frame_is_an_error(tmp_path, colored_frames)
 
 def test_array_missing_truth_frame_is_named_as_such(tmp_path):
     """A truth frame the file lacks is named as a missing frame, not as NaN values (issue 30)."""
-    from recorders.array_snapshots import simulate
+    from trackreplay.recorders.array_snapshots import simulate
 
     params = dict(load_scenario("array-crossing").params, n_scans=12)
     ch = frames_from_simulated(simulate(params, 2, 0))
@@ -424,7 +424,7 @@ def test_usage_errors_are_one_line(runner, args, words):
     assert all(w in lines[0] for w in words)
 
 
-# ---- the declared value table (pipeline.vocabulary.VALUES) at the read boundary
+# ---- the declared value table (trackreplay.vocabulary.VALUES) at the read boundary
 
 
 def _radar_frames(range_m=1000.0, bearing=0.3, t=0.0):
@@ -512,8 +512,8 @@ def test_duplicated_frames_and_unequal_item_lists_are_refused(tmp_path, case, sh
 def test_the_value_check_counts_the_same_in_any_block(monkeypatch, block):
     """The value table's check runs in blocks of values (its temporaries stay small); the counts it
     reports, NaN, above and below, and complex magnitudes, do not depend on the block."""
-    import pipeline.contract as contract
-    from pipeline.vocabulary import ValueSpec
+    import trackreplay.contract as contract
+    from trackreplay.vocabulary import ValueSpec
 
     monkeypatch.setattr(contract, "VALUES_CHECK_BLOCK", block)
     a = np.arange(20.0).reshape(4, 5)

@@ -17,13 +17,13 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from pipeline import vocabulary as vocab
-from pipeline.contract import read_dataset
-from pipeline.face.cli import main
-from pipeline.replay import replay
-from pipeline.trackers.peak_roles import roles_for, track_roles
-from recorders import array_snapshots, xcorr_peaks
-from recorders.scenarios import load_scenario
+from trackreplay import vocabulary as vocab
+from trackreplay.contract import read_dataset
+from trackreplay.face.cli import main
+from trackreplay.replay import replay
+from trackreplay.trackers.peak_roles import roles_for, track_roles
+from trackreplay.recorders import array_snapshots, xcorr_peaks
+from trackreplay.recorders.scenarios import load_scenario
 
 REPO = Path(__file__).resolve().parents[1]
 

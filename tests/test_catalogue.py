@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from pipeline.face.cli import main
+from trackreplay.face.cli import main
 
 REPO = Path(__file__).resolve().parents[1]
 DEMO = REPO / "data" / "radar_tws_demo.mcap"

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.face.cli import main
+from trackreplay.face.cli import main
 
 
 
@@ -69,7 +69,7 @@ def test_check_passes_then_fails_on_doctored_baseline(runner, tmp_path, demo_mca
 def test_simulate_set_and_unknown_parameter(runner, tmp_path):
     res = runner.invoke(main, ["simulate", "radar-tws", "--runs", "3", "-o", "s.mcap", "--set", "sigma_bearing_deg=0.5"])
     assert res.exit_code == 0, res.output
-    from pipeline.contract import read_dataset
+    from trackreplay.contract import read_dataset
 
     assert read_dataset(tmp_path / "s.mcap").scenario["params"]["sigma_bearing_deg"] == 0.5
     res = runner.invoke(main, ["simulate", "radar-tws", "-o", "s2.mcap", "--set", "sigma_bearng_deg=0.5"])
@@ -120,7 +120,7 @@ def test_csv_converter_round_trip_and_errors(runner, tmp_path):
     assert res.exit_code == 0, res.output
     res = runner.invoke(main, ["p.mcap", "--no-rrd"])
     assert res.exit_code == 0 and "rms_innovation_m" in res.output
-    from pipeline.contract import read_dataset
+    from trackreplay.contract import read_dataset
 
     ds = read_dataset(tmp_path / "p.mcap")
     rr, counts = ds.channel("/radar/plots").ragged("range_m")
@@ -136,7 +136,7 @@ def test_csv_converter_round_trip_and_errors(runner, tmp_path):
 
 
 def test_nan_in_plots_is_refused(runner, tmp_path):
-    from pipeline.contract import write_dataset
+    from trackreplay.contract import write_dataset
 
     p = tmp_path / "nan.mcap"
     with write_dataset(p) as w:
@@ -194,7 +194,7 @@ def test_the_command_line_turns_numpy_huge_pages_off_before_numpy_loads_unless_t
     env = {k: v for k, v in os.environ.items() if k != "NUMPY_MADVISE_HUGEPAGE"}
     if given is not None:
         env["NUMPY_MADVISE_HUGEPAGE"] = given
-    code = ("import sys, os, pipeline.face.cli; print('numpy' in sys.modules, "
+    code = ("import sys, os, trackreplay.face.cli; print('numpy' in sys.modules, "
             "os.environ['NUMPY_MADVISE_HUGEPAGE'])")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
     assert out.split() == ["False", given or "0"]
@@ -206,7 +206,7 @@ def test_the_command_line_defers_numpy_f2py_which_scipy_imports_but_never_uses()
     import subprocess
     import sys
 
-    code = ("import sys, pipeline.face.cli, scipy.special, numpy\n"
+    code = ("import sys, trackreplay.face.cli, scipy.special, numpy\n"
             "m = sys.modules.get('numpy.f2py')\n"
             "print(m is None or type(m).__name__ == '_LazyModule', 'numpy.f2py.crackfortran' in sys.modules)\n"
             "print(callable(numpy.f2py.run_main), type(sys.modules['numpy.f2py']).__name__, "

@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline import vocabulary as vocab
-from pipeline.cores.filters.ar1_estimation import (all_pole_filter, bias_corrected_alpha, estimate_ar1, scan_flags, transient_samples,
+from trackreplay import vocabulary as vocab
+from trackreplay.cores.filters.ar1_estimation import (all_pole_filter, bias_corrected_alpha, estimate_ar1, scan_flags, transient_samples,
                                                    white_noise_variance)
-from pipeline.cores.filters.decorrelation import decorrelated_measurement_matrix, inverse_transition_rows, pseudo_measurements
-from pipeline.errors import InputError
-from recorders.colored_noise import simulate
-from recorders.scenarios import load_scenario
+from trackreplay.cores.filters.decorrelation import decorrelated_measurement_matrix, inverse_transition_rows, pseudo_measurements
+from trackreplay.errors import InputError
+from trackreplay.recorders.colored_noise import simulate
+from trackreplay.recorders.scenarios import load_scenario
 
 ALPHAS = (0.8, 0.4, 0.0, -0.4, -0.8)
 
@@ -150,7 +150,7 @@ def test_decorrelation_removes_the_colour_with_the_true_alpha():
     """y_k = z_k − α z_{k−1} has white noise of variance (1 − α²)R when the target is static."""
     rng = np.random.default_rng(4)
     alpha, R = 0.8187, 100.0
-    from recorders.colored_noise import ar1_noise
+    from trackreplay.recorders.colored_noise import ar1_noise
 
     nu = ar1_noise(np.full((20, 3000, 1), alpha), R, rng.standard_normal((20, 3000, 1)), rng.standard_normal((20, 1)))
     y = pseudo_measurements(nu, np.full_like(nu, alpha))[:, 1:, 0]

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from pipeline.face.cli import main
-from pipeline.contract import read_dataset, scenario_metadata
-from recorders.colored_noise import simulate
-from recorders.scenarios import load_scenario
-from recorders.simulated import write_simulated
+from trackreplay.face.cli import main
+from trackreplay.contract import read_dataset, scenario_metadata
+from trackreplay.recorders.colored_noise import simulate
+from trackreplay.recorders.scenarios import load_scenario
+from trackreplay.recorders.simulated import write_simulated
 
 SHORT = ["--set", "n_samples=240", "--set", "manoeuvre_first_sample=80", "--set", "manoeuvre_last_sample=160"]
 
@@ -126,7 +126,7 @@ def test_nan_measurement_file_exits_2(tmp_path):
 
 
 def test_a_recording_without_truth_starts_from_the_measurements(short_imm, tmp_path):
-    from pipeline.contract import write_dataset
+    from trackreplay.contract import write_dataset
 
     ds = read_dataset(short_imm)
     z = ds.channel("/colored/measurements").grid("position_m")

@@ -6,12 +6,12 @@ import numpy as np
 import polars as pl
 import pytest
 
-from pipeline import vocabulary as vocab
-from pipeline.errors import InputError
-from pipeline.cores.filters.imm import MeasurementStream, ModelFilter, MotionModel, imm_filter, kinematic_model, single_model_filter
-from pipeline.cores.filters.srif import srif_filter
-from recorders.colored_noise import simulate
-from recorders.scenarios import load_scenario
+from trackreplay import vocabulary as vocab
+from trackreplay.errors import InputError
+from trackreplay.cores.filters.imm import MeasurementStream, ModelFilter, MotionModel, imm_filter, kinematic_model, single_model_filter
+from trackreplay.cores.filters.srif import srif_filter
+from trackreplay.recorders.colored_noise import simulate
+from trackreplay.recorders.scenarios import load_scenario
 
 T = 0.05
 TRANSITION = np.array([[0.99, 0.01, 0.00], [0.33, 0.34, 0.33], [0.00, 0.01, 0.99]])
@@ -26,7 +26,7 @@ def small_record(runs=3, scans=300, seed=0):
 
 
 def textbook_kf(x0, P0, F, Q, z, R, alpha=None, var=None):
-    """A per-run loop written out from the textbook formulas (independent of pipeline.cores.filters.kalman);
+    """A per-run loop written out from the textbook formulas (independent of trackreplay.cores.filters.kalman);
     with alpha/var it filters the decorrelated measurement y_k = z_k − α z_{k−1}, Ĥ = H − α H F⁻¹."""
     runs, scans, _ = z.shape
     n = F.shape[0]
@@ -150,8 +150,8 @@ def test_mixed_size_imm_equals_equal_size_imm_with_the_stated_embedding():
 @pytest.fixture(scope="module")
 def thesis_experiment(tmp_path_factory):
     """The thesis's IMM comparison: 50 runs of colored-imm through the real recorder and replay."""
-    from pipeline.replay import replay
-    from recorders.simulated import record
+    from trackreplay.replay import replay
+    from trackreplay.recorders.simulated import record
 
     path = tmp_path_factory.mktemp("colored") / "imm50.mcap"
     record(path, load_scenario("colored-imm"), runs=50, seed=2024)

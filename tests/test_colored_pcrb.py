@@ -8,11 +8,11 @@ import numpy as np
 import polars as pl
 import pytest
 
-from pipeline.cores.filters.kalman import kf_predict, kf_update
-from pipeline.replay import replay
-from pipeline.trackers.colored_noise import colored_noise_pcrb
-from recorders.scenarios import load_scenario
-from recorders.simulated import record
+from trackreplay.cores.filters.kalman import kf_predict, kf_update
+from trackreplay.replay import replay
+from trackreplay.trackers.colored_noise import colored_noise_pcrb
+from trackreplay.recorders.scenarios import load_scenario
+from trackreplay.recorders.simulated import record
 
 
 def conditioned_covariance(alpha, T: float, q: float, R: float, k: int) -> np.ndarray:
@@ -59,7 +59,7 @@ def short_imm(tmp_path_factory):
 def test_the_exact_filter_of_the_truths_model_attains_the_bound(short_imm):
     """A Kalman filter on [p, v, ν] with the known input has the bound as its mean squared error,
     within Monte Carlo error (200 runs × 240 scans)."""
-    from pipeline.contract import read_dataset
+    from trackreplay.contract import read_dataset
 
     ds = read_dataset(short_imm)
     truth = ds.channels["/colored/truth"]

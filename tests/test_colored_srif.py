@@ -7,9 +7,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pipeline.errors import InputError
-from pipeline.cores.filters.kalman import gaussian_log_likelihood, kf_predict, kf_update
-from pipeline.cores.filters.srif import (information_factor, srif_filter, srif_from_moments, srif_measurement_update,
+from trackreplay.errors import InputError
+from trackreplay.cores.filters.kalman import gaussian_log_likelihood, kf_predict, kf_update
+from trackreplay.cores.filters.srif import (information_factor, srif_filter, srif_from_moments, srif_measurement_update,
                            srif_moments, srif_time_update)
 
 

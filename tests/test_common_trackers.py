@@ -11,11 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline import vocabulary as vocab
-from pipeline.contract import read_dataset
-from pipeline.registry import available_trackers
-from pipeline.replay import replay
-from pipeline.stages import STAGES
+from trackreplay import vocabulary as vocab
+from trackreplay.contract import read_dataset
+from trackreplay.registry import available_trackers
+from trackreplay.replay import replay
+from trackreplay.stages import STAGES
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 # one bundled data set per measurement family

@@ -3,11 +3,11 @@
 Independent data sets of a correctly modelled linear Kalman filter (2-D constant velocity,
 position measurements, model matched, from a wide initial covariance: a transient phase, then
 the steady state) are simulated with numpy alone; their NEES and NIS go through the project's
-own functions (:func:`evaluators.consistency.normalised_squared`,
-:func:`evaluators.consistency.consistency_summary`), and the bounds the tables print must contain
+own functions (:func:`trackreplay.evaluators.consistency.normalised_squared`,
+:func:`trackreplay.evaluators.consistency.consistency_summary`), and the bounds the tables print must contain
 the truth (the "consistent" verdict must hold) in 95 % of the data sets, up to what a binomial
 count of data sets allows. The rate intervals are checked the same way on Bernoulli data sets,
-through :func:`evaluators.confidence.summary_intervals`, the path every family table takes.
+through :func:`trackreplay.evaluators.confidence.summary_intervals`, the path every family table takes.
 
 ``benchmarks/coverage_consistency.py`` runs the same study on more data sets and prints the
 figures quoted in ``docs/evaluation.md``.
@@ -19,8 +19,8 @@ import numpy as np
 import polars as pl
 from scipy.stats import binom
 
-from evaluators.confidence import summary_intervals
-from evaluators.consistency import average_bounds, consistency_summary, normalised_squared
+from trackreplay.evaluators.confidence import summary_intervals
+from trackreplay.evaluators.consistency import average_bounds, consistency_summary, normalised_squared
 
 NOMINAL = 0.95
 #: a count of data sets outside the central 99.8 % of Binomial(D, 0.95) fails: with the few

@@ -9,16 +9,16 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from pipeline.contract import (
+from trackreplay.contract import (
     FRAME_SCHEMA,
     decode_frame,
     encode_frame,
     read_dataset,
     write_dataset,
 )
-from pipeline.errors import InputError
-from recorders.scenarios import load_scenario
-from recorders.simulated import record
+from trackreplay.errors import InputError
+from trackreplay.recorders.scenarios import load_scenario
+from trackreplay.recorders.simulated import record
 
 DTYPES = st.sampled_from([np.float64, np.float32, np.complex128, np.int64, np.uint8])
 
@@ -74,7 +74,7 @@ def test_same_seed_gives_identical_bytes(tmp_path):
 
 
 def test_simulated_file_records_scenario_seed_and_version(radar_small):
-    from pipeline import __version__
+    from trackreplay import __version__
 
     sc = read_dataset(radar_small).scenario
     assert sc["scenario"] == "radar-tws" and sc["seed"] == "5"

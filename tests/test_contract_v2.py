@@ -17,8 +17,8 @@ from click.testing import CliRunner
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import pipeline.face.cli
-from pipeline.contract import (
+import trackreplay.face.cli
+from trackreplay.contract import (
     CONTRACT_V1,
     CONTRACT_V2,
     FRAME_SCHEMA_V1,
@@ -31,9 +31,9 @@ from pipeline.contract import (
     rewrite_dataset,
     write_dataset,
 )
-from pipeline.errors import InputError
-from recorders.scenarios import load_scenario
-from recorders.simulated import record
+from trackreplay.errors import InputError
+from trackreplay.recorders.scenarios import load_scenario
+from trackreplay.recorders.simulated import record
 
 REPO = Path(__file__).resolve().parents[1]
 BUNDLED = sorted((REPO / "data").glob("*.mcap"))
@@ -86,7 +86,7 @@ def frame_bytes(path) -> bytes:
 
 
 def invoke(*args):
-    return CliRunner().invoke(pipeline.face.cli.main, [str(a) for a in args])
+    return CliRunner().invoke(trackreplay.face.cli.main, [str(a) for a in args])
 
 
 def chunk_offsets(path) -> list[tuple[int, int]]:
@@ -353,7 +353,7 @@ def test_dependency_failures_on_bad_bytes_are_input_errors(radar_v2, tmp_path):
 
 
 def test_undecodable_message_with_a_valid_crc_names_chunk_and_channel(tmp_path):
-    from pipeline.contract import McapFrameWriter
+    from trackreplay.contract import McapFrameWriter
 
     p = tmp_path / "garbage.mcap"
     with open(p, "wb") as f:
@@ -406,7 +406,7 @@ def test_a_frame_beyond_the_declared_layout_is_refused(tmp_path):
 
 
 def test_a_message_claiming_too_many_frames_is_refused(tmp_path):
-    from pipeline.contract import McapFrameWriter
+    from trackreplay.contract import McapFrameWriter
 
     p = tmp_path / "count.mcap"
     with open(p, "wb") as f:
@@ -457,7 +457,7 @@ def test_same_seed_same_bytes(tmp_path, contract):
 def test_a_complete_scan_major_grid_is_a_read_only_view_of_the_same_values(path):
     # the read path hands out the decoded values themselves when every frame is there in the
     # writer's order; the scatter it skips is done here by hand and must give the same grid
-    from pipeline.contract import FIXED
+    from trackreplay.contract import FIXED
 
     ds = read_dataset(path)
     views = candidates = 0
@@ -483,7 +483,7 @@ def test_a_complete_scan_major_grid_is_a_read_only_view_of_the_same_values(path)
 def test_ragged_of_equal_length_lists_in_writer_order_is_a_read_only_view(radar_v2, tmp_path):
     # one plot in every frame (the radar scenario without clutter): ragged() hands out the values
     # themselves; the scatter it skips is done here by hand and must give the same array
-    from pipeline.contract import FIXED
+    from trackreplay.contract import FIXED
 
     ch = read_dataset(radar_v2).channel("/radar/plots")
     column = ch._column("range_m")
@@ -520,7 +520,7 @@ def message_blocks(draw):
 def test_frames_kept_per_message_equal_the_per_frame_arrays(blocks, writer_order):
     """A channel that keeps its messages' (scan, first run, count, time) answers run, scan,
     time_s, the grid's size, scan-major order and the scan times as the per-frame arrays do."""
-    from pipeline.contract import ChannelData, _FrameBlocks
+    from trackreplay.contract import ChannelData, _FrameBlocks
 
     runs, scans, split = writer_order  # also the writer's own layout: every scan whole, maybe split in parts
     ordered = [(k, first, min(split, runs - first), float(k)) for k in range(scans) for first in range(0, runs, split)]
@@ -570,10 +570,10 @@ def column_layouts(path, topic):
 
 
 def test_symmetric_grids_are_stored_as_triangles_and_read_back_to_the_bit(tmp_path, monkeypatch):
-    import pipeline.contract
-    from pipeline.contract import FIXED, SYMMETRIC
+    import trackreplay.contract
+    from trackreplay.contract import FIXED, SYMMETRIC
 
-    monkeypatch.setattr(pipeline.contract, "PACK_BLOCK_BYTES", 1)  # one scan per block: decided scan by scan
+    monkeypatch.setattr(trackreplay.contract, "PACK_BLOCK_BYTES", 1)  # one scan per block: decided scan by scan
 
     rng = np.random.default_rng(11)
     runs, scans = 7, 5
@@ -612,7 +612,7 @@ def test_symmetric_grids_are_stored_as_triangles_and_read_back_to_the_bit(tmp_pa
     packed, whole = (tmp_path / "packTrue.mcap").stat().st_size, (tmp_path / "packFalse.mcap").stat().st_size
     assert packed < whole
     # blocks of scans (here all in one): the scan that is not symmetric keeps its block whole
-    monkeypatch.setattr(pipeline.contract, "PACK_BLOCK_BYTES", 1 << 20)
+    monkeypatch.setattr(trackreplay.contract, "PACK_BLOCK_BYTES", 1 << 20)
     with write_dataset(tmp_path / "block.mcap", pack_symmetric=True) as w:
         w.write_grid("/tracks/a", times, arrays)
     got = read_dataset(tmp_path / "block.mcap").channel("/tracks/a")
@@ -624,7 +624,7 @@ def test_symmetric_grids_are_stored_as_triangles_and_read_back_to_the_bit(tmp_pa
 def test_only_files_that_pack_carry_the_symmetric_layout_in_their_schema(tmp_path):
     from mcap.reader import make_reader
 
-    from pipeline.contract import PACKED_SCAN_DESCRIPTOR_SET, SCAN_DESCRIPTOR_SET
+    from trackreplay.contract import PACKED_SCAN_DESCRIPTOR_SET, SCAN_DESCRIPTOR_SET
 
     assert b"SYMMETRIC" in PACKED_SCAN_DESCRIPTOR_SET and b"SYMMETRIC" not in SCAN_DESCRIPTOR_SET
     for pack in (False, True):
@@ -641,7 +641,7 @@ def test_only_files_that_pack_carry_the_symmetric_layout_in_their_schema(tmp_pat
     ((4,), 4, "stored as symmetric matrices but has entries of shape (4,)"),
 ])
 def test_a_bad_symmetric_column_is_an_input_error(tmp_path, shape, n_values, problem):
-    from pipeline.contract import McapFrameWriter, SYMMETRIC
+    from trackreplay.contract import McapFrameWriter, SYMMETRIC
 
     p = tmp_path / "sym.mcap"
     msg = Scan(scan=0, frame_count=2)

@@ -20,8 +20,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from pipeline import vocabulary as vocab
-from pipeline.cores.filters.alpha_beta_gains import (
+from trackreplay import vocabulary as vocab
+from trackreplay.cores.filters.alpha_beta_gains import (
     approximate_gains,
     clamp_to_stability,
     floor_velocity_factor,
@@ -33,8 +33,8 @@ from pipeline.cores.filters.alpha_beta_gains import (
     velocity_factor,
     with_startup,
 )
-from pipeline.cores.filters.converted_measurements import RELATIVE_VARIANCE_FLOOR, floored_polar_variances
-from pipeline.cores.filters.kalman import (
+from trackreplay.cores.filters.converted_measurements import RELATIVE_VARIANCE_FLOOR, floored_polar_variances
+from trackreplay.cores.filters.kalman import (
     components_to_matrix,
     cv_floor_components,
     cv_position_update_components,
@@ -42,9 +42,9 @@ from pipeline.cores.filters.kalman import (
     kf_update,
     matrix_to_components,
 )
-from pipeline.errors import InputError
-from pipeline.trackers.interface import RadarPlots, validate_outputs
-from pipeline.trackers.radar_tws import (
+from trackreplay.errors import InputError
+from trackreplay.trackers.interface import RadarPlots, validate_outputs
+from trackreplay.trackers.radar_tws import (
     DESIGN_RANGE,
     MAX_TRACKING_INDEX,
     TRACKERS,
@@ -52,8 +52,8 @@ from pipeline.trackers.radar_tws import (
     STRATEGIES,
     track_plots,
 )
-from recorders import radar_tws
-from recorders.scenarios import load_scenario
+from trackreplay.recorders import radar_tws
+from trackreplay.recorders.scenarios import load_scenario
 
 REPAIRED = vocab.FLOORED | vocab.CLAMPED
 

@@ -14,8 +14,8 @@ from pathlib import Path
 import polars as pl
 import pytest
 
-from pipeline.contract import METADATA_PROVENANCE, read_dataset
-from pipeline.face.cli import main
+from trackreplay.contract import METADATA_PROVENANCE, read_dataset
+from trackreplay.face.cli import main
 
 GATE, CUTOFF = "assignment_gate_m=30", "ospa_cutoff_m=200"  # far below the radar data's own values
 DEPENDENT = ("mota", "motp_m", "ospa_mean_m")  # metrics that move with them
@@ -184,7 +184,7 @@ def test_replay_records_the_set_values_in_its_outputs_provenance(runner, radar_s
 
 @pytest.mark.parametrize("command", ["compare", "check", "sweep"])
 def test_help_lists_every_stages_evaluation_values_with_their_defaults(runner, command):
-    from pipeline.stages import STAGES
+    from trackreplay.stages import STAGES
 
     text = " ".join(invoke(runner, command, "--help").output.split())
     assert "--set NAME=VALUE" in text

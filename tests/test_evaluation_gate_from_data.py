@@ -9,12 +9,12 @@ import dataclasses
 import numpy as np
 import polars as pl
 
-from pipeline.contract import read_dataset
-from pipeline.replay import replay
-from pipeline.stages import stage_named
-from pipeline.stages.radar_tws import GATE_SIGMAS
-from recorders.scenarios import load_scenario
-from recorders.simulated import record
+from trackreplay.contract import read_dataset
+from trackreplay.replay import replay
+from trackreplay.stages import stage_named
+from trackreplay.stages.radar_tws import GATE_SIGMAS
+from trackreplay.recorders.scenarios import load_scenario
+from trackreplay.recorders.simulated import record
 
 
 def _far_target(path, sigma_bearing_deg=1.0):

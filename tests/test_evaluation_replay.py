@@ -10,13 +10,13 @@ import numpy as np
 import polars as pl
 import pytest
 
-from evaluators.compare import direction
-from pipeline.cores.filters.kalman import kf_predict, kf_update
-from pipeline.cores.filters.pcrb import pcrb_recursion
-from pipeline.face.cli import main
-from pipeline.contract import read_dataset
-from pipeline.replay import replay
-from pipeline.stages import stage_named
+from trackreplay.evaluators.compare import direction
+from trackreplay.cores.filters.kalman import kf_predict, kf_update
+from trackreplay.cores.filters.pcrb import pcrb_recursion
+from trackreplay.face.cli import main
+from trackreplay.contract import read_dataset
+from trackreplay.replay import replay
+from trackreplay.stages import stage_named
 
 STANDARD = {"ospa_mean_m", "gospa_mean_m", "mota", "motp_m", "idf1", "nees_time_average", "nis_time_average",
             "anees_inside_fraction", "mostly_tracked_per_run", "id_switches_per_run"}
@@ -184,12 +184,12 @@ def test_check_names_the_standard_errors_a_doctored_baseline_moved(runner, tmp_p
 
 
 def test_a_tracker_without_covariance_is_reported_as_such_not_as_zero(demo_result, capsys):
-    from evaluators.standard import evaluate_standard
-    from pipeline.face.cli_text import _print_summary
+    from trackreplay.evaluators.standard import evaluate_standard
+    from trackreplay.face.cli_text import _print_summary
 
     result = demo_result.results["radar-tws"]
     bare = {"bare": {"state": result["tracks"]["kalman"]["state"], "flags": result["tracks"]["kalman"]["flags"]}}
-    stage = next(s for s in __import__("pipeline.stages", fromlist=["STAGES"]).STAGES if s.name == "radar-tws")
+    stage = next(s for s in __import__("trackreplay.stages", fromlist=["STAGES"]).STAGES if s.name == "radar-tws")
     design = demo_result.dataset.cache[("design", "radar-tws")]
     reference = stage.reference(demo_result.dataset, design)
     _, summary = evaluate_standard(result["times"], bare, stage.standard_truth(reference), stage.standard_space(design))

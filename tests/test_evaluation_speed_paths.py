@@ -1,6 +1,6 @@
 """The evaluators' fast paths give the numbers of the plain computations they replace.
 
-* group estimates from per-group totals (:func:`evaluators.confidence.group_totals`) against
+* group estimates from per-group totals (:func:`trackreplay.evaluators.confidence.group_totals`) against
   re-scoring every group of runs, for the radar family's table and for time averages;
 * whitening in blocks along the axis the covariances lie fastest in, and the NEES summed
   block by block, against whitening matrix by matrix;
@@ -18,12 +18,12 @@ import numpy as np
 import polars as pl
 import pytest
 
-from evaluators import consistency, radar_tws, standard
-from evaluators.confidence import (RANDOM_GROUPS_MIN_RUNS, group_totals, jackknife, ratio_jackknife, run_groups,
+from trackreplay.evaluators import consistency, radar_tws, standard
+from trackreplay.evaluators.confidence import (RANDOM_GROUPS_MIN_RUNS, group_totals, jackknife, ratio_jackknife, run_groups,
                                    summary_intervals)
-from evaluators.set_distances import _every_permutation, optimal_assignment
-from pipeline.batched_linalg import all_finite, sum_squares, whiten
-from pipeline.vocabulary import CLAMPED, COASTED, INITIALISING, NO_TRACK
+from trackreplay.evaluators.set_distances import _every_permutation, optimal_assignment
+from trackreplay.batched_linalg import all_finite, sum_squares, whiten
+from trackreplay.vocabulary import CLAMPED, COASTED, INITIALISING, NO_TRACK
 
 RTOL = 1e-12
 
@@ -188,7 +188,7 @@ def test_the_standard_measures_in_blocks_of_runs_are_those_of_one_block(monkeypa
 def test_the_radar_pcrb_in_blocks_of_scans_is_the_bound_of_one_block(monkeypatch, block):
     """radar_pcrb averages the plots' information over runs a few scans at a time; the mean over
     runs adds in the same order whatever the block, so the bound is the same to the bit."""
-    from pipeline.trackers import radar_tws as tracker
+    from trackreplay.trackers import radar_tws as tracker
 
     rng = np.random.default_rng(12)
     R, K = 23, 11
@@ -279,8 +279,8 @@ def test_the_single_target_forms_are_the_general_measures(seed):
     matches, CLEAR MOT and identity measures (both conventions), HOTA's sums and SIAP's sums of
     the single-target forms are those of the general forms, bit for bit (HOTA's plain form
     adds in another order: to rounding)."""
-    from evaluators import assignment_metrics as am, hota, siap
-    from evaluators import set_distances as sd
+    from trackreplay.evaluators import assignment_metrics as am, hota, siap
+    from trackreplay.evaluators import set_distances as sd
 
     angular = seed % 4 == 0
     X, Y, track_ids, truth_ids, times, track_v, truth_v = _one_pair_sets(seed, angular=angular, with_ids=seed % 3 > 0)
@@ -305,7 +305,7 @@ def test_the_single_target_forms_are_the_general_measures(seed):
 
 
 def test_one_identity_per_run_tells_the_single_target_case():
-    from evaluators.set_distances import one_identity_per_run
+    from trackreplay.evaluators.set_distances import one_identity_per_run
 
     present = np.array([[True, False, True], [False, False, False]])[..., None]
     assert one_identity_per_run(None, present)
@@ -354,7 +354,7 @@ def test_the_standard_measures_of_one_target_take_the_single_target_forms(monkey
 
 @pytest.mark.parametrize("runs", [1, 2, 7, 53])
 def test_pooled_jackknife_from_group_totals_is_the_jackknife(runs):
-    from evaluators.hota import SUM_KEYS, pooled_hota
+    from trackreplay.evaluators.hota import SUM_KEYS, pooled_hota
 
     rng = np.random.default_rng(runs)
     sums = {key: rng.integers(0, 50, size=(runs, 19)).astype(float) for key in SUM_KEYS}

@@ -11,11 +11,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from evaluators.assignment_metrics import assignment_metrics
-from evaluators.confidence import jackknife, mean_interval, rms_interval, wilson_interval
-from evaluators.consistency import average_bounds, innovation_whiteness, normalised_squared
-from evaluators.set_distances import BRUTE_FORCE_MAX, gospa
-from evaluators.standard import EvaluationSpace, evaluate_standard
+from trackreplay.evaluators.assignment_metrics import assignment_metrics
+from trackreplay.evaluators.confidence import jackknife, mean_interval, rms_interval, wilson_interval
+from trackreplay.evaluators.consistency import average_bounds, innovation_whiteness, normalised_squared
+from trackreplay.evaluators.set_distances import BRUTE_FORCE_MAX, gospa
+from trackreplay.evaluators.standard import EvaluationSpace, evaluate_standard
 
 # ------------------------------------------------------------------ χ² bounds
 
@@ -58,10 +58,10 @@ def test_whiteness_bounds_hold_for_white_and_fail_for_correlated_innovations():
 def model_matched(tmp_path_factory):
     """Radar truth with the filter's own process noise (σ_v = 0.98): the Kalman reference is
     matched to it up to the converted-measurement linearisation."""
-    from pipeline.contract import read_dataset
-    from pipeline.replay import replay
-    from recorders.scenarios import load_scenario
-    from recorders.simulated import record
+    from trackreplay.contract import read_dataset
+    from trackreplay.replay import replay
+    from trackreplay.recorders.scenarios import load_scenario
+    from trackreplay.recorders.simulated import record
 
     path = tmp_path_factory.mktemp("nees") / "matched.mcap"
     sc = load_scenario("radar-tws").with_overrides({"truth_process_noise_mps2": 0.98})
@@ -166,7 +166,7 @@ def test_small_sets_find_the_permutation_every_permutation_sum_finds(size, monke
     # independent route: every permutation's costs gathered and summed, the first of the
     # smallest sums in itertools' order; ties (rounded and repeated costs) must go the same way,
     # and problems split over several blocks must not interact
-    from evaluators import set_distances
+    from trackreplay.evaluators import set_distances
 
     monkeypatch.setattr(set_distances, "BRUTE_FORCE_BLOCK_SUMS", 1000 * math.factorial(size))
     rng = np.random.default_rng(size)
@@ -273,11 +273,11 @@ def test_jackknife_interval_covers_a_known_rmse_at_its_nominal_rate():
 
 @pytest.mark.parametrize("runs", [60, 240], ids=["jackknife", "random-groups"])
 def test_summary_intervals_cover_a_known_rmse_at_their_nominal_rate(runs):
-    # the path every evaluator's table takes (evaluators.confidence.summary_intervals): grouped
+    # the path every evaluator's table takes (trackreplay.evaluators.confidence.summary_intervals): grouped
     # jackknife below RANDOM_GROUPS_MIN_RUNS runs, random groups from there on
     import polars as pl
 
-    from evaluators.confidence import RANDOM_GROUPS_MIN_RUNS, summary_intervals
+    from trackreplay.evaluators.confidence import RANDOM_GROUPS_MIN_RUNS, summary_intervals
 
     assert (runs >= RANDOM_GROUPS_MIN_RUNS) == (runs == 240)
     sigma, trials = 1.0, 300
@@ -306,7 +306,7 @@ def test_mean_and_wilson_intervals_cover_at_their_nominal_rate():
 def test_identity_counts_agree_between_the_vectorised_and_the_per_run_paths():
     # few identities take one vectorised assignment; relabelling them beyond the brute-force
     # size sends the same histories through the per-run path: the counts must not change
-    from evaluators.assignment_metrics import _identity_counts
+    from trackreplay.evaluators.assignment_metrics import _identity_counts
 
     rng = np.random.default_rng(7)
     R, K, T, S = 40, 30, 3, 4

@@ -1,13 +1,13 @@
 """The evaluators' fast forms give bit for bit what the plain forms they replace give.
 
-* :func:`evaluators.set_distances.close_pairs` through its window along one component
-  (:func:`~evaluators.set_distances._close_pairs_windowed`) against every pair of every problem
-  (:func:`~evaluators.set_distances._close_pairs_dense`): the same pairs in the same order and
+* :func:`trackreplay.evaluators.set_distances.close_pairs` through its window along one component
+  (:func:`~trackreplay.evaluators.set_distances._close_pairs_windowed`) against every pair of every problem
+  (:func:`~trackreplay.evaluators.set_distances._close_pairs_dense`): the same pairs in the same order and
   the same distances, with absent rows, empty sets, pairs at the radius to the last bit,
   bearings wrapping at ±π and many problems in several blocks;
-* :func:`evaluators.life_tables.life_tables`, grouped with sorts and counts, against the
+* :func:`trackreplay.evaluators.life_tables.life_tables`, grouped with sorts and counts, against the
   per-identity loop it replaced (kept below as the reference);
-* the identity helpers of :mod:`evaluators.set_distances` (numbering, radix orders, pair
+* the identity helpers of :mod:`trackreplay.evaluators.set_distances` (numbering, radix orders, pair
   counts, components by propagation) against numpy's and scipy's own.
 """
 
@@ -19,10 +19,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from evaluators import set_distances
-from evaluators.assignment_metrics import scan_matches
-from evaluators.life_tables import TARGET_SCHEMA, TRACK_SCHEMA, life_tables
-from evaluators.set_distances import _close_pairs_dense, _close_pairs_windowed, close_pairs, pairwise_distance
+from trackreplay.evaluators import set_distances
+from trackreplay.evaluators.assignment_metrics import scan_matches
+from trackreplay.evaluators.life_tables import TARGET_SCHEMA, TRACK_SCHEMA, life_tables
+from trackreplay.evaluators.set_distances import _close_pairs_dense, _close_pairs_windowed, close_pairs, pairwise_distance
 
 # ------------------------------------------------------------------ close pairs
 
@@ -317,7 +317,7 @@ def test_life_tables_without_targets_or_tracks():
 def test_identity_true_positives_on_the_pairs_equal_the_whole_matrix(seed, runs, targets, tracks, density, top):
     # identities numbered across runs in run order, as global_identities numbers them; counts
     # with ties (top 1: every pair counts the same) and without; runs without any pair
-    from evaluators.assignment_metrics import _identity_true_positives, _identity_true_positives_dense
+    from trackreplay.evaluators.assignment_metrics import _identity_true_positives, _identity_true_positives_dense
 
     rng = np.random.default_rng(seed)
     n_targets = rng.integers(0, targets + 1, runs)
@@ -350,8 +350,8 @@ def test_identity_true_positives_on_the_pairs_equal_the_whole_matrix(seed, runs,
 def test_measures_on_gated_pairs_found_once_equal_their_own(seed, runs, scans, targets, tracks, miss, with_ids,
                                                             angular):
     # the standard measures hand one gated_pairs to the matching, the identity pairing and SIAP
-    from evaluators.assignment_metrics import assignment_metrics, gated_pairs
-    from evaluators.siap import siap_sums
+    from trackreplay.evaluators.assignment_metrics import assignment_metrics, gated_pairs
+    from trackreplay.evaluators.siap import siap_sums
 
     times, positions, track_ids, truths, truth_ids, _ = many_target_run(
         seed, runs, scans, targets, tracks, 400.0, miss, 0.5, "none", 9)
@@ -377,8 +377,8 @@ def test_measures_on_gated_pairs_found_once_equal_their_own(seed, runs, scans, t
         assert siap_shared[key].tobytes() == value.tobytes(), key
     # HOTA's sparse form from pairs found out to a wider gate (those within d₀ kept), as
     # evaluate_standard hands them over, and the matching from those within the gate
-    from evaluators.hota import hota_sums
-    from evaluators.set_distances import pairs_within
+    from trackreplay.evaluators.hota import hota_sums
+    from trackreplay.evaluators.set_distances import pairs_within
 
     d0 = 1.5 * gate
     wide = gated_pairs(positions, truths, 2.0 * gate, angular, *ids)
@@ -394,7 +394,7 @@ def test_measures_on_gated_pairs_found_once_equal_their_own(seed, runs, scans, t
 
 
 def _global_identities_by_sorting(ids, present):
-    """The numbering of :func:`evaluators.set_distances.global_identities` from ``np.unique``."""
+    """The numbering of :func:`trackreplay.evaluators.set_distances.global_identities` from ``np.unique``."""
     r, k, j = np.nonzero(present)
     out = np.full(present.shape, -1, np.int64)
     if r.size == 0:
@@ -475,7 +475,7 @@ def test_components_by_propagation_are_scipys(monkeypatch, edges, rows, cols, ch
 def test_identity_measures_of_runs_without_any_target():
     """No target present anywhere (truth identities given): no presence, every track a false
     positive and a false track, no error (hypothesis found this case)."""
-    from evaluators.assignment_metrics import assignment_metrics
+    from trackreplay.evaluators.assignment_metrics import assignment_metrics
 
     tracks = np.random.default_rng(1).normal(size=(2, 3, 2, 2))
     truths = np.full((2, 3, 1, 2), np.nan)
@@ -491,8 +491,8 @@ def test_matching_that_keeps_previous_matches_skips_only_uncontested_scans(seed)
     # scans where no target and no track sits in two gated pairs are matched at once; the loop
     # over every scan (the plain form) gives the same matches and distances, with identities that
     # change slots, absent targets and tracks, and crowded scenes where most scans are contested
-    from evaluators import assignment_metrics as am
-    from evaluators.set_distances import all_finite
+    from trackreplay.evaluators import assignment_metrics as am
+    from trackreplay.evaluators.set_distances import all_finite
 
     rng = np.random.default_rng(seed)
     for trial in range(40):

@@ -25,14 +25,14 @@ import pytest
 from click.testing import CliRunner
 
 import test_common_trackers as common
-from evaluators.consistency import consistency_summary, normalised_squared
-from pipeline import vocabulary as vocab
-from pipeline.contract import read_dataset
-from pipeline.face.cli import main
-from pipeline.registry import available_trackers
-from pipeline.replay import replay
-from pipeline.stages.radar_tws import RadarTwsStage
-from pipeline.trackers.interface import RadarPlots, call_tracker, validate_outputs
+from trackreplay.evaluators.consistency import consistency_summary, normalised_squared
+from trackreplay import vocabulary as vocab
+from trackreplay.contract import read_dataset
+from trackreplay.face.cli import main
+from trackreplay.registry import available_trackers
+from trackreplay.replay import replay
+from trackreplay.stages.radar_tws import RadarTwsStage
+from trackreplay.trackers.interface import RadarPlots, call_tracker, validate_outputs
 
 REPO = Path(__file__).resolve().parents[1]
 DEMO = REPO / "data" / "radar_tws_demo.mcap"
@@ -60,8 +60,8 @@ def run_trackers(path, names, specs, overrides=None, measurements=None):
 
 
 def simulated(tmp_path_factory, name, runs, seed, **overrides) -> Path:
-    from recorders.scenarios import load_scenario
-    from recorders.simulated import record
+    from trackreplay.recorders.scenarios import load_scenario
+    from trackreplay.recorders.simulated import record
 
     path = tmp_path_factory.mktemp("examples") / f"{name}.mcap"
     record(path, load_scenario("radar-tws").with_overrides(overrides), runs=runs, seed=seed)

@@ -13,7 +13,7 @@ import pytest
 from click.testing import CliRunner
 from matplotlib.image import imread
 
-from pipeline.face.cli import main
+from trackreplay.face.cli import main
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 DEMOS = sorted(p.name for p in DATA.glob("*.mcap"))
@@ -50,7 +50,7 @@ TRACKERS = {
 
 def _record_figures(monkeypatch) -> list[dict]:
     """Patch the one exit of every figure to note what each panel shows before it is written."""
-    import evaluators.report_plots as rp
+    import trackreplay.evaluators.report_plots as rp
 
     seen, original = [], rp.save_figure
 
@@ -132,7 +132,7 @@ def test_figures_in_the_background_appear_after_replay_returns(tmp_path):
 
     data = DATA / "radar_tws_demo.mcap"
     out = tmp_path / "o" / "tracks.mcap"
-    proc = subprocess.run([sys.executable, "-m", "pipeline.face.cli", str(data), "--no-rrd", "-q", "--out", str(out),
+    proc = subprocess.run([sys.executable, "-m", "trackreplay.face.cli", str(data), "--no-rrd", "-q", "--out", str(out),
                            "--figures", "background"], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert out.is_file() and (out.parent / "metrics.csv").is_file() and "drawn in the background" in proc.stdout

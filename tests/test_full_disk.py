@@ -99,8 +99,8 @@ def _chain(*fns):
 
 @pytest.fixture(scope="module")
 def small(tmp_path_factory):
-    from recorders.scenarios import load_scenario
-    from recorders.simulated import record
+    from trackreplay.recorders.scenarios import load_scenario
+    from trackreplay.recorders.simulated import record
 
     path = tmp_path_factory.mktemp("full_disk_data") / "small.mcap"
     record(path, load_scenario("radar-tws").with_overrides({"n_scans": 12}), runs=2, seed=4)
@@ -143,7 +143,7 @@ def test_a_full_or_read_only_disk_gives_one_line_naming_the_file(tmp_path, small
     before_disk, before_elsewhere = _snapshot(folder), _snapshot(elsewhere)
     argv = [a.format(disk=folder, data=small, elsewhere=elsewhere) for a in args]
     # the command line of this tree (not an installed copy), with every command registered
-    cmd = [sys.executable, "-c", "import sys; sys.argv[0] = 'replay'; from pipeline.face.cli import main; main()", *argv]
+    cmd = [sys.executable, "-c", "import sys; sys.argv[0] = 'replay'; from trackreplay.face.cli import main; main()", *argv]
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=TIMEOUT_S, cwd=tmp_path, env=env,
                           preexec_fn=_chain(preexec, _one_core if one_core else None))
@@ -167,7 +167,7 @@ def test_writer_failures_without_a_file_name_name_the_output(tmp_path):
     becomes an OSError naming the output; other failures are left alone."""
     import errno
 
-    from pipeline.paths import disk_error
+    from trackreplay.paths import disk_error
 
     out = tmp_path / "tracks.rrd"
     cases = [OSError(errno.ENOSPC, "No space left on device"),
@@ -186,7 +186,7 @@ def test_a_writer_call_that_never_returns_is_abandoned_in_bounded_time(tmp_path)
     import threading
     import time
 
-    from pipeline import paths
+    from trackreplay import paths
 
     never = threading.Event()
     t0 = time.monotonic()
@@ -203,7 +203,7 @@ def test_the_recording_process_is_not_waited_for_forever(tmp_path, monkeypatch):
     at the watchdog's limit, and the replay fails naming the recording."""
     import time
 
-    from pipeline.face import recording_process
+    from trackreplay.face import recording_process
 
     monkeypatch.setattr(recording_process, "RECORDING_TIMEOUT_S", 1.0)
     recorder = recording_process.RecordingProcess.__new__(recording_process.RecordingProcess)

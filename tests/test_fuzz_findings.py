@@ -15,7 +15,7 @@ import pytest
 from mcap.records import Channel
 
 import fuzz_mcap as fz
-from pipeline.face.cli import main
+from trackreplay.face.cli import main
 
 REPO = Path(__file__).resolve().parents[1]
 

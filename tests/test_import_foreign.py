@@ -3,7 +3,7 @@
 Each foreign file is written here with the MCAP ecosystem's writers (``mcap_ros2.writer``,
 ``mcap_protobuf.writer``, ``mcap.writer`` for JSON), converted and replayed through the CLI;
 the converted arrays must equal, exactly, what the same rows give through
-:func:`recorders.tables.dataset_from_table` directly. Every bad input is one line and exit 2.
+:func:`trackreplay.recorders.tables.dataset_from_table` directly. Every bad input is one line and exit 2.
 """
 
 from __future__ import annotations
@@ -19,11 +19,11 @@ import polars as pl
 import pytest
 from click.testing import CliRunner
 
-from pipeline.contract import read_dataset, scenario_metadata
-from pipeline.face.cli import main
+from trackreplay.contract import read_dataset, scenario_metadata
+from trackreplay.face.cli import main
 from conftest import assert_mapped_recording_refused
-from recorders.foreign_mcap import load_mapping, read_foreign_mcap
-from recorders.simulated import write_simulated
+from trackreplay.recorders.foreign_mcap import load_mapping, read_foreign_mcap
+from trackreplay.recorders.simulated import write_simulated
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLES = REPO / "data" / "samples"
@@ -141,7 +141,7 @@ def same_dataset(a: Path, b: Path) -> None:
 
 
 def via_table(family: str, rows: pl.DataFrame, path: Path, out: Path, sensors=None) -> Path:
-    from recorders.tables import dataset_from_table
+    from trackreplay.recorders.tables import dataset_from_table
 
     data = dataset_from_table(family, rows, path, sensors=sensors, sensors_path=path if sensors is not None else None)
     # a data set's scan times start at 0 (MCAP log times are unsigned), as every importer writes them
@@ -198,7 +198,7 @@ def test_json_mcap_converts_to_the_table_rows_exactly_and_replays(tmp_path, monk
 def test_json_log_time_and_items_in_a_batch_larger_than_one_decode(tmp_path, monkeypatch):
     """Peaks from JSON with the log time as the time source, over more messages than one bulk
     decode takes (several batches), out of log-time order in the file."""
-    import recorders.foreign_mcap as fm
+    import trackreplay.recorders.foreign_mcap as fm
 
     monkeypatch.setattr(fm, "BATCH", 7)
     rng = np.random.default_rng(4)
@@ -298,9 +298,9 @@ vy_mps = "velocity[1]"
 def test_two_tables_from_one_topic_with_message_level_fields(tmp_path, monkeypatch):
     """TDOA/FDOA epochs as JSON: the pairs and the sensors of an epoch in one message, read into
     the measurements and the sensors table; the carrier and the run from the message."""
-    from recorders import simulator_for
-    from recorders.scenarios import load_scenario
-    from recorders.tables import tables_from_dataset
+    from trackreplay.recorders import simulator_for
+    from trackreplay.recorders.scenarios import load_scenario
+    from trackreplay.recorders.tables import tables_from_dataset
 
     monkeypatch.chdir(tmp_path)
     sc = load_scenario("tdoa-fdoa")

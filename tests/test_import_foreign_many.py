@@ -18,11 +18,11 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from pipeline.contract import read_dataset
-from pipeline.face.cli import main
+from trackreplay.contract import read_dataset
+from trackreplay.face.cli import main
 from conftest import assert_mapped_recording_refused
-from pipeline.stages import stage_named
-from recorders.foreign_mcap import UNITS
+from trackreplay.stages import stage_named
+from trackreplay.recorders.foreign_mcap import UNITS
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLES = REPO / "data" / "samples"
@@ -323,7 +323,7 @@ def test_a_good_mapping_of_the_same_frames_converts(tmp_path, monkeypatch):
 def test_empty_messages_out_of_order_over_several_batches(tmp_path, monkeypatch):
     """Messages out of log-time order in the file, decoded in batches smaller than the file,
     with empty plot lists and the run read from the message: the same data set as in order."""
-    import recorders.foreign_mcap as fm
+    import trackreplay.recorders.foreign_mcap as fm
 
     monkeypatch.chdir(tmp_path)
     monkeypatch.setattr(fm, "BATCH", 5)

@@ -18,9 +18,9 @@ import polars as pl
 import pytest
 from click.testing import CliRunner
 
-from pipeline.contract import read_dataset
-from pipeline.face.cli import main
-from recorders.tables import TABLE_FORMATS, dataset_from_table, read_table, tables_from_dataset
+from trackreplay.contract import read_dataset
+from trackreplay.face.cli import main
+from trackreplay.recorders.tables import TABLE_FORMATS, dataset_from_table, read_table, tables_from_dataset
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLES = REPO / "data" / "samples"
@@ -348,7 +348,7 @@ def test_the_samples_are_what_their_documented_commands_give(tmp_path):
 ])
 def test_each_sample_converts_and_replays(tmp_path, command, files):
     args = [SAMPLES / f if f.endswith((".csv", ".parquet")) else f for f in files]
-    from pipeline.face.cli_convert_tables import SAMPLE_SENSOR_VALUES, TABLE_COMMANDS
+    from trackreplay.face.cli_convert_tables import SAMPLE_SENSOR_VALUES, TABLE_COMMANDS
 
     # the sensor values the samples were simulated with: a recording says them, or they are unknown
     given = [f"--set={k}={v}" for k, v in SAMPLE_SENSOR_VALUES.get(TABLE_COMMANDS[command][0], {}).items()]
@@ -374,7 +374,7 @@ def test_help_and_docs_list_every_column():
 def test_replaying_a_table_directly_says_how_to_convert_it(name):
     from click.testing import CliRunner
 
-    from pipeline.face.cli import main
+    from trackreplay.face.cli import main
 
     res = CliRunner().invoke(main, [str(SAMPLES / name), "--no-rrd"])
     assert res.exit_code == 2 and "Traceback" not in res.output

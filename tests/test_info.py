@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from pipeline import sensor_values as sv
-from pipeline.contract import read_dataset
-from pipeline.face.cli import main
+from trackreplay import sensor_values as sv
+from trackreplay.contract import read_dataset
+from trackreplay.face.cli import main
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLES = REPO / "data" / "samples"

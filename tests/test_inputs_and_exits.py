@@ -10,12 +10,12 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.contract import read_dataset
-from pipeline.face.cli import main
+from trackreplay.contract import read_dataset
+from trackreplay.face.cli import main
 
 EXITING = '''
 import sys
-from pipeline.trackers.interface import Tracker
+from trackreplay.trackers.interface import Tracker
 
 class ExitsInTrack(Tracker):
     name, family = "exits_in_track", "radar-plots"
@@ -63,10 +63,10 @@ def test_scan_times_that_do_not_increase_are_refused_with_one_line(runner, tmp_p
     filter's time step would be zero or negative (issue 30: it was accepted silently)."""
     import dataclasses
 
-    from pipeline.contract import scenario_metadata
-    from recorders.radar_tws import simulate
-    from recorders.scenarios import load_scenario
-    from recorders.simulated import write_simulated
+    from trackreplay.contract import scenario_metadata
+    from trackreplay.recorders.radar_tws import simulate
+    from trackreplay.recorders.scenarios import load_scenario
+    from trackreplay.recorders.simulated import write_simulated
 
     params = load_scenario("radar-tws").params
     data = simulate(params, 2, 1)
@@ -94,9 +94,9 @@ def test_a_pair_naming_a_tracker_neither_output_holds_is_one_line(runner, radar_
 def test_plots_with_two_numbers_each_are_refused_as_input_not_blamed_on_a_tracker(runner, tmp_path):
     import numpy as np
 
-    from pipeline.contract import scenario_metadata, write_dataset
-    from recorders.radar_tws import simulate
-    from recorders.scenarios import load_scenario
+    from trackreplay.contract import scenario_metadata, write_dataset
+    from trackreplay.recorders.radar_tws import simulate
+    from trackreplay.recorders.scenarios import load_scenario
 
     params = load_scenario("radar-tws").params
     data = simulate(params, 1, 2)
@@ -167,11 +167,11 @@ def test_a_killed_writers_temporary_goes_at_the_next_write(tmp_path):
     import sys
     import time
 
-    from pipeline.contract import atomic_output
+    from trackreplay.contract import atomic_output
 
     out = tmp_path / "data.mcap"
     code = (f"import sys; sys.path.insert(0, {str(Path(__file__).resolve().parents[1])!r})\n"
-            "from pipeline.contract import atomic_output\n"
+            "from trackreplay.contract import atomic_output\n"
             f"with atomic_output({str(out)!r}) as f:\n    f.write(b'half'); f.flush(); import time; time.sleep(60)\n")
     child = subprocess.Popen([sys.executable, "-c", code])
     deadline = time.monotonic() + 30

@@ -10,11 +10,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pipeline.cores.association.jpda import (FLAG_CLUSTER_SPLIT, STRATEGIES, BearingTrackerDesign, ScanPeaks, amplitude_likelihood_ratio,
+from trackreplay.cores.association.jpda import (FLAG_CLUSTER_SPLIT, STRATEGIES, BearingTrackerDesign, ScanPeaks, amplitude_likelihood_ratio,
                            association_marginals, cluster_tracks, joint_association_probabilities,
                            position_likelihood_ratio, track_bearing_peaks, update_strength,
                            window_gate_probability)
-from pipeline.cores.filters.kalman import two_point_start
+from trackreplay.cores.filters.kalman import two_point_start
 
 
 def brute_force(ratio, miss, gated):
@@ -186,7 +186,7 @@ def test_isolated_track_reduces_exactly_to_pda():
     x0, P0 = two_point_start(np.array([[truth[0]]]), np.array([[truth[0]]]), 1.0, d.sigma_p_rad)
     x0[..., 1] = np.deg2rad(0.2)
     out = track_bearing_peaks(_scans(z_lists), x0, P0, d, STRATEGIES["jpda"], start_scan=0)
-    from pipeline.cores.association.jpda import bearing_motion_model
+    from trackreplay.cores.association.jpda import bearing_motion_model
 
     F, Q = bearing_motion_model(1.0, d.q_rad2)
     expect = textbook_pda(z_lists[1:], x0[0, 0], P0[0, 0], F, Q, d.sigma_p_rad[0], 0.9, d.clutter_density, d.gate_rad)

@@ -9,10 +9,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pipeline.cores.association.jpda import (STRATEGIES, BearingTrackerDesign, ScanPeaks, association_marginals,
+from trackreplay.cores.association.jpda import (STRATEGIES, BearingTrackerDesign, ScanPeaks, association_marginals,
                                              pair_marginals, track_bearing_peaks)
-from pipeline.cores.association.track_management import ConfirmationRule, EndingRule, TrackLife
-from pipeline.cores.filters.kalman import two_point_start
+from trackreplay.cores.association.track_management import ConfirmationRule, EndingRule, TrackLife
+from trackreplay.cores.filters.kalman import two_point_start
 
 
 def _closed_form(ratio, miss, gated):
@@ -100,7 +100,7 @@ def test_the_two_track_fast_path_equals_the_general_association(strategy, life, 
     x0[0, 1] = np.nan  # one slot never starts
     _, P0 = two_point_start(x0[..., 0], x0[..., 0], 1.0, d.sigma_p_rad)
     fast = track_bearing_peaks(scans, x0, P0, d, STRATEGIES[strategy], 0)
-    import pipeline.cores.association.jpda as core
+    import trackreplay.cores.association.jpda as core
 
     monkeypatch.setattr(core, "CLOSED_FORM_TRACKS", 0)
     general = core.joint_association_probabilities

@@ -23,10 +23,10 @@ What the paper reports and what we assert:
 import numpy as np
 import pytest
 
-from evaluators.track_association import paired_difference, track_outcomes
+from trackreplay.evaluators.track_association import paired_difference, track_outcomes
 from recorded_peaks import track_recorded
-from recorders import xcorr_peaks
-from recorders.scenarios import load_scenario
+from trackreplay.recorders import xcorr_peaks
+from trackreplay.recorders.scenarios import load_scenario
 
 RUNS = 100
 ANGLES = (2.0, 5.0, 10.0, 20.0, 30.0)

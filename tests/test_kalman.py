@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from pipeline.cores.filters.kalman import gaussian_log_likelihood, kf_predict, kf_update, white_acceleration_model
+from trackreplay.cores.filters.kalman import gaussian_log_likelihood, kf_predict, kf_update, white_acceleration_model
 
 
 def test_batched_filter_equals_per_run_textbook_loop():
@@ -52,7 +52,7 @@ def test_log_likelihood_matches_dense_formula():
 
 
 def test_cv_kernel_equals_generic_filter_to_rounding():
-    from pipeline.cores.filters.kalman import (
+    from trackreplay.cores.filters.kalman import (
         components_to_matrix,
         cv_apply_gain_components,
         cv_position_gain_components,
@@ -89,7 +89,7 @@ def test_cv_kernel_equals_generic_filter_to_rounding():
 def test_relative_pivots_in_blocks_equal_the_whole_stack(monkeypatch):
     """cv_relative_pivots takes large stacks in blocks; every step is elementwise, so the blocks
     must give the same bits as one pass, NaN and indefinite members included."""
-    from pipeline.cores.filters import kalman
+    from trackreplay.cores.filters import kalman
 
     rng = np.random.default_rng(3)
     A = rng.normal(size=(7 * 13, 4, 4))
@@ -108,7 +108,7 @@ def test_relative_pivots_in_blocks_equal_the_whole_stack(monkeypatch):
 def test_floor_on_matrix_entries_equals_floor_on_components():
     """cv_floor_components repairs a stack of 16 matrix entries exactly as the same stack given
     as its ten components: same repaired set, same matrices."""
-    from pipeline.cores.filters.kalman import (ENTRY_OF_COMPONENT, components_to_matrix, cv_floor_components,
+    from trackreplay.cores.filters.kalman import (ENTRY_OF_COMPONENT, components_to_matrix, cv_floor_components,
                                                matrix_to_components)
 
     rng = np.random.default_rng(5)

@@ -10,8 +10,8 @@ next to the radar, one run (Python floats) and many (arrays).
 import numpy as np
 import pytest
 
-from pipeline.cores.filters import kalman
-from pipeline.trackers import radar_tws as rt
+from trackreplay.cores.filters import kalman
+from trackreplay.trackers import radar_tws as rt
 
 BASE = dict(scan_period_s=5.0, design_sigma_v_mps2=0.98, sigma_range_m=100.0, sigma_bearing_deg=1.0,
             nominal_cross_range_m=150.0, startup_gains=True)
@@ -119,7 +119,7 @@ def test_kalman_scan_axis_forms_equal_the_kernel_scan_by_scan(scalar_runs):
 
 @pytest.mark.parametrize("sigma_v", [0.0, 2.0])
 def test_cv_position_pcrb_equals_the_general_recursion(sigma_v):
-    from pipeline.cores.filters.pcrb import _cv_position_pcrb_recursion, pcrb_recursion, polar_position_information
+    from trackreplay.cores.filters.pcrb import _cv_position_pcrb_recursion, pcrb_recursion, polar_position_information
 
     rng = np.random.default_rng(5)
     K = 120
@@ -164,9 +164,9 @@ def _same_channels(a, b):
 
 @pytest.mark.parametrize("runs", [1, 3])
 def test_a_long_recording_groups_scans_and_reads_as_one_message_per_scan(tmp_path, runs):
-    from pipeline.contract import CONTRACT_V1, GROUP_MIN_SCANS, read_dataset, rewrite_dataset, scans_per_message
-    from recorders.scenarios import load_scenario
-    from recorders.simulated import record
+    from trackreplay.contract import CONTRACT_V1, GROUP_MIN_SCANS, read_dataset, rewrite_dataset, scans_per_message
+    from trackreplay.recorders.scenarios import load_scenario
+    from trackreplay.recorders.simulated import record
 
     n_scans = GROUP_MIN_SCANS + 52
     scenario = load_scenario("radar-tws").with_overrides({"n_scans": n_scans, "detection_probability": 0.9})
@@ -183,7 +183,7 @@ def test_a_long_recording_groups_scans_and_reads_as_one_message_per_scan(tmp_pat
 
 @pytest.mark.parametrize("runs, extra", [(1, 1), (5, 700)])  # (1, 1): the last message holds one scan
 def test_replay_outputs_of_a_long_recording_group_scans(tmp_path, runs, extra):
-    from pipeline.contract import GROUP_MIN_SCANS, read_dataset, scans_per_message, write_dataset
+    from trackreplay.contract import GROUP_MIN_SCANS, read_dataset, scans_per_message, write_dataset
 
     rng = np.random.default_rng(2)
     n_scans = GROUP_MIN_SCANS + extra
@@ -203,8 +203,8 @@ def test_replay_outputs_of_a_long_recording_group_scans(tmp_path, runs, extra):
 
 
 def test_a_group_that_does_not_hold_the_same_runs_in_each_scan_is_refused(tmp_path):
-    from pipeline.contract import Scan, read_dataset, write_dataset
-    from pipeline.errors import InputError
+    from trackreplay.contract import Scan, read_dataset, write_dataset
+    from trackreplay.errors import InputError
 
     with write_dataset(tmp_path / "bad.mcap", group_scans=True) as w:
         msg = Scan(scan=0, time_s=0.0, frame_count=5, scan_count=2)  # 5 frames cannot be 2 scans alike

@@ -18,8 +18,8 @@ import psutil
 import pytest
 from click.testing import CliRunner
 
-from pipeline.face import viewer
-from pipeline.face.cli import main
+from trackreplay.face import viewer
+from trackreplay.face.cli import main
 
 LOOPBACK = {"127.0.0.1", "::1", "::ffff:127.0.0.1"}
 # the scheduler's HTTP port when dashboard_address=None alone is given
@@ -71,7 +71,7 @@ stop_group = viewer.stop_process_group
 def test_local_dask_cluster_listens_on_loopback_only():
     from dask.distributed import Client
 
-    from pipeline.sweep import local_cluster
+    from trackreplay.sweep import local_cluster
 
     before = listening(os.getpid())
     cluster = local_cluster(2)
@@ -91,7 +91,7 @@ def test_local_dask_cluster_listens_on_loopback_only():
 
 
 def test_sweep_on_dask_listens_on_loopback_only(tmp_path):
-    cmd = [sys.executable, "-m", "pipeline.face.cli", "sweep", "radar-tws", "--param", "sigma_bearing_deg=0.5,1,2",
+    cmd = [sys.executable, "-m", "trackreplay.face.cli", "sweep", "radar-tws", "--param", "sigma_bearing_deg=0.5,1,2",
            "--runs", "40", "--executor", "dask", "--workers", "2", "--no-keep-data", "-o", str(tmp_path / "s")]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
     seen = set()

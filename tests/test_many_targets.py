@@ -11,18 +11,18 @@ import numpy as np
 import polars as pl
 import pytest
 
-from pipeline.contract import read_dataset, scenario_metadata
-from pipeline.face.cli import main
-from pipeline.replay import replay
-from pipeline.stages import stage_named
-from recorders.radar_multi import simulate
-from recorders.scenarios import load_scenario
-from recorders.simulated import SimulatedData, write_simulated
+from trackreplay.contract import read_dataset, scenario_metadata
+from trackreplay.face.cli import main
+from trackreplay.replay import replay
+from trackreplay.stages import stage_named
+from trackreplay.recorders.radar_multi import simulate
+from trackreplay.recorders.scenarios import load_scenario
+from trackreplay.recorders.simulated import SimulatedData, write_simulated
 
 PREFIX = "/tracks/radar/"
 TWO_SLOTS = '''
 import numpy as np
-from pipeline.trackers.interface import Param, Tracker
+from trackreplay.trackers.interface import Param, Tracker
 
 class TwoSlots(Tracker):
     """Echoes the first two plots of every scan as two tracks (slot j is track j)."""
@@ -201,7 +201,7 @@ def test_an_identity_twice_in_one_scan_is_refused_with_one_line(runner, tmp_path
 
 BAD_IDS = '''
 import numpy as np
-from pipeline.trackers.interface import Tracker
+from trackreplay.trackers.interface import Tracker
 
 class _Base(Tracker):
     family = "radar-plots"
@@ -331,7 +331,7 @@ def test_life_tables_follow_a_hand_made_swap():
     """Two targets on parallel lines 1 km apart; track 7 follows target 0 for 3 scans, then jumps
     to target 1 (and track 9 the other way round): each target is tracked throughout by two
     identities with one switch, each track spends 3 of its 6 scans on each target."""
-    from evaluators.life_tables import life_tables
+    from trackreplay.evaluators.life_tables import life_tables
 
     K = 6
     times = np.arange(K, dtype=float)

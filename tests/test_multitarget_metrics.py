@@ -20,9 +20,9 @@ import trackeval
 from stonesoup.metricgenerator.ospametric import GOSPAMetric
 from stonesoup.types.state import State
 
-from evaluators.assignment_metrics import assignment_metrics, scan_matches
-from evaluators.hota import HOTA_ALPHAS, hota_sums, point_similarity, pooled_hota
-from evaluators.set_distances import gospa, gospa_switching, pairwise_distance
+from trackreplay.evaluators.assignment_metrics import assignment_metrics, scan_matches
+from trackreplay.evaluators.hota import HOTA_ALPHAS, hota_sums, point_similarity, pooled_hota
+from trackreplay.evaluators.set_distances import gospa, gospa_switching, pairwise_distance
 
 # ------------------------------------------------------------------ synthetic multi-target data
 
@@ -515,7 +515,7 @@ def test_hota_sparse_form_equals_the_plain_one(data):
 
 
 def test_close_pairs_and_edge_matching_equal_the_dense_assignment():
-    from evaluators.set_distances import assign_edges, close_pairs, optimal_assignment
+    from trackreplay.evaluators.set_distances import assign_edges, close_pairs, optimal_assignment
 
     rng = np.random.default_rng(15)
     for m, n in ((3, 9), (12, 12), (20, 7)):

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from pipeline.cores.association.gnn import gnn_assignment
-from pipeline.cores.association.jpda import (
+from trackreplay.cores.association.gnn import gnn_assignment
+from trackreplay.cores.association.jpda import (
     association_marginals,
     cluster_tracks,
     gaussian_likelihood_ratio,
@@ -20,8 +20,8 @@ from pipeline.cores.association.jpda import (
     pda_update,
     pda_update_gaussian,
 )
-from pipeline.cores.filters.kalman import kalman_gain, kf_update
-from pipeline.cores.filters.track_filter import PolarConstantVelocityEKF, squared_distances, wrap_angle
+from trackreplay.cores.filters.kalman import kalman_gain, kf_update
+from trackreplay.cores.filters.track_filter import PolarConstantVelocityEKF, squared_distances, wrap_angle
 
 
 def _closure_labels(gated):
@@ -169,7 +169,7 @@ def test_gnn_assignment_is_the_cheapest_gated_assignment(T, W, seed, sparse):
 
 
 def test_ukf_measurement_prediction_tends_to_the_ekf_one_as_the_covariance_shrinks():
-    from pipeline.cores.filters.track_filter import PolarConstantVelocityUKF
+    from trackreplay.cores.filters.track_filter import PolarConstantVelocityUKF
 
     f, x, P, H, S, nu, _ = _radar_scene(4, tracks=3, plots=1)
     u = PolarConstantVelocityUKF(1.0, 20.0, np.deg2rad(0.2), 100.0)
@@ -190,7 +190,7 @@ def test_ukf_measurement_prediction_tends_to_the_ekf_one_as_the_covariance_shrin
 def test_ukf_sigma_points_carry_the_mean_and_covariance_exactly_through_a_linear_map():
     """On an (almost) linear stretch of the measurement function the unscented transform is exact:
     a target far out, a tiny covariance — the UKF's statistical linearisation is then the Jacobian."""
-    from pipeline.cores.filters.track_filter import PolarConstantVelocityUKF
+    from trackreplay.cores.filters.track_filter import PolarConstantVelocityUKF
 
     u = PolarConstantVelocityUKF(1.0, 20.0, np.deg2rad(0.2), 100.0)
     f = PolarConstantVelocityEKF(1.0, 20.0, np.deg2rad(0.2), 100.0)
@@ -202,7 +202,7 @@ def test_ukf_sigma_points_carry_the_mean_and_covariance_exactly_through_a_linear
 
 
 def test_squared_distances_written_out_equal_the_general_contraction():
-    from pipeline.cores.filters.track_filter import _squared_distance_2x2
+    from trackreplay.cores.filters.track_filter import _squared_distance_2x2
 
     _, _, _, _, S, nu, _ = _radar_scene(5, tracks=6, plots=9)
     general = np.einsum("...wi,...ij,...wj->...w", nu, np.linalg.inv(S), nu)
@@ -210,7 +210,7 @@ def test_squared_distances_written_out_equal_the_general_contraction():
 
 
 def test_innovation_bearings_are_wrapped_as_wrap_angle_does():
-    from pipeline.cores.filters.track_filter import wrap_angle
+    from trackreplay.cores.filters.track_filter import wrap_angle
 
     f = PolarConstantVelocityEKF(1.0, 20.0, np.deg2rad(0.2), 100.0)
     rng = np.random.default_rng(8)
@@ -256,7 +256,7 @@ def test_gating_through_windows_gives_every_pair_the_definition_gives(seed, runs
     """The coarse windows (sorted plots, a binary search per track, wrapping at ±π) find exactly
     the pairs of every track against every plot, in the same order, with the same d²; gates
     from slivers to wider than the circle, bearings on both sides of ±π, empty slots and padding."""
-    from pipeline.cores.association.gating import gate_pairs
+    from trackreplay.cores.association.gating import gate_pairs
 
     rng = np.random.default_rng(seed)
     f = (_Cartesian if cartesian else PolarConstantVelocityEKF)(1.0, 20.0, np.deg2rad(0.2), 100.0)
@@ -288,7 +288,7 @@ def test_gating_through_windows_gives_every_pair_the_definition_gives(seed, runs
 def test_jpda_from_pairs_equals_the_dense_layout(seed, runs, tracks, peaks, density, max_cluster):
     """The pair-driven JPDA (sparse components, each group on its own peaks) gives the β, β₀ and
     cut flags of the dense ``(R, T, m)`` clustered path, clusters cut or whole."""
-    from pipeline.cores.association.jpda import pair_association_probabilities
+    from trackreplay.cores.association.jpda import pair_association_probabilities
 
     rng = np.random.default_rng(seed)
     ratio = rng.exponential(1.0, (runs, tracks, peaks))
@@ -317,7 +317,7 @@ def test_gnn_assignment_on_the_gated_pairs_equals_one_dense_problem_per_run(seed
     np.testing.assert_array_equal(gnn_assignment(cost, gated, miss, sparse=True),
                                   gnn_assignment(cost, gated, miss, sparse=False))
     # the rest as one sparse matching (what many runs' scans take) rather than a dense matrix
-    from pipeline.cores.association.gnn import pair_assignment
+    from trackreplay.cores.association.gnn import pair_assignment
 
     b, t, w = np.nonzero(gated)
     chosen = pair_assignment(cost[b, t, w], b * tracks + t, b * plots + w, miss.ravel(), dense_entries=0)
@@ -330,7 +330,7 @@ def test_gnn_assignment_on_the_gated_pairs_equals_one_dense_problem_per_run(seed
 
 
 def test_covariance_prediction_as_one_product_equals_F_P_Ft():
-    from pipeline.cores.filters.track_filter import _congruence, _cv_model
+    from trackreplay.cores.filters.track_filter import _congruence, _cv_model
 
     rng = np.random.default_rng(3)
     F, _ = _cv_model(0.7, 5.0)
@@ -343,11 +343,11 @@ def test_covariance_prediction_as_one_product_equals_F_P_Ft():
 def test_bearings_given_over_zero_to_two_pi_track_as_the_same_plots_in_minus_pi_to_pi(name):
     """A recording may give bearings over [0, 2π), or a turn beyond: the trackers see the same
     plots and give the same tracks as with bearings in [−π, π)."""
-    from pipeline.trackers.interface import RadarPlots
-    from pipeline.trackers.radar_multi_target import TRACKERS
-    from recorders.radar_multi import simulate
-    from recorders.scenarios import load_scenario
-    from pipeline import vocabulary as vocab
+    from trackreplay.trackers.interface import RadarPlots
+    from trackreplay.trackers.radar_multi_target import TRACKERS
+    from trackreplay.recorders.radar_multi import simulate
+    from trackreplay.recorders.scenarios import load_scenario
+    from trackreplay import vocabulary as vocab
 
     params = dict(load_scenario("radar-multi").params, n_scans=25, sector_half_width_deg=180.0)
     data = simulate(params, 2, 5)
@@ -367,7 +367,7 @@ def test_bearings_given_over_zero_to_two_pi_track_as_the_same_plots_in_minus_pi_
 
 
 def test_innovation_covariance_written_out_equals_H_P_Ht_plus_R():
-    from pipeline.cores.filters.track_filter import _position_innovation_covariance
+    from trackreplay.cores.filters.track_filter import _position_innovation_covariance
 
     rng = np.random.default_rng(5)
     A = rng.normal(size=(3, 6, 4, 4))
@@ -392,7 +392,7 @@ def test_gain_from_a_given_two_by_two_S_equals_the_batched_solve():
 
 
 def test_joseph_products_contracted_equal_the_matmul_form():
-    from pipeline.cores.filters.kalman import _joseph_terms_contracted
+    from trackreplay.cores.filters.kalman import _joseph_terms_contracted
 
     rng = np.random.default_rng(7)
     A, P = rng.normal(size=(600, 4, 4)), rng.normal(size=(600, 4, 4))

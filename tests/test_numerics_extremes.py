@@ -21,13 +21,13 @@ import polars as pl
 import pytest
 from click.testing import CliRunner
 
-from pipeline import vocabulary as vocab
-from pipeline.face.cli import main
-from pipeline.replay import replay
-from pipeline.trackers import interface
-from pipeline.trackers.interface import STRICT_DEFINITENESS, TrackerError, validate_outputs
-from recorders.scenarios import load_scenario
-from recorders.simulated import record
+from trackreplay import vocabulary as vocab
+from trackreplay.face.cli import main
+from trackreplay.replay import replay
+from trackreplay.trackers import interface
+from trackreplay.trackers.interface import STRICT_DEFINITENESS, TrackerError, validate_outputs
+from trackreplay.recorders.scenarios import load_scenario
+from trackreplay.recorders.simulated import record
 
 EPS = np.finfo(float).eps
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from pipeline.face.cli import main
+from trackreplay.face.cli import main
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -25,8 +25,8 @@ REPO = Path(__file__).resolve().parents[1]
 @pytest.fixture(scope="module")
 def template(tmp_path_factory, monkeypatch_module):
     """The inputs, with names chosen to collide with outputs, and two earlier replays."""
-    from recorders.scenarios import load_scenario
-    from recorders.simulated import record
+    from trackreplay.recorders.scenarios import load_scenario
+    from trackreplay.recorders.simulated import record
 
     root = tmp_path_factory.mktemp("walk_template")
     record(root / "data.mcap", load_scenario("radar-tws").with_overrides({"n_scans": 12}), runs=2, seed=3)

@@ -15,16 +15,16 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.paths import OutputSet
+from trackreplay.paths import OutputSet
 
 REPO = Path(__file__).resolve().parents[1]
 # two sets that differ in their bytes and in their names (b has a recording, a does not)
 SETTINGS = {"a": ["--set", "nominal_cross_range_m=150", "--no-rrd"], "b": ["--set", "nominal_cross_range_m=120"]}
-STEPS = ("links", "swap", "swapped", "done")  # the publish steps with a hook (pipeline.paths._pause)
+STEPS = ("links", "swap", "swapped", "done")  # the publish steps with a hook (trackreplay.paths._pause)
 
 
 def _command(data: Path, out: Path, key: str) -> list[str]:
-    return [sys.executable, "-m", "pipeline.face.cli", str(data), "--out", str(out / "tracks.mcap"), "--force",
+    return [sys.executable, "-m", "trackreplay.face.cli", str(data), "--out", str(out / "tracks.mcap"), "--force",
             "--figures", "none", *SETTINGS[key]]
 
 
@@ -177,7 +177,7 @@ def test_a_regular_file_at_an_output_name_is_replaced_without_a_moment_of_absenc
     notes, seen = [], []
     os.environ["TRACKREPLAY_PUBLISH_TRACE"] = str(tmp_path / "trace")
     try:
-        import pipeline.paths as paths
+        import trackreplay.paths as paths
 
         real_pause = paths._pause
         paths._pause = lambda step: seen.append((step, (folder / "a.csv").read_text()))
@@ -195,7 +195,7 @@ def test_figures_drawn_later_join_the_set_and_leave_with_it(tmp_path, radar_smal
     the next replay's set replaces them like the rest instead of leaving old figures beside it."""
     from click.testing import CliRunner
 
-    from pipeline.face.cli import main
+    from trackreplay.face.cli import main
 
     monkeypatch.chdir(tmp_path)
     out = tmp_path / "o"

@@ -1,7 +1,7 @@
 """Trackers plugged in from outside the package: ``--tracker FILE.py:CLASS``, entry points, ``--set``.
 
 Each test writes its small trackers into a file under the test's temporary folder and drives
-the real command line (click's runner on ``pipeline.face.cli:main``) or the Python API:
+the real command line (click's runner on ``trackreplay.face.cli:main``) or the Python API:
 
 * a plugged tracker shows in the printed metrics, in ``tracks.mcap`` on the family's output
   channel, in ``replay eval`` (of the output file and in memory), in ``replay trackers`` with its
@@ -26,13 +26,13 @@ import numpy as np
 import polars as pl
 import pytest
 
-from pipeline import vocabulary as vocab
-from pipeline.contract import read_dataset
-from pipeline.errors import InputError
-from pipeline.face.cli import main
-from pipeline.registry import ENTRY_POINT_GROUP, available_trackers
-from pipeline.replay import replay
-from pipeline.trackers.interface import TrackerError, call_tracker, validate_outputs
+from trackreplay import vocabulary as vocab
+from trackreplay.contract import read_dataset
+from trackreplay.errors import InputError
+from trackreplay.face.cli import main
+from trackreplay.registry import ENTRY_POINT_GROUP, available_trackers
+from trackreplay.replay import replay
+from trackreplay.trackers.interface import TrackerError, call_tracker, validate_outputs
 
 PREFIX = vocab.FAMILIES["radar-plots"].output_prefix  # /tracks/radar/
 STAGE = "radar-tws"
@@ -40,8 +40,8 @@ REPO_DATA = Path(__file__).resolve().parents[1] / "data"
 
 TRACKERS = '''
 import numpy as np
-from pipeline import vocabulary as vocab
-from pipeline.trackers.interface import Param, Tracker
+from trackreplay import vocabulary as vocab
+from trackreplay.trackers.interface import Param, Tracker
 
 
 def echo(r, b, counts, offset):
@@ -149,7 +149,7 @@ def assert_one_error_line(res, *fragments):
 
 def outputs(path: Path) -> dict:
     """Tracker name → its output arrays, read back from a ``tracks.mcap``."""
-    from pipeline.stages.radar_tws import RadarTwsStage
+    from trackreplay.stages.radar_tws import RadarTwsStage
 
     return RadarTwsStage().outputs_from_dataset(read_dataset(path))["tracks"]
 
@@ -248,7 +248,7 @@ def test_set_through_the_python_api(radar_small, plugged):
 
 
 def test_run_form_equals_batch_form(radar_small, plugged):
-    from pipeline.stages.radar_tws import RadarTwsStage
+    from trackreplay.stages.radar_tws import RadarTwsStage
 
     table = available_trackers([f"{plugged}:PlotEcho", f"{plugged}:PlotEchoRun"])
     meas = RadarTwsStage().decode(read_dataset(radar_small), {})
@@ -498,7 +498,7 @@ def test_both_forms_give_identical_metrics_through_replay_eval_and_every_sweep_e
 
 
 def test_param_bounds_are_checked_by_the_base_class():
-    from pipeline.trackers.interface import Param, Tracker
+    from trackreplay.trackers.interface import Param, Tracker
 
     class Bounded(Tracker):
         name, family = "bounded", "radar-plots"
@@ -544,7 +544,7 @@ def _spoil(cov, state, flags, run, scan, problem):
 def test_the_covariance_check_names_the_first_bad_matrix(monkeypatch, block, problem, expected):
     """The output check accepts what an eigenvalue test accepts and names the run and scan of
     the first bad matrix, whatever the block it falls in."""
-    import pipeline.trackers.interface as interface
+    import trackreplay.trackers.interface as interface
 
     monkeypatch.setattr(interface, "COVARIANCE_CHECK_BLOCK", block)
     runs, scans, n = 4, 3, 4
@@ -579,7 +579,7 @@ def test_the_covariance_check_names_the_first_of_several_bad_matrices(monkeypatc
     """Two bad matrices, the later one in (run, scan) order lying on an earlier scan: the
     message names the first in (run, scan) order, whatever order the check reads a block in
     (scan by scan when the runs are innermost) and whether it gathers the live matrices."""
-    import pipeline.trackers.interface as interface
+    import trackreplay.trackers.interface as interface
 
     monkeypatch.setattr(interface, "COVARIANCE_CHECK_BLOCK", block)
     runs, scans, n = 5, 4, 4
@@ -615,7 +615,7 @@ NEIGHBOUR_USER = '''
 import sys
 
 from offsets import OFFSET_M
-from pipeline.trackers.interface import Tracker
+from trackreplay.trackers.interface import Tracker
 
 
 class Shifted(Tracker):

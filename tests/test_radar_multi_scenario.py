@@ -15,12 +15,12 @@ import numpy as np
 import pytest
 from scipy import integrate, stats
 
-from pipeline.contract import read_dataset
-from pipeline.errors import InputError
-from pipeline.face.cli import main
-from recorders import radar_multi as rm
-from recorders.scenarios import load_scenario, parameter_docs
-from recorders.simulated import record
+from trackreplay.contract import read_dataset
+from trackreplay.errors import InputError
+from trackreplay.face.cli import main
+from trackreplay.recorders import radar_multi as rm
+from trackreplay.recorders.scenarios import load_scenario, parameter_docs
+from trackreplay.recorders.simulated import record
 
 RUNS, SEED = 200, 11
 Z = 5.0  # bound in standard deviations
@@ -330,7 +330,7 @@ def test_a_bad_parameter_is_one_line_on_the_command_line(runner):
 
 
 def test_importing_the_recorder_pulls_in_no_viewer_or_cli():
-    code = ("import sys, recorders.radar_multi; "
+    code = ("import sys, trackreplay.recorders.radar_multi; "
             "print(sorted({m.split('.')[0] for m in sys.modules} & {'rerun', 'click', 'polars'}))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
                          cwd=Path(rm.__file__).resolve().parents[1])

@@ -12,12 +12,12 @@ Findings these tests pin down (see docs/papers/radar-tws.md):
 import numpy as np
 import pytest
 
-from evaluators.radar_tws import evaluate, filtered_mask
-from pipeline.cores.filters.alpha_beta_gains import kalata_gains
-from pipeline.cores.filters.converted_measurements import polar_to_cartesian
-from pipeline.trackers.radar_tws import FLAG_CLAMPED, STRATEGIES, TrackerDesign, track_plots
-from recorders import radar_tws
-from recorders.scenarios import load_scenario
+from trackreplay.evaluators.radar_tws import evaluate, filtered_mask
+from trackreplay.cores.filters.alpha_beta_gains import kalata_gains
+from trackreplay.cores.filters.converted_measurements import polar_to_cartesian
+from trackreplay.trackers.radar_tws import FLAG_CLAMPED, STRATEGIES, TrackerDesign, track_plots
+from trackreplay.recorders import radar_tws
+from trackreplay.recorders.scenarios import load_scenario
 
 
 def run_all(runs, seed, startup=True, **overrides):

@@ -1,4 +1,4 @@
-"""The Rerun recording written by a second process (pipeline.face.recording_process).
+"""The Rerun recording written by a second process (trackreplay.face.recording_process).
 
 A recording made by the child must hold the same data as the one a replay makes in-process:
 ``rerun rrd compare`` (the Rerun CLI's own comparison, independent of our code) decides. A child
@@ -14,11 +14,11 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.contract import read_dataset
-from pipeline.errors import InputError
-from pipeline.face import recording_process
-from pipeline.face.recording_process import RecordingProcess
-from pipeline.replay import replay
+from trackreplay.contract import read_dataset
+from trackreplay.errors import InputError
+from trackreplay.face import recording_process
+from trackreplay.face.recording_process import RecordingProcess
+from trackreplay.replay import replay
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -62,8 +62,8 @@ def test_a_child_that_cannot_write_gives_one_line_and_leaves_nothing(tmp_path):
 
 
 def test_a_child_refuses_an_input_replaced_between_the_two_reads(tmp_path):
-    from recorders.scenarios import load_scenario
-    from recorders.simulated import record
+    from trackreplay.recorders.scenarios import load_scenario
+    from trackreplay.recorders.simulated import record
 
     data, other = tmp_path / "radar.mcap", tmp_path / "other.mcap"
     record(data, load_scenario("radar-tws"), runs=3, seed=1)
@@ -129,7 +129,7 @@ def test_the_command_line_records_a_small_replay_in_a_second_process(tmp_path):
     """A fresh ``replay`` on a small file waits for its child before the outputs appear, and
     its recording matches an in-process one."""
     data = REPO / "data" / "radar_tws_demo.mcap"
-    done = subprocess.run([sys.executable, "-m", "pipeline.face.cli", "-v", str(data), "--out",
+    done = subprocess.run([sys.executable, "-m", "trackreplay.face.cli", "-v", str(data), "--out",
                            str(tmp_path / "out" / "tracks.mcap"), "--figures", "none"],
                           capture_output=True, text=True, cwd=tmp_path)
     assert done.returncode == 0, done.stderr

@@ -11,9 +11,9 @@ import polars as pl
 import pytest
 from polars.testing import assert_frame_equal
 
-from pipeline.contract import read_dataset
-from pipeline.replay import replay, select_trackers
-from pipeline.stages import applicable_stages
+from trackreplay.contract import read_dataset
+from trackreplay.replay import replay, select_trackers
+from trackreplay.stages import applicable_stages
 
 DATA_DIR = Path(__file__).resolve().parents[1] / "data"
 BUNDLED = sorted(p.name for p in DATA_DIR.glob("*.mcap"))
@@ -44,7 +44,7 @@ def _sorted(df):
 
 @pytest.mark.parametrize("name", BUNDLED)
 def test_one_tracker_at_a_time_scores_and_writes_what_all_at_once_does(name, tmp_path, monkeypatch):
-    from pipeline.stages import base
+    from trackreplay.stages import base
 
     per_scan, summary, results = _all_at_once(DATA_DIR / name)
     monkeypatch.setattr(base, "SCORING_UNIT_BYTES", 0)  # every tracker a unit of its own, as on many runs
@@ -65,7 +65,7 @@ def test_one_tracker_at_a_time_scores_and_writes_what_all_at_once_does(name, tmp
 
 
 def test_small_outputs_are_scored_in_one_unit_and_large_ones_apart(monkeypatch):
-    from pipeline.stages import base, stage_named
+    from trackreplay.stages import base, stage_named
 
     stage = stage_named("radar-tws")
     ds = read_dataset(DATA_DIR / "radar_tws_demo.mcap")
@@ -101,8 +101,8 @@ def test_a_stage_whose_views_read_every_run_keeps_them_all():
 
 @pytest.mark.parametrize("on_thread", [False, True])
 def test_a_failing_write_leaves_no_output_and_raises(tmp_path, monkeypatch, on_thread):
-    from pipeline.stages import base
-    from pipeline.stages.base import Stage
+    from trackreplay.stages import base
+    from trackreplay.stages.base import Stage
 
     if on_thread:  # every unit large enough to be written on the writer thread
         monkeypatch.setattr(base, "SCORING_UNIT_BYTES", 0)

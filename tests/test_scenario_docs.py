@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import pytest
 
-from pipeline.face.cli import main
-from pipeline.face.cli_text import TABLE_WIDTH
-from recorders.scenarios import available_scenarios, load_scenario, parameter_docs, parameter_unit
+from trackreplay.face.cli import main
+from trackreplay.face.cli_text import TABLE_WIDTH
+from trackreplay.recorders.scenarios import available_scenarios, load_scenario, parameter_docs, parameter_unit
 
 
 def scenario_table(runner, name: str) -> tuple[dict[str, dict], list[str]]:

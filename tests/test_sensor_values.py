@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from pipeline import sensor_values as sv
-from pipeline.contract import METADATA_PROVENANCE, read_dataset
-from pipeline.face.cli import main
-from recorders.scenarios import load_scenario
+from trackreplay import sensor_values as sv
+from trackreplay.contract import METADATA_PROVENANCE, read_dataset
+from trackreplay.face.cli import main
+from trackreplay.recorders.scenarios import load_scenario
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLES = REPO / "data" / "samples"
@@ -100,7 +100,7 @@ def test_an_unknown_sensor_value_is_refused_naming_its_set_never_filled_from_the
 
 PLUGGED = '''
 import numpy as np
-from pipeline.trackers.interface import Param, Tracker
+from trackreplay.trackers.interface import Param, Tracker
 
 class FirstPlot(Tracker):
     """Needs nothing of the sensor: the first plot of each scan, as x/y."""
@@ -256,9 +256,9 @@ def test_a_converted_emitter_recording_has_no_crlb(tmp_path):
 def test_a_file_of_an_earlier_converter_keeps_its_values_and_has_no_bound(tmp_path):
     """Seed −1 without sources: the values it holds were possibly the scenario's; they are used
     (as before) and said to be of unknown origin, and the file is a recording: no bound."""
-    from pipeline.contract import scenario_metadata
-    from recorders import simulator_for
-    from recorders.simulated import write_simulated
+    from trackreplay.contract import scenario_metadata
+    from trackreplay.recorders import simulator_for
+    from trackreplay.recorders.simulated import write_simulated
 
     scenario = load_scenario("radar-tws").with_overrides({"n_scans": 10, "truth_process_noise_mps2": 0.5})
     data = simulator_for(scenario.recorder)(scenario.params, 4, 2)

@@ -15,8 +15,8 @@ from stonesoup.types.groundtruth import GroundTruthPath, GroundTruthState
 from stonesoup.types.state import State
 from stonesoup.types.track import Track
 
-from evaluators.assignment_metrics import scan_matches
-from evaluators.siap import MEASURES, pooled_siap, siap, siap_sums
+from trackreplay.evaluators.assignment_metrics import scan_matches
+from trackreplay.evaluators.siap import MEASURES, pooled_siap, siap, siap_sums
 
 NAN = np.nan
 T0 = datetime(2026, 1, 1)
@@ -279,7 +279,7 @@ def test_angles_wrap():
 def test_standard_table_rows():
     """evaluate_standard reports the pooled measures over all runs, velocity accuracy in m/s from
     the radar layout [x, y, vx, vy], each with a grouped-jackknife interval around the value."""
-    from evaluators.standard import evaluate_standard, position_space
+    from trackreplay.evaluators.standard import evaluate_standard, position_space
 
     tracks, truths, ids, truth_ids, times = scene(6, R=12, K=20)
     space = position_space({"ospa_cutoff_m": 1000.0, "assignment_gate_m": 40.0, "ospa_order": 2,
@@ -298,7 +298,7 @@ def test_standard_table_rows():
         value, lo, hi = row[metric]
         assert value == pytest.approx(expected[key]) and lo <= value <= hi, metric
     # a bearing space has no velocity row, and its accuracy is in degrees
-    from evaluators.standard import bearing_space
+    from trackreplay.evaluators.standard import bearing_space
     bearing = bearing_space({"ospa_cutoff_deg": 10.0, "assignment_gate_deg": 5.0, "ospa_order": 2})
     angles = np.deg2rad(np.array([[[0.0], [1.0]], [[2.0], [3.0]]]))[None]          # (1, 2, 2, 1)
     truth = np.deg2rad(np.array([[[0.5]], [[2.5]]]))[None]                          # (1, 2, 1, 1)

@@ -10,8 +10,8 @@ import polars as pl
 import pytest
 from click.testing import CliRunner
 
-from pipeline import sweep as sw
-from pipeline.face.cli import main
+from trackreplay import sweep as sw
+from trackreplay.face.cli import main
 
 SPECS = {"sigma_bearing_deg": ["0.5", "1", "2"], "nominal_cross_range_m": ["120", "150"]}
 
@@ -54,7 +54,7 @@ def test_resume_after_a_killed_sweep(tmp_path):
     # enough points that the kill, issued once two are finished, always lands before the last
     values = "0.5,0.6,0.7,0.8,0.9,1,1.2,1.5,2,2.5,3,4"
     points = len(values.split(","))
-    cmd = [sys.executable, "-m", "pipeline.face.cli", "sweep", "radar-tws", "--param", f"sigma_bearing_deg={values}",
+    cmd = [sys.executable, "-m", "trackreplay.face.cli", "sweep", "radar-tws", "--param", f"sigma_bearing_deg={values}",
            "--runs", "150", "--executor", "serial", "--no-keep-data", "-o", str(out)]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     deadline = time.monotonic() + 120

@@ -31,8 +31,8 @@ import psutil
 import pytest
 from click.testing import CliRunner
 
-from pipeline import sweep as sw
-from pipeline.face.cli import main
+from trackreplay import sweep as sw
+from trackreplay.face.cli import main
 
 SORT = ["point_index", "tracker", "metric"]
 SMALL = {"sigma_bearing_deg": ["0.5", "1"]}
@@ -80,14 +80,14 @@ def _no_plot(wide, x, metrics, path, **kwargs):
 @pytest.fixture(autouse=True)
 def no_plots(monkeypatch):
     """The in-process sweeps skip the PNGs (a second each; what is tested here is the table)."""
-    monkeypatch.setattr("evaluators.report_plots.plot_metrics_vs", _no_plot)
+    monkeypatch.setattr("trackreplay.evaluators.report_plots.plot_metrics_vs", _no_plot)
 
 
 @pytest.fixture(scope="module")
 def done_once(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("done") / "s"
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr("evaluators.report_plots.plot_metrics_vs", _no_plot)
+        mp.setattr("trackreplay.evaluators.report_plots.plot_metrics_vs", _no_plot)
         res = cli(*sweep_args(out))
     assert res.exit_code == 0, res.output
     return out
@@ -147,7 +147,7 @@ def test_other_package_version_computes_points_again(done, monkeypatch):
     res = cli(*sweep_args(done, "--resume"))
     assert res.exit_code == 0, res.output
     assert "2 done, 0 resumed" in res.output
-    from pipeline import __version__
+    from trackreplay import __version__
 
     assert notes(res) == [f"resume: computing 2 points again: package version {__version__} → 9.9.9"]
     assert stored(done).equals(table)
@@ -195,8 +195,8 @@ def test_record_names_what_changed():
 
 TRACKER = textwrap.dedent('''
     import numpy as np
-    from pipeline import vocabulary as vocab
-    from pipeline.trackers.interface import Tracker
+    from trackreplay import vocabulary as vocab
+    from trackreplay.trackers.interface import Tracker
 
 
     class FirstPlot(Tracker):
@@ -268,7 +268,7 @@ RANDOM_KILL_RUNS = 5
 
 
 def start_sweep(out: Path, marker: str, executor: str, *extra, runs=RANDOM_KILL_RUNS, specs=RANDOM_KILL_SPECS):
-    cmd = [sys.executable, "-m", "pipeline.face.cli", "sweep", "radar-tws",
+    cmd = [sys.executable, "-m", "trackreplay.face.cli", "sweep", "radar-tws",
            *[a for n, v in specs.items() for a in ("--param", f"{n}={','.join(v)}")],
            "--runs", str(runs), "--seed", "11", "--executor", executor, "--workers", "2", "-o", str(out), *extra]
     env = dict(os.environ, SWEEP_ROBUST_MARKER=marker)
@@ -415,7 +415,7 @@ def test_killed_dask_sweep_leaves_no_workers(tmp_path, sig):
 DOOMED = '''
 import os, signal
 import numpy as np
-from pipeline.trackers.interface import Param, Tracker
+from trackreplay.trackers.interface import Param, Tracker
 
 
 class Doomed(Tracker):
@@ -476,7 +476,7 @@ def run_with_file_size_limit(limit: int, args, timeout=240):
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
         resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
 
-    cmd = [sys.executable, "-m", "pipeline.face.cli", *map(str, args)]
+    cmd = [sys.executable, "-m", "trackreplay.face.cli", *map(str, args)]
     return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, preexec_fn=limited)
 
 
@@ -503,7 +503,7 @@ def test_a_stop_landing_in_a_finalizer_prints_no_traceback(monkeypatch):
     # finalizer: Python would print "Exception ignored … Traceback" on the sweep's stderr
     from types import SimpleNamespace
 
-    from pipeline import sweep as sw
+    from trackreplay import sweep as sw
 
     reported = []
     monkeypatch.setattr(sys, "__unraisablehook__", reported.append)

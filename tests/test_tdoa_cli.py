@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from pipeline.face.cli import main
-from pipeline.contract import read_dataset, write_dataset
-from pipeline.replay import replay
-from pipeline.vocabulary import CONVERGED, NOT_ESTIMATED
+from trackreplay.face.cli import main
+from trackreplay.contract import read_dataset, write_dataset
+from trackreplay.replay import replay
+from trackreplay.vocabulary import CONVERGED, NOT_ESTIMATED
 
 
 
@@ -113,7 +113,7 @@ def test_estimators_are_trackers_and_the_bound_travels_in_the_outputs(triangle3,
     evaluator needs is the stage's ``crlb`` extra output, written and read back exactly; a
     plugged tracker of the family is scored against the joint bound."""
     plugged = tmp_path / "plugged.py"
-    plugged.write_text("from pipeline.trackers.emitter import JointTdoaFdoa\n\n\n"
+    plugged.write_text("from trackreplay.trackers.emitter import JointTdoaFdoa\n\n\n"
                        "class MyJoint(JointTdoaFdoa):\n    name = 'my_joint'\n")
     out = tmp_path / "t.mcap"
     res = replay(triangle3, out_path=out, tracker_specs=[f"{plugged}:MyJoint"])
@@ -260,8 +260,8 @@ def test_outputs_written_before_tracks_emitter_still_read(tmp_path):
     /tracks/emitter/ like every family's: such a file still reads, the same arrays."""
     from types import SimpleNamespace
 
-    from pipeline.replay import replay
-    from pipeline.stages import stage_for_outputs
+    from trackreplay.replay import replay
+    from trackreplay.stages import stage_for_outputs
 
     data = Path(__file__).resolve().parents[1] / "data" / "tdoa_fdoa_demo.mcap"
     replay(data, out_path=tmp_path / "tracks.mcap")

@@ -5,13 +5,13 @@ import pytest
 from hypothesis import assume, given, settings, strategies as st
 from scipy.special import ndtri
 
-from pipeline.cores.localisation.cep_plane import cep_plane, grid_axis
-from pipeline.cores.localisation.crlb import (cep_approx, cep_exact, cep_exact_direct, cep_paper, crlb, disc_probability,
+from trackreplay.cores.localisation.cep_plane import cep_plane, grid_axis
+from trackreplay.cores.localisation.crlb import (cep_approx, cep_exact, cep_exact_direct, cep_paper, crlb, disc_probability,
                            eigen_2x2, error_ellipse, fisher_information, projection_covariance,
                            slice_covariance, whitened_jacobian)
-from pipeline.cores.localisation.tdoa_fdoa_model import all_pairs, measurement_model
-from recorders.scenarios import load_scenario
-from recorders.tdoa_fdoa import resolve
+from trackreplay.cores.localisation.tdoa_fdoa_model import all_pairs, measurement_model
+from trackreplay.recorders.scenarios import load_scenario
+from trackreplay.recorders.tdoa_fdoa import resolve
 
 
 def preset(**overrides):

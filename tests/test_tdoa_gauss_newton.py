@@ -6,15 +6,15 @@ import pytest
 from hypothesis import given, settings, strategies as st
 from scipy.optimize import least_squares
 
-from evaluators.emitter_localisation import ELSEWHERE, TRUTH, classify
-from pipeline.cores.localisation.batched_least_squares import covariance_from_factor, scaled_least_squares
-from pipeline.cores.localisation.crlb import crlb
-from pipeline.cores.localisation.gauss_newton import gauss_newton
-from pipeline.cores.localisation.tdoa_fdoa_crlb import truth_geometry
-from pipeline.cores.localisation.tdoa_fdoa_model import measurement_model
-from pipeline.vocabulary import CONVERGED, DIVERGED, INVALID_START, NOT_CONVERGED
-from recorders.scenarios import load_scenario
-from recorders.tdoa_fdoa import resolve, simulate
+from trackreplay.evaluators.emitter_localisation import ELSEWHERE, TRUTH, classify
+from trackreplay.cores.localisation.batched_least_squares import covariance_from_factor, scaled_least_squares
+from trackreplay.cores.localisation.crlb import crlb
+from trackreplay.cores.localisation.gauss_newton import gauss_newton
+from trackreplay.cores.localisation.tdoa_fdoa_crlb import truth_geometry
+from trackreplay.cores.localisation.tdoa_fdoa_model import measurement_model
+from trackreplay.vocabulary import CONVERGED, DIVERGED, INVALID_START, NOT_CONVERGED
+from trackreplay.recorders.scenarios import load_scenario
+from trackreplay.recorders.tdoa_fdoa import resolve, simulate
 
 
 def scenario(**overrides):

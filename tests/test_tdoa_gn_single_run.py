@@ -5,8 +5,8 @@ the measurement model's fast layout computes eqs. 1–5 and 9–14 exactly as wr
 import numpy as np
 import pytest
 
-from pipeline.cores.localisation.gauss_newton import gauss_newton
-from pipeline.cores.localisation.tdoa_fdoa_model import (SPEED_OF_LIGHT_MPS, all_pairs, measurement_model,
+from trackreplay.cores.localisation.gauss_newton import gauss_newton
+from trackreplay.cores.localisation.tdoa_fdoa_model import (SPEED_OF_LIGHT_MPS, all_pairs, measurement_model,
                                                          ranges_and_rates)
 
 

@@ -5,7 +5,7 @@ import itertools
 import numpy as np
 from hypothesis import given, settings, strategies as st
 
-from pipeline.cores.localisation.tdoa_fdoa_model import (SPEED_OF_LIGHT_MPS, all_pairs, independent_differences,
+from trackreplay.cores.localisation.tdoa_fdoa_model import (SPEED_OF_LIGHT_MPS, all_pairs, independent_differences,
                                       independent_equations, measurement_model)
 
 

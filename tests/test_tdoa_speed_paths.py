@@ -5,8 +5,8 @@ batched path (``benchmarks/bench_tdoa.py`` section 2 times both)."""
 import numpy as np
 import pytest
 
-from pipeline.cores.localisation.gauss_newton import gauss_newton
-from pipeline.cores.localisation.tdoa_fdoa_model import all_pairs, measurement_model
+from trackreplay.cores.localisation.gauss_newton import gauss_newton
+from trackreplay.cores.localisation.tdoa_fdoa_model import all_pairs, measurement_model
 
 FIELDS = ("theta", "iterates", "covariance", "cost", "flags", "iterations", "step_sigma")
 
@@ -45,7 +45,7 @@ def test_one_run_alone_equals_its_row_in_a_batch(seed, free, tol):
 def test_single_matrix_factor_equals_its_slice_of_the_stacked_factor(seed):
     """A stack of one goes to scipy's ``dgeqrf`` and a stack to numpy's stacked QR: the same
     LAPACK routine, so the factors must agree to the bit, badly scaled columns included."""
-    from pipeline.cores.localisation.batched_least_squares import _geqrf_rows
+    from trackreplay.cores.localisation.batched_least_squares import _geqrf_rows
 
     rng = np.random.default_rng(seed)
     for m, q in [(6, 4), (12, 4), (3, 2), (20, 3), (5, 4), (4, 4)]:  # the last: as many rows as unknowns

@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline import vocabulary as vocab
-from pipeline.contract import read_dataset
-from pipeline.cores.association.jpda import STRATEGIES, BearingTrackerDesign, ScanPeaks, track_bearing_peaks
-from pipeline.cores.association.track_management import EndingRule, coasting_run, ended
+from trackreplay import vocabulary as vocab
+from trackreplay.contract import read_dataset
+from trackreplay.cores.association.jpda import STRATEGIES, BearingTrackerDesign, ScanPeaks, track_bearing_peaks
+from trackreplay.cores.association.track_management import EndingRule, coasting_run, ended
 
 DEG = np.pi / 180
 
@@ -84,7 +84,7 @@ def test_every_family_replays_a_data_set_without_its_truth(scenario, replay_with
     assert out.is_file() and (out.parent / "report.png").is_file()
     if scenario in ("xcorr-crossing", "array-crossing"):  # bearings, the one thing to show without truth
         assert "run 0 without truth: track positions (deg) per scan" in res.output
-    from pipeline import vocabulary as vocab
+    from trackreplay import vocabulary as vocab
 
     prefixes = tuple(f.output_prefix for f in vocab.FAMILIES.values())
     assert any(t.startswith(prefixes) for t in read_dataset(out).channels)
@@ -97,11 +97,11 @@ def test_an_unlabelled_start_does_as_well_as_the_labelled_one_and_as_the_truth_o
     follow their targets, the bearing error after start-up within Monte Carlo error of the
     truth start's. (Both measurement starts succeed less often than the truth start: the gap is
     reported in docs/papers/bearing-peaks.md, not hidden here.)"""
-    from evaluators.track_association import paired_difference, track_outcomes
-    from evaluators.tracking_metrics import nanmean
+    from trackreplay.evaluators.track_association import paired_difference, track_outcomes
+    from trackreplay.evaluators.tracking_metrics import nanmean
     from recorded_peaks import track_recorded
-    from recorders import xcorr_peaks
-    from recorders.scenarios import load_scenario
+    from trackreplay.recorders import xcorr_peaks
+    from trackreplay.recorders.scenarios import load_scenario
 
     p = load_scenario("xcorr-crossing").with_overrides({"crossing_angle_deg": 20.0}).params
     data = xcorr_peaks.simulate(p, 100, 21)
@@ -126,7 +126,7 @@ def test_an_unlabelled_start_does_as_well_as_the_labelled_one_and_as_the_truth_o
 @pytest.mark.parametrize("m, n, start_hits", [(3, 4, 2), (2, 3, 1), (4, 6, 1), (1, 1, 1)])
 def test_batch_confirmation_agrees_with_the_scan_loop(m, n, start_hits):
     """`confirmation_scans` (batch trackers) and `TrackLife` (scan loops) are one rule."""
-    from pipeline.cores.association.track_management import ConfirmationRule, TrackLife, confirmation_scans
+    from trackreplay.cores.association.track_management import ConfirmationRule, TrackLife, confirmation_scans
 
     rule = ConfirmationRule(m, n)
     hit = np.random.default_rng(m * 10 + n).random((400, 10)) < 0.6
@@ -149,8 +149,8 @@ def test_batch_confirmation_agrees_with_the_scan_loop(m, n, start_hits):
 
 
 def _radar_design(**management):
-    from pipeline.cores.association.track_management import ConfirmationRule, EndingRule
-    from pipeline.trackers.radar_tws import TrackerDesign
+    from trackreplay.cores.association.track_management import ConfirmationRule, EndingRule
+    from trackreplay.trackers.radar_tws import TrackerDesign
 
     return TrackerDesign(scan_period_s=1.0, sigma_v=1.0, sigma_range_m=20.0, sigma_bearing_rad=0.01,
                          nominal_cross_range_m=100.0, confirmation=ConfirmationRule(3, 4),
@@ -167,7 +167,7 @@ def _radar_plots(K, have):
 
 
 def test_a_radar_target_that_stops_producing_plots_is_deleted_and_restarted_when_they_return():
-    from pipeline.trackers.radar_tws import STRATEGIES, track_plots
+    from trackreplay.trackers.radar_tws import STRATEGIES, track_plots
 
     K = 30
     have = np.ones((2, K), bool)
@@ -186,7 +186,7 @@ def test_a_radar_target_that_stops_producing_plots_is_deleted_and_restarted_when
 
 
 def test_a_tentative_radar_track_that_cannot_be_confirmed_is_deleted():
-    from pipeline.trackers.radar_tws import STRATEGIES, track_plots
+    from trackreplay.trackers.radar_tws import STRATEGIES, track_plots
 
     K = 8
     have = np.zeros((1, K), bool)
@@ -202,10 +202,10 @@ def test_a_tentative_radar_track_that_cannot_be_confirmed_is_deleted():
 def test_an_array_track_that_leaves_the_field_is_deleted_and_never_reported_outside_it():
     """d = 0.6 λ: the field free of grating lobes is |θ| < arcsin(1/0.6 − 1) = 41.8°. A target
     moving from 0° to 78° leaves it at scan 21; its track ends within a scan, flagged."""
-    from pipeline.trackers import array_bearing as ab
-    from pipeline.trackers.interface import ArraySnapshots
-    from recorders.array_snapshots import steering_vectors
-    from recorders.scenarios import load_scenario
+    from trackreplay.trackers import array_bearing as ab
+    from trackreplay.trackers.interface import ArraySnapshots
+    from trackreplay.recorders.array_snapshots import steering_vectors
+    from trackreplay.recorders.scenarios import load_scenario
 
     R, K, M, Ns = 10, 40, 15, 30
     theta = np.deg2rad(np.linspace(0.0, 78.0, K))
@@ -228,7 +228,7 @@ def test_an_array_track_that_leaves_the_field_is_deleted_and_never_reported_outs
 
 
 def test_a_scan_without_enough_peaks_leaves_a_slot_empty_instead_of_failing():
-    from pipeline.trackers.bearing_peaks import one_point_start, strongest_start_peaks
+    from trackreplay.trackers.bearing_peaks import one_point_start, strongest_start_peaks
 
     bearing = np.deg2rad(np.array([[[80.0, 95.0, 0.0]], [[88.0, 0.0, 0.0]]]))  # (R=2, K=1, W=3)
     amplitude = np.array([[[9000.0, 20000.0, 0.0]], [[30000.0, 0.0, 0.0]]])
@@ -246,8 +246,8 @@ def _found(full: Path, tracks_of: Path, window: slice, overrides=None) -> dict:
     """Per tracker, the runs whose confirmed tracks over ``window`` match the truth's targets:
     every target mostly tracked and no false track (the assignment metrics of
     ``evaluators/assignment_metrics.py``, in the family's space and match gate)."""
-    from evaluators.assignment_metrics import assignment_metrics
-    from pipeline.replay import applicable_stages, replay
+    from trackreplay.evaluators.assignment_metrics import assignment_metrics
+    from trackreplay.replay import applicable_stages, replay
 
     res = replay(tracks_of, design_overrides=overrides)
     ds = read_dataset(full)
@@ -283,8 +283,8 @@ FOUND = {  # scenario, overrides, runs, the window after start-up (scans)
 @pytest.mark.parametrize("scenario", sorted(FOUND))
 def test_tracks_started_from_measurements_find_the_targets(tmp_path, scenario, without_truth):
     """Truth stripped, default scenario: the confirmed tracks match the targets in ≥ 95 % of runs."""
-    from recorders.scenarios import load_scenario
-    from recorders.simulated import record
+    from trackreplay.recorders.scenarios import load_scenario
+    from trackreplay.recorders.simulated import record
 
     overrides, runs, window = FOUND[scenario]
     full, bare = tmp_path / "full.mcap", tmp_path / "bare.mcap"
@@ -299,9 +299,9 @@ def test_peak_tracks_started_from_one_peak_are_found_as_often_as_truth_started_o
     weak track is pulled off by clutter in some runs before the crossing, so ≥ 95 % is not a
     property of the tracker. What the start must do is find the targets as often as the truth
     start does (paired over the same 150 runs, within Monte Carlo error), before the crossing."""
-    from evaluators.track_association import paired_difference
-    from recorders.scenarios import load_scenario
-    from recorders.simulated import record
+    from trackreplay.evaluators.track_association import paired_difference
+    from trackreplay.recorders.scenarios import load_scenario
+    from trackreplay.recorders.simulated import record
 
     full, bare = tmp_path / "full.mcap", tmp_path / "bare.mcap"
     record(full, load_scenario("xcorr-crossing"), 150, 5)
@@ -317,9 +317,9 @@ def test_peak_tracks_started_from_one_peak_are_found_as_often_as_truth_started_o
 def test_colored_filters_started_from_measurements_converge_to_the_truth_started_error(tmp_path):
     """After start-up the measurement start's position RMSE is the truth start's within Monte
     Carlo error (paired over runs), for every filter; early on it is worse (the start matters)."""
-    from recorders.scenarios import load_scenario
-    from recorders.simulated import record
-    from pipeline.replay import replay
+    from trackreplay.recorders.scenarios import load_scenario
+    from trackreplay.recorders.simulated import record
+    from trackreplay.replay import replay
 
     full = tmp_path / "full.mcap"
     record(full, load_scenario("colored-imm").with_overrides(

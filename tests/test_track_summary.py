@@ -11,9 +11,9 @@ import polars as pl
 import pytest
 from click.testing import CliRunner
 
-from evaluators.track_summary import METRICS, mean_nis_bounds, track_life, track_summary
-from pipeline import vocabulary as vocab
-from pipeline.face.cli import main
+from trackreplay.evaluators.track_summary import METRICS, mean_nis_bounds, track_life, track_summary
+from trackreplay import vocabulary as vocab
+from trackreplay.face.cli import main
 
 N, I, C, D = vocab.NO_TRACK, vocab.INITIALISING, vocab.COASTED, vocab.DELETED
 

@@ -1,6 +1,6 @@
 """A plugged tracker cannot decide for the tool (issue 30, item 5).
 
-A plugged tracker runs in a child process (:mod:`pipeline.isolation`): one that ends its
+A plugged tracker runs in a child process (:mod:`trackreplay.isolation`): one that ends its
 process (``os._exit``) in its constructor, in ``track()`` or in ``track_run()``, or that never
 returns, is that tracker's failure: one line naming it, the other trackers' outputs written,
 exit 2. A plugged file whose import ends the process or hangs is one line naming the file.
@@ -23,8 +23,8 @@ import numpy as np
 import psutil
 import pytest
 
-from pipeline.contract import read_dataset
-from pipeline.isolation import ChildEnded, ChildRaised, ChildTimedOut, run_in_child, run_plugged_tracker
+from trackreplay.contract import read_dataset
+from trackreplay.isolation import ChildEnded, ChildRaised, ChildTimedOut, run_in_child, run_plugged_tracker
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -32,7 +32,7 @@ TRACKERS = '''
 import os, sys, time
 from pathlib import Path
 import numpy as np
-from pipeline.trackers.interface import Tracker
+from trackreplay.trackers.interface import Tracker
 
 
 def first_plot_states(plots):
@@ -93,7 +93,7 @@ class SleepsForever(Tracker):
 
 def replay(args, cwd, timeout=120, env=None):
     """``replay ARGS`` from the source tree as a subprocess: (exit status, stdout, stderr)."""
-    cmd = [sys.executable, "-c", "import sys; sys.argv[0] = 'replay'; from pipeline.face.cli import main; main()",
+    cmd = [sys.executable, "-c", "import sys; sys.argv[0] = 'replay'; from trackreplay.face.cli import main; main()",
            *map(str, args)]
     env = {**os.environ, "PYTHONPATH": str(REPO), **(env or {})}
     done = subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout)
@@ -161,7 +161,7 @@ def test_a_plugged_file_whose_import_ends_or_hangs_is_one_line_naming_it(radar_s
 def test_ctrl_c_stops_the_replay_and_the_plugged_trackers_process(radar_small, trackers_file, tmp_path):
     """SIGINT to the process group, as a terminal sends it, while a plugged tracker runs."""
     started = tmp_path / "started"
-    cmd = [sys.executable, "-c", "import sys; sys.argv[0] = 'replay'; from pipeline.face.cli import main; main()",
+    cmd = [sys.executable, "-c", "import sys; sys.argv[0] = 'replay'; from trackreplay.face.cli import main; main()",
            str(radar_small), "--tracker", f"{trackers_file}:SleepsForever", "--no-rrd", "--out", "o/tracks.mcap",
            "--figures", "none", "-q"]
     env = {**os.environ, "PYTHONPATH": str(REPO), "TRACKER_STARTED": str(started)}
@@ -190,7 +190,7 @@ def test_ctrl_c_stops_the_replay_and_the_plugged_trackers_process(radar_small, t
 def test_a_plugged_trackers_child_dies_with_a_killed_replay(radar_small, trackers_file, tmp_path):
     """SIGKILL of the replay itself: no handler runs, the kernel ends the tracker's process."""
     started = tmp_path / "started"
-    cmd = [sys.executable, "-c", "import sys; sys.argv[0] = 'replay'; from pipeline.face.cli import main; main()",
+    cmd = [sys.executable, "-c", "import sys; sys.argv[0] = 'replay'; from trackreplay.face.cli import main; main()",
            str(radar_small), "--tracker", f"{trackers_file}:SleepsForever", "--no-rrd", "--out", "o/tracks.mcap",
            "--figures", "none", "-q"]
     env = {**os.environ, "PYTHONPATH": str(REPO), "TRACKER_STARTED": str(started)}
@@ -227,9 +227,9 @@ def test_arrays_come_back_equal_and_writable():
 
 def test_a_plugged_trackers_outputs_through_the_child_equal_a_call_here(radar_small):
     """The child changes where the tracker runs, not what comes back: bit for bit."""
-    from pipeline.stages import applicable_stages
-    from pipeline.trackers.interface import call_tracker
-    from pipeline.trackers.radar_tws import TRACKERS as RADAR
+    from trackreplay.stages import applicable_stages
+    from trackreplay.trackers.interface import call_tracker
+    from trackreplay.trackers.radar_tws import TRACKERS as RADAR
 
     ds = read_dataset(radar_small)
     stage = next(s for s in applicable_stages(ds.channels) if s.family == "radar-plots")
@@ -245,7 +245,7 @@ def test_a_plugged_trackers_outputs_through_the_child_equal_a_call_here(radar_sm
 
 
 def test_what_the_child_raises_comes_back_with_its_file():
-    from pipeline.trackers.interface import TrackerError
+    from trackreplay.trackers.interface import TrackerError
 
     def fails():
         raise TrackerError("tracker 'x': run 3 scan 4: NaN state", "my_file.py")

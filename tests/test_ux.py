@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.face import cli_eval, cli_text, progress
-from pipeline.face.cli import main
+from trackreplay.face import cli_eval, cli_text, progress
+from trackreplay.face.cli import main
 
 SMALL_RADAR = ["--set", "n_scans=16"]
 
@@ -23,9 +23,9 @@ def invoke(runner, *args):
 @pytest.fixture(scope="module")
 def radar(tmp_path_factory):
     """A small radar data set and its replay output (written through the Python API)."""
-    from pipeline.replay import replay
-    from recorders.scenarios import load_scenario
-    from recorders.simulated import record
+    from trackreplay.replay import replay
+    from trackreplay.recorders.scenarios import load_scenario
+    from trackreplay.recorders.simulated import record
 
     folder = tmp_path_factory.mktemp("ux")
     data = folder / "radar.mcap"
@@ -331,7 +331,7 @@ def test_foxglove_export_is_plain_json_in_mcap(runner, tmp_path, radar):
     # the metrics are the replay's per-scan metrics
     import polars as pl
 
-    from pipeline.replay import evaluate_files
+    from trackreplay.replay import evaluate_files
 
     per_scan = evaluate_files(data, tracks).per_scan.filter(pl.col("tracker") == "kalman").sort("scan")
     rmse = [m["rmse_position_m"] for _, _, m in messages["/metrics/kalman"]]
@@ -369,7 +369,7 @@ def test_foxglove_export_runs_and_refusals(runner, tmp_path, radar, sha):
 def test_view_of_a_data_set_opens_the_recording_of_its_replay(runner, tmp_path, monkeypatch, radar):
     """`replay view DATA.mcap` shows the family's views (a recording with the tracks, built in a
     scratch folder), not the raw file the viewer would show as an empty view."""
-    import pipeline.face.viewer as viewer
+    import trackreplay.face.viewer as viewer
 
     data, _ = radar
     opened = []
@@ -383,7 +383,7 @@ def test_view_of_a_data_set_opens_the_recording_of_its_replay(runner, tmp_path, 
 
 
 def test_view_of_a_replay_output_without_its_recording_says_what_to_do(runner, tmp_path, radar):
-    from pipeline.replay import replay
+    from trackreplay.replay import replay
 
     data, _ = radar
     out = tmp_path / "r" / "tracks.mcap"
@@ -406,7 +406,7 @@ def test_on_a_pseudo_terminal_bars_go_to_stderr_and_json_stays_pure(tmp_path, ra
     def run(*extra):
         leader, follower = pty.openpty()
         try:
-            done = subprocess.run([sys.executable, "-c", "from pipeline.face.cli import main; main()", "eval", str(data),
+            done = subprocess.run([sys.executable, "-c", "from trackreplay.face.cli import main; main()", "eval", str(data),
                                    "--json", *extra], stdout=subprocess.PIPE, stderr=follower, cwd=tmp_path,
                                   timeout=120, env={**os.environ, "COLUMNS": "100"})
             os.close(follower)

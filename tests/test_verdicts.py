@@ -8,7 +8,7 @@ import math
 import polars as pl
 import pytest
 
-from evaluators.verdicts import consistency_verdict, tracker_verdicts
+from trackreplay.evaluators.verdicts import consistency_verdict, tracker_verdicts
 
 
 @pytest.mark.parametrize("value, low, high, verdict", [
@@ -39,7 +39,7 @@ def test_nees_decides_before_nis_and_a_tracker_without_either_is_untestable():
 
 
 def test_replay_prints_the_verdicts_first(runner, demo_mcap):
-    from pipeline.face.cli import main
+    from trackreplay.face.cli import main
 
     res = runner.invoke(main, [str(demo_mcap), "--no-rrd", "--figures", "none", "--out", "o/t.mcap"])
     assert res.exit_code == 0, res.output
@@ -57,11 +57,11 @@ def test_a_tracker_following_clutter_is_called_implausible_in_plain_words(runner
     """A recording of many targets among clutter, without truth, replayed by the papers'
     single-target trackers without a gate: their tracks jump between plots, and the verdict says
     so instead of printing a healthy track summary (issue 28)."""
-    from pipeline.face.cli import main
-    from recorders.radar_multi import simulate
-    from recorders.scenarios import load_scenario
-    from recorders.simulated import write_simulated
-    from pipeline.contract import scenario_metadata
+    from trackreplay.face.cli import main
+    from trackreplay.recorders.radar_multi import simulate
+    from trackreplay.recorders.scenarios import load_scenario
+    from trackreplay.recorders.simulated import write_simulated
+    from trackreplay.contract import scenario_metadata
 
     params = dict(load_scenario("radar-multi").params, n_scans=40)
     data = simulate(params, 2, 5)
@@ -77,7 +77,7 @@ def test_a_tracker_following_clutter_is_called_implausible_in_plain_words(runner
 
 
 def test_the_bundled_demo_has_no_implausible_tracker(demo_mcap):
-    from pipeline.replay import replay
+    from trackreplay.replay import replay
 
     table = tracker_verdicts(replay(demo_mcap).summary)
     assert "implausible" not in table["verdict"].to_list() and set(table["note"].to_list()) == {""}

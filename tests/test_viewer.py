@@ -3,7 +3,7 @@
 import numpy as np
 from click.testing import CliRunner
 
-from pipeline.face.cli import main
+from trackreplay.face.cli import main
 
 
 def test_headless_screenshot_is_not_blank(tmp_path, demo_mcap, monkeypatch):

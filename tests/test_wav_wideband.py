@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from pipeline.contract import read_dataset
-from pipeline.cores.array import wideband_count as wc
-from pipeline.face.cli import main
-from pipeline.replay import replay
+from trackreplay.contract import read_dataset
+from trackreplay.cores.array import wideband_count as wc
+from trackreplay.face.cli import main
+from trackreplay.replay import replay
 
 FS, M, SPACING_M, C = 16000, 8, 0.1, 343.0   # 0.7 m aperture; d = λ/2 at 1715 Hz
 FREQUENCY_HZ = 1700.0                         # its bin: 1687.5 Hz at the default nfft = 512

@@ -8,14 +8,14 @@ import polars as pl
 import pytest
 from click.testing import CliRunner
 
-from evaluators.baselines import compare, read_baseline
-from pipeline.face.cli import main
-from pipeline.contract import read_dataset, scenario_metadata
-from pipeline.cores.association.jpda import FLAG_COASTED
-from pipeline.replay import replay
-from recorders import xcorr_peaks
-from recorders.scenarios import load_scenario
-from recorders.simulated import SimulatedData, write_simulated
+from trackreplay.evaluators.baselines import compare, read_baseline
+from trackreplay.face.cli import main
+from trackreplay.contract import read_dataset, scenario_metadata
+from trackreplay.cores.association.jpda import FLAG_COASTED
+from trackreplay.replay import replay
+from trackreplay.recorders import xcorr_peaks
+from trackreplay.recorders.scenarios import load_scenario
+from trackreplay.recorders.simulated import SimulatedData, write_simulated
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from pipeline.face.cli import main
-from pipeline.cores.association.peak_model_fit import fit_peak_model
-from recorders import xcorr_peaks, xcorr_signals
-from recorders.scenarios import load_scenario
-from recorders.simulated import record
+from trackreplay.face.cli import main
+from trackreplay.cores.association.peak_model_fit import fit_peak_model
+from trackreplay.recorders import xcorr_peaks, xcorr_signals
+from trackreplay.recorders.scenarios import load_scenario
+from trackreplay.recorders.simulated import record
 
 TOL = {"clutter_per_gate": 0.05, "sigma_p_deg": 0.05, "amplitude_mean": 0.02, "amplitude_std": 0.05,
        "clutter_alpha": 0.05}

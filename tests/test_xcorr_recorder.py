@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from pipeline.errors import InputError
-from recorders import xcorr_peaks, xcorr_signals
-from recorders.scenarios import load_scenario
-from recorders.simulated import record
+from trackreplay.errors import InputError
+from trackreplay.recorders import xcorr_peaks, xcorr_signals
+from trackreplay.recorders.scenarios import load_scenario
+from trackreplay.recorders.simulated import record
 
 ALPHA = 0.01
 

@@ -2,7 +2,7 @@
 
 Kim et al. (2013), Figs. 5–6 (CEP from the CRLB, eqs. 18–22); see ``docs/papers/tdoa-fdoa.md``.
 
-Rendering only; the numbers come from :func:`pipeline.cores.localisation.cep_plane.cep_plane`. Grid points where
+Rendering only; the numbers come from :func:`trackreplay.cores.localisation.cep_plane.cep_plane`. Grid points where
 the bound does not exist are left blank (PNG) or 0 (Rerun depth image, shown as no data).
 """
 
@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.cores.localisation.cep_plane import POSITION_CONTOURS_M, VELOCITY_CONTOURS_MPS, CepPlane
+from trackreplay.cores.localisation.cep_plane import POSITION_CONTOURS_M, VELOCITY_CONTOURS_MPS, CepPlane
 
 PANELS = (("position_m", "position CEP (m)", POSITION_CONTOURS_M),
           ("velocity_mps", "velocity CEP (m/s)", VELOCITY_CONTOURS_MPS))
@@ -30,7 +30,7 @@ def write_cep_png(plane: CepPlane, path: str | Path, sensors=None, emitter=None,
     import matplotlib.pyplot as plt
     from matplotlib.colors import LogNorm
 
-    from evaluators.report_plots import save_figure
+    from trackreplay.evaluators.report_plots import save_figure
 
     panels = _panels(plane)
     fig, axes = plt.subplots(1, len(panels), figsize=(6.2 * len(panels), 5.4), squeeze=False)

@@ -3,7 +3,7 @@
 ``replay DATA.mcap`` replays a data set (``replay`` alone replays the bundled demo); the other
 commands simulate, convert, evaluate, check against baselines, sweep parameters, view and
 export. User errors print one line and exit with status 2; only bugs show a traceback. Progress
-bars go to stderr, only when it is a terminal (:mod:`pipeline.face.progress`); results go to
+bars go to stderr, only when it is a terminal (:mod:`trackreplay.face.progress`); results go to
 stdout.
 
 This module holds the ``replay`` group itself (how a first argument is read, how errors become
@@ -26,20 +26,20 @@ from pathlib import Path
 # imported, which the command line does lazily, after this line; a value the user set stands.
 os.environ.setdefault("NUMPY_MADVISE_HUGEPAGE", "0")
 # the Rerun SDK logs its own failures (a full disk, say) as lines on stderr; they reach the user
-# as the one line naming the file (pipeline.paths.disk_error), so its log stays off unless asked
+# as the one line naming the file (trackreplay.paths.disk_error), so its log stays off unless asked
 os.environ.setdefault("RUST_LOG", "off")
 
 import click
 
-from pipeline.face import lazy_imports
+from trackreplay.face import lazy_imports
 
 lazy_imports.defer()  # numpy.f2py, which scipy's import pulls in for nothing: 0.08–0.15 s of every replay
 
-from pipeline import __version__
-from pipeline.errors import InputError
-from pipeline.face import progress
-from pipeline.face.cli_common import InternalError, UserError
-from pipeline.face.cli_data import convert_group
+from trackreplay import __version__
+from trackreplay.errors import InputError
+from trackreplay.face import progress
+from trackreplay.face.cli_common import InternalError, UserError
+from trackreplay.face.cli_data import convert_group
 
 
 class ReplayGroup(click.Group):
@@ -87,7 +87,7 @@ class ReplayGroup(click.Group):
         except (click.ClickException, click.exceptions.Exit, click.exceptions.Abort):
             raise
         except Exception as exc:  # a bug of ours: one line for the user, the traceback with --verbose
-            from pipeline.face import progress
+            from trackreplay.face import progress
 
             if progress.verbose():
                 raise
@@ -181,27 +181,27 @@ def help_cmd(ctx, command):
 # The commands, one module per group of them; each exposes COMMANDS, added to `replay` (the
 # modules never import this one: the group, its error handling and `help` live here alone)
 COMMAND_MODULES: tuple[str, ...] = (
-    "pipeline.face.cli_run",       # run (what `replay DATA.mcap` means)
-    "pipeline.face.cli_data",      # simulate, scenarios, convert
-    "pipeline.face.cli_eval",      # eval, plot, compare, check
-    "pipeline.face.cli_sweep",     # sweep
-    "pipeline.face.cli_trackers",  # trackers
-    "pipeline.face.cli_export",    # view, export
+    "trackreplay.face.cli_run",       # run (what `replay DATA.mcap` means)
+    "trackreplay.face.cli_data",      # simulate, scenarios, convert
+    "trackreplay.face.cli_eval",      # eval, plot, compare, check
+    "trackreplay.face.cli_sweep",     # sweep
+    "trackreplay.face.cli_trackers",  # trackers
+    "trackreplay.face.cli_export",    # view, export
 )
 
 # Paper-specific commands (e.g. `replay crlb`) live next to their paper's code; each module
 # listed here exposes COMMANDS, a list of click commands added to `replay`, and may expose
 # CONVERT_COMMANDS, added under `replay convert` (the modules never import this one: no circle).
 EXTENSION_MODULES: tuple[str, ...] = (
-    "pipeline.face.cli_emitter",
-    "pipeline.face.cli_colored_noise",
-    "pipeline.face.cli_xcorr",
-    "pipeline.face.cli_array",
-    "pipeline.face.cli_convert_upgrade",
-    "pipeline.face.cli_convert_tables",
-    "pipeline.face.cli_convert_foreign",
-    "pipeline.face.cli_info",
-    # one line per module: "pipeline.cli_<paper>",
+    "trackreplay.face.cli_emitter",
+    "trackreplay.face.cli_colored_noise",
+    "trackreplay.face.cli_xcorr",
+    "trackreplay.face.cli_array",
+    "trackreplay.face.cli_convert_upgrade",
+    "trackreplay.face.cli_convert_tables",
+    "trackreplay.face.cli_convert_foreign",
+    "trackreplay.face.cli_info",
+    # one line per module: "trackreplay.cli_<paper>",
 )
 
 

@@ -2,7 +2,7 @@
 of the array-snapshot bearing trackers (Ryu, Lee & Lee 2001; ``docs/papers/array-bearing.md``).
 
 Registered under the existing ``replay convert`` group (this module is listed in
-``pipeline.face.cli.EXTENSION_MODULES``; its CONVERT_COMMANDS join the group).
+``trackreplay.face.cli.EXTENSION_MODULES``; its CONVERT_COMMANDS join the group).
 """
 
 from __future__ import annotations
@@ -48,9 +48,9 @@ def array_wav_cmd(wav_path, output, spacing_m, frequency_hz, sound_speed_mps, nf
       replay rec.mcap                       # follows the counted sources
       replay rec.mcap --set n_sources=2     # or a number of your own
     """
-    from recorders.wav_array import convert_array_wav
+    from trackreplay.recorders.wav_array import convert_array_wav
 
-    from pipeline.paths import refuse_input_overwrite, refuse_replacing_file
+    from trackreplay.paths import refuse_input_overwrite, refuse_replacing_file
 
     refuse_input_overwrite([wav_path], [output])
     refuse_replacing_file(output, force)
@@ -74,7 +74,7 @@ def array_wav_cmd(wav_path, output, spacing_m, frequency_hz, sound_speed_mps, nf
 
 def _band(text):
     """``LOW,HIGH`` → two floats (None when the option is absent)."""
-    from pipeline.errors import InputError
+    from trackreplay.errors import InputError
 
     if text is None:
         return None
@@ -87,4 +87,4 @@ def _band(text):
         raise InputError(f"--band-hz must be LOW,HIGH in Hz (e.g. 1500,1900), got {text!r}") from None
 
 
-CONVERT_COMMANDS = [array_wav_cmd]  # added under `replay convert` by pipeline.face.cli
+CONVERT_COMMANDS = [array_wav_cmd]  # added under `replay convert` by trackreplay.face.cli

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import click
 
-from pipeline.errors import InputError
+from trackreplay.errors import InputError
 
 
 @click.command("colored-report")
@@ -30,11 +30,11 @@ def colored_report_cmd(data, outputs, out_dir):
     """
     import polars as pl
 
-    from evaluators.colored_noise_imm import write_figures
-    from pipeline import vocabulary as vocab
-    from pipeline.contract import atomic_output
-    from pipeline.replay import evaluate_files
-    from pipeline.stages.colored_noise_imm import ColoredNoiseImmStage
+    from trackreplay.evaluators.colored_noise_imm import write_figures
+    from trackreplay import vocabulary as vocab
+    from trackreplay.contract import atomic_output
+    from trackreplay.replay import evaluate_files
+    from trackreplay.stages.colored_noise_imm import ColoredNoiseImmStage
 
     stage = ColoredNoiseImmStage()
     res = evaluate_files(data, outputs)

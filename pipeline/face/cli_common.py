@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from pipeline.errors import InputError
+from trackreplay.errors import InputError
 
 
 DEMO_NAME = "radar_tws_demo.mcap"
@@ -83,7 +83,7 @@ def tracker_option(f):
 
 def tracker_time_limit_option(f):
     """``--tracker-time-limit SECONDS``: how long a plugged tracker may run (run and sweep)."""
-    from pipeline.isolation import DEFAULT_TRACKER_TIME_LIMIT_S
+    from trackreplay.isolation import DEFAULT_TRACKER_TIME_LIMIT_S
 
     return click.option("--tracker-time-limit", "tracker_time_limit_s", type=click.FloatRange(min=0),
                         default=DEFAULT_TRACKER_TIME_LIMIT_S, show_default=True, metavar="SECONDS",
@@ -106,8 +106,8 @@ def resolve_tracker_specs(specs, time_limit_s: float | None = None) -> list[str]
         A file, module or class that does not load, a class that is not a Tracker, an unknown
         name, or two trackers with one name.
     """
-    from pipeline.isolation import DEFAULT_TRACKER_TIME_LIMIT_S
-    from pipeline.registry import available_trackers
+    from trackreplay.isolation import DEFAULT_TRACKER_TIME_LIMIT_S
+    from trackreplay.registry import available_trackers
 
     limit = DEFAULT_TRACKER_TIME_LIMIT_S if time_limit_s is None else time_limit_s
     out = []

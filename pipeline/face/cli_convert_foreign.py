@@ -2,7 +2,7 @@
 messages), mapped onto a measurement family by a small TOML file.
 
 Registered under the existing ``replay convert`` group (this module is listed in
-``pipeline.face.cli.EXTENSION_MODULES``; its CONVERT_COMMANDS join the group). ``replay FOREIGN.mcap
+``trackreplay.face.cli.EXTENSION_MODULES``; its CONVERT_COMMANDS join the group). ``replay FOREIGN.mcap
 --map MAP.toml`` converts through :func:`convert_for_replay` and replays the result.
 """
 
@@ -62,9 +62,9 @@ def convert_mcap_cmd(src, map_path, output, sets, force):
       replay convert mcap radar.mcap --map radar.toml -o ours.mcap --set sigma_range_m=50
       replay radar.mcap --map radar.toml           # convert and replay at once
     """
-    from pipeline.paths import refuse_input_overwrite, refuse_replacing_file
-    from recorders.foreign_mcap import convert_foreign_mcap
-    from recorders.scenarios import parse_assignments
+    from trackreplay.paths import refuse_input_overwrite, refuse_replacing_file
+    from trackreplay.recorders.foreign_mcap import convert_foreign_mcap
+    from trackreplay.recorders.scenarios import parse_assignments
 
     refuse_input_overwrite([src, map_path], [output])
     refuse_replacing_file(output, force)
@@ -80,9 +80,9 @@ def convert_mcap_cmd(src, map_path, output, sets, force):
 def _sensor_line(data: Path, family: str) -> str:
     """Which sensor values the converted data set records (from the mapping file's [sensor] or
     --set) and which it leaves unknown, read back from what was written."""
-    from pipeline.contract import read_dataset
-    from pipeline.sensor_values import recorded_sources
-    from recorders.tables import sensor_summary
+    from trackreplay.contract import read_dataset
+    from trackreplay.sensor_values import recorded_sources
+    from trackreplay.recorders.tables import sensor_summary
 
     record = read_dataset(data).scenario
     return sensor_summary(family, record.get("params", {}), recorded_sources(record))
@@ -91,7 +91,7 @@ def _sensor_line(data: Path, family: str) -> str:
 def convert_for_replay(src: Path, map_path: Path) -> Path:
     """Convert ``src`` through ``map_path`` into a temporary data set named after ``src``, for
     ``replay FOREIGN.mcap --map MAP.toml``; the folder goes when the command ends."""
-    from recorders.foreign_mcap import convert_foreign_mcap
+    from trackreplay.recorders.foreign_mcap import convert_foreign_mcap
 
     scratch = Path(click.get_current_context().with_resource(tempfile.TemporaryDirectory(prefix="replay-map-")))
     out = scratch / f"{src.stem}.mcap"
@@ -102,4 +102,4 @@ def convert_for_replay(src: Path, map_path: Path) -> Path:
     return out
 
 
-CONVERT_COMMANDS = [convert_mcap_cmd]  # added under `replay convert` by pipeline.face.cli
+CONVERT_COMMANDS = [convert_mcap_cmd]  # added under `replay convert` by trackreplay.face.cli

@@ -2,9 +2,9 @@
 data sets, and ``replay export --table``'s writing of them the other way.
 
 Registered under the existing ``replay convert`` group (this module is listed in
-``pipeline.face.cli.EXTENSION_MODULES``; its CONVERT_COMMANDS join the group). ``plots-csv``, the
+``trackreplay.face.cli.EXTENSION_MODULES``; its CONVERT_COMMANDS join the group). ``plots-csv``, the
 earlier name of ``plots``, stays as an alias. The formats, the checks and the numbers are in
-:mod:`recorders.tables`; the help texts are written from its ``TABLE_FORMATS``.
+:mod:`trackreplay.recorders.tables`; the help texts are written from its ``TABLE_FORMATS``.
 """
 
 from __future__ import annotations
@@ -44,9 +44,9 @@ def _column_lines(columns, indent: str = "  ") -> list[str]:
 
 
 def format_help(family: str, command: str) -> str:
-    """The --help text of a table converter, from the family's :data:`recorders.tables.TABLE_FORMATS` entry."""
-    from pipeline.sensor_values import SENSOR_KEYS
-    from recorders.tables import TABLE_FORMATS, scenario_of
+    """The --help text of a table converter, from the family's :data:`trackreplay.recorders.tables.TABLE_FORMATS` entry."""
+    from trackreplay.sensor_values import SENSOR_KEYS
+    from trackreplay.recorders.tables import TABLE_FORMATS, scenario_of
 
     fmt = TABLE_FORMATS[family]
     sample, sensors = SAMPLES[family]
@@ -110,9 +110,9 @@ def _convert_command(name: str, family: str, alias_of: str | None = None) -> cli
     ]
 
     def callback(table_path, output, sets, force, sensors_path=None):
-        from pipeline.paths import refuse_input_overwrite, refuse_replacing_file
-        from recorders.scenarios import parse_assignments
-        from recorders.tables import convert_table, sensor_summary
+        from trackreplay.paths import refuse_input_overwrite, refuse_replacing_file
+        from trackreplay.recorders.scenarios import parse_assignments
+        from trackreplay.recorders.tables import convert_table, sensor_summary
 
         refuse_input_overwrite([table_path, sensors_path], [output])
         refuse_replacing_file(output, force)
@@ -132,10 +132,10 @@ def _convert_command(name: str, family: str, alias_of: str | None = None) -> cli
 def export_tables(data: Path, out_dir: Path, fmt: str, recover: bool, force: bool) -> None:
     """``replay export --table``: every family's input channels of ``data`` as tables in ``out_dir``,
     written as a set (all files or none)."""
-    from pipeline.contract import read_dataset
-    from pipeline.errors import InputError
-    from pipeline.paths import OutputSet, refuse_input_overwrite, refuse_replacing_file
-    from recorders.tables import TABLE_FORMATS, exportable_families, table_file_names, tables_from_dataset, write_table
+    from trackreplay.contract import read_dataset
+    from trackreplay.errors import InputError
+    from trackreplay.paths import OutputSet, refuse_input_overwrite, refuse_replacing_file
+    from trackreplay.recorders.tables import TABLE_FORMATS, exportable_families, table_file_names, tables_from_dataset, write_table
 
     if out_dir.exists() and not out_dir.is_dir():
         raise InputError("is a file; --table writes its tables into a folder", out_dir)
@@ -178,5 +178,5 @@ TABLE_COMMANDS = {
     "tdoa-fdoa": ("tdoa-fdoa", None),
     "positions": ("colored-position", None),
 }
-# added under `replay convert` by pipeline.face.cli
+# added under `replay convert` by trackreplay.face.cli
 CONVERT_COMMANDS = [_convert_command(name, family, alias_of) for name, (family, alias_of) in TABLE_COMMANDS.items()]

@@ -1,7 +1,7 @@
 """``replay convert upgrade``: rewrite an MCAP file of an older contract in the current one.
 
 Registered under the existing ``replay convert`` group (this module is listed in
-``pipeline.face.cli.EXTENSION_MODULES``; its CONVERT_COMMANDS join the group).
+``trackreplay.face.cli.EXTENSION_MODULES``; its CONVERT_COMMANDS join the group).
 """
 
 from __future__ import annotations
@@ -31,8 +31,8 @@ def upgrade_cmd(src, output, recover, force):
       replay convert upgrade old.mcap -o new.mcap
       replay convert upgrade cut.mcap -o kept.mcap --recover
     """
-    from pipeline.contract import rewrite_dataset
-    from pipeline.paths import refuse_input_overwrite, refuse_replacing_file
+    from trackreplay.contract import rewrite_dataset
+    from trackreplay.paths import refuse_input_overwrite, refuse_replacing_file
 
     refuse_input_overwrite([src], [output])
     refuse_replacing_file(output, force)
@@ -44,4 +44,4 @@ def upgrade_cmd(src, output, recover, force):
         click.echo(f"recovered the intact chunks of {src}: {rep.problem}")
 
 
-CONVERT_COMMANDS = [upgrade_cmd]  # added under `replay convert` by pipeline.face.cli
+CONVERT_COMMANDS = [upgrade_cmd]  # added under `replay convert` by trackreplay.face.cli

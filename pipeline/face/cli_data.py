@@ -8,10 +8,10 @@ from pathlib import Path
 
 import click
 
-from pipeline.face import progress
-from pipeline.face.cli_common import _parameter_options, force_option
-from pipeline.face.cli_text import TABLE_WIDTH, _format_value, _wrap_cells
-from pipeline.paths import refuse_input_overwrite, refuse_replacing_file
+from trackreplay.face import progress
+from trackreplay.face.cli_common import _parameter_options, force_option
+from trackreplay.face.cli_text import TABLE_WIDTH, _format_value, _wrap_cells
+from trackreplay.paths import refuse_input_overwrite, refuse_replacing_file
 
 
 @click.command("simulate", context_settings={"ignore_unknown_options": True, "allow_extra_args": True})
@@ -32,10 +32,10 @@ def simulate_cmd(ctx, scenario, runs, seed, output, sets, force):
       replay simulate radar-tws --runs 500 --seed 7 -o radar.mcap --set sigma_bearing_deg=0.5
       replay simulate tdoa-fdoa --geometry line --emitter 1 --runs 1000 -o emitter.mcap
     """
-    from recorders import recorder_module
-    from recorders.scenarios import load_scenario, parse_assignments
-    from recorders.simulated import write_simulated
-    from pipeline.contract import scenario_metadata
+    from trackreplay.recorders import recorder_module
+    from trackreplay.recorders.scenarios import load_scenario, parse_assignments
+    from trackreplay.recorders.simulated import write_simulated
+    from trackreplay.contract import scenario_metadata
 
     sc = load_scenario(scenario).with_overrides({**_parameter_options(ctx.args), **parse_assignments(sets)})
     rec = recorder_module(sc.recorder)
@@ -68,7 +68,7 @@ def scenarios_cmd(name):
       replay scenarios radar-tws
       replay simulate radar-tws --set sigma_bearing_deg=0.5 -o radar.mcap
     """
-    from recorders.scenarios import available_scenarios, load_scenario, parameter_docs, parameter_unit
+    from trackreplay.recorders.scenarios import available_scenarios, load_scenario, parameter_docs, parameter_unit
 
     if name is None:
         rows = []

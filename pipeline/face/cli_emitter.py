@@ -4,8 +4,8 @@ Both read the ``tdoa-fdoa`` scenario (presets ``--geometry line|triangle``, ``--
 any parameter with ``--set name=value``), so a bound and a simulated data set always describe
 the same configuration. Kim et al. (2013), eqs. 18–22 and Figs. 5–6; see
 ``docs/papers/tdoa-fdoa.md``. The face holds no numerics: the numbers come from
-:mod:`pipeline.cores.localisation.tdoa_fdoa_crlb` and :mod:`pipeline.cores.localisation.cep_plane`,
-the pictures from :mod:`pipeline.face.cep_plane_views`.
+:mod:`trackreplay.cores.localisation.tdoa_fdoa_crlb` and :mod:`trackreplay.cores.localisation.cep_plane`,
+the pictures from :mod:`trackreplay.face.cep_plane_views`.
 """
 
 from __future__ import annotations
@@ -17,15 +17,15 @@ from pathlib import Path
 
 import click
 
-from pipeline.errors import InputError
-from pipeline.paths import refuse_input_overwrite
+from trackreplay.errors import InputError
+from trackreplay.paths import refuse_input_overwrite
 
 ESTIMATORS = ("joint", "tdoa", "fdoa")
 
 
 def _scenario(name, geometry, emitter, sets):
-    from recorders.scenarios import load_scenario, parse_assignments
-    from recorders.tdoa_fdoa import resolve
+    from trackreplay.recorders.scenarios import load_scenario, parse_assignments
+    from trackreplay.recorders.tdoa_fdoa import resolve
 
     overrides = parse_assignments(sets)
     if geometry is not None:
@@ -38,8 +38,8 @@ def _scenario(name, geometry, emitter, sets):
 
 def crlb_summary(es, epoch: int = 0, kind: str = "joint", stationary: bool = False, probability: float = 0.5) -> dict:
     """CRLB, projections, slices, ellipses and CEPs of one resolved scenario epoch (plain numbers):
-    :func:`pipeline.cores.localisation.tdoa_fdoa_crlb.crlb_summary` at that epoch's geometry."""
-    from pipeline.cores.localisation.tdoa_fdoa_crlb import crlb_summary as summary
+    :func:`trackreplay.cores.localisation.tdoa_fdoa_crlb.crlb_summary` at that epoch's geometry."""
+    from trackreplay.cores.localisation.tdoa_fdoa_crlb import crlb_summary as summary
 
     if not 0 <= epoch < len(es.times):
         raise InputError(f"epoch {epoch} outside 0..{len(es.times) - 1}")
@@ -150,8 +150,8 @@ def cep_plane_cmd(sets, scenario, estimator, emitter, geometry, extent_km, step_
       replay cep-plane --geometry triangle --extent-km 50 --step-m 500
       replay cep-plane --geometry line --cep paper -o line.png --no-rrd
     """
-    from pipeline.cores.localisation.cep_plane import cep_plane, cep_plane_areas, grid_axis
-    from pipeline.face.cep_plane_views import log_cep_plane, write_cep_png
+    from trackreplay.cores.localisation.cep_plane import cep_plane, cep_plane_areas, grid_axis
+    from trackreplay.face.cep_plane_views import log_cep_plane, write_cep_png
 
     if not (extent_km > 0 and step_m > 0 and math.isfinite(extent_km) and math.isfinite(step_m)):
         raise InputError("--extent-km and --step-m must be positive")
@@ -163,7 +163,7 @@ def cep_plane_cmd(sets, scenario, estimator, emitter, geometry, extent_km, step_
         raise InputError(f"grid of {axis.size} × {axis.size} points is too large (at most {MAX_GRID_POINTS}); "
                          "increase --step-m or reduce --extent-km")
     stationary = bool(sc.params["stationary_emitter"])
-    from pipeline.cores.localisation.tdoa_fdoa_model import underdetermined_reason
+    from trackreplay.cores.localisation.tdoa_fdoa_model import underdetermined_reason
 
     reason = underdetermined_reason(estimator, es.pairs, es.sensor_pos.shape[1], stationary)
     if reason:
@@ -189,7 +189,7 @@ def cep_plane_cmd(sets, scenario, estimator, emitter, geometry, extent_km, step_
     click.echo(f"  no CRLB at {int(plane.singular.sum())} grid point(s) (on a sensor or collinear with sensors)")
     click.echo(f"png:       {png}")
     if rrd_path is not None:
-        from pipeline.face.timeline import recording
+        from trackreplay.face.timeline import recording
 
         rrd_path.parent.mkdir(parents=True, exist_ok=True)
         with recording(rrd_path, "trackreplay", f"cep-plane-{label}") as rec:

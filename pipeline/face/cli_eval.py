@@ -10,9 +10,9 @@ from pathlib import Path
 
 import click
 
-from pipeline.errors import InputError
-from pipeline.face import progress
-from pipeline.face.cli_common import (
+from trackreplay.errors import InputError
+from trackreplay.face import progress
+from trackreplay.face.cli_common import (
     EVALUATION_SET_HELP,
     EVALUATION_VALUES_EPILOG,
     _json_value,
@@ -24,15 +24,15 @@ from pipeline.face.cli_common import (
     resolve_tracker_specs,
     tracker_option,
 )
-from pipeline.face.cli_run import REPORT_FILES, _export_tables, _report_plot
-from pipeline.face.cli_text import (
+from trackreplay.face.cli_run import REPORT_FILES, _export_tables, _report_plot
+from trackreplay.face.cli_text import (
     _cell,
     _echo_wrapped,
     _list_outputs,
     _say,
     print_replay_report,
 )
-from pipeline.paths import OutputSet, refuse_input_overwrite
+from trackreplay.paths import OutputSet, refuse_input_overwrite
 
 
 @click.command("eval")
@@ -66,8 +66,8 @@ def eval_cmd(data, outputs, as_json, per_scan, export_dir, recover, trackers, se
     """
     import polars as pl
 
-    from pipeline.replay import evaluate_files, replay
-    from recorders.scenarios import parse_assignments
+    from trackreplay.replay import evaluate_files, replay
+    from trackreplay.recorders.scenarios import parse_assignments
 
     if tracker_specs and outputs is not None:
         raise InputError("--tracker applies when eval replays in memory (no OUTPUTS); the trackers of "
@@ -100,7 +100,7 @@ def eval_cmd(data, outputs, as_json, per_scan, export_dir, recover, trackers, se
     else:
         print_replay_report(res, data)
     if export_dir:
-        # the tables and figures as one set (pipeline.paths.OutputSet): all of them or none
+        # the tables and figures as one set (trackreplay.paths.OutputSet): all of them or none
         with progress.timed("export"), OutputSet(export_dir, replaces=REPORT_FILES, inputs=[data, outputs],
                                                  name="export", say=_say) as staged:
             tables = [staged.final(p) for p in _export_tables(res, staged.stage)]
@@ -125,11 +125,11 @@ def plot_cmd(data, outputs, recover):
     Example:
       replay plot radar.mcap replay-out/radar/tracks.mcap
     """
-    from pipeline.replay import replay_of_files
+    from trackreplay.replay import replay_of_files
 
     refuse_input_overwrite([data, outputs], [outputs.parent / n for n in REPORT_FILES if n.endswith(".png")])
     res = replay_of_files(data, outputs, recover=recover)
-    from pipeline.paths import link_into_set, set_version_folder
+    from trackreplay.paths import link_into_set, set_version_folder
 
     # outputs of a published set (links into its version folder): the figures join that set
     version = set_version_folder(outputs)
@@ -176,9 +176,9 @@ def compare_cmd(a_path, b_path, data_path, pairs, as_json, out_dir, recover, set
     """
     import polars as pl
 
-    from evaluators.compare import write_comparison_figure
-    from pipeline.replay import compare_files, format_evaluation_values
-    from recorders.scenarios import parse_assignments
+    from trackreplay.evaluators.compare import write_comparison_figure
+    from trackreplay.replay import compare_files, format_evaluation_values
+    from trackreplay.recorders.scenarios import parse_assignments
 
     overrides = parse_assignments(sets)
     parsed = []
@@ -217,9 +217,9 @@ def compare_cmd(a_path, b_path, data_path, pairs, as_json, out_dir, recover, set
         click.echo("verdicts: " + ", ".join(f"{r['verdict']} {r['count']}" for r in counts.iter_rows(named=True)))
     record = {"a": str(a_path), "b": str(b_path), "data": Path(cmp.dataset.path).name, "stage": cmp.stage.name,
               "evaluation": cmp.evaluation, "evaluation_set": list(cmp.evaluation_set)}
-    from pipeline.face.rerun_views import log_comparison
+    from trackreplay.face.rerun_views import log_comparison
 
-    # the tables, the figure and the recording as one set (pipeline.paths.OutputSet): all or none
+    # the tables, the figure and the recording as one set (trackreplay.paths.OutputSet): all or none
     with OutputSet(out_dir, inputs=[a_path, b_path, data_path], name="compare", say=_say) as staged:
         table.write_csv(staged.path("compare.csv"))
         table.write_parquet(staged.path("compare.parquet"),
@@ -269,8 +269,8 @@ def check_cmd(data_dir, update, sets, tracker_specs):
       replay check --tracker my_trackers.py:ConstantVelocity --update
       replay check --set assignment_gate_m=2000   # which metrics move with the gate
     """
-    from pipeline.check import UPDATE_WITH_SET, evaluation_values, run_check
-    from recorders.scenarios import parse_assignments
+    from trackreplay.check import UPDATE_WITH_SET, evaluation_values, run_check
+    from trackreplay.recorders.scenarios import parse_assignments
 
     evaluation = evaluation_values(parse_assignments(sets))
     if evaluation and update:
@@ -292,7 +292,7 @@ def check_cmd(data_dir, update, sets, tracker_specs):
         bar.set_label(label())
 
         def echo(line=""):
-            # one of these lines ends each data set (pipeline.check's report lines)
+            # one of these lines ends each data set (trackreplay.check's report lines)
             if line.split(" ", 1)[0] not in ("ok", "FAIL", "wrote", "skip"):
                 bar.echo(line)
                 return

@@ -8,10 +8,10 @@ from pathlib import Path
 
 import click
 
-from pipeline.errors import InputError
-from pipeline.face import progress
-from pipeline.face.cli_common import force_option
-from pipeline.paths import refuse_input_overwrite, refuse_replacing_file
+from trackreplay.errors import InputError
+from trackreplay.face import progress
+from trackreplay.face.cli_common import force_option
+from trackreplay.paths import refuse_input_overwrite, refuse_replacing_file
 
 
 @click.command("view")
@@ -33,7 +33,7 @@ def view_cmd(rrd, png, size):
     import shutil
     import tempfile
 
-    from pipeline.face.viewer import open_viewer, screenshot
+    from trackreplay.face.viewer import open_viewer, screenshot
 
     if not rrd.exists():
         raise InputError("no such recording", rrd)
@@ -56,8 +56,8 @@ def view_cmd(rrd, png, size):
 def _recording_of_mcap(path: Path, scratch: Path) -> Path:
     """The Rerun recording to show for an MCAP: a replay output's own (beside it), or, for a data
     set, the recording of replaying it (every tracker, written to ``scratch``)."""
-    from pipeline.contract import dataset_topics
-    from pipeline.replay import replay
+    from trackreplay.contract import dataset_topics
+    from trackreplay.replay import replay
 
     if any(t.startswith("/tracks/") for t in dataset_topics(path)):
         beside = path.with_suffix(".rrd")
@@ -108,12 +108,12 @@ def export_cmd(tracks, foxglove, table, table_format, output, runs_spec, data_pa
       replay export --foxglove r/tracks.mcap -o view.mcap --runs 0,1,2
       replay export --table data/radar_tws_demo.mcap -o tables/ --format parquet
     """
-    from pipeline.face.export_foxglove import export_foxglove
+    from trackreplay.face.export_foxglove import export_foxglove
 
     if foxglove and table:
         raise click.UsageError("choose one format: --foxglove or --table")
     if table:
-        from pipeline.face.cli_convert_tables import export_tables
+        from trackreplay.face.cli_convert_tables import export_tables
 
         if runs_spec or data_path:
             raise click.UsageError("--runs and --data belong to --foxglove; --table exports every run")

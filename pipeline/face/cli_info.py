@@ -4,7 +4,7 @@ Channels (runs, scans, frames, arrays), the time span, whether it carries truth,
 from (a simulation or a converted recording), and for every stage that applies the sensor values
 a replay would use with their source: the simulation's parameters, a converter flag, a mapping
 file, the data themselves, an estimate from the data, or *unknown* (a tracker that needs it then
-asks for ``--set NAME=VALUE``). The rules are in :mod:`pipeline.sensor_values`; this module only
+asks for ``--set NAME=VALUE``). The rules are in :mod:`trackreplay.sensor_values`; this module only
 gathers and prints them (``docs/importers.md``, "Sensor values").
 """
 
@@ -18,7 +18,7 @@ import click
 COMMANDS: list = []
 
 #: a field of bearings the recording does not give: the stage reads the whole of it
-#: (``pipeline.stages.bearing_peaks.field_deg``)
+#: (``trackreplay.stages.bearing_peaks.field_deg``)
 WHOLE_FIELD = {"bearing-peaks": {"field_min_deg": 0.0, "field_max_deg": 180.0}}
 
 #: sensor values of the TDOA/FDOA family live in its measurements, one per pair and epoch
@@ -45,8 +45,8 @@ def _sensor_values(dataset, stage) -> dict:
     """``{name: {"value", "source", "note"?}}``: the sensor values ``stage`` would use on ``dataset``."""
     import numpy as np
 
-    from pipeline import sensor_values as sv
-    from pipeline.stages.base import design_notes
+    from trackreplay import sensor_values as sv
+    from trackreplay.stages.base import design_notes
 
     out = {}
     family = stage.family
@@ -95,10 +95,10 @@ def _sensor_values(dataset, stage) -> dict:
 
 def dataset_info(path: Path, recover: bool = False) -> dict:
     """Everything ``replay info`` prints, as one JSON-ready dict."""
-    from pipeline import sensor_values as sv
-    from pipeline import vocabulary as vocab
-    from pipeline.contract import read_dataset
-    from pipeline.stages import applicable_stages
+    from trackreplay import sensor_values as sv
+    from trackreplay import vocabulary as vocab
+    from trackreplay.contract import read_dataset
+    from trackreplay.stages import applicable_stages
 
     dataset = read_dataset(path, recover=recover)
     record = dataset.scenario
@@ -186,7 +186,7 @@ def info_cmd(data, as_json, recover):
       replay info data/radar_tws_demo.mcap
       replay info rec.mcap --json
     """
-    from pipeline.errors import InputError
+    from trackreplay.errors import InputError
 
     if not data.exists():
         raise InputError("no such file", data)

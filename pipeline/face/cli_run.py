@@ -11,9 +11,9 @@ from pathlib import Path
 
 import click
 
-from pipeline.errors import InputError
-from pipeline.face import progress
-from pipeline.face.cli_common import (
+from trackreplay.errors import InputError
+from trackreplay.face import progress
+from trackreplay.face.cli_common import (
     DEMO_NAME,
     bundled_data_dir,
     fail_on_tracker_errors,
@@ -21,13 +21,13 @@ from pipeline.face.cli_common import (
     tracker_option,
     tracker_time_limit_option,
 )
-from pipeline.face.cli_text import (
+from trackreplay.face.cli_text import (
     _echo_wrapped,
     _list_outputs,
     _say,
     print_replay_report,
 )
-from pipeline.paths import OutputSet, refuse_input_overwrite
+from trackreplay.paths import OutputSet, refuse_input_overwrite
 
 
 # what a replay writes beside tracks.mcap (checked against the inputs before anything is written)
@@ -46,14 +46,14 @@ def _default_out_dir(data: Path) -> Path:
 
 
 def _export_tables(res, out_dir: Path) -> list[Path]:
-    from pipeline.contract import atomic_output
-    from pipeline.stages import stages_named
+    from trackreplay.contract import atomic_output
+    from trackreplay.stages import stages_named
 
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
     tables = [("metrics", res.summary), ("per_scan", res.per_scan)]
     for name, df in (("targets", res.targets), ("track_lives", res.track_lives)):
-        if df is not None and df.height:  # per true target and per track (evaluators.life_tables)
+        if df is not None and df.height:  # per true target and per track (trackreplay.evaluators.life_tables)
             tables.append((name, df))
     for name, df in tables:
         for ext in ("csv", "parquet"):
@@ -76,8 +76,8 @@ def _report_plot(res, out_dir: Path) -> list[Path]:
     measures' consistency figure."""
     import polars as pl
 
-    from evaluators.report_plots import plot_consistency
-    from pipeline.stages import stages_named
+    from trackreplay.evaluators.report_plots import plot_consistency
+    from trackreplay.stages import stages_named
 
     paths = []
     title = Path(res.dataset.path).name
@@ -98,7 +98,7 @@ def _draw_figures_in_background(data: Path, tracks: Path, recover: bool) -> None
     atomically, so the user has the results without waiting for matplotlib."""
     import subprocess
 
-    args = [sys.executable, "-m", "pipeline.face.cli", "plot", str(data), str(tracks), "--quiet"]
+    args = [sys.executable, "-m", "trackreplay.face.cli", "plot", str(data), str(tracks), "--quiet"]
     subprocess.Popen(args + (["--recover"] if recover else []), stdin=subprocess.DEVNULL,
                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
 
@@ -182,7 +182,7 @@ def run_cmd(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, s
     if data is None:
         data = bundled_data_dir() / DEMO_NAME
         click.echo(f"no data set given: replaying the bundled demo {data}")
-    from pipeline.face import recording_process
+    from trackreplay.face import recording_process
 
     # before the heavy imports below: the child loads Rerun on the other core while they run
     recorder = recording_process.start(data, recover) if not no_rrd and map_path is None else None
@@ -193,17 +193,17 @@ def run_cmd(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, s
 
 def _run(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, sets, rerun_run, tracker_specs,
          map_path, figures_mode, recorder, tracker_time_limit_s=None):
-    """``run_cmd``'s work, with ``recorder`` (a :class:`~pipeline.face.recording_process.RecordingProcess`,
+    """``run_cmd``'s work, with ``recorder`` (a :class:`~trackreplay.face.recording_process.RecordingProcess`,
     or None to record in this process) already started."""
-    from pipeline.contract import read_dataset
-    from pipeline.replay import replay
-    from recorders.scenarios import parse_assignments
+    from trackreplay.contract import read_dataset
+    from trackreplay.replay import replay
+    from trackreplay.recorders.scenarios import parse_assignments
 
     if data.suffix.lower() in CONVERTED_SUFFIXES and map_path is None:  # a recording, not yet a data set
         raise InputError(f"a {data.suffix.lstrip('.').upper()} file is converted first: "
                          f"{CONVERTED_SUFFIXES[data.suffix.lower()]} (see replay convert --help)", data)
     if spawn:  # no display: say so before the replay, not after it
-        from pipeline.face.viewer import require_display
+        from trackreplay.face.viewer import require_display
 
         require_display()
     explicit_out, explicit_rrd = out_path is not None, rrd_path is not None and not no_rrd
@@ -220,12 +220,12 @@ def _run(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, sets
     if out_dir != base:
         _echo_wrapped(f"{base} holds an earlier replay: writing to {out_dir} (--force would replace it)")
     wanted = [t.strip() for t in trackers.split(",")] if trackers else None
-    from pipeline.isolation import DEFAULT_TRACKER_TIME_LIMIT_S
+    from trackreplay.isolation import DEFAULT_TRACKER_TIME_LIMIT_S
 
     limit = DEFAULT_TRACKER_TIME_LIMIT_S if tracker_time_limit_s is None else tracker_time_limit_s
     specs = resolve_tracker_specs(tracker_specs, limit)  # a tracker that does not load fails here
     if map_path is not None:  # a recording made by another tool: replay its conversion
-        from pipeline.face.cli_convert_foreign import convert_for_replay
+        from trackreplay.face.cli_convert_foreign import convert_for_replay
 
         data = convert_for_replay(data, map_path)
     t_read = time.perf_counter()
@@ -284,7 +284,7 @@ def _run(data, trackers, out_path, rrd_path, no_rrd, force, spawn, recover, sets
         f"rerun {t.get('rerun_s', 0):.2f})" if progress.verbose() else ""))
     fail_on_tracker_errors([str(exc) for exc in res.failures])
     if spawn and res.rrd_path:
-        from pipeline.face.viewer import open_viewer
+        from trackreplay.face.viewer import open_viewer
 
         open_viewer(res.rrd_path)
 

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import click
 
-from pipeline.errors import InputError
-from pipeline.face import progress
-from pipeline.face.cli_common import (
+from trackreplay.errors import InputError
+from trackreplay.face import progress
+from trackreplay.face.cli_common import (
     EVALUATION_VALUES_EPILOG,
     fail_on_tracker_errors,
     resolve_tracker_specs,
@@ -61,10 +61,10 @@ def sweep_cmd(scenario, params, sets, runs, seed, trackers, out_dir, executor, w
       replay sweep radar-tws --param plot_sigma_m=100,200 --tracker my_trackers.py:ConstantVelocity -o cv/
       replay sweep radar-tws --param sigma_bearing_deg=0.5,1,2 --set assignment_gate_m=2000 -o gate/
     """
-    from pipeline.registry import canonical_spec
-    from pipeline.sweep import (build_grid, check_evaluation_values, check_resume, parse_param_specs, run_sweep,
+    from trackreplay.registry import canonical_spec
+    from trackreplay.sweep import (build_grid, check_evaluation_values, check_resume, parse_param_specs, run_sweep,
                                 write_sweep_outputs)
-    from recorders.scenarios import parse_assignments
+    from trackreplay.recorders.scenarios import parse_assignments
 
     if scheduler:
         executor = "dask"
@@ -72,7 +72,7 @@ def sweep_cmd(scenario, params, sets, runs, seed, trackers, out_dir, executor, w
     fixed = parse_assignments(sets)
     wanted = [t.strip() for t in trackers.split(",")] if trackers else None
     plugged = [canonical_spec(s) for s in resolve_tracker_specs(tracker_specs, tracker_time_limit_s)]
-    from recorders.scenarios import load_scenario
+    from trackreplay.recorders.scenarios import load_scenario
 
     scenario_keys = load_scenario(scenario).defaults
     # names that are not scenario parameters may be trackers' design parameters or evaluation values
@@ -91,8 +91,8 @@ def sweep_cmd(scenario, params, sets, runs, seed, trackers, out_dir, executor, w
     tasks = build_grid(scenario, specs, runs, seed, wanted, out_dir, keep_data, fixed, plugged, design_defaults,
                        **({} if tracker_time_limit_s is None else {"tracker_time_limit_s": tracker_time_limit_s}))
     if wanted:
-        from pipeline.registry import available_trackers
-        from pipeline.stages import STAGES
+        from trackreplay.registry import available_trackers
+        from trackreplay.stages import STAGES
 
         known = {t for s in STAGES for t in s.trackers} | set(available_trackers(plugged))
         bad = [t for t in wanted if t not in known]
@@ -134,10 +134,10 @@ def _sweep_design_defaults(scenario: str, fixed: dict, wanted, plugged) -> tuple
     """Design parameters (name → default) of the trackers a sweep runs and of its evaluation,
     after checking that every plugged tracker consumes what the scenario records; and the
     evaluation's alone."""
-    from pipeline.registry import available_trackers
-    from pipeline.stages import STAGES
-    from pipeline.sweep import scenario_families
-    from recorders.scenarios import load_scenario
+    from trackreplay.registry import available_trackers
+    from trackreplay.stages import STAGES
+    from trackreplay.sweep import scenario_families
+    from trackreplay.recorders.scenarios import load_scenario
 
     scenario_keys = load_scenario(scenario).defaults
     families = scenario_families(scenario, {k: v for k, v in fixed.items() if k in scenario_keys})

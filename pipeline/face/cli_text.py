@@ -33,7 +33,7 @@ def _declared_scopes(summary: pl.DataFrame) -> list[str]:
     than silently missing (a stage leaves out a scope no scan falls in)."""
     import polars as pl
 
-    from evaluators.radar_tws import SCOPES as RADAR_SCOPES
+    from trackreplay.evaluators.radar_tws import SCOPES as RADAR_SCOPES
 
     stages = summary["stage"].unique(maintain_order=True).to_list() if "stage" in summary.columns else []
     out = []
@@ -94,15 +94,15 @@ def _metrics_title(data: Path, dataset) -> str:
 def _headline_metrics(res) -> tuple:
     """The first measure each stage's report shows (e.g. the radar position RMSE), for the
     verdict lines."""
-    from pipeline.stages import stage_named
+    from trackreplay.stages import stage_named
 
     return tuple(m for name in res.results for m in stage_named(name).report_metrics[:1])
 
 
 def _print_verdicts(summary: pl.DataFrame, family_metrics=()) -> None:
     """The verdict before the detail: one line per tracker with its headline measures (± half
-    their interval) and its consistency verdict (:mod:`evaluators.verdicts`)."""
-    from evaluators.verdicts import tracker_verdicts
+    their interval) and its consistency verdict (:mod:`trackreplay.evaluators.verdicts`)."""
+    from trackreplay.evaluators.verdicts import tracker_verdicts
 
     table = tracker_verdicts(summary, family_metrics)
     if table.height == 0:
@@ -143,7 +143,7 @@ def _print_summary(summary: pl.DataFrame, title: str, family_metrics=()) -> None
     # (the track summary stands in for them)
     missing = summary.filter(~pl.col("scope").str.starts_with("no ")) if "note" in summary.columns else summary
     if "note" in missing.columns:
-        from evaluators.missing_reasons import NO_TRUTH
+        from trackreplay.evaluators.missing_reasons import NO_TRUTH
 
         missing = missing.filter(~(pl.col("note") == NO_TRUTH).any().over("metric"))
     sections = summary["section"].unique(maintain_order=True).to_list()
@@ -205,8 +205,8 @@ MISSING_NOTES_SHOWN = 12  # reasons printed under the tables; the rest are in me
 
 def _print_missing_notes(summary: pl.DataFrame) -> None:
     """Why the metrics without a value have none (shown — or left out of the tables): one line per
-    tracker and reason, from the ``note`` column (:mod:`evaluators.missing_reasons`)."""
-    from evaluators.missing_reasons import notes_by_tracker
+    tracker and reason, from the ``note`` column (:mod:`trackreplay.evaluators.missing_reasons`)."""
+    from trackreplay.evaluators.missing_reasons import notes_by_tracker
 
     notes = notes_by_tracker(summary)
     if not notes:
@@ -308,7 +308,7 @@ def fit_width(text: str, width: int = TABLE_WIDTH) -> str:
 
 def _truthless_stages(res) -> list[str]:
     """The stages of ``res`` whose data hold no truth (a recording)."""
-    from pipeline.stages import stages_named
+    from trackreplay.stages import stages_named
 
     return [s.name for s in stages_named(res.results) if not s.has_truth(res.dataset)]
 
@@ -318,7 +318,7 @@ def _table_summary(res) -> pl.DataFrame:
     rows are left out, since :func:`_track_summary_block` prints them once, one line per tracker."""
     import polars as pl
 
-    from evaluators.track_summary import METRICS
+    from trackreplay.evaluators.track_summary import METRICS
 
     truthless = _truthless_stages(res)
     if not truthless or "stage" not in res.summary.columns:
@@ -327,13 +327,13 @@ def _table_summary(res) -> pl.DataFrame:
 
 
 def _track_summary_block(summary: pl.DataFrame, stage: str) -> str:
-    """The track summary of one stage (:mod:`evaluators.track_summary`), one line per tracker:
+    """The track summary of one stage (:mod:`trackreplay.evaluators.track_summary`), one line per tracker:
     tracks per run, lifetime (median, interquartile range), scans to confirmation, and the mean
     NIS against its χ² interval. A digest: the intervals over runs are in the metrics tables
     written beside. Empty without rows."""
     import polars as pl
 
-    from evaluators.track_summary import METRICS
+    from trackreplay.evaluators.track_summary import METRICS
 
     part = summary.filter(pl.col("metric").is_in(list(METRICS)))
     if "stage" in part.columns:
@@ -367,9 +367,9 @@ def _track_summary_block(summary: pl.DataFrame, stage: str) -> str:
 
 def _print_stage_reports(res) -> None:
     """What the stages add after the generic summary that it does not show (each result is
-    printed once: :meth:`pipeline.stages.base.Stage.replay_report`), fitted to TABLE_WIDTH.
+    printed once: :meth:`trackreplay.stages.base.Stage.replay_report`), fitted to TABLE_WIDTH.
     For data without truth, the track summary of every stage comes first."""
-    from pipeline.stages import stages_named
+    from trackreplay.stages import stages_named
 
     truthless = _truthless_stages(res)
     for stage in stages_named(res.results):
@@ -411,8 +411,8 @@ def _list_outputs(folder: Path, groups, err: bool = False) -> None:
 
 def _print_design_notes(res) -> None:
     """What the stages chose for the user on this data set (a sensor value estimated from the
-    data, say), one line each (``pipeline.sensor_values``)."""
-    from pipeline.stages.base import design_notes
+    data, say), one line each (``trackreplay.sensor_values``)."""
+    from trackreplay.stages.base import design_notes
 
     for stage in res.results:
         for note in design_notes(res.dataset, stage):

@@ -7,22 +7,22 @@ import json
 
 import click
 
-from pipeline.face.cli_common import resolve_tracker_specs, tracker_option
-from pipeline.face.cli_text import _format_default, _table
+from trackreplay.face.cli_common import resolve_tracker_specs, tracker_option
+from trackreplay.face.cli_text import _format_default, _table
 
-from pipeline.errors import InputError
+from trackreplay.errors import InputError
 
 
 def tracker_listing(specs=()) -> list[dict]:
     """Every tracker found (built-in, entry points, ``specs``) with its design parameters.
 
     A parameter whose default is None takes its value from the bundled scenario of the stage
-    that consumes the tracker's family (:meth:`pipeline.stages.base.Stage.parameter_defaults`);
+    that consumes the tracker's family (:meth:`trackreplay.stages.base.Stage.parameter_defaults`);
     ``from`` says which (``"tracker"`` or ``"scenario <name>"``), and ``default`` stays None when
     neither has one (the value must then come from the data set or ``--set``).
     """
-    from pipeline.registry import available_trackers
-    from pipeline.stages import STAGES
+    from trackreplay.registry import available_trackers
+    from trackreplay.stages import STAGES
 
     stages = {}
     for s in STAGES:
@@ -33,7 +33,7 @@ def tracker_listing(specs=()) -> list[dict]:
         try:
             resolved = stage.parameter_defaults([e]) if stage is not None else {}
         except InputError:  # a parameter neither the tracker nor the scenario sets: resolve one by one
-            from recorders.scenarios import load_scenario
+            from trackreplay.recorders.scenarios import load_scenario
 
             scenario = load_scenario(stage.scenario).params
             resolved = {p.name: scenario.get(p.name) for p in e.cls.params if p.default is None}

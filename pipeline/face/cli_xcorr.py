@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from pipeline.errors import InputError
+from trackreplay.errors import InputError
 
 PAPER = {"strong": {"clutter_per_gate": 2.0, "amplitude_mean": 21000.0, "amplitude_std": 2500.0, "sigma_p_deg": 1.3},
          "weak": {"clutter_per_gate": 3.0, "amplitude_mean": 12000.0, "amplitude_std": 3500.0, "sigma_p_deg": 1.8},
@@ -17,7 +17,7 @@ PAPER = {"strong": {"clutter_per_gate": 2.0, "amplitude_mean": 21000.0, "amplitu
 
 def reference_bearings(dataset, reference: str):
     """Reference bearings ``(R, K, T)``: the truth, or a tracker's estimates (as the paper's PDA tracks)."""
-    from pipeline.stages.bearing_peaks import PEAKS, TRUTH, BearingPeaksStage, read_truth
+    from trackreplay.stages.bearing_peaks import PEAKS, TRUTH, BearingPeaksStage, read_truth
 
     truth = dataset.channels.get(TRUTH)
     if reference == "auto":
@@ -38,9 +38,9 @@ def reference_bearings(dataset, reference: str):
 
 def fit_dataset(path, reference: str = "auto", gate_deg: float | None = None, threshold: float = 0.0):
     """Read a peak data set and fit the model; returns ``(PeakModelFit, roles)``."""
-    from pipeline.contract import read_dataset
-    from pipeline.cores.association.peak_model_fit import fit_peak_model
-    from pipeline.stages.bearing_peaks import field_deg, read_peaks, recorded_float
+    from trackreplay.contract import read_dataset
+    from trackreplay.cores.association.peak_model_fit import fit_peak_model
+    from trackreplay.stages.bearing_peaks import field_deg, read_peaks, recorded_float
 
     ds = read_dataset(path)
     peaks = read_peaks(ds)
@@ -52,7 +52,7 @@ def fit_dataset(path, reference: str = "auto", gate_deg: float | None = None, th
     field = tuple(math.radians(float(v)) for v in field_deg(ds))
     fit = fit_peak_model(peaks["bearing"], peaks["amplitude"], peaks["run"], peaks["scan"], ref, gate, threshold,
                          field, name)
-    from pipeline.trackers.peak_roles import roles_for
+    from trackreplay.trackers.peak_roles import roles_for
 
     # the recorded roles cycled over the data's targets (a recording without them: track0, …)
     roles = (list(roles_for(params, len(fit.tracks))) if "pair" in params or "roles" in params
@@ -192,8 +192,8 @@ def plot_association(panels, path: Path) -> Path:
 
     import numpy as np
 
-    from evaluators.confidence import wilson_interval
-    from evaluators.report_plots import legend_outside, save_figure, series_style
+    from trackreplay.evaluators.confidence import wilson_interval
+    from trackreplay.evaluators.report_plots import legend_outside, save_figure, series_style
 
     fig, axes = plt.subplots(1, len(panels), figsize=(5.5 * len(panels), 3.8), squeeze=False)
     for ax, (title, rows, swept) in zip(axes[0], panels):
@@ -234,7 +234,7 @@ def association_table_cmd(studies, output):
       replay sweep xcorr-maneuver --param min_distance_deg=0.5,1,2,4,8 --runs 100 -o maneuver/
       replay association-table crossing/ maneuver/
     """
-    from evaluators.confidence import wilson_interval
+    from trackreplay.evaluators.confidence import wilson_interval
 
     panels = []
     for study in studies:

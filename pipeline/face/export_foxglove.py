@@ -2,7 +2,7 @@
 plot without our code.
 
 The replay's own ``tracks.mcap`` keeps every run of a scan in one protobuf message of columns
-(:mod:`pipeline.contract`): compact and exact, but a plotting tool sees one opaque message per
+(:mod:`trackreplay.contract`): compact and exact, but a plotting tool sees one opaque message per
 scan. The export writes, for the chosen Monte Carlo runs, one small JSON message per scan and
 topic, with named numeric fields:
 
@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.errors import InputError
+from trackreplay.errors import InputError
 
 DEFAULT_RUNS = 10
 SCHEMA_ENCODING = "jsonschema"
@@ -242,7 +242,7 @@ def log_times(times: np.ndarray) -> tuple[np.ndarray, str]:
 
 
 def _family_of(stage) -> str | None:
-    from pipeline.vocabulary import FAMILIES
+    from trackreplay.vocabulary import FAMILIES
 
     if getattr(stage, "family", None):
         return stage.family
@@ -295,10 +295,10 @@ def export_foxglove(tracks_path, out_path, runs: str | None = None, data_path=No
     """
     from mcap.writer import CompressionType, Writer
 
-    from pipeline import __version__
-    from pipeline.contract import atomic_output, read_dataset
-    from pipeline.paths import refuse_input_overwrite
-    from pipeline.stages import stage_for_outputs
+    from trackreplay import __version__
+    from trackreplay.contract import atomic_output, read_dataset
+    from trackreplay.paths import refuse_input_overwrite
+    from trackreplay.stages import stage_for_outputs
 
     tracks_path, out_path = Path(tracks_path), Path(out_path)
     refuse_input_overwrite([tracks_path, data_path], [out_path])
@@ -322,7 +322,7 @@ def export_foxglove(tracks_path, out_path, runs: str | None = None, data_path=No
     report = ExportReport(out_path, chosen, n_runs, list(tracks), time_base=time_base)
 
     # truth and per-scan metrics need the data set
-    from pipeline.replay import _find_input, evaluate_files
+    from trackreplay.replay import _find_input, evaluate_files
 
     data_ds, per_scan = None, None
     given = data_path is not None
@@ -339,7 +339,7 @@ def export_foxglove(tracks_path, out_path, runs: str | None = None, data_path=No
     per_tracker = {name: track_fields(family, out, n_runs, n_scans) for name, out in tracks.items()}
     truth = None
     if data_ds is not None:
-        from pipeline.vocabulary import FAMILIES
+        from trackreplay.vocabulary import FAMILIES
 
         fam = FAMILIES.get(family) if family else None
         if fam is not None and fam.truth in data_ds.channels:

@@ -8,7 +8,7 @@ terminal).
 
 Use from a command::
 
-    from pipeline.face import progress
+    from trackreplay.face import progress
 
     with progress.bar(len(points), "sweep radar-tws", show_pos=True) as bar:
         for point in points:
@@ -211,7 +211,7 @@ def bar(length: int, label: str, show_pos: bool = False) -> Bar:
 class Phases:
     """Progress through named phases: one bar step and (with ``--verbose``) one timing line
     per phase. ``step()`` closes the current phase and starts the next; it fits a ``progress``
-    callback that is called once per phase (e.g. :func:`pipeline.replay.replay`'s)."""
+    callback that is called once per phase (e.g. :func:`trackreplay.replay.replay`'s)."""
 
     def __init__(self, label: str, phases):
         self.phases = list(phases)

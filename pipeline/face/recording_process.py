@@ -6,7 +6,7 @@ The command line therefore starts this module as a child process before it loads
 heavy. The child imports Rerun and reads the same input while the replay runs on the other core;
 when the replay has scored everything it sends the child what the views draw (tracker outputs,
 the per-scan table, the designs used), and the child draws them with the very function a replay
-uses in-process (:func:`pipeline.face.rerun_views.write_recording`) into the staged ``.rrd``.
+uses in-process (:func:`trackreplay.face.rerun_views.write_recording`) into the staged ``.rrd``.
 The replay waits for it, so the outputs still appear all together or not at all, and a
 failure is the one line the replay would have given in-process. Before drawing, the child
 checks that it read the same input file as the replay (not one put in its place meanwhile).
@@ -25,7 +25,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from pipeline.errors import InputError
+from trackreplay.errors import InputError
 
 #: Inputs above this size replay long enough that the import is a small part of the wait, while
 #: the child would decode the input a second time and receive the outputs it draws: in-process.
@@ -42,7 +42,7 @@ def worth_it(data_path, cores: int | None = None) -> bool:
     if "rerun" in sys.modules:
         return False
     if cores is None:
-        from pipeline.machine import usable_cores
+        from trackreplay.machine import usable_cores
 
         cores = usable_cores()
     try:
@@ -71,7 +71,7 @@ def file_stamp(path) -> tuple:
 
 class RecordingProcess:
     """The child process that writes one replay's recording; a ``recorder`` for
-    :func:`pipeline.replay.replay`.
+    :func:`trackreplay.replay.replay`.
 
     Start it (``with RecordingProcess(data) as recorder:``, or :func:`start`) before the
     replay's imports, call :meth:`stamp_input` as the replay reads its input, and pass it to
@@ -88,7 +88,7 @@ class RecordingProcess:
         self._errors = tempfile.TemporaryFile()
         # this interpreter with this process's module path: ``python -m`` would put the working
         # folder first, where another project's ``pipeline`` package may be
-        start = f"import sys; sys.path[:] = {sys.path!r}; from pipeline.face.recording_process import main; main()"
+        start = f"import sys; sys.path[:] = {sys.path!r}; from trackreplay.face.recording_process import main; main()"
         try:
             self._child = subprocess.Popen(
                 [sys.executable, "-c", start, os.fspath(data_path), "1" if recover else "0"],
@@ -125,7 +125,7 @@ class RecordingProcess:
         try:
             data = pickle.dumps(payload, protocol=pickle.HIGHEST_PROTOCOL)
         except Exception:  # noqa: BLE001 (whatever pickling raises, the recording is made here)
-            from pipeline.face.rerun_views import write_recording
+            from trackreplay.face.rerun_views import write_recording
 
             self.close()
             write_recording(rrd_path, ds, stages, results, per_scan, rerun_run)
@@ -138,7 +138,7 @@ class RecordingProcess:
         try:  # a watchdog: a child that stalls (a writer waiting on a full disk) is not waited for forever
             status = self._child.wait(timeout=RECORDING_TIMEOUT_S)
         except subprocess.TimeoutExpired:
-            from pipeline.paths import stalled_writer_error
+            from trackreplay.paths import stalled_writer_error
 
             self.close()
             raise stalled_writer_error(rrd_path, f"the recording process did not finish within "
@@ -188,15 +188,15 @@ _DISK = "replay-recording-oserror: "
 
 def _record(data_path: str, recover: bool) -> None:
     """The child: import Rerun and read the input, then draw what the replay sends."""
-    from pipeline.face import lazy_imports
+    from trackreplay.face import lazy_imports
 
     lazy_imports.defer()  # as the command line does
     import rerun  # noqa: F401  (what this process is for: loaded while the replay runs)
     import rerun.blueprint  # noqa: F401
 
-    from pipeline.contract import read_dataset
-    from pipeline.face.rerun_views import views_for, write_recording
-    from pipeline.stages import applicable_stages
+    from trackreplay.contract import read_dataset
+    from trackreplay.face.rerun_views import views_for, write_recording
+    from trackreplay.stages import applicable_stages
 
     stamp = file_stamp(data_path)
     ds = read_dataset(data_path, recover=recover)
@@ -265,7 +265,7 @@ def main() -> None:
 
 def _exit(status: int) -> None:
     """End the child; at once when a Rerun writer thread stalled (a normal exit would wait for it)."""
-    from pipeline import paths
+    from trackreplay import paths
 
     if paths.STALLED_WRITERS:
         sys.stderr.flush()

@@ -3,16 +3,16 @@ for one run the MUSIC bearing–time waterfall with the truth and every tracker'
 the angular innovation δθ, the angle gain and PAST's subspace error; the angle MSE over runs.
 
 Exposes ``blueprint(stage, trackers, dataset=None, run=0)`` and
-``log_rerun(stage, rec, dataset, result, per_scan, run=0)`` (see :mod:`pipeline.face.rerun_views`).
+``log_rerun(stage, rec, dataset, result, per_scan, run=0)`` (see :mod:`trackreplay.face.rerun_views`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from pipeline import vocabulary as vocab
-from pipeline.face.timeline import color, log_metric_series, log_series, rr, rrb
-from pipeline.trackers.array_bearing import STARTUP_SCANS, music_waterfall
+from trackreplay import vocabulary as vocab
+from trackreplay.face.timeline import color, log_metric_series, log_series, rr, rrb
+from trackreplay.trackers.array_bearing import STARTUP_SCANS, music_waterfall
 
 # both trackers give the same tracks to rounding: Ryu drawn wide underneath, proposed thin on top
 STYLE = {"ryu": ((214, 39, 40), -3.5, 10.0), "proposed": ((255, 80, 255), -1.5, 20.0)}

@@ -4,7 +4,7 @@ gates), the association weights and amplitude estimates of the trackers that rep
 error series.
 
 Exposes ``blueprint(stage, trackers, dataset=None, run=0)`` and
-``log_rerun(stage, rec, dataset, result, per_scan, run=0)`` (see :mod:`pipeline.face.rerun_views`).
+``log_rerun(stage, rec, dataset, result, per_scan, run=0)`` (see :mod:`trackreplay.face.rerun_views`).
 A plugged tracker gets the same views; panels for extras it does not output (β, ẑ_a, gate
 centre) are simply empty for it.
 """
@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.face.timeline import color, log_metric_series, log_points, log_series, rr, rrb
+from trackreplay.face.timeline import color, log_metric_series, log_points, log_series, rr, rrb
 
 AMPLITUDE_COLOR_MAX = 30000.0  # the paper's amplitude range 0 … 30,000
 TRACKER_COLORS = {"jpda": (66, 146, 235), "jpda_a": (255, 140, 30)}

@@ -3,16 +3,16 @@ RMSE over runs, each IMM's model probabilities, and for one run the AR(1) estima
 residual and the position error.
 
 Exposes ``blueprint(stage, trackers, dataset=None, run=0)`` and
-``log_rerun(stage, rec, dataset, result, per_scan, run=0)`` (see :mod:`pipeline.face.rerun_views`).
+``log_rerun(stage, rec, dataset, result, per_scan, run=0)`` (see :mod:`trackreplay.face.rerun_views`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from evaluators.colored_noise_imm import AR_TRACKER
-from pipeline.face.timeline import color, log_metric_series, log_series, rrb
-from pipeline.trackers.colored_noise import MODEL_NAMES
+from trackreplay.evaluators.colored_noise_imm import AR_TRACKER
+from trackreplay.face.timeline import color, log_metric_series, log_series, rrb
+from trackreplay.trackers.colored_noise import MODEL_NAMES
 
 COLORS = {"kf": (31, 119, 180), "kf_dp": (255, 127, 14), "imm": (44, 160, 44), "mimm_k": (214, 39, 40),
           "pimm": (148, 103, 189), "cv": (227, 119, 194), "ca_transition": (188, 189, 34), "ca_steady": (23, 190, 207)}

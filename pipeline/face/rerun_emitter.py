@@ -5,20 +5,20 @@ plane with the estimates and the 50 % CRLB ellipse at the truth (eqs. 18, 22) | 
 per iteration over the runs at the truth | the CEP planes of the geometry (Figs. 5–6).
 
 Exposes ``blueprint(stage, trackers, dataset=None, run=0)`` and
-``log_rerun(stage, rec, dataset, result, per_scan, run=0)`` (see :mod:`pipeline.face.rerun_views`).
+``log_rerun(stage, rec, dataset, result, per_scan, run=0)`` (see :mod:`trackreplay.face.rerun_views`).
 Drawing only: the estimates and the bound come from the replay's outputs (the stage's ``crlb``
-extra), the run classes from :mod:`evaluators.emitter_localisation`, ellipses and CEP planes from
-:mod:`pipeline.cores.localisation`.
+extra), the run classes from :mod:`trackreplay.evaluators.emitter_localisation`, ellipses and CEP planes from
+:mod:`trackreplay.cores.localisation`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from evaluators import emitter_localisation as emitter_eval
-from evaluators.tracking_metrics import rmse_per_scan
-from pipeline.face.timeline import color, north_up, north_up_bounds, rr, rrb
-from pipeline.vocabulary import UNDERDETERMINED
+from trackreplay.evaluators import emitter_localisation as emitter_eval
+from trackreplay.evaluators.tracking_metrics import rmse_per_scan
+from trackreplay.face.timeline import color, north_up, north_up_bounds, rr, rrb
+from trackreplay.vocabulary import UNDERDETERMINED
 
 CEP_EXTENT_M = 50_000.0
 CEP_STEP_M = 500.0
@@ -61,9 +61,9 @@ def blueprint(stage, trackers, dataset=None, run: int = 0):
 
 
 def log_rerun(stage, rec, dataset, result: dict, per_scan, run: int = 0) -> None:
-    from pipeline.cores.localisation.cep_plane import cep_plane, grid_axis
-    from pipeline.cores.localisation.crlb import ellipse_points
-    from pipeline.face.cep_plane_views import log_cep_plane
+    from trackreplay.cores.localisation.cep_plane import cep_plane, grid_axis
+    from trackreplay.cores.localisation.crlb import ellipse_points
+    from trackreplay.face.cep_plane_views import log_cep_plane
 
     obs = stage.observations(dataset)
     R, E = obs["measured"].shape[:2]

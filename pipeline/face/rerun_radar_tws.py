@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from evaluators import radar_tws as radar_eval
-from pipeline import vocabulary as vocab
-from pipeline.cores.filters.converted_measurements import polar_to_cartesian
-from pipeline.face.timeline import (color, log_identified, log_metric_series, log_path, log_points, log_series,
+from trackreplay.evaluators import radar_tws as radar_eval
+from trackreplay import vocabulary as vocab
+from trackreplay.cores.filters.converted_measurements import polar_to_cartesian
+from trackreplay.face.timeline import (color, log_identified, log_metric_series, log_path, log_points, log_series,
                                     north_up, north_up_bounds, rr, rrb)
 
 TRUTH = vocab.CHANNELS["radar_truth"]

@@ -10,11 +10,11 @@ import importlib
 from pathlib import Path
 
 VIEW_MODULES = {
-    "radar-tws": "pipeline.face.rerun_radar_tws",
-    "xcorr-peaks": "pipeline.face.rerun_bearing_peaks",
-    "colored-noise-imm": "pipeline.face.rerun_colored_noise",
-    "array-bearing": "pipeline.face.rerun_array_bearing",
-    "tdoa-fdoa": "pipeline.face.rerun_emitter",
+    "radar-tws": "trackreplay.face.rerun_radar_tws",
+    "xcorr-peaks": "trackreplay.face.rerun_bearing_peaks",
+    "colored-noise-imm": "trackreplay.face.rerun_colored_noise",
+    "array-bearing": "trackreplay.face.rerun_array_bearing",
+    "tdoa-fdoa": "trackreplay.face.rerun_emitter",
 }
 
 
@@ -29,12 +29,12 @@ def views_for(stage):
 def write_recording(rrd_path, ds, stages, results, per_scan, rerun_run: int = 0) -> None:
     """A replay's Rerun recording: every stage's views, saved atomically to ``rrd_path``.
 
-    ``results`` and ``per_scan`` are :func:`pipeline.replay.replay`'s (the per-scan table with
+    ``results`` and ``per_scan`` are :func:`trackreplay.replay.replay`'s (the per-scan table with
     its ``stage`` column); one recording per file, whose default blueprint is the first stage's.
     """
     import polars as pl
 
-    from pipeline.face.timeline import recording
+    from trackreplay.face.timeline import recording
 
     first = stages[0]
     blueprint = views_for(first).blueprint(first, list(results[first.name]["tracks"]), ds, rerun_run)
@@ -47,7 +47,7 @@ def write_recording(rrd_path, ds, stages, results, per_scan, rerun_run: int = 0)
 def log_comparison(comparison, rrd_path) -> None:
     """One recording with both replays on the same timeline: every tracker of A as ``A:name``
     and of B as ``B:name``, drawn by the stage's own views, which lay them side by side."""
-    from pipeline.face.timeline import recording
+    from trackreplay.face.timeline import recording
 
     stage, ds = comparison.stage, comparison.dataset
     tracks = {}

@@ -16,7 +16,7 @@ import importlib
 
 import numpy as np
 
-from pipeline.contract import publish
+from trackreplay.contract import publish
 
 
 class LazyModule:
@@ -171,7 +171,7 @@ def north_up_bounds(lo, hi, pad: float):
 @contextmanager
 def recording(path: str | Path, app_id: str, recording_id: str, blueprint=None):
     """A recording stream saved to ``path`` atomically when the block ends without error."""
-    from pipeline.paths import bounded_call, disk_error
+    from trackreplay.paths import bounded_call, disk_error
 
     path = Path(path)
     tmp = None

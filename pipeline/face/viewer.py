@@ -25,7 +25,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from pipeline.errors import InputError
+from trackreplay.errors import InputError
 
 
 LOOPBACK = "127.0.0.1"

@@ -1,9 +1,9 @@
 """Stage processors: each consumes the channels it understands and emits channels in the same
 data contract. ``replay`` discovers which stages apply from the channels a file holds.
-See :class:`pipeline.stages.base.Stage` for the interface.
+See :class:`trackreplay.stages.base.Stage` for the interface.
 
 A stage's module (and the trackers and numerics it imports) is loaded only when a file needs it:
-which stage applies is known from its family's channels in :mod:`pipeline.vocabulary`, so a
+which stage applies is known from its family's channels in :mod:`trackreplay.vocabulary`, so a
 radar replay never imports the array or JPDA numerics (``docs/architecture.md``).
 """
 
@@ -11,15 +11,15 @@ from __future__ import annotations
 
 import importlib
 
-from pipeline import vocabulary as vocab
+from trackreplay import vocabulary as vocab
 
 # (stage name, measurement family, "module:Class"); one line per stage
 STAGE_CLASSES = (
-    ("radar-tws", "radar-plots", "pipeline.stages.radar_tws:RadarTwsStage"),
-    ("xcorr-peaks", "bearing-peaks", "pipeline.stages.bearing_peaks:BearingPeaksStage"),
-    ("array-bearing", "array-snapshots", "pipeline.stages.array_bearing:ArrayBearingStage"),
-    ("tdoa-fdoa", "tdoa-fdoa", "pipeline.stages.emitter_localisation:EmitterLocalisationStage"),
-    ("colored-noise-imm", "colored-position", "pipeline.stages.colored_noise_imm:ColoredNoiseImmStage"),
+    ("radar-tws", "radar-plots", "trackreplay.stages.radar_tws:RadarTwsStage"),
+    ("xcorr-peaks", "bearing-peaks", "trackreplay.stages.bearing_peaks:BearingPeaksStage"),
+    ("array-bearing", "array-snapshots", "trackreplay.stages.array_bearing:ArrayBearingStage"),
+    ("tdoa-fdoa", "tdoa-fdoa", "trackreplay.stages.emitter_localisation:EmitterLocalisationStage"),
+    ("colored-noise-imm", "colored-position", "trackreplay.stages.colored_noise_imm:ColoredNoiseImmStage"),
 )
 
 _LOADED: dict = {}

@@ -3,10 +3,10 @@
 Input channels: ``/array/snapshots`` (``snapshots``: complex M × Ns per run and scan),
 optionally ``/array/truth`` (``angle_rad`` (N,), ``snr_db``). Output: ``/tracks/array/<tracker>``
 with the family's outputs (``state`` [θ, θ̇] per track slot, ``covariance``, ``innovation``,
-``gain``, ``flags``, …; see :mod:`pipeline.trackers.array_bearing`). Only decoding, validation and
+``gain``, ``flags``, …; see :mod:`trackreplay.trackers.array_bearing`). Only decoding, validation and
 bookkeeping live here: the trackers (``proposed``, ``ryu``) are in
-:mod:`pipeline.trackers.array_bearing`, the scores and the Table 1 text in
-:mod:`evaluators.array_bearing`, the Rerun views in :mod:`pipeline.face.rerun_array_bearing`.
+:mod:`trackreplay.trackers.array_bearing`, the scores and the Table 1 text in
+:mod:`trackreplay.evaluators.array_bearing`, the Rerun views in :mod:`trackreplay.face.rerun_array_bearing`.
 """
 
 from __future__ import annotations
@@ -15,12 +15,12 @@ from pathlib import Path
 
 import numpy as np
 
-from evaluators import array_bearing as array_eval
-from pipeline import vocabulary as vocab
-from pipeline.errors import InputError, require_finite
-from pipeline.stages.base import Stage
-from evaluators.standard import bearing_space
-from pipeline.trackers.interface import ArraySnapshots
+from trackreplay.evaluators import array_bearing as array_eval
+from trackreplay import vocabulary as vocab
+from trackreplay.errors import InputError, require_finite
+from trackreplay.stages.base import Stage
+from trackreplay.evaluators.standard import bearing_space
+from trackreplay.trackers.interface import ArraySnapshots
 
 SNAPSHOTS = vocab.CHANNELS["array_snapshots"]
 TRUTH = vocab.CHANNELS["array_truth"]

@@ -5,7 +5,7 @@ leading run axis; this base class writes them, one message per scan holding ever
 and rebuilds them from a replay output file, so ``replay eval data.mcap out.mcap`` works for
 every stage without stage-specific I/O. Subclasses implement :meth:`decode`, :meth:`reference`
 and :meth:`score` (and optionally :meth:`extras`, :meth:`standard_space`, :meth:`report`) and set
-the class attributes; their Rerun views live in the face (:mod:`pipeline.face.rerun_views`).
+the class attributes; their Rerun views live in the face (:mod:`trackreplay.face.rerun_views`).
 """
 
 from __future__ import annotations
@@ -14,20 +14,20 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline import vocabulary as vocab
-from pipeline.errors import InputError
-from pipeline.isolation import DEFAULT_TRACKER_TIME_LIMIT_S, run_plugged_tracker
-from pipeline.trackers.interface import TrackerError, call_tracker
+from trackreplay import vocabulary as vocab
+from trackreplay.errors import InputError
+from trackreplay.isolation import DEFAULT_TRACKER_TIME_LIMIT_S, run_plugged_tracker
+from trackreplay.trackers.interface import TrackerError, call_tracker
 
 
 def _recorded_value(key: str, raw, default):
     """A design value from a file's scenario record, parsed like ``--set`` and type-checked.
 
     JSON metadata may hold a string (``"5"``), ``null`` or ``true`` where a number belongs;
-    :func:`recorders.scenarios.coerce` parses strings, this also refuses the non-strings that
+    :func:`trackreplay.recorders.scenarios.coerce` parses strings, this also refuses the non-strings that
     would fail later, far from the file.
     """
-    from recorders.scenarios import coerce
+    from trackreplay.recorders.scenarios import coerce
 
     if isinstance(default, str) and isinstance(raw, str):
         return raw  # as recorded (an empty string may be meaningful, e.g. "use the preset")
@@ -47,9 +47,9 @@ def design_notes(dataset, stage_name: str) -> list:
 def model_recorded(dataset) -> bool:
     """Whether ``dataset`` records the model that generated it, so that a bound (the PCRB, the
     CRLB at the truth) and an efficiency can be computed: a simulation
-    (:func:`pipeline.sensor_values.is_simulation`), not a converted recording or a file without
+    (:func:`trackreplay.sensor_values.is_simulation`), not a converted recording or a file without
     a scenario record, whose noise and motion no one knows."""
-    from pipeline.sensor_values import is_simulation
+    from trackreplay.sensor_values import is_simulation
 
     return is_simulation(dataset.scenario)
 
@@ -88,7 +88,7 @@ class Stage:
     """Base class of stage processors: one per measurement family.
 
     A stage decodes its family's channels into the family's measurement object
-    (:mod:`pipeline.trackers.interface`), calls every selected tracker through the one tracker
+    (:mod:`trackreplay.trackers.interface`), calls every selected tracker through the one tracker
     interface, and scores the outputs with its evaluator. It holds no numerics of its own.
 
     Class attributes
@@ -96,11 +96,11 @@ class Stage:
     name : str
         Stage name.
     family : str
-        The measurement family (a key of :data:`pipeline.vocabulary.FAMILIES`); it fixes the
+        The measurement family (a key of :data:`trackreplay.vocabulary.FAMILIES`); it fixes the
         input channels and the output channel prefix.
     scenario : str
         Bundled scenario whose parameters give the design defaults (the family's, declared in
-        :data:`pipeline.vocabulary.FAMILIES`).
+        :data:`trackreplay.vocabulary.FAMILIES`).
     design_keys : tuple of str
         Scenario parameters the stage itself uses (decoding, evaluation); each tracker's
         ``params`` add to them.
@@ -133,7 +133,7 @@ class Stage:
 
     def entries(self, specs=()) -> list:
         """Trackers of this stage's family (built-in, entry points and ``specs``)."""
-        from pipeline.registry import trackers_of_family
+        from trackreplay.registry import trackers_of_family
 
         return trackers_of_family(self.family, specs)
 
@@ -144,7 +144,7 @@ class Stage:
 
     def parameter_defaults(self, entries=None) -> dict:
         """Design keys of the stage and of ``entries`` → default value (bundled scenario first)."""
-        from recorders.scenarios import load_scenario
+        from trackreplay.recorders.scenarios import load_scenario
 
         scenario = load_scenario(self.scenario).params
         out = {k: scenario[k] for k in self.design_keys}
@@ -162,7 +162,7 @@ class Stage:
         """The design keys whose default is the bundled scenario's value (the stage's own keys,
         and the trackers' parameters without a default of their own), as opposed to a
         tracker's own documented default."""
-        from recorders.scenarios import load_scenario
+        from trackreplay.recorders.scenarios import load_scenario
 
         scenario = load_scenario(self.scenario).params
         keys = {k for k in self.design_keys if k in scenario}
@@ -175,14 +175,14 @@ class Stage:
         scenario record, else the defaults (bundled scenario, then the trackers' own), then
         ``overrides``.
 
-        A recording (:func:`pipeline.sensor_values.is_recording`) says what it knows about its
-        sensor; a sensor value it does not say (:data:`pipeline.sensor_values.SENSOR_KEYS`) is
+        A recording (:func:`trackreplay.sensor_values.is_recording`) says what it knows about its
+        sensor; a sensor value it does not say (:data:`trackreplay.sensor_values.SENSOR_KEYS`) is
         never the bundled scenario's: it is estimated from the data where the family documents
-        how (:data:`pipeline.sensor_values.ESTIMABLE`; the estimate is noted in
+        how (:data:`trackreplay.sensor_values.ESTIMABLE`; the estimate is noted in
         :func:`design_notes`), else None, *unknown*, and a tracker that needs it stops with one
         line naming the ``--set`` it needs (:meth:`run_units`)."""
-        from pipeline import sensor_values as sv
-        from recorders.scenarios import coerce
+        from trackreplay import sensor_values as sv
+        from trackreplay.recorders.scenarios import coerce
 
         if not overrides and entries is None and ("design", self.name) in dataset.cache:
             return dataset.cache[("design", self.name)]
@@ -271,7 +271,7 @@ class Stage:
                                entry.source) from None
 
     #: whether the face (Rerun views, figures) reads every Monte Carlo run of the outputs, not
-    #: only the run it shows (see ``keep_runs`` of :func:`pipeline.replay.replay`)
+    #: only the run it shows (see ``keep_runs`` of :func:`trackreplay.replay.replay`)
     views_read_all_runs = False
 
     def run(self, dataset, entries, design: dict) -> dict:
@@ -310,7 +310,7 @@ class Stage:
         times = np.asarray(measurements.times_s, dtype=float)
 
         def call(entry):
-            from pipeline.sensor_values import unknown_message
+            from trackreplay.sensor_values import unknown_message
 
             unknown = self.unknown_values(entry, design)
             if unknown:  # never a guess: this tracker stops, the others run
@@ -420,7 +420,7 @@ class Stage:
         """``metrics`` per scan against time, one panel each (those the table has), or None."""
         import polars as pl
 
-        from evaluators.report_plots import plot_metrics_vs
+        from trackreplay.evaluators.report_plots import plot_metrics_vs
 
         metrics = [m for m in metrics if m in per_scan.columns and per_scan[m].drop_nulls().len()]
         if not metrics:
@@ -474,7 +474,7 @@ class Stage:
         """``report.png`` of a bearing family: run ``run``'s tracks of every tracker (state
         component 0, radians) on a bearing–time record, with the truth ``(runs, scans, T)`` and
         the measured bearings ``(time_s, bearing_rad)`` where given."""
-        from evaluators.report_plots import plot_bearing_time
+        from trackreplay.evaluators.report_plots import plot_bearing_time
 
         tracks = {name: np.rad2deg(np.asarray(out["state"], float)[run, ..., 0])
                   for name, out in result["tracks"].items() if "state" in out and "flags" in out}
@@ -490,7 +490,7 @@ class Stage:
     # --- to implement
 
     def decode(self, dataset, design: dict):  # pragma: no cover - interface
-        """The family's measurement object (:mod:`pipeline.trackers.interface`), checked."""
+        """The family's measurement object (:mod:`trackreplay.trackers.interface`), checked."""
         raise NotImplementedError
 
     def evaluate(self, dataset, result: dict, design: dict):
@@ -513,7 +513,7 @@ class Stage:
         (each group's runs alone, or with ``left_out`` all runs but the group's), from one pass
         over the outputs: ``(per_scan, summary, group_summaries)``, or None (the default) when
         the family's scores are not functions of sums over runs and every group is re-scored
-        (``score_groups`` of :func:`evaluators.confidence.summary_intervals`)."""
+        (``score_groups`` of :func:`trackreplay.evaluators.confidence.summary_intervals`)."""
         return None
 
     def cached_reference(self, dataset, design: dict) -> dict:
@@ -528,7 +528,7 @@ class Stage:
         return cached[1]
 
     def standard_space(self, design: dict, reference: dict | None = None):
-        """The :class:`evaluators.standard.EvaluationSpace` of the family (its shape may depend
+        """The :class:`trackreplay.evaluators.standard.EvaluationSpace` of the family (its shape may depend
         on the data set's :meth:`reference`), or None: no standard measures."""
         return None
 
@@ -543,18 +543,18 @@ class Stage:
 
     def measure(self, dataset, result: dict, design: dict):
         """Every metric with its Monte Carlo interval: the family's own scores (grouped
-        jackknife over runs, :func:`evaluators.confidence.summary_intervals`) and the standard
-        measures (:func:`evaluators.standard.evaluate_standard`) where the family has a truth
-        space, and the track summary (:func:`evaluators.track_summary.track_summary`, kind
+        jackknife over runs, :func:`trackreplay.evaluators.confidence.summary_intervals`) and the standard
+        measures (:func:`trackreplay.evaluators.standard.evaluate_standard`) where the family has a truth
+        space, and the track summary (:func:`trackreplay.evaluators.track_summary.track_summary`, kind
         ``standard``) for every family. Returns ``(per_scan, summary)``; summary columns
         ``tracker, metric, scope, value, se, ci_low, ci_high, kind``."""
         import polars as pl
 
-        from evaluators.confidence import summary_intervals
-        from evaluators.consistency import whitened_innovations
-        from evaluators.missing_reasons import explain_missing
-        from evaluators.standard import evaluate_standard
-        from evaluators.track_summary import track_summary
+        from trackreplay.evaluators.confidence import summary_intervals
+        from trackreplay.evaluators.consistency import whitened_innovations
+        from trackreplay.evaluators.missing_reasons import explain_missing
+        from trackreplay.evaluators.standard import evaluate_standard
+        from trackreplay.evaluators.track_summary import track_summary
 
         try:
             reference = self.cached_reference(dataset, design)
@@ -588,7 +588,7 @@ class Stage:
         space = self.standard_space(design, reference)
         if space is None:
             family = summary if "kind" in summary.columns else summary.with_columns(kind=pl.lit("family"))
-            # every metric without a value says why (evaluators.missing_reasons)
+            # every metric without a value says why (trackreplay.evaluators.missing_reasons)
             return per_scan, explain_missing(pl.concat([family, lives], how="diagonal_relaxed"), result["tracks"],
                                              innovations)
         truth = self.standard_truth(reference) if reference is not None else None
@@ -608,11 +608,11 @@ class Stage:
                                          list(space.truth_components), truthless=truth is None)
 
     def life_tables(self, dataset, result: dict, design: dict):
-        """``(targets, tracks)`` tables of :mod:`evaluators.life_tables` for the trackers of
+        """``(targets, tracks)`` tables of :mod:`trackreplay.evaluators.life_tables` for the trackers of
         ``result`` (first runs only), or None where the family has no truth space or the data
         set no truth."""
-        from evaluators.consistency import whitened_innovations
-        from evaluators.life_tables import LIFE_TABLE_RUNS, tables_for
+        from trackreplay.evaluators.consistency import whitened_innovations
+        from trackreplay.evaluators.life_tables import LIFE_TABLE_RUNS, tables_for
 
         try:
             reference = self.cached_reference(dataset, design)

@@ -3,9 +3,9 @@
 Input channels: ``/xcorr/peaks`` (ragged ``bearing_rad``, ``amplitude``, ``origin``: target
 index of a true peak, −1 for clutter), optionally ``/xcorr/truth`` (``bearing_rad`` and
 ``bearing_rate_radps`` per target). Output: ``/tracks/xcorr/<tracker>``. Only decoding and
-bookkeeping live here: the trackers are in :mod:`pipeline.trackers.bearing_peaks` (Park, Ryu &
+bookkeeping live here: the trackers are in :mod:`trackreplay.trackers.bearing_peaks` (Park, Ryu &
 Lee 1994; see ``docs/papers/bearing-peaks.md``), the scores in
-:mod:`evaluators.track_association`, the Rerun views in :mod:`pipeline.face.rerun_bearing_peaks`.
+:mod:`trackreplay.evaluators.track_association`, the Rerun views in :mod:`trackreplay.face.rerun_bearing_peaks`.
 """
 
 from __future__ import annotations
@@ -15,13 +15,13 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from evaluators import track_association as assoc_eval
-from pipeline import vocabulary as vocab
-from pipeline.errors import InputError, require_finite
-from pipeline.stages.base import Stage
-from evaluators.standard import bearing_space
-from pipeline.trackers.interface import BearingPeaks
-from pipeline.trackers.peak_roles import roles_for
+from trackreplay.evaluators import track_association as assoc_eval
+from trackreplay import vocabulary as vocab
+from trackreplay.errors import InputError, require_finite
+from trackreplay.stages.base import Stage
+from trackreplay.evaluators.standard import bearing_space
+from trackreplay.trackers.interface import BearingPeaks
+from trackreplay.trackers.peak_roles import roles_for
 
 PEAKS = vocab.CHANNELS["xcorr_peaks"]
 TRUTH = vocab.CHANNELS["xcorr_truth"]
@@ -62,7 +62,7 @@ def read_peaks(dataset):
             raise InputError(f"{PEAKS} {name} must be 1-D (one value per peak) in every frame; run {ch.run[bad]} "
                              f"scan {ch.scan[bad]} holds shape {items[bad].shape}", dataset.path)
     # equal lengths, finite values and amplitudes ≥ 0 are the contract's checks at read time
-    # (pipeline.vocabulary.PARALLEL and VALUES); the field of view is this sensor's own
+    # (trackreplay.vocabulary.PARALLEL and VALUES); the field of view is this sensor's own
     lengths = np.array([a.shape[0] for a in columns["bearing_rad"]], np.int64)
     frame = np.repeat(np.arange(lengths.size), lengths)
     starts = np.r_[0, np.cumsum(lengths)[:-1]]
@@ -168,7 +168,7 @@ class BearingPeaksStage(Stage):
     design_keys = ("gate_deg", "pair", "roles", "n_targets")
 
     def decode(self, dataset, design: dict | None = None) -> BearingPeaks:
-        """The peaks as :class:`~pipeline.trackers.interface.BearingPeaks`, checked (decoded
+        """The peaks as :class:`~trackreplay.trackers.interface.BearingPeaks`, checked (decoded
         once per data set; the design does not enter)."""
         if "bearing_peaks" not in dataset.cache:
             peaks = read_peaks(dataset)

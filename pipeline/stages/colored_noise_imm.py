@@ -5,12 +5,12 @@ Input channels: ``/colored/measurements`` (``position_m`` per axis) and, optiona
 the true state (Kwon 1997, ch. V); a file without truth (a recording) starts them from the
 measurements instead (``track_start="auto"``, the default), and ``--set track_start=truth``
 insists on the truth. Outputs on ``/tracks/colored/<tracker>``: see
-:mod:`pipeline.trackers.colored_noise`; ``/tracks/colored/ar_estimator`` (:meth:`extras`) holds
+:mod:`trackreplay.trackers.colored_noise`; ``/tracks/colored/ar_estimator`` (:meth:`extras`) holds
 ``alpha``, ``alpha_biased``, ``noise_variance``, ``flags`` per axis and ``warm``.
 
 Only decoding and bookkeeping live here: the trackers are in
-:mod:`pipeline.trackers.colored_noise`, the metrics in :mod:`evaluators.colored_noise_imm`,
-the Rerun views in :mod:`pipeline.face.rerun_colored_noise`. See
+:mod:`trackreplay.trackers.colored_noise`, the metrics in :mod:`trackreplay.evaluators.colored_noise_imm`,
+the Rerun views in :mod:`trackreplay.face.rerun_colored_noise`. See
 ``docs/papers/colored-noise-imm.md``.
 """
 
@@ -19,13 +19,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from evaluators import colored_noise_imm as colored_eval
-from pipeline import vocabulary as vocab
-from pipeline.errors import InputError, require_finite
-from pipeline.stages.base import Stage, model_recorded
-from evaluators.standard import position_space
-from pipeline.trackers.colored_noise import MODEL_NAMES, ar1_outputs, colored_noise_pcrb
-from pipeline.trackers.interface import ColoredPositions
+from trackreplay.evaluators import colored_noise_imm as colored_eval
+from trackreplay import vocabulary as vocab
+from trackreplay.errors import InputError, require_finite
+from trackreplay.stages.base import Stage, model_recorded
+from trackreplay.evaluators.standard import position_space
+from trackreplay.trackers.colored_noise import MODEL_NAMES, ar1_outputs, colored_noise_pcrb
+from trackreplay.trackers.interface import ColoredPositions
 
 MEASUREMENTS = vocab.CHANNELS["colored_measurements"]
 TRUTH = vocab.CHANNELS["colored_truth"]
@@ -137,7 +137,7 @@ class ColoredNoiseImmStage(Stage):
         probabilities (the report figure when the data have no truth); and the thesis's figures."""
         from pathlib import Path
 
-        from evaluators.report_plots import plot_positions_time
+        from trackreplay.evaluators.report_plots import plot_positions_time
 
         paths = super().figures(per_scan, out_dir, title)
         if result is not None and dataset is not None:

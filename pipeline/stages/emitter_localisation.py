@@ -4,20 +4,20 @@ Input channels: ``/emitter/measurements`` (``tdoa_s``, ``fdoa_hz``, ``sigma_tdoa
 ``sigma_fdoa_hz`` per pair, ``pairs`` (N, 2), ``carrier_hz``) and ``/emitter/sensors``
 (``position_m``, ``velocity_mps`` (M, 2)) per run and epoch; optionally ``/emitter/prior``
 (``state``: the initial guess) and ``/emitter/truth`` (``state``). They are decoded once into a
-:class:`~pipeline.trackers.interface.TdoaFdoa` (with the truth beside it, for the bound).
+:class:`~trackreplay.trackers.interface.TdoaFdoa` (with the truth beside it, for the bound).
 
-Outputs on ``/tracks/emitter/<estimator>``: see :mod:`pipeline.trackers.emitter` (the
+Outputs on ``/tracks/emitter/<estimator>``: see :mod:`trackreplay.trackers.emitter` (the
 ``joint``, ``tdoa`` and ``fdoa`` estimators, or any plugged tracker of the ``tdoa-fdoa``
 family). Beside them (:meth:`EmitterLocalisationStage.extras`), ``/tracks/emitter/crlb``
 holds the CRLB at the true state for every estimator kind (eq. 18; ``crlb_covariance_<kind>``,
 ``whitened_jacobian_<kind>``, ``crlb_singular_<kind>``, from
-:func:`pipeline.cores.localisation.tdoa_fdoa_crlb.truth_bounds`), which the evaluator's run
+:func:`trackreplay.cores.localisation.tdoa_fdoa_crlb.truth_bounds`), which the evaluator's run
 classification and efficiency need.
 
 A file on which no estimator can run (fewer independent equations than unknowns for every
 kind) is refused with the reason. Only decoding and bookkeeping live here: the estimators are
-in :mod:`pipeline.trackers.emitter`, the metrics in :mod:`evaluators.emitter_localisation`, the
-Rerun views in :mod:`pipeline.face.rerun_emitter`. See ``docs/papers/tdoa-fdoa.md``.
+in :mod:`trackreplay.trackers.emitter`, the metrics in :mod:`trackreplay.evaluators.emitter_localisation`, the
+Rerun views in :mod:`trackreplay.face.rerun_emitter`. See ``docs/papers/tdoa-fdoa.md``.
 """
 
 from __future__ import annotations
@@ -27,14 +27,14 @@ from pathlib import Path
 
 import numpy as np
 
-from evaluators import emitter_localisation as emitter_eval
-from pipeline import vocabulary as vocab
-from pipeline.cores.localisation.tdoa_fdoa_crlb import truth_bounds
-from pipeline.cores.localisation.tdoa_fdoa_model import MEASUREMENT_KINDS, equivalent_sigmas, underdetermined_reason
-from pipeline.errors import InputError, require_finite
-from pipeline.stages.base import Stage
-from evaluators.standard import position_space
-from pipeline.trackers.interface import TdoaFdoa
+from trackreplay.evaluators import emitter_localisation as emitter_eval
+from trackreplay import vocabulary as vocab
+from trackreplay.cores.localisation.tdoa_fdoa_crlb import truth_bounds
+from trackreplay.cores.localisation.tdoa_fdoa_model import MEASUREMENT_KINDS, equivalent_sigmas, underdetermined_reason
+from trackreplay.errors import InputError, require_finite
+from trackreplay.stages.base import Stage
+from trackreplay.evaluators.standard import position_space
+from trackreplay.trackers.interface import TdoaFdoa
 
 MEASUREMENTS = vocab.CHANNELS["emitter_measurements"]
 SENSORS = vocab.CHANNELS["emitter_sensors"]
@@ -44,7 +44,7 @@ TRUTH = vocab.CHANNELS["emitter_truth"]
 
 @dataclass
 class TdoaFdoaWithTruth(TdoaFdoa):
-    """:class:`~pipeline.trackers.interface.TdoaFdoa` with the true state ``truth_state``
+    """:class:`~trackreplay.trackers.interface.TdoaFdoa` with the true state ``truth_state``
     (R, E, 4) or None beside it, for the stage's CRLB extra (the estimators do not read it)."""
 
     truth_state: np.ndarray | None = field(default=None, metadata={"per_run": True})
@@ -210,7 +210,7 @@ class EmitterLocalisationStage(Stage):
         RMSE and CRLB against the equivalent range noise (cf. Ho & Chan 1997, Fig. 7)."""
         import polars as pl
 
-        from evaluators.report_plots import plot_emitter_geometry, plot_metrics_vs
+        from trackreplay.evaluators.report_plots import plot_emitter_geometry, plot_metrics_vs
 
         paths, out_dir = [], Path(out_dir)
         if result is not None and dataset is not None:

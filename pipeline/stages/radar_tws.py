@@ -4,23 +4,23 @@ Input channels: ``/radar/plots`` (``range_m``, ``bearing_rad`` per run and scan)
 ``/radar/truth`` (``state``). Output: ``/tracks/radar/<tracker>`` with ``state``,
 ``covariance``, ``alpha``, ``beta`` (along-range, cross-range), ``lambda_cross``,
 ``innovation`` and ``flags`` per run and scan. Only decoding and bookkeeping live here; the numbers
-come from :mod:`pipeline.trackers.radar_tws` and :mod:`evaluators.radar_tws`, the Rerun views from
-:mod:`pipeline.face.rerun_radar_tws`.
+come from :mod:`trackreplay.trackers.radar_tws` and :mod:`trackreplay.evaluators.radar_tws`, the Rerun views from
+:mod:`trackreplay.face.rerun_radar_tws`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from evaluators import radar_tws as radar_eval
-from pipeline.cores.filters.converted_measurements import polar_to_cartesian
-from pipeline import vocabulary as vocab
-from pipeline.trackers.interface import RadarPlots
-from pipeline.errors import InputError, require_finite
-from pipeline.stages.base import Stage, model_recorded
-from pipeline.stages.truth_sets import identity_slots, single_target
-from pipeline.trackers.radar_tws import radar_pcrb
-from evaluators.standard import position_space
+from trackreplay.evaluators import radar_tws as radar_eval
+from trackreplay.cores.filters.converted_measurements import polar_to_cartesian
+from trackreplay import vocabulary as vocab
+from trackreplay.trackers.interface import RadarPlots
+from trackreplay.errors import InputError, require_finite
+from trackreplay.stages.base import Stage, model_recorded
+from trackreplay.stages.truth_sets import identity_slots, single_target
+from trackreplay.trackers.radar_tws import radar_pcrb
+from trackreplay.evaluators.standard import position_space
 
 #: radius, in standard deviations, of the two-dimensional Gaussian ellipse that holds all but
 #: 10⁻⁴ of it (√ of the χ² quantile with 2 degrees of freedom: √(−2 ln 10⁻⁴))
@@ -59,7 +59,7 @@ class RadarTwsStage(Stage):
             if values.ndim != 3:  # (runs, scans, plots): one number per plot
                 raise InputError(f"{PLOTS} {name} has shape {values.shape[3:]} per plot; each plot has one "
                                  f"{name}", dataset.path)
-        # finite values and ranges ≥ 0 are the contract's checks at read time (pipeline.vocabulary.VALUES)
+        # finite values and ranges ≥ 0 are the contract's checks at read time (trackreplay.vocabulary.VALUES)
         if ch.n_scans < 3:
             raise InputError(f"{PLOTS} has {ch.n_scans} scan(s); a track needs at least 3", dataset.path)
         return rng, brg, counts, ch.times()
@@ -77,7 +77,7 @@ class RadarTwsStage(Stage):
 
     def decode_truth(self, dataset):
         """The truth as a set per scan, ``(state (R, K, T, 4), target_id (R, K, T))`` in
-        identity-stable slots (:mod:`pipeline.stages.truth_sets`), or None without truth.
+        identity-stable slots (:mod:`trackreplay.stages.truth_sets`), or None without truth.
         A file written before truth sets (one ``state`` per frame, no ``target_id``) holds one
         target, identity 0. Decoded and checked once per data set."""
         if "radar_truth" not in dataset.cache:
@@ -143,7 +143,7 @@ class RadarTwsStage(Stage):
         ``tracks.png``: run 0 in the plane, every plot, the truth and each tracker's track."""
         from pathlib import Path
 
-        from evaluators.report_plots import plot_tracks_xy
+        from trackreplay.evaluators.report_plots import plot_tracks_xy
 
         paths = super().figures(per_scan, out_dir, title)
         if result is not None and dataset is not None:

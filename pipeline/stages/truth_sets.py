@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.errors import InputError
+from trackreplay.errors import InputError
 
 
 def identity_slots(state, ids, counts, topic: str, path=None):

@@ -1,13 +1,13 @@
 """Trackers: one module per paper, each the paper's loop over the numerical cores.
 
-Every built-in tracker is a :class:`~pipeline.trackers.interface.Tracker`, the interface a
+Every built-in tracker is a :class:`~trackreplay.trackers.interface.Tracker`, the interface a
 user's plugged tracker implements (docs/trackers.md), and is run by its family's stage like any
 other.
 
 The paper index
 ---------------
 Where each paper lives, from its data to its page (family names as in
-``pipeline.vocabulary.FAMILIES``; scenarios as ``replay scenarios`` lists them):
+``trackreplay.vocabulary.FAMILIES``; scenarios as ``replay scenarios`` lists them):
 
 * **Track-while-scan radar α-β trackers** (Kim & Lee 2006), family ``radar-plots``, scenario
   ``radar-tws``: tracker ``trackers/radar_tws.py``; cores ``cores/filters/alpha_beta_gains.py``,

@@ -3,39 +3,39 @@ innovation; Ryu et al. (1999) for the least-squares innovation it replaces.
 
 The paper's section III.2, steps 1–5, eqs. (14)–(22); see ``docs/papers/array-bearing.md``.
 Two trackers of the family ``array-snapshots`` share one pipeline and differ only in how the
-angular innovation is computed (:mod:`pipeline.cores.array.angular_innovation`):
+angular innovation is computed (:mod:`trackreplay.cores.array.angular_innovation`):
 
 ``proposed``  the paper's closed form (eqs. (7), (11)–(13));
 ``ryu``       Ryu et al. (1999)'s (2N+1)-unknown least squares (eq. (6) of the 1999 paper).
 
 Scan 0 is the paper's k = −1, scan 1 is k = 0, tracking starts at scan 2 (k = 1):
 
-1. **Start-up** (step 1): MUSIC on scans 0 and 1 (:mod:`pipeline.cores.array.music`). The number
+1. **Start-up** (step 1): MUSIC on scans 0 and 1 (:mod:`trackreplay.cores.array.music`). The number
    of targets N is the source count (MDL or AIC) of scan 1, or the design's fixed ``n_sources``;
    N peaks are picked in both scans and associated by nearest angle (for two sorted sets of N
    angles, pairing by rank is the nearest-angle assignment). Per target
    ``x(0|0) = [θ̂(0), (θ̂(0) − θ̂(−1))/T]``,
    ``P(0|0) = [[σ_z², σ_z²/T], [σ_z²/T, 2σ_z²/T²]]`` (the two-point difference; the paper prints
    σ_z²/T²).
-2. **Subspace**: PAST (Yang 1995, :mod:`pipeline.cores.array.past_subspace`) initialised from the
+2. **Subspace**: PAST (Yang 1995, :mod:`trackreplay.cores.array.past_subspace`) initialised from the
    EVD of scan 0 and run over every snapshot of scans 1, 2, …; W(k) is its state at the end of
    scan k. The per-scan batch EVD is computed alongside as the reference (``subspace_error_rad``
    = largest principal angle between the two) and can replace PAST (``subspace_tracker=batch``).
 3. **Kalman filter** per target, constant angular velocity, ``F = [[1, T], [0, 1]]``,
    ``Q = q [[T³/3, T²/2], [T²/2, T]]``, ``H = [1, 0]``, variance σ_z² (eqs. (14)–(22),
-   :mod:`pipeline.cores.filters.kalman`); the update uses the angular innovation δθ(k) from W(k)
+   :mod:`trackreplay.cores.filters.kalman`); the update uses the angular innovation δθ(k) from W(k)
    and the prediction θ̂(k|k−1) in place of z − Hx. A non-finite innovation (prediction at
    end-fire) leaves the track coasting (flag ``COASTED``). With ``align_subspace_instant`` (a
    converted recording records it) W(k) is taken for the scene at the instant its weights
    describe, δ_k from the scan's time stamp
-   (:func:`pipeline.cores.array.past_subspace.subspace_instant_offset`): ``H = [1, δ_k]`` and the
+   (:func:`trackreplay.cores.array.past_subspace.subspace_instant_offset`): ``H = [1, δ_k]`` and the
    innovation is taken about θ̂ + δ_k θ̂̇, so a source moving at a constant rate is not trailed.
 
 The N of each run comes from its own start-up, so runs are processed in groups of equal N, each
 group in one vectorised pass (no loop per run). Track slots are padded to the largest N (flag
 ``NO_TRACK``, state NaN).
 
-Outputs (vocabulary of :data:`pipeline.vocabulary.OUTPUTS`, T track slots):
+Outputs (vocabulary of :data:`trackreplay.vocabulary.OUTPUTS`, T track slots):
 ``state`` (R, K, T, 2) ``[θ, θ̇]`` in rad and rad/s (scan 0 has no rate: ``NOT_ESTIMATED``),
 ``covariance`` (R, K, T, 2, 2) from scan 1 on, ``innovation`` (R, K, T, 1) the angular innovation
 δθ, ``innovation_covariance`` (R, K, T, 1, 1), ``gain`` (R, K, T, 2, 1), ``flags`` (R, K, T)
@@ -61,16 +61,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline import vocabulary as vocab
-from pipeline.cores.array.angular_innovation import INNOVATIONS, counted_flops
-from pipeline.cores.array.flop_counts import ANALYTIC
-from pipeline.cores.array.music import angle_grid, eigen_decomposition, music_spectrum, pick_peaks, sample_covariance, source_count
-from pipeline.cores.array.past_subspace import (batch_signal_subspace, initial_state, largest_principal_angle, past_scans,
+from trackreplay import vocabulary as vocab
+from trackreplay.cores.array.angular_innovation import INNOVATIONS, counted_flops
+from trackreplay.cores.array.flop_counts import ANALYTIC
+from trackreplay.cores.array.music import angle_grid, eigen_decomposition, music_spectrum, pick_peaks, sample_covariance, source_count
+from trackreplay.cores.array.past_subspace import (batch_signal_subspace, initial_state, largest_principal_angle, past_scans,
                                                 subspace_instant_offset)
-from pipeline.cores.association.track_management import EndingRule, TrackLife
-from pipeline.cores.filters.kalman import apply_gain, continuous_white_noise_model, kalman_gain, kf_predict, two_point_start
-from pipeline.errors import InputError
-from pipeline.trackers.interface import ArraySnapshots, Param, Tracker
+from trackreplay.cores.association.track_management import EndingRule, TrackLife
+from trackreplay.cores.filters.kalman import apply_gain, continuous_white_noise_model, kalman_gain, kf_predict, two_point_start
+from trackreplay.errors import InputError
+from trackreplay.trackers.interface import ArraySnapshots, Param, Tracker
 
 STARTUP_SCANS = 2
 # runs per block of the batch EVD and the subspace error (memory and speed, not results): at 16
@@ -111,10 +111,10 @@ class SubspaceTrackerDesign:
         A track whose innovation is undefined (its prediction beyond the field) this many scans
         in a row is deleted; 0: never. A track whose bearing leaves the field
         (:attr:`field_rad`) is always deleted
-        (:mod:`pipeline.cores.association.track_management`).
+        (:mod:`trackreplay.cores.association.track_management`).
     align_subspace_instant : bool
         Measure each scan's bearing at the instant its subspace describes
-        (:func:`pipeline.cores.array.past_subspace.subspace_instant_offset`: PAST's memory reaches
+        (:func:`trackreplay.cores.array.past_subspace.subspace_instant_offset`: PAST's memory reaches
         back 0.59 T before the scan's time stamp at β = 0.97), not at the time stamp. False (the
         default) is the paper as printed, whose tracks trail a moving source by θ̇ times that
         offset; a converted WAV recording records True (``recorders/wav_array.py``).
@@ -414,7 +414,7 @@ def track_bearings(snapshots: np.ndarray, design: SubspaceTrackerDesign, strateg
         Snapshot blocks per run and scan (complex, finite, N ≤ M − 1, Ns ≥ N).
     design : SubspaceTrackerDesign
     strategy : str
-        Innovation strategy, a key of :data:`pipeline.cores.array.angular_innovation.INNOVATIONS`.
+        Innovation strategy, a key of :data:`trackreplay.cores.array.angular_innovation.INNOVATIONS`.
 
     Returns
     -------
@@ -519,7 +519,7 @@ def check_design(design: dict) -> None:
 
 class _AngularInnovationTracker(Tracker):
     """MUSIC start-up → PAST → per-target Kalman filters with one angular-innovation strategy
-    (the class's ``name``, a key of :data:`pipeline.cores.array.angular_innovation.INNOVATIONS`)."""
+    (the class's ``name``, a key of :data:`trackreplay.cores.array.angular_innovation.INNOVATIONS`)."""
 
     family = "array-snapshots"
     form = "batch"

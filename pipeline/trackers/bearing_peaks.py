@@ -7,7 +7,7 @@ the peaks in each track's gate are weighted by the exact JPDA marginals β (appe
 A.1–A.6) and combined by the PDA update (eq. A.7). JPDA_A multiplies each peak's likelihood
 ratio by the ratio of its amplitude's density as a true peak to that as clutter (eq. A.5); with
 ``amplitude_tracking`` the expected amplitude ẑ_a follows eq. 9. The numerics are the one
-core :mod:`pipeline.cores.association.jpda`; this module picks its design values, starts the
+core :mod:`trackreplay.cores.association.jpda`; this module picks its design values, starts the
 tracks and exposes the two variants as trackers:
 
 ``jpda``    position likelihoods only (Fortmann, Bar-Shalom & Scheffe 1983);
@@ -32,12 +32,12 @@ Track start (design ``track_start``):
 A track started from peaks is tentative (``INITIALISING``) until ``confirm_hits`` of its first
 ``confirm_window`` scans had a peak in its gate, and is deleted if it cannot get there; every
 track ends when it leaves the field by more than half a gate or coasts ``max_coasted_scans``
-scans in a row (:mod:`pipeline.cores.association.track_management`).
+scans in a row (:mod:`trackreplay.cores.association.track_management`).
 
 Any number of tracks T (the targets of the data); their strength roles are the design's
-``roles`` pattern (or ``pair``'s) cycled over them (:mod:`pipeline.trackers.peak_roles`).
+``roles`` pattern (or ``pair``'s) cycled over them (:mod:`trackreplay.trackers.peak_roles`).
 
-Outputs (:data:`pipeline.vocabulary.OUTPUTS`): ``state`` (R, K, T, 2), ``covariance``,
+Outputs (:data:`trackreplay.vocabulary.OUTPUTS`): ``state`` (R, K, T, 2), ``covariance``,
 ``track_id`` (R, K, T: slot j is track j wherever it holds one, −1 elsewhere; a slot is never
 restarted),
 ``flags`` (``NO_TRACK | INITIALISING`` before the start scan, whose state is NaN;
@@ -53,13 +53,13 @@ from dataclasses import replace
 
 import numpy as np
 
-from pipeline import vocabulary as vocab
-from pipeline.cores.association.jpda import STRATEGIES, BearingTrackerDesign, scans_from_padded, track_bearing_peaks
-from pipeline.cores.association.track_management import ConfirmationRule, EndingRule
-from pipeline.cores.filters.kalman import two_point_start
-from pipeline.errors import InputError, check_all
-from pipeline.trackers.interface import BearingPeaks, Param, Tracker
-from pipeline.trackers.peak_roles import roles_for, track_roles
+from trackreplay import vocabulary as vocab
+from trackreplay.cores.association.jpda import STRATEGIES, BearingTrackerDesign, scans_from_padded, track_bearing_peaks
+from trackreplay.cores.association.track_management import ConfirmationRule, EndingRule
+from trackreplay.cores.filters.kalman import two_point_start
+from trackreplay.errors import InputError, check_all
+from trackreplay.trackers.interface import BearingPeaks, Param, Tracker
+from trackreplay.trackers.peak_roles import roles_for, track_roles
 
 PEAKS = vocab.CHANNELS["xcorr_peaks"]
 TRUTH = vocab.CHANNELS["xcorr_truth"]
@@ -265,7 +265,7 @@ def start_tracks(m: BearingPeaks, track_start: str, d: BearingTrackerDesign, rat
 
 
 class _JpdaTracker(Tracker):
-    """One variant of :data:`pipeline.cores.association.jpda.STRATEGIES` (see the module docstring)."""
+    """One variant of :data:`trackreplay.cores.association.jpda.STRATEGIES` (see the module docstring)."""
 
     family = "bearing-peaks"
     form = "batch"

@@ -3,12 +3,12 @@ decorrelation, the square-root information filter and IMMs built on them.
 
 The thesis (ch. III–V; see ``docs/papers/colored-noise-imm.md``) models the position
 measurement noise as ``ν_k = α ν_{k−1} + η_k``, estimates α and ``σ_η²`` online (Wu & Chang
-1996, eqs. 3.2.3–3.2.51: :mod:`pipeline.cores.filters.ar1_estimation`), whitens the measurements
+1996, eqs. 3.2.3–3.2.51: :mod:`trackreplay.cores.filters.ar1_estimation`), whitens the measurements
 by differencing, ``y_k = z_k − ᾱ z_{k−1}`` with ``Ĥ = H − ᾱ H Φ⁻¹`` (eqs. 3.1.1–3.1.6:
-:mod:`pipeline.cores.filters.decorrelation`), and compares five filters on the whitened or plain
-measurements. All run on the one IMM core (:mod:`pipeline.cores.filters.imm`, eqs. 4.3.1–4.3.17,
-a single model being the IMM with one model) with Kalman (:mod:`pipeline.cores.filters.kalman`)
-or square-root information (:mod:`pipeline.cores.filters.srif`, eqs. 4.2.18–4.2.22) model filters:
+:mod:`trackreplay.cores.filters.decorrelation`), and compares five filters on the whitened or plain
+measurements. All run on the one IMM core (:mod:`trackreplay.cores.filters.imm`, eqs. 4.3.1–4.3.17,
+a single model being the IMM with one model) with Kalman (:mod:`trackreplay.cores.filters.kalman`)
+or square-root information (:mod:`trackreplay.cores.filters.srif`, eqs. 4.2.18–4.2.22) model filters:
 
 ``kf``      one CA model (Ψ = [T²/2, T, 1], eq. 2.5), plain measurements (ignores the colour);
 ``kf_dp``   the same model with the decorrelation process and the AR estimator;
@@ -26,7 +26,7 @@ With ``"measurements"``: position from the first measurement with variance ``mea
 velocity and acceleration with the large variances :data:`START_VELOCITY_VARIANCE` and
 :data:`START_ACCELERATION_VARIANCE` (``initial_variance`` is then unused).
 
-Flags (``pipeline.vocabulary.FLAGS``, decorrelating trackers only): the AR estimator's
+Flags (``trackreplay.vocabulary.FLAGS``, decorrelating trackers only): the AR estimator's
 ``CLAMPED`` (discriminant clamped), ``LIMITED`` (|α̂| limited), ``FLOORED`` (``σ_η²`` floored),
 bit-or over the axes, and ``NOT_WARM`` while the estimator has not settled (the filter then
 uses the plain measurement). Each decorrelating tracker runs the estimator itself (three
@@ -43,13 +43,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline import vocabulary as vocab
-from pipeline.cores.association.track_management import ConfirmationRule, confirmation_scans
-from pipeline.cores.filters.ar1_estimation import check_design, estimate_ar1, scan_flags
-from pipeline.cores.filters.imm import (MeasurementStream, ModelFilter, check_transition, imm_filter,
+from trackreplay import vocabulary as vocab
+from trackreplay.cores.association.track_management import ConfirmationRule, confirmation_scans
+from trackreplay.cores.filters.ar1_estimation import check_design, estimate_ar1, scan_flags
+from trackreplay.cores.filters.imm import (MeasurementStream, ModelFilter, check_transition, imm_filter,
                                         kinematic_model, single_model_filter)
-from pipeline.errors import InputError
-from pipeline.trackers.interface import ColoredPositions, Param, Tracker
+from trackreplay.errors import InputError
+from trackreplay.trackers.interface import ColoredPositions, Param, Tracker
 
 MODEL_NAMES = ("cv", "ca_transition", "ca_steady")
 TRACK_STARTS = ("auto", "truth", "measurements")
@@ -295,7 +295,7 @@ def colored_noise_pcrb(truth_alpha, times, process_noise_variance: float, measur
     ``z_k = p_k + ν_k`` with ``ν_k = α_k ν_{k−1} + η_k``, ``var η_k = (1 − α_k²) R``,
     ``ν_0 ~ N(0, R)``. Appending ``ν`` to the state makes the model linear-Gaussian with an exact
     measurement, whose bound is the Kalman covariance of the augmented state
-    (:func:`pipeline.cores.filters.pcrb.linear_gaussian_bound`). The known input ``u`` does not
+    (:func:`trackreplay.cores.filters.pcrb.linear_gaussian_bound`). The known input ``u`` does not
     change the information. The start is the true state (as the papers' filters are given it),
     so the bound is zero at scan 0 and holds for any estimator that knows no more than that
     start and the measurements.
@@ -315,7 +315,7 @@ def colored_noise_pcrb(truth_alpha, times, process_noise_variance: float, measur
     ndarray (scans, 2, 2)
         Bound covariance of ``[p, v]`` of one axis (every axis has the same), averaged over runs.
     """
-    from pipeline.cores.filters.pcrb import linear_gaussian_bound
+    from trackreplay.cores.filters.pcrb import linear_gaussian_bound
 
     alpha = np.asarray(truth_alpha, float)
     alpha = alpha[..., 0] if alpha.ndim == 3 else alpha          # (runs, scans): the same α on every axis

@@ -5,7 +5,7 @@ frequency differences of arrival of sensor pairs (eqs. 1–5) by Gauss-Newton on
 least-squares cost J(θ) (eqs. 6, 8, 15–17), and bounds it by the CRLB (eqs. 18–22). See
 ``docs/papers/tdoa-fdoa.md``. One epoch is one scan of the data contract; every (run, epoch)
 is one independent estimate, all of them in one vectorised Gauss-Newton pass
-(:func:`pipeline.cores.localisation.gauss_newton.gauss_newton`).
+(:func:`trackreplay.cores.localisation.gauss_newton.gauss_newton`).
 
 Three estimators, one per measurement kind (:data:`TRACKERS`):
 
@@ -20,7 +20,7 @@ covariance is singular by construction, and the output check flags it ``NOT_POSI
 σ_FDOA = 10⁻⁹ Hz, where the position and velocity variances differ by more than double
 precision holds).
 
-Outputs (:data:`pipeline.vocabulary.OUTPUTS`): ``state`` (4), ``covariance`` (4 × 4, the
+Outputs (:data:`trackreplay.vocabulary.OUTPUTS`): ``state`` (4), ``covariance`` (4 × 4, the
 inverse Fisher information (HᵀΨ⁻¹H)⁻¹ at the estimate, eq. 18) and ``flags`` (``CONVERGED``,
 ``NOT_CONVERGED``, ``DIVERGED``, ``RANK_DEFICIENT``, ``INVALID_START``, ``UNDERDETERMINED``,
 ``NOT_ESTIMATED``), with the extras ``iterates`` (iterations + 1, 4: every Gauss-Newton
@@ -36,20 +36,20 @@ Jacobian is singular there, or the start was not finite) reports a NaN state fla
 Starting points (``initial_guess``): ``prior`` reads :attr:`TdoaFdoa.prior_state` (the paper's
 "truth plus 1 % MSE" start, recorded as ``/emitter/prior``); ``grid`` searches a coarse position
 grid around the sensors with the least-squares velocity per point
-(:func:`pipeline.cores.localisation.coarse_grid_search.coarse_grid_start`).
+(:func:`trackreplay.cores.localisation.coarse_grid_search.coarse_grid_start`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from pipeline import vocabulary as vocab
-from pipeline.cores.localisation.coarse_grid_search import coarse_grid_start
-from pipeline.cores.localisation.gauss_newton import gauss_newton
-from pipeline.cores.localisation.tdoa_fdoa_model import (measurement_model, measurement_rows, underdetermined_reason,
+from trackreplay import vocabulary as vocab
+from trackreplay.cores.localisation.coarse_grid_search import coarse_grid_start
+from trackreplay.cores.localisation.gauss_newton import gauss_newton
+from trackreplay.cores.localisation.tdoa_fdoa_model import (measurement_model, measurement_rows, underdetermined_reason,
                                                          unknowns)
-from pipeline.errors import InputError
-from pipeline.trackers.interface import Param, TdoaFdoa, Tracker
+from trackreplay.errors import InputError
+from trackreplay.trackers.interface import Param, TdoaFdoa, Tracker
 
 INITIAL_GUESSES = ("prior", "grid")
 

@@ -21,7 +21,7 @@ arrays of shape ``(runs, scans, ...)``: one Python call per data set, so a vecto
 costs what its numpy kernels cost. The **run** form receives the same object for one run (no
 run axis) and returns ``(scans, ...)`` arrays; the pipeline loops over runs and stacks the
 results, which costs one Python call per run on top of the tracker's own work (measured by
-``benchmarks/bench_tracker_forms.py``). Outputs follow :data:`pipeline.vocabulary.OUTPUTS`.
+``benchmarks/bench_tracker_forms.py``). Outputs follow :data:`trackreplay.vocabulary.OUTPUTS`.
 """
 
 from __future__ import annotations
@@ -33,9 +33,9 @@ from typing import ClassVar
 
 import numpy as np
 
-from pipeline import vocabulary as vocab
-from pipeline.batched_linalg import cholesky_lower, positive_definite
-from pipeline.errors import InputError
+from trackreplay import vocabulary as vocab
+from trackreplay.batched_linalg import cholesky_lower, positive_definite
+from trackreplay.errors import InputError
 
 
 @dataclass(frozen=True)
@@ -150,7 +150,7 @@ class Measurements:
         return int(len(self.times_s))
 
     #: components of the state a tracker of the family returns (its ``state``'s last axis);
-    #: the family's evaluators index them (``pipeline.vocabulary.FAMILIES``)
+    #: the family's evaluators index them (``trackreplay.vocabulary.FAMILIES``)
     state_size = None
 
 
@@ -332,7 +332,7 @@ def _first(mask) -> str:
 def validate_outputs(outputs: dict, n_runs: int, n_scans: int, name: str, where: str | None = None,
                      state_size: int | None = None) -> dict:
     """Check a tracker's outputs against the vocabulary; return them with flags as
-    :data:`~pipeline.vocabulary.FLAG_DTYPE`.
+    :data:`~trackreplay.vocabulary.FLAG_DTYPE`.
 
     Checks: the required names; every array ``(runs, scans, ...)`` and numeric; ``flags``
     shaped like ``state`` without its last axis; NaN in ``state`` only where the flags say
@@ -500,7 +500,7 @@ def _check_covariance(cov, state, name, where):
             fail(start + where_live[asym].min(), "covariance not symmetric")
         # c − δI has a Cholesky factor only when c's smallest eigenvalue exceeds δ, a margin
         # above what rounding can move it by: one batched factorisation, entry by entry
-        # (pipeline.batched_linalg), clears the common case; the eigenvalues are computed only
+        # (trackreplay.batched_linalg), clears the common case; the eigenvalues are computed only
         # for the matrices it does not clear
         trace = np.maximum(np.add.reduce(np.abs(t[on_diagonal]), axis=0), np.finfo(float).tiny)
         t[on_diagonal] -= STRICT_DEFINITENESS * n * trace  # t is now c − δI

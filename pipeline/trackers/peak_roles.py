@@ -15,7 +15,7 @@ default; an empty value too) takes the pattern of ``pair`` (``strong-weak``, ``s
 
 from __future__ import annotations
 
-from pipeline.errors import InputError
+from trackreplay.errors import InputError
 
 ROLE_NAMES = ("strong", "weak")
 FROM_PAIR = "pair"  # the value of roles that defers to pair

@@ -5,26 +5,26 @@ loop (:func:`track_multi_target`) serves both; what differs is a small **associa
 
 ``gnn``      one optimal one-to-one assignment of tracks to plots per scan inside the χ² gates,
              "not detected" an option for every track (Blackman & Popoli 1999, ch. 6;
-             :func:`pipeline.cores.association.gnn.pair_assignment`); a Kalman update with the
+             :func:`trackreplay.cores.association.gnn.pair_assignment`); a Kalman update with the
              assigned plot.
 ``jpda_mt``  joint probabilistic data association (Fortmann, Bar-Shalom & Scheffe 1983): the
              marginal association probabilities of every confirmed track and gated plot from the
-             project's one JPDA core (:func:`pipeline.cores.association.jpda.pair_association_probabilities`:
+             project's one JPDA core (:func:`trackreplay.cores.association.jpda.pair_association_probabilities`:
              exact per cluster of tracks sharing plots, from the gated pairs), then the PDA update
-             (:func:`pipeline.cores.association.jpda.pda_update_gaussian`); tentative tracks take,
+             (:func:`trackreplay.cores.association.jpda.pda_update_gaussian`); tentative tracks take,
              by nearest neighbour, only plots outside every confirmed gate (a separate initiator).
 
 Both see a scan as the track–plot pairs inside the gates
-(:func:`pipeline.cores.association.gating.gate_pairs`), never as a dense track × plot matrix:
+(:func:`trackreplay.cores.association.gating.gate_pairs`), never as a dense track × plot matrix:
 hundreds of tracks meet hundreds of plots in a busy scan, yet each gates a few, and every run of
 a Monte Carlo set is one more block of the same sparse problem.
 
 Each track is filtered by a **per-track filter** object
-(:class:`pipeline.cores.filters.track_filter.PolarConstantVelocityEKF`: nearly-constant-velocity
+(:class:`trackreplay.cores.filters.track_filter.PolarConstantVelocityEKF`: nearly-constant-velocity
 motion, range-bearing EKF), which owns prediction, predicted measurement, innovation covariance
 and update; the gate is the χ² quantile of the innovation's two degrees of freedom.
 
-Track life is the shared mechanism of :mod:`pipeline.cores.association.track_management`: a plot
+Track life is the shared mechanism of :mod:`trackreplay.cores.association.track_management`: a plot
 that no track claimed (GNN: not assigned; JPDA: inside no confirmed gate and not taken by a
 tentative track) starts a tentative track
 (``INITIALISING``) at the plot with a zero-mean velocity prior; it is confirmed when
@@ -41,23 +41,23 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline import vocabulary as vocab
-from pipeline.cores.association.gating import GatedPairs, gate_pairs
-from pipeline.cores.association.gnn import pair_assignment
-from pipeline.cores.association.jpda import (
+from trackreplay import vocabulary as vocab
+from trackreplay.cores.association.gating import GatedPairs, gate_pairs
+from trackreplay.cores.association.gnn import pair_assignment
+from trackreplay.cores.association.jpda import (
     gaussian_likelihood_ratio,
     pair_association_probabilities,
     pda_update_gaussian,
 )
-from pipeline.cores.association.track_management import ConfirmationRule, EndingRule, TrackLife
-from pipeline.cores.filters.kalman import kalman_gain
-from pipeline.cores.filters.track_filter import (
+from trackreplay.cores.association.track_management import ConfirmationRule, EndingRule, TrackLife
+from trackreplay.cores.filters.kalman import kalman_gain
+from trackreplay.cores.filters.track_filter import (
     PolarConstantVelocityEKF,
     PolarConstantVelocityUKF,
     TrackFilter,
     wrap_angle,
 )
-from pipeline.trackers.interface import Param, Tracker
+from trackreplay.trackers.interface import Param, Tracker
 
 #: smallest clutter density (plots per metre and radian) the JPDA weighs plots against: a
 #: scenario without clutter still has a finite likelihood ratio
@@ -469,7 +469,7 @@ class _MultiTargetTracker(Tracker):
 
     def __init__(self, **design):
         super().__init__(**design)
-        from pipeline.errors import InputError
+        from trackreplay.errors import InputError
 
         if int(self.confirm_hits) < 1 or int(self.confirm_window) < int(self.confirm_hits):
             raise InputError(f"{self.name}: confirmation needs 1 ≤ confirm_hits ≤ confirm_window (got "
@@ -513,7 +513,7 @@ class JpdaTracker(_MultiTargetTracker):
 
 class UkfGnnTracker(_MultiTargetTracker):
     """GNN with an unscented Kalman filter per track: the per-track filter is the only change
-    (:class:`~pipeline.cores.filters.track_filter.PolarConstantVelocityUKF`); the loop is the same."""
+    (:class:`~trackreplay.cores.filters.track_filter.PolarConstantVelocityUKF`); the loop is the same."""
 
     name = "ukf"
     label = "UKF (GNN)"

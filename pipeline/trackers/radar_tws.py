@@ -24,7 +24,7 @@ the gain rotated into that frame — so the gains can be compared on one plot.
 
 Tracks start from two plots (position of the second, velocity from their difference) and are
 filtered from the third plot on. Track management is the shared mechanism of
-:mod:`pipeline.cores.association.track_management`: a track is tentative (``INITIALISING``) until
+:mod:`trackreplay.cores.association.track_management`: a track is tentative (``INITIALISING``) until
 ``confirm_hits`` of its first ``confirm_window`` scans had a plot (the two start plots
 included), and is deleted (``NO_TRACK | DELETED``) after ``max_coasted_scans`` coasted scans in a
 row or when it fails confirmation; its run then starts a new track from its next two plots. With
@@ -32,21 +32,21 @@ row or when it fails confirmation; its run then starts a new track from its next
 recordings with clutter; the paper's scenario has none, and no gate is the default).
 
 Covariances stay symmetric positive definite at every design value the trackers accept
-(:func:`check_design` refuses the rest with a one-line :class:`~pipeline.errors.InputError`).
+(:func:`check_design` refuses the rest with a one-line :class:`~trackreplay.errors.InputError`).
 The Kalata gains and their covariance are evaluated in a form free of cancellation
-(:mod:`pipeline.cores.filters.alpha_beta_gains`) and the Kalman update forms ``I − K_pos`` as
-``R S⁻¹`` (:func:`~pipeline.cores.filters.kalman.cv_position_update_components`). Repairs,
+(:mod:`trackreplay.cores.filters.alpha_beta_gains`) and the Kalman update forms ``I − K_pos`` as
+``R S⁻¹`` (:func:`~trackreplay.cores.filters.kalman.cv_position_update_components`). Repairs,
 each flagged ``FLOORED`` on its scan, cover what a Cartesian covariance cannot hold:
 
 * a plot's along-range or cross-range variance is raised to
-  :data:`~pipeline.cores.filters.converted_measurements.RELATIVE_VARIANCE_FLOOR` times the other
+  :data:`~trackreplay.cores.filters.converted_measurements.RELATIVE_VARIANCE_FLOOR` times the other
   (a very precise range far out, or a plot next to the radar where r·σ_θ → 0), and to the value
   that makes its tracking index σ_v T²/σ at most :data:`MAX_TRACKING_INDEX`;
 * an α-β velocity variance implied by gains off Kalata's curve (the approximate gains after the
   stability clamp) is raised to keep the position-velocity correlation ρ² ≤ 1/2;
 * last, any reported covariance whose relative LDLᵀ pivot is below
-  :data:`~pipeline.cores.filters.kalman.PIVOT_FLOOR` has the eigenvalues of its correlation
-  matrix raised (:func:`~pipeline.cores.filters.kalman.cv_floor_components`); the innovation
+  :data:`~trackreplay.cores.filters.kalman.PIVOT_FLOOR` has the eigenvalues of its correlation
+  matrix raised (:func:`~trackreplay.cores.filters.kalman.cv_floor_components`); the innovation
   covariance's correlation likewise. Only extreme cases reach them (a track started from a plot
   micrometres from the radar, fixed gains designed for a nominal error far from the plot's).
 
@@ -59,7 +59,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.cores.filters.alpha_beta_gains import (
+from trackreplay.cores.filters.alpha_beta_gains import (
     approximate_gains,
     clamp_to_stability,
     floor_velocity_factor,
@@ -69,12 +69,12 @@ from pipeline.cores.filters.alpha_beta_gains import (
     velocity_factor,
     with_startup,
 )
-from pipeline.cores.filters.converted_measurements import (
+from trackreplay.cores.filters.converted_measurements import (
     RELATIVE_VARIANCE_FLOOR,
     floored_polar_variances,
     rotated_diagonal,
 )
-from pipeline.cores.filters.kalman import (
+from trackreplay.cores.filters.kalman import (
     _cv_position_filter_covariances,
     _cv_predict_components_scans,
     _cv_states_with_gains,
@@ -85,11 +85,11 @@ from pipeline.cores.filters.kalman import (
     MATRIX_FROM_COMPONENTS,
 )
 
-from pipeline.cores.association.track_management import ConfirmationRule, EndingRule, TrackLife
+from trackreplay.cores.association.track_management import ConfirmationRule, EndingRule, TrackLife
 
-from pipeline import vocabulary as vocab
-from pipeline.errors import InputError
-from pipeline.trackers.interface import Param, Tracker
+from trackreplay import vocabulary as vocab
+from trackreplay.errors import InputError
+from trackreplay.trackers.interface import Param, Tracker
 
 FLAG_CLAMPED = vocab.CLAMPED
 FLAG_COASTED = vocab.COASTED
@@ -135,7 +135,7 @@ class TrackerDesign:
         Mahalanobis distance ``νᵀ S⁻¹ ν`` is at most this (2 degrees of freedom); otherwise it
         coasts. ``inf``: no gate (the paper's clutter-free scenario).
     confirmation, ending : ConfirmationRule, EndingRule
-        Track management (:mod:`pipeline.cores.association.track_management`): M-of-N
+        Track management (:mod:`trackreplay.cores.association.track_management`): M-of-N
         confirmation counting the two start plots, and the end after coasted scans. A deleted
         track's run starts a new track from its next two plots.
     """
@@ -159,7 +159,7 @@ class TrackerDesign:
         return float(tracking_index(self.sigma_v, self.scan_period_s, self.nominal_cross_range_m))
 
 
-# Strategies work on runs-last arrays: covariance components (10, n) as in pipeline.cores.filters.kalman,
+# Strategies work on runs-last arrays: covariance components (10, n) as in trackreplay.cores.filters.kalman,
 # gains (8, n) = K_pos (00, 01, 10, 11) then K_vel (00, 01, 10, 11).
 
 
@@ -386,8 +386,8 @@ def _steady_block(first, stop, x, c, n_plots, plot_range, plot_bearing, times, d
     and covariances are functions of the plots alone, and the Kalman covariances of the plots and
     the covariance the block starts from. Those are computed for the whole block at once; only
     the recursions that must run scan after scan (the states, the Kalman covariance) do, on as
-    little as they need (:func:`~pipeline.cores.filters.kalman._cv_states_with_gains`,
-    :func:`~pipeline.cores.filters.kalman._cv_position_filter_covariances`). The outputs
+    little as they need (:func:`~trackreplay.cores.filters.kalman._cv_states_with_gains`,
+    :func:`~trackreplay.cores.filters.kalman._cv_position_filter_covariances`). The outputs
     are written into ``out`` (the loop's arrays); returns ``(x, c, n_plots)`` after the block.
     """
     L = stop - first
@@ -465,7 +465,7 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
         ``(runs, scans, 2)`` as (along-range, cross-range), ``lambda_cross``, ``innovation
         (runs, scans, 2)`` and its covariance ``(runs, scans, 2, 2)``, ``gain (runs, scans, 4, 2)``,
         ``measurement (runs, scans, 2)`` (the converted plot used, NaN when the scan had none) and
-        ``flags (runs, scans)`` (bits of :data:`pipeline.vocabulary.FLAGS`; ``FLOORED`` where the
+        ``flags (runs, scans)`` (bits of :data:`trackreplay.vocabulary.FLAGS`; ``FLOORED`` where the
         plot's variances, the α-β velocity variance or the reported covariance were floored, see
         the module docstring).
     """
@@ -758,7 +758,7 @@ def radar_pcrb(truth_state, times, truth_sigma_v: float, sigma_range_m: float, s
                detected=None) -> np.ndarray:
     """Posterior Cramér–Rao bound per scan for the radar scenario (``docs/evaluation.md``).
 
-    The recursion of :func:`pipeline.cores.filters.pcrb.pcrb_recursion` (in its constant-velocity
+    The recursion of :func:`trackreplay.cores.filters.pcrb.pcrb_recursion` (in its constant-velocity
     form, ``_cv_position_pcrb_recursion``) with the truth's own
     motion model (white acceleration ``truth_sigma_v``, the real scan intervals) and the
     range–bearing information averaged over the runs that have a plot at each scan. It starts at
@@ -780,8 +780,8 @@ def radar_pcrb(truth_state, times, truth_sigma_v: float, sigma_range_m: float, s
     -------
     ndarray (scans, 4, 4)
     """
-    from pipeline.cores.filters.converted_measurements import converted_covariance
-    from pipeline.cores.filters.pcrb import _cv_position_pcrb_recursion, polar_position_information
+    from trackreplay.cores.filters.converted_measurements import converted_covariance
+    from trackreplay.cores.filters.pcrb import _cv_position_pcrb_recursion, polar_position_information
 
     truth = np.asarray(truth_state, float)
     R, K = truth.shape[:2]

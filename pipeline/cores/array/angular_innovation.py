@@ -3,7 +3,7 @@
 Ryu, Lee & Lee (2001), eqs. (6)–(13); Ryu et al. (1999) for the least squares; see
 ``docs/papers/array-bearing.md``.
 With the prediction θ̂ₙ(k|k−1) and the first-order steering model
-``aₙ ≈ âₙ + b̂ₙ δθₙ`` (eq. (10), :mod:`pipeline.cores.array.linear_array`), the innovation δθₙ solves a
+``aₙ ≈ âₙ + b̂ₙ δθₙ`` (eq. (10), :mod:`trackreplay.cores.array.linear_array`), the innovation δθₙ solves a
 linear least-squares problem. Two strategies over one interface
 ``innovation(W, θ̂, d/λ) -> δθ`` (W: M × N signal-subspace basis, not necessarily orthonormal):
 
@@ -16,18 +16,18 @@ linear least-squares problem. Two strategies over one interface
 
 Eliminating c from Ryu's problem leaves exactly the proposed one, so both return the same δθ to
 rounding error (tests/test_array_innovation.py); the proposed form needs no (2N+1)² system per
-target, which is the paper's point (FLOPs: :mod:`pipeline.cores.array.flop_counts`).
+target, which is the paper's point (FLOPs: :mod:`trackreplay.cores.array.flop_counts`).
 
 Everything is batched over leading axes (Monte Carlo runs). Each arithmetic step is reported to
-an optional :class:`pipeline.cores.array.flop_counts.FlopTally`, which is how the executed FLOPs are counted.
+an optional :class:`trackreplay.cores.array.flop_counts.FlopTally`, which is how the executed FLOPs are counted.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from pipeline.cores.array.flop_counts import NO_TALLY, FlopTally
-from pipeline.cores.array.linear_array import steering_derivatives, steering_vectors
+from trackreplay.cores.array.flop_counts import NO_TALLY, FlopTally
+from trackreplay.cores.array.linear_array import steering_derivatives, steering_vectors
 
 
 def _predicted_steering(theta_pred, n_sensors: int, spacing_wavelengths: float, tally):

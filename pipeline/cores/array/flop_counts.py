@@ -12,7 +12,7 @@ Analytic model, per scan, all N targets (M sensors)::
     Ryu:     [2(2N+1)³ + 8 M (2N+1)² + 4 M (2N+1)] · N              (N⁴ growth)
 
 :class:`FlopTally` is the instrument: the innovation kernels in
-:mod:`pipeline.cores.array.angular_innovation` report every arithmetic step they execute with its real
+:mod:`trackreplay.cores.array.angular_innovation` report every arithmetic step they execute with its real
 operands, and the tally turns operand shapes and dtypes into FLOPs with the same convention
 (a complex multiply-add costs 6 + 2 = 8, a real one 2, a real × complex product 2).
 Linear solves are counted as the Gaussian elimination LAPACK performs (LU factorisation plus

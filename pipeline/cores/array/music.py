@@ -32,7 +32,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from pipeline.batched_linalg import over_stack
+from trackreplay.batched_linalg import over_stack
 
 
 def sample_covariance(snapshots: np.ndarray) -> np.ndarray:
@@ -56,7 +56,7 @@ def eigen_decomposition(cov: np.ndarray):
     of the 25 µs at M = 15; the same routine, triangle and results); a failure falls back to
     numpy, which raises as it always did. A stack of many matrices (every run of a scan) is
     shared among the available cores when the replay layer allows it
-    (:func:`pipeline.batched_linalg.over_stack`, the same bits): the EVDs are most of an array
+    (:func:`trackreplay.batched_linalg.over_stack`, the same bits): the EVDs are most of an array
     replay's filtering.
     """
     if isinstance(cov, np.ndarray) and cov.ndim == 2 and cov.dtype == np.complex128 and cov.shape[0] == cov.shape[1]:
@@ -77,7 +77,7 @@ def information_criterion(eigenvalues: np.ndarray, n_snapshots: float, criterion
     ``MDL(k) = −Ns (M−k) log(g_k / a_k) + ½ k (2M − k) log Ns`` and
     ``AIC(k) = −2 Ns (M−k) log(g_k / a_k) + 2 k (2M − k)``, with g_k and a_k the geometric and
     arithmetic means of the M − k smallest eigenvalues. :func:`source_count` takes the minimising
-    k; the wideband count (:mod:`pipeline.cores.array.wideband_count`) sums the scores of the
+    k; the wideband count (:mod:`trackreplay.cores.array.wideband_count`) sums the scores of the
     bins of a band first.
 
     Parameters
@@ -146,7 +146,7 @@ def lag_exponentials(grid: np.ndarray, n_sensors: int, spacing_wavelengths: floa
     The real and imaginary parts of exp(j κ l sin θ), stacked so that the real part of
     Σ_l c_l exp(j κ l sin θ) is one real matrix product with ``[Re c, −Im c]``.
     """
-    from pipeline.cores.array.linear_array import electrical_spacing
+    from trackreplay.cores.array.linear_array import electrical_spacing
 
     lags = np.arange(1, n_sensors, dtype=float)
     phase = electrical_spacing(spacing_wavelengths) * lags[:, None] * np.sin(np.asarray(grid, float))[None, :]

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.cores.array.music import eigen_decomposition, sample_covariance
+from trackreplay.cores.array.music import eigen_decomposition, sample_covariance
 
 
 def batch_signal_subspace(snapshots: np.ndarray, n_sources: int):

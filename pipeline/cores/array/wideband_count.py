@@ -63,7 +63,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.cores.array.music import information_criterion
+from trackreplay.cores.array.music import information_criterion
 
 DIRECTION_GRID_POINTS = 1801  # 0.1° steps over the half-plane for the directions of the count
 # diffuse-to-white noise power ratios the count tries (dB; none first): from white sensor noise
@@ -166,7 +166,7 @@ def band_source_count(covariances: np.ndarray, n_snapshots: float, criterion: st
     n_snapshots : float
         Effective snapshots behind each (:func:`effective_snapshots`).
     criterion : {"mdl", "aic"}
-        :func:`pipeline.cores.array.music.information_criterion`.
+        :func:`trackreplay.cores.array.music.information_criterion`.
     max_sources : int, optional
         Largest count considered (default M − 1).
 
@@ -210,7 +210,7 @@ def band_null_spectrum(covariances: np.ndarray, dimension: int, spacing_waveleng
     -------
     ndarray, shape (G,)
     """
-    from pipeline.cores.array.linear_array import steering_vectors
+    from trackreplay.cores.array.linear_array import steering_vectors
 
     J, M, _ = covariances.shape
     if whiteners is not None:

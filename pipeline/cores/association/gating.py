@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.cores.filters.track_filter import squared_distance
+from trackreplay.cores.filters.track_filter import squared_distance
 
 #: relative and absolute widening of the coarse windows: the exact test ``d² ≤ γ`` decides, the
 #: windows only have to hold every plot that can pass it despite rounding
@@ -62,7 +62,7 @@ def gate_pairs(track_filter, z, valid, z_pred, S, gate_chi2: float, live, window
 
     Parameters
     ----------
-    track_filter : pipeline.cores.filters.track_filter.TrackFilter
+    track_filter : trackreplay.cores.filters.track_filter.TrackFilter
         Gives the innovations (angles wrapped) and the component the windows sort along.
     z : ndarray (R, W, m)
         Plots (anything where not ``valid``); angles within one period centred on 0.

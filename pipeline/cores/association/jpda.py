@@ -2,11 +2,11 @@
 
 Park, Ryu & Lee (1994), appendix eqs. A.1–A.7, with the JPDA of Fortmann, Bar-Shalom & Scheffe
 (1983); see ``docs/papers/bearing-peaks.md``. The trackers that call this core are in
-:mod:`pipeline.trackers.bearing_peaks`. One core, batched over a leading Monte Carlo run axis:
+:mod:`trackreplay.trackers.bearing_peaks`. One core, batched over a leading Monte Carlo run axis:
 
 * motion: state ``[θ, θ̇]`` (rad, rad/s), continuous white-noise acceleration
   ``Q' = q [[T³/3, T²/2], [T²/2, T]]`` (eq. 8b), two-point start ``P(0|0) = [[σ², σ²/T],
-  [σ²/T, 2σ²/T²]]`` (eq. 8c with T = 1); the model from :mod:`pipeline.cores.filters.kalman`,
+  [σ²/T, 2σ²/T²]]`` (eq. 8c with T = 1); the model from :mod:`trackreplay.cores.filters.kalman`,
   predict and gain written out for this two-state, one-measurement case (one run costs the
   number of array operations per scan, not their arithmetic);
 * gating: a window of width V (``|ν| ≤ V/2``) around each predicted bearing, after the
@@ -30,7 +30,7 @@ Park, Ryu & Lee (1994), appendix eqs. A.1–A.7, with the JPDA of Fortmann, Bar-
 * clusters of more than ``max_cluster_tracks`` tracks (default 12, i.e. 4096 states per peak)
   are cut, in bearing order, into groups of at most that many tracks, each solved exactly but
   blind to the others (a peak may then be shared across a cut): approximate, and flagged with
-  ``CLUSTER_SPLIT`` (:data:`pipeline.vocabulary.FLAGS`). Peaks cost linear time and the recursion is run in batches of
+  ``CLUSTER_SPLIT`` (:data:`trackreplay.vocabulary.FLAGS`). Peaks cost linear time and the recursion is run in batches of
   bounded memory, so hundreds of peaks per scan stay cheap;
 * PDA update per track (eq. A.7): combined innovation, covariance with the spread term;
 * optional amplitude tracking (eq. 9): ``ẑ_a(k) = 0.7 ẑ_a(k−1) + 0.3 max_j z_a`` over the
@@ -45,11 +45,11 @@ from functools import lru_cache
 import numpy as np
 from scipy.special import erf, ndtr
 
-from pipeline import vocabulary as vocab
-from pipeline.cores.filters.kalman import continuous_white_noise_model
-from pipeline.cores.association.track_management import ConfirmationRule, EndingRule, TrackLife
+from trackreplay import vocabulary as vocab
+from trackreplay.cores.filters.kalman import continuous_white_noise_model
+from trackreplay.cores.association.track_management import ConfirmationRule, EndingRule, TrackLife
 
-# Flag bits of the one table (pipeline.vocabulary.FLAGS), as this core uses them:
+# Flag bits of the one table (trackreplay.vocabulary.FLAGS), as this core uses them:
 FLAG_NO_TRACK = vocab.NO_TRACK            # before the track start scan: no state yet
 FLAG_INITIALISING = vocab.INITIALISING    # up to and including the start scan: start values, not filtered
 FLAG_COASTED = vocab.COASTED              # no peak in the gate: the state is the prediction
@@ -98,7 +98,7 @@ class BearingTrackerDesign:
     initial_strength: float = 15000.0
     tracked_sigma_a: float = 3500.0
     max_cluster_tracks: int = 12
-    ending: EndingRule = EndingRule()  # when a track ends (pipeline.cores.association.track_management)
+    ending: EndingRule = EndingRule()  # when a track ends (trackreplay.cores.association.track_management)
     confirmation: ConfirmationRule = ConfirmationRule()  # M-of-N; the default confirms at the start
 
     @property
@@ -109,7 +109,7 @@ class BearingTrackerDesign:
 
 def bearing_motion_model(dt: float, q: float):
     """``F = [[1, T], [0, 1]]`` and the continuous white-noise acceleration ``Q`` (eq. 8b):
-    :func:`pipeline.cores.filters.kalman.continuous_white_noise_model` of order 2."""
+    :func:`trackreplay.cores.filters.kalman.continuous_white_noise_model` of order 2."""
     return continuous_white_noise_model(dt, q, 2)
 
 
@@ -682,14 +682,14 @@ def track_bearing_peaks(scans: list[ScanPeaks], x0: np.ndarray, P0: np.ndarray, 
     Returns
     -------
     dict of ndarray with a leading ``(R, K, T)``, in the output vocabulary
-    (:data:`pipeline.vocabulary.OUTPUTS`):
+    (:data:`trackreplay.vocabulary.OUTPUTS`):
         ``state`` (…, 2) and ``covariance`` (…, 2, 2): NaN before ``start_scan``, the start
         values at ``start_scan``, the PDA posterior after; ``flags`` (uint16):
         ``NO_TRACK | INITIALISING`` before ``start_scan``, ``INITIALISING`` at it and while
         the track is tentative (``design.confirmation``), then ``COASTED`` where no peak fell in
         the gate and ``CLUSTER_SPLIT`` where the track's cluster was cut; ``NO_TRACK | DELETED``
         (state NaN) at the scan a track ends (``design.ending`` or a failed confirmation), and
-        ``NO_TRACK`` after it (:mod:`pipeline.cores.association.track_management`); ``innovation`` (…, 1): the combined innovation ν̄ = Σ β_j ν_j of
+        ``NO_TRACK`` after it (:mod:`trackreplay.cores.association.track_management`); ``innovation`` (…, 1): the combined innovation ν̄ = Σ β_j ν_j of
         eq. A.7 (NaN where coasted, before and at the start); ``innovation_covariance``
         (…, 1, 1): S = H P⁻ Hᵀ + σ_p²; ``gain`` (…, 2, 1): the Kalman gain applied to ν̄.
         Paper-specific extras: ``beta0``, ``beta_top`` / ``beta_index`` (…, 3: the largest
@@ -700,7 +700,7 @@ def track_bearing_peaks(scans: list[ScanPeaks], x0: np.ndarray, P0: np.ndarray, 
     R, T, _ = x0.shape
     F, Q = continuous_white_noise_model(design.scan_period_s, design.q_rad2, 2)  # eq. 8b
     # F, Q, H = [1, 0] and σ_p² never change, and the state has two components, so the filter is
-    # written out for that case (the same algebra as pipeline.cores.filters.kalman, fewer array
+    # written out for that case (the same algebra as trackreplay.cores.filters.kalman, fewer array
     # operations per scan, which is what one run costs): P is kept as its row-major 4-vector,
     # F P Fᵀ is one product with F ⊗ F, S = p₀₀ + σ_p² and the gain is [p₀₀, p₀₁] / S.
     FF = np.kron(F, F).T

@@ -33,7 +33,7 @@ from scipy import optimize, stats
 from scipy.linalg import solve_triangular
 from scipy.special import expit, logit, ndtr
 
-from pipeline.errors import InputError
+from trackreplay.errors import InputError
 
 PARAMS = ("detection_probability", "clutter_per_gate", "sigma_p_deg", "amplitude_mean", "amplitude_std",
           "clutter_alpha")

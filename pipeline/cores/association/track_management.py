@@ -1,7 +1,7 @@
 """Track management: when a track is confirmed and when it ends, one mechanism for every tracker
 that keeps tracks alive over scans (``docs/trackers.md``, "Track life").
 
-A track's life in the output vocabulary (:data:`pipeline.vocabulary.FLAGS`):
+A track's life in the output vocabulary (:data:`trackreplay.vocabulary.FLAGS`):
 
 * **started** from measurements (a two-point start, MUSIC) or, for the papers' experiments, from
   the truth;

@@ -18,7 +18,7 @@ Every step is a linear recursion along the scan axis, so the whole estimator is 
 filters over ``(runs, scans, axes)`` arrays (:func:`all_pole_filter`, one vectorised step per
 scan over every run and axis).
 
-Guards, each flagged per run, scan and axis with bits of :data:`pipeline.vocabulary.FLAGS`:
+Guards, each flagged per run, scan and axis with bits of :data:`trackreplay.vocabulary.FLAGS`:
 
 * ``CLAMPED``: a negative discriminant in step 4 (it happens when ``α^b`` ≳ 0.81 for ρ = 0.9,
   e.g. for a strongly coloured noise or during a transient) is clamped to zero;
@@ -53,8 +53,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline import vocabulary as vocab
-from pipeline.errors import InputError, require_finite
+from trackreplay import vocabulary as vocab
+from trackreplay.errors import InputError, require_finite
 
 FLAG_DISCRIMINANT_CLAMPED = vocab.CLAMPED
 FLAG_ALPHA_LIMITED = vocab.LIMITED

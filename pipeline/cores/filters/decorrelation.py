@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.errors import InputError
+from trackreplay.errors import InputError
 
 
 def transition_inverse_check(Phi, name: str = "Phi",

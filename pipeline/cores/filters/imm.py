@@ -9,12 +9,12 @@ per scan.
 Models are strategies over the same core:
 
 * a :class:`MotionModel` (Φ, Ψ, q, H, and where its states sit in the common state);
-* a filter kind: ``"kf"`` (:func:`~pipeline.cores.filters.kalman.stacked_kf_step`: the Kalman filter of
-  :mod:`pipeline.cores.filters.kalman` with the gain written through the whitened innovation) or
-  ``"srif"`` (:func:`~pipeline.cores.filters.srif.stacked_srif_step`: the SRIF recursion of :mod:`pipeline.cores.filters.srif`,
+* a filter kind: ``"kf"`` (:func:`~trackreplay.cores.filters.kalman.stacked_kf_step`: the Kalman filter of
+  :mod:`trackreplay.cores.filters.kalman` with the gain written through the whitened innovation) or
+  ``"srif"`` (:func:`~trackreplay.cores.filters.srif.stacked_srif_step`: the SRIF recursion of :mod:`trackreplay.cores.filters.srif`,
   QR time and measurement updates, likelihood from the residual and the triangular factors);
 * the measurement of the whole IMM (:class:`MeasurementStream`): plain ``(z_k, H, R)`` or
-  decorrelated ``(y_k, Ĥ, diag σ_η²)`` (:mod:`pipeline.cores.filters.decorrelation`; ``Ĥ`` per model, since it
+  decorrelated ``(y_k, Ĥ, diag σ_η²)`` (:mod:`trackreplay.cores.filters.decorrelation`; ``Ĥ`` per model, since it
   depends on Φ). All models of one IMM see the same measurement, so their likelihoods compare.
 
 The thesis's sets: IMM = plain + KF, MIMM_K = decorrelated + KF, PIMM = decorrelated + SRIF, each
@@ -26,7 +26,7 @@ updated in logs, so a model whose likelihood underflows does not break the norma
 Speed (``docs/benchmarks.md``, ``benchmarks/bench_imm.py``): a scan costs a fixed number of array
 operations over all models and runs. The constant matrices (Φ, Q, H, H Φ⁻¹, the SRIF's
 ``[−Φ⁻¹Ψ | Φ⁻¹]``) are laid out once; the small factorisations are entry by entry
-(:mod:`pipeline.batched_linalg`) instead of one LAPACK call per matrix; the mixing
+(:mod:`trackreplay.batched_linalg`) instead of one LAPACK call per matrix; the mixing
 is one product with the constant transition matrix for all runs, reusing the terms of the
 previous scan's combination.
 
@@ -52,10 +52,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.cores.filters.decorrelation import inverse_transition_rows, pseudo_measurements, transition_inverse_check
-from pipeline.cores.filters.kalman import kinematic_transition, piecewise_white_noise_gain, stacked_kf_step
-from pipeline.cores.filters.srif import information_factor, stacked_srif_step
-from pipeline.errors import InputError, require_finite
+from trackreplay.cores.filters.decorrelation import inverse_transition_rows, pseudo_measurements, transition_inverse_check
+from trackreplay.cores.filters.kalman import kinematic_transition, piecewise_white_noise_gain, stacked_kf_step
+from trackreplay.cores.filters.srif import information_factor, stacked_srif_step
+from trackreplay.errors import InputError, require_finite
 
 FILTER_KINDS = ("kf", "srif")
 
@@ -158,7 +158,7 @@ def kinematic_model(name: str, order: int, T: float, q: float, axes: int = 1, no
     F1 = kinematic_transition(T, order)
     if noise == "white":
         # piecewise-constant white noise on the highest derivative: for CV exactly the
-        # per-axis model of pipeline.cores.filters.kalman.white_acceleration_model (Q = q Ψ Ψᵀ)
+        # per-axis model of trackreplay.cores.filters.kalman.white_acceleration_model (Q = q Ψ Ψᵀ)
         G1 = piecewise_white_noise_gain(T, order)[:, None]
     else:
         # the increment is applied at the start of the sample and propagates through Φ: Ψ = Φ e_a
@@ -288,7 +288,7 @@ class _RunsLast:
 # estimates X (M, N, runs), covariances PP (M, N, N, runs). Models of one filter kind are stacked
 # on the model axis and advance in one batched step, with every constant (Φ, Q, H, H Φ⁻¹, the
 # SRIF's [−Φ⁻¹Ψ | Φ⁻¹]) laid out once as (models, ..., 1) so that it broadcasts over the runs.
-# The small factorisations are entry by entry (pipeline.batched_linalg): a few
+# The small factorisations are entry by entry (trackreplay.batched_linalg): a few
 # dozen array operations per scan whatever the number of runs, instead of one LAPACK call per
 # matrix.
 
@@ -491,7 +491,7 @@ def imm_filter(filters: list[ModelFilter], transition, x0, P0, stream: Measureme
     Notes
     -----
     All models and runs advance together, one pass per scan, with the runs on the last axis
-    (see :mod:`pipeline.batched_linalg`); the mixing (4.3.1–4.3.4), the model
+    (see :mod:`trackreplay.batched_linalg`); the mixing (4.3.1–4.3.4), the model
     probabilities in logs (4.3.14–4.3.15) and the combination (4.3.16–4.3.17) are each a handful
     of array operations over all models and runs.
     """

@@ -12,7 +12,7 @@ from math import factorial
 
 import numpy as np
 
-from pipeline.batched_linalg import cholesky_lower, forward_substitute
+from trackreplay.batched_linalg import cholesky_lower, forward_substitute
 
 LOG_2PI = float(np.log(2.0 * np.pi))
 _sum = np.add.reduce   # ndarray.sum's Python wrapper costs more than the sum of a few small arrays
@@ -662,7 +662,7 @@ def _cv_predict_components_scans(x, c, dt, sigma_v: float):
 
 def stacked_kf_step(F, Q, fill_mean, x, P, y, H, R_meas):
     """The Kalman filter on a stack of models with the runs on the last axis (Kwon 1997, eqs.
-    4.1.1–4.1.5, 4.3.5–4.3.10): the IMM's model-matched step (:mod:`pipeline.cores.filters.imm`).
+    4.1.1–4.1.5, 4.3.5–4.3.10): the IMM's model-matched step (:mod:`trackreplay.cores.filters.imm`).
 
     ``F`` (G, N, N) and ``Q`` (G, N, N, 1) are the models' transition and process noise,
     ``fill_mean`` (G, N, 1) or None a constant added to the prediction (see the IMM's fill).

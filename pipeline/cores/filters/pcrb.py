@@ -23,7 +23,7 @@ import math
 
 import numpy as np
 
-from pipeline.cores.filters.kalman import MATRIX_FROM_COMPONENTS
+from trackreplay.cores.filters.kalman import MATRIX_FROM_COMPONENTS
 
 
 def pcrb_recursion(P0, F, Q, information) -> np.ndarray:
@@ -77,7 +77,7 @@ def _cv_position_pcrb_recursion(P0, dt, sigma_v: float, position_information) ->
     ``P_v = A_v − A_cᵀ M_p P_c`` with ``E = (I + A_p M_p)⁻¹`` (2 × 2); each scan is then some
     hundred operations on Python floats instead of 4 × 4 products and a solve, which costs a
     hundred times more per scan on a recording of one run. ``A`` is formed as
-    :func:`pipeline.cores.filters.kalman.cv_predict_components` forms it.
+    :func:`trackreplay.cores.filters.kalman.cv_predict_components` forms it.
     """
     K = len(dt)
     out = np.full((K, 4, 4), np.nan)
@@ -156,7 +156,7 @@ def linear_gaussian_bound(P0, F, Q, H, R) -> np.ndarray:
     ndarray (K, ..., n, n)
         The bound after each scan's measurement.
     """
-    from pipeline.cores.filters.kalman import joseph_covariance, kalman_gain
+    from trackreplay.cores.filters.kalman import joseph_covariance, kalman_gain
 
     F, Q = np.asarray(F, float), np.asarray(Q, float)
     H, R = np.asarray(H, float), np.asarray(R, float)

@@ -18,7 +18,7 @@ The recursion has two forms in this one module: :func:`srif_predict_update` (tim
 measurement update as two QRs, the runs first; :func:`srif_filter` carries ``(R, z)`` through a
 record with it) and :func:`stacked_srif_step` (both updates as one Householder triangularisation,
 every model and run at once with the runs last, entry by entry: what the IMM's SRIF models
-(:mod:`pipeline.cores.filters.imm`) run from their mixed moments). The tests check they agree.
+(:mod:`trackreplay.cores.filters.imm`) run from their mixed moments). The tests check they agree.
 
 No covariance is formed and no matrix is inverted inside the recursion: symmetry and positive
 definiteness of ``P = R⁻¹ R⁻ᵀ`` hold by construction, which is what keeps the SRIF usable in
@@ -36,9 +36,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.batched_linalg import back_substitute, cholesky_lower, forward_substitute, householder_triangularise
-from pipeline.cores.filters.decorrelation import transition_inverse_check
-from pipeline.errors import InputError
+from trackreplay.batched_linalg import back_substitute, cholesky_lower, forward_substitute, householder_triangularise
+from trackreplay.cores.filters.decorrelation import transition_inverse_check
+from trackreplay.errors import InputError
 
 LOG_2PI = float(np.log(2.0 * np.pi))
 
@@ -236,7 +236,7 @@ def srif_filter(x0, P0, Phi, Psi, q, H, y, meas_cov, start: int = 1):
     x0 : ndarray (runs, n)
     P0 : ndarray (runs, n, n) or (n, n)
     Phi : ndarray (n, n)
-        Non-singular (an :class:`~pipeline.errors.InputError` otherwise).
+        Non-singular (an :class:`~trackreplay.errors.InputError` otherwise).
     Psi : ndarray (n, p)
     q : ndarray (p, p)
         Process-noise covariance (positive definite: the SRIF needs ``Q⁻¹``).
@@ -293,7 +293,7 @@ def stacked_srif_step(st, x, P, y, H, Rv, log_det_Rv):
     is :func:`srif_predict_update` with the two QRs done as one triangularisation (below); the
     tests check the two agree. ``st`` carries the stack's constants as the IMM lays them out
     (``p``, ``Rw``, ``C`` = ``[−Φ⁻¹Ψ | Φ⁻¹]``, the masks of a decoupled component, ``fill_*``,
-    ``log_det_Phi_over_Rw``; :class:`pipeline.cores.filters.imm.ModelFilter`).
+    ``log_det_Phi_over_Rw``; :class:`trackreplay.cores.filters.imm.ModelFilter`).
 
     From ``P = L Lᵀ`` the information square root is ``R = L⁻¹`` and ``z = L⁻¹ x``, so the time
     update's rows ``[−R Φ⁻¹ Ψ, R Φ⁻¹, z]`` are one forward substitution with ``L`` on the

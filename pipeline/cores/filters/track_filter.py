@@ -1,7 +1,7 @@
 """Per-track filters: one object owns a track's motion model, measurement prediction, innovation
 covariance, gate and update, so a multi-target loop never computes any of them itself.
 
-A multi-target tracker (:mod:`pipeline.trackers.radar_multi_target`) keeps a batch of tracks,
+A multi-target tracker (:mod:`trackreplay.trackers.radar_multi_target`) keeps a batch of tracks,
 ``x`` ``(..., n)`` and ``P`` ``(..., n, n)`` over any leading axes (runs, track slots), and asks
 its filter, scan by scan, to
 
@@ -11,14 +11,14 @@ its filter, scan by scan, to
 3. :meth:`~TrackFilter.innovations` of every track against every plot (angles wrapped) and
    their squared Mahalanobis distances, which the association gates with a χ² quantile;
 4. :meth:`~TrackFilter.update` with one innovation per track (nearest neighbour, GNN) or with
-   a combined innovation and its spread (PDA, :func:`pipeline.cores.association.jpda.pda_update_gaussian`);
+   a combined innovation and its spread (PDA, :func:`trackreplay.cores.association.jpda.pda_update_gaussian`);
 5. :meth:`~TrackFilter.start` a track from one plot no track claimed.
 
 The filter here is the extended Kalman filter of a nearly-constant-velocity target seen in range
 and bearing (Bar-Shalom, Li & Kirubarajan 2001, §6.2 for the continuous white-noise acceleration
 model, §10.3 for the polar EKF). Another filter (a UKF, a converted-measurement KF, an IMM) is one
 more class with the same five methods; no loop changes. Every product goes through the one Kalman
-filter of :mod:`pipeline.cores.filters.kalman`.
+filter of :mod:`trackreplay.cores.filters.kalman`.
 
 State ``[x, y, ẋ, ẏ]`` (m, m/s); measurement ``[r, θ]`` (m, rad), θ counter-clockwise from +x.
 """
@@ -30,7 +30,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from pipeline.cores.filters.kalman import continuous_white_noise_model, joseph_covariance, kalman_gain
+from trackreplay.cores.filters.kalman import continuous_white_noise_model, joseph_covariance, kalman_gain
 
 
 def wrap_angle(angle):
@@ -46,7 +46,7 @@ class TrackFilter:
     state_size = 0
     measurement_size = 0
     #: the measurement component the gating's coarse windows sort plots along, and its period
-    #: when it is an angle (None otherwise); see :mod:`pipeline.cores.association.gating`
+    #: when it is an angle (None otherwise); see :mod:`trackreplay.cores.association.gating`
     window_component = 0
     window_period = None
     #: measurement components that are angles (wrapped in the innovation)
@@ -116,7 +116,7 @@ class PolarConstantVelocityEKF(TrackFilter):
 
     def motion_model(self, dt: float):
         """``F``, ``Q`` ``(4, 4)`` for state ``[x, y, ẋ, ẏ]``: the per-axis continuous white-noise
-        model of :func:`~pipeline.cores.filters.kalman.continuous_white_noise_model`, both axes.
+        model of :func:`~trackreplay.cores.filters.kalman.continuous_white_noise_model`, both axes.
         Built once per scan interval (a recording's scans are mostly evenly spaced)."""
         return _cv_model(float(dt), self.process_noise_m2ps3)
 

@@ -18,8 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.cores.localisation.crlb import cep_approx, cep_exact, cep_paper, crlb, projection_covariance
-from pipeline.cores.localisation.tdoa_fdoa_model import measurement_model, measurement_rows, unknowns
+from trackreplay.cores.localisation.crlb import cep_approx, cep_exact, cep_paper, crlb, projection_covariance
+from trackreplay.cores.localisation.tdoa_fdoa_model import measurement_model, measurement_rows, unknowns
 
 POSITION_CONTOURS_M = (50.0, 100.0, 200.0)
 VELOCITY_CONTOURS_MPS = (5.0, 10.0, 15.0)
@@ -90,7 +90,7 @@ def cep_plane(sensor_pos, sensor_vel, pairs, emitter_velocity, carrier_hz, sigma
     stationary : bool
         Velocity known (position-only CRLB).
     method : {"exact", "paper", "approx"}
-        CEP formula (see :mod:`pipeline.cores.localisation.crlb`).
+        CEP formula (see :mod:`trackreplay.cores.localisation.crlb`).
     probability : float
         P_e.
     """

@@ -16,16 +16,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.cores.localisation.batched_least_squares import scaled_least_squares
-from pipeline.cores.localisation.cep_plane import grid_axis
-from pipeline.cores.localisation.tdoa_fdoa_model import measurement_model
+from trackreplay.cores.localisation.batched_least_squares import scaled_least_squares
+from trackreplay.cores.localisation.cep_plane import grid_axis
+from trackreplay.cores.localisation.tdoa_fdoa_model import measurement_model
 
 CHUNK_ELEMENTS = 200_000  # runs × grid points per vectorised block
 
 
 def grid_offsets(extent_m: float, step_m: float) -> np.ndarray:
     """Offsets (G, 2) of a square grid ±``extent_m`` at ``step_m`` spacing (both axes
-    :func:`pipeline.cores.localisation.cep_plane.grid_axis`)."""
+    :func:`trackreplay.cores.localisation.cep_plane.grid_axis`)."""
     axis = grid_axis(extent_m, step_m)
     gx, gy = np.meshgrid(axis, axis)
     return np.stack([gx.ravel(), gy.ravel()], axis=-1)

@@ -9,7 +9,7 @@ Kim et al. (2013), eqs. 18–22 (see ``docs/papers/tdoa-fdoa.md``)::
 
 Functions return the subspace *covariances* (I_p⁻¹ = the 2×2 block of the CRLB, I_s⁻¹), since
 ellipses and CEPs are drawn from covariances. The CRLB itself comes from the QR factor of the
-whitened, column-scaled Jacobian (:func:`pipeline.cores.localisation.batched_least_squares.information_covariance`),
+whitened, column-scaled Jacobian (:func:`trackreplay.cores.localisation.batched_least_squares.information_covariance`),
 not from inverting I; so does the slice, from the Jacobian's columns of the kept components.
 
 CEP, three ways (all for a zero-mean 2-D Gaussian with covariance eigenvalues λ₁ ≥ λ₂):
@@ -31,7 +31,7 @@ from functools import lru_cache
 import numpy as np
 from scipy.special import erf, ndtri
 
-from pipeline.cores.localisation.batched_least_squares import information_covariance
+from trackreplay.cores.localisation.batched_least_squares import information_covariance
 
 
 def whitened_jacobian(H: np.ndarray, sigma: np.ndarray) -> np.ndarray:
@@ -68,7 +68,7 @@ def slice_covariance(whitened: np.ndarray, components) -> np.ndarray:
 
     Knowing the other components removes their columns from the whitened Jacobian
     ``A = Ψ^{-1/2} H``, and ``D I Dᵀ = A_cᵀ A_c`` for the kept columns ``A_c``, so the slice is
-    the QR-based covariance of ``A_c`` (:func:`pipeline.cores.localisation.batched_least_squares.information_covariance`):
+    the QR-based covariance of ``A_c`` (:func:`trackreplay.cores.localisation.batched_least_squares.information_covariance`):
     the information matrix is neither formed nor inverted.
 
     Parameters

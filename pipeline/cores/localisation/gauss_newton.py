@@ -6,14 +6,14 @@ Kim et al. (2013), eqs. 6, 8 and 15–17 (see ``docs/papers/tdoa-fdoa.md``)::
     δ = (Hᵀ Ψ⁻¹ H)⁻¹ Hᵀ Ψ⁻¹ (u − g(θ̂_n)),  θ̂_{n+1} = θ̂_n + δ     (16, 17)
 
 δ is computed as the whitened, column-scaled least-squares solution
-min ‖Ψ^{-1/2}(H δ − (u − g))‖ by Householder QR (:mod:`pipeline.cores.localisation.batched_least_squares`),
+min ‖Ψ^{-1/2}(H δ − (u − g))‖ by Householder QR (:mod:`trackreplay.cores.localisation.batched_least_squares`),
 never by inverting HᵀΨ⁻¹H. The stopping rule is unit-free: a run has converged when its last
 step was shorter than ``step_tolerance`` standard deviations, i.e. √(δᵀ I(θ̂) δ) < tol with
 I = HᵀΨ⁻¹H (the same quantity as ‖Q₁ᵀ r‖ from the QR).
 
 Runs are never averaged blindly: each ends with flags (the bits ``CONVERGED``,
 ``NOT_CONVERGED``, ``DIVERGED``, ``RANK_DEFICIENT`` and ``INVALID_START`` of the one flag table,
-:data:`pipeline.vocabulary.FLAGS`, as uint16) and keeps its last finite iterate. The loop runs
+:data:`trackreplay.vocabulary.FLAGS`, as uint16) and keeps its last finite iterate. The loop runs
 over iterations only; each iteration handles every still-active run in one vectorised call of
 the model.
 """
@@ -25,10 +25,10 @@ from typing import Callable
 
 import numpy as np
 
-from pipeline.cores.localisation.batched_least_squares import (RANK_RTOL, ZERO_COLUMN_RTOL, _covariance_rows, _factor,
+from trackreplay.cores.localisation.batched_least_squares import (RANK_RTOL, ZERO_COLUMN_RTOL, _covariance_rows, _factor,
                                                                _step)
 # the status bits are those of the one flag table (uint16), re-exported for the callers of this core
-from pipeline.vocabulary import CONVERGED, DIVERGED, FLAG_DTYPE, INVALID_START, NOT_CONVERGED, RANK_DEFICIENT
+from trackreplay.vocabulary import CONVERGED, DIVERGED, FLAG_DTYPE, INVALID_START, NOT_CONVERGED, RANK_DEFICIENT
 
 __all__ = ["CONVERGED", "NOT_CONVERGED", "DIVERGED", "RANK_DEFICIENT", "INVALID_START", "GaussNewtonResult",
            "gauss_newton", "final_statistics"]
@@ -54,7 +54,7 @@ class GaussNewtonResult:
         (HᵀΨ⁻¹H)⁻¹ at the final estimate over the free components (NaN elsewhere, and where
         singular).
     flags : ndarray of uint16 (B,)
-        Bits of :data:`pipeline.vocabulary.FLAGS`.
+        Bits of :data:`trackreplay.vocabulary.FLAGS`.
     """
 
     theta: np.ndarray
@@ -80,7 +80,7 @@ def _whitened_system(model, theta, measured_t, sigma_t, free, rows):
     are finite (None: all; the others are zeroed).
 
     Built straight into one (m, q + 1, b) array, the form
-    :func:`pipeline.cores.localisation.batched_least_squares.solve_augmented` factors, so that
+    :func:`trackreplay.cores.localisation.batched_least_squares.solve_augmented` factors, so that
     no separate right-hand side is copied or transformed. ``measured_t`` is (m, b), ``sigma_t``
     (m, b) or (m, 1); ``free`` is None when every component is free.
     """
@@ -127,7 +127,7 @@ def gauss_newton(model: Callable, theta0: np.ndarray, measured: np.ndarray, sigm
     inputs are gathered again only when some run stops, the whitened system is built in place
     as one augmented array with the run axis last and solved by one stacked LAPACK QR and a
     back-substitution over the stack
-    (:func:`pipeline.cores.localisation.batched_least_squares.solve_augmented`), and the flags
+    (:func:`trackreplay.cores.localisation.batched_least_squares.solve_augmented`), and the flags
     are touched only in iterations where some run stops. A run's answer does not depend on
     the other runs of the batch, to the last bit.
 

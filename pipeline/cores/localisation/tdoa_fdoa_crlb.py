@@ -2,20 +2,20 @@
 
 Kim et al. (2013), eqs. 18–22 (see ``docs/papers/tdoa-fdoa.md``): the
 bound of an estimator that uses the measurement rows of its kind (``joint`` TDOA + FDOA,
-``tdoa`` or ``fdoa`` only, :func:`pipeline.cores.localisation.tdoa_fdoa_model.measurement_rows`)
-and solves for its unknowns (:func:`pipeline.cores.localisation.tdoa_fdoa_model.unknowns`)::
+``tdoa`` or ``fdoa`` only, :func:`trackreplay.cores.localisation.tdoa_fdoa_model.measurement_rows`)
+and solves for its unknowns (:func:`trackreplay.cores.localisation.tdoa_fdoa_model.unknowns`)::
 
     A = Ψ^{-1/2} H(θ)[rows, unknowns],   I = AᵀA,   CRLB = I⁻¹     (18)
 
 * :func:`truth_geometry` — ``A`` and the CRLB at the true state of every (run, epoch) cell: what
   the evaluator's run classification (d² = ‖A e‖²) and efficiency need;
 * :func:`truth_bounds` — the same for every estimator kind, as the named arrays of the stage's
-  ``crlb`` extra output (read by :mod:`evaluators.emitter_localisation`);
+  ``crlb`` extra output (read by :mod:`trackreplay.evaluators.emitter_localisation`);
 * :func:`crlb_summary` — the bound of one geometry with its projections (eq. 19), slices
   (eq. 20), ellipses and CEPs (eqs. 21–22) as plain numbers (``replay crlb``).
 
 The CRLB comes from the QR factor of the whitened, column-scaled Jacobian
-(:func:`pipeline.cores.localisation.batched_least_squares.information_covariance`); the
+(:func:`trackreplay.cores.localisation.batched_least_squares.information_covariance`); the
 information matrix is neither formed nor inverted.
 """
 
@@ -23,13 +23,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.cores.localisation.batched_least_squares import information_covariance
-from pipeline.cores.localisation.crlb import (cep_approx, cep_exact, cep_paper, crlb, error_ellipse,
+from trackreplay.cores.localisation.batched_least_squares import information_covariance
+from trackreplay.cores.localisation.crlb import (cep_approx, cep_exact, cep_paper, crlb, error_ellipse,
                                               projection_covariance, slice_covariance, whitened_jacobian)
-from pipeline.cores.localisation.tdoa_fdoa_model import (MEASUREMENT_KINDS, STATE_NAMES, independent_equations,
+from trackreplay.cores.localisation.tdoa_fdoa_model import (MEASUREMENT_KINDS, STATE_NAMES, independent_equations,
                                                          measurement_model, measurement_rows, underdetermined_reason,
                                                          unknowns)
-from pipeline.errors import InputError
+from trackreplay.errors import InputError
 
 
 def truth_geometry(truth_state, sensor_pos, sensor_vel, pairs, carrier_hz, sigma, kind, stationary):
