@@ -12,9 +12,11 @@ per track) matrix (docs/trackers.md, "Multi-target trackers").
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import min_weight_full_bipartite_matching
+
+# scipy.optimize and scipy.sparse.csgraph are imported where a contested scan needs them: the
+# trackers' module is imported by every replay of the family (the registry lists its trackers),
+# and scipy.optimize alone costs 0.14 s of CPU (beyond the import floor) in a 10-run replay
+# that never calls it (issue 27).
 
 
 def gnn_assignment(cost, gated, miss_cost, sparse: bool = True):
@@ -48,6 +50,8 @@ def gnn_assignment(cost, gated, miss_cost, sparse: bool = True):
     if sparse:
         return _gnn_assignment_sparse(cost.reshape(-1, T, W), gated.reshape(-1, T, W), miss.reshape(-1, T)).reshape(
             lead + (T,))
+    from scipy.optimize import linear_sum_assignment
+
     plot = np.full(lead + (T,), -1, np.int64)
     flat_plot = plot.reshape(-1, T)
     for b, (c, g, m) in enumerate(zip(cost.reshape(-1, T, W), gated.reshape(-1, T, W), miss.reshape(-1, T))):
@@ -133,8 +137,11 @@ def pair_assignment(cost, track, plot, miss, dense_entries: int = DENSE_MATCHING
         big = np.full((n, cols.size + n), np.inf)
         big[row, col] = c
         big[np.arange(n), cols.size + np.arange(n)] = row_miss
+        from scipy.optimize import linear_sum_assignment
         r, k = linear_sum_assignment(big)
     else:
+        from scipy.sparse import csr_matrix
+        from scipy.sparse.csgraph import min_weight_full_bipartite_matching
         low = row_miss.copy()
         np.minimum.at(low, row, c)
         shift = 1.0 - low
