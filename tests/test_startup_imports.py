@@ -39,3 +39,15 @@ def test_a_replay_without_recording_imports_no_unused_heavy_module(demo, tmp_pat
     modules = next(line for line in proc.stdout.splitlines() if line.startswith("MODULES ")).split()[1:]
     loaded = sorted({heavy for heavy in NOT_AT_START_UP for m in modules if m == heavy or m.startswith(heavy + ".")})
     assert loaded == [], f"a replay of {demo} imported {loaded}"
+
+
+def test_help_imports_neither_numpy_nor_polars(tmp_path):
+    """``replay --help`` (target < 0.15 s, ``benchmarks/bench_replay.py``) lists the commands
+    without the numerical stack: numpy alone is about 0.07 s of CPU."""
+    proc = subprocess.run([sys.executable, "-c", _LIST_MODULES, "--help"], cwd=tmp_path, capture_output=True,
+                          text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    modules = next(line for line in proc.stdout.splitlines() if line.startswith("MODULES ")).split()[1:]
+    loaded = sorted({top for top in ("numpy", "polars", "scipy", "mcap", "google") for m in modules
+                     if m == top or m.startswith(top + ".")})
+    assert loaded == [], f"replay --help imported {loaded}"
