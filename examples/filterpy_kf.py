@@ -37,7 +37,7 @@ import numpy as np
 from filterpy.kalman import KalmanFilter
 
 from trackreplay import vocabulary as vocab
-from trackreplay.trackers.interface import Param, Tracker
+from trackreplay import Param, Tracker
 
 
 def _cv(dt: float, sigma_v: float):

@@ -43,7 +43,7 @@ from __future__ import annotations
 import numpy as np
 
 from trackreplay import vocabulary as vocab
-from trackreplay.trackers.interface import Param, Tracker
+from trackreplay import Param, Tracker
 
 
 def wrap_angle(a):

@@ -74,7 +74,7 @@ from stonesoup.types.state import GaussianState, StateVector
 from stonesoup.updater.kalman import ExtendedKalmanUpdater
 
 from trackreplay import vocabulary as vocab
-from trackreplay.trackers.interface import Param, Tracker
+from trackreplay import Param, Tracker
 
 EPOCH = datetime(2000, 1, 1)
 TO_OURS = [0, 2, 1, 3]  # Stone Soup [x, ẋ, y, ẏ] → ours [x, y, ẋ, ẏ]
