@@ -35,6 +35,14 @@ Park, Ryu & Lee (1994), appendix eqs. A.1–A.7, with the JPDA of Fortmann, Bar-
 * PDA update per track (eq. A.7): combined innovation, covariance with the spread term;
 * optional amplitude tracking (eq. 9): ``ẑ_a(k) = 0.7 ẑ_a(k−1) + 0.3 max_j z_a`` over the
   peaks in the track's gate (unchanged when the gate is empty).
+
+This module holds the plain forms, the ones to hold against the papers; the fast forms they
+choose between (the closed form of one or two tracks, the clustering, the transfer-matrix
+recursion, the pair-driven JPDA of many tracks, the outputs' top weights) live in
+:mod:`trackreplay.cores.association._jpda_fast`, each tested equal to the plain one. Its
+length (about 640 lines) is the filter's scan loop, :func:`track_bearing_peaks`, written out
+for the two-state bearing filter in one function, so that a reader follows a scan from
+prediction to output without leaving it.
 """
 
 from __future__ import annotations
@@ -48,6 +56,15 @@ from scipy.special import erf, ndtr
 from trackreplay import vocabulary as vocab
 from trackreplay.cores.filters.kalman import continuous_white_noise_model
 from trackreplay.cores.association.track_management import ConfirmationRule, EndingRule, TrackLife
+# the fast forms, each tested equal to the plain one it stands for (see the module docstring);
+# pair_marginals and pair_association_probabilities are public names of this module as well
+from trackreplay.cores.association._jpda_fast import (  # noqa: F401
+    _clustered_marginals,
+    _TopWeights,
+    _transfer_matrix_recursion,
+    pair_association_probabilities,
+    pair_marginals,
+)
 
 # Flag bits of the one table (trackreplay.vocabulary.FLAGS), as this core uses them:
 FLAG_NO_TRACK = vocab.NO_TRACK            # before the track start scan: no state yet
@@ -206,19 +223,9 @@ def association_marginals(ratio: np.ndarray, miss: np.ndarray):
     F[0] = 0.0
     F[0, :, 0] = 1.0
     back[m] = end
-    if s <= MATRIX_FORM_TRACKS:
-        E = _adders(s)  # (s, states, states)
-        M = np.einsum("btj,tik->jbik", r, E)
-        M += np.eye(n_states)
-        # forward rows F_j = F_{j−1} M_j and backward rows B_{j−1}ᵀ = B_jᵀ M_jᵀ in one product per step
-        both = np.concatenate([M, np.swapaxes(M[::-1], -1, -2)], axis=1)  # (m, 2B, n, n)
-        rows = np.concatenate([F[0], back[m]])[:, None, :]
-        for j in range(m):
-            rows = np.matmul(rows, both[j])
-            F[j + 1], back[m - 1 - j] = rows[:B, 0], rows[B:, 0]
-        added = np.einsum("tik,jbk->jbti", E, back[1:])  # B_j(A ∪ {t}) for A ∌ t, else 0
-        beta = r * np.einsum("jbi,jbti->btj", F[:m], added)
-    else:
+    if s <= MATRIX_FORM_TRACKS:  # the same recursion, one batched matrix product per peak
+        beta = _transfer_matrix_recursion(r, F, back)
+    else:  # the recursion as written above, track by track over the 2^s states
         with_t = [np.flatnonzero(bits[:, t]) for t in range(s)]
         without_t = [w ^ (1 << t) for t, w in enumerate(with_t)]
         for j in range(m):
@@ -244,72 +251,6 @@ def association_marginals(ratio: np.ndarray, miss: np.ndarray):
 def _state_bits(s: int) -> np.ndarray:
     """``bits[A, t]``: whether track t is in the track set with index A (a bitmask)."""
     return ((np.arange(1 << s)[:, None] >> np.arange(s)) & 1).astype(bool)
-
-
-@lru_cache(maxsize=None)
-def _adders(s: int) -> np.ndarray:
-    """``E[t, A, A ∪ {t}] = 1`` for every track set A without t."""
-    n = 1 << s
-    E = np.zeros((s, n, n))
-    for t in range(s):
-        A = np.flatnonzero(~_state_bits(s)[:, t])
-        E[t, A, A | (1 << t)] = 1.0
-    return E
-
-
-def pair_marginals(weights: np.ndarray) -> np.ndarray:
-    """Exact JPDA marginals (eq. A.6) of clusters of one or two tracks, in closed form.
-
-    With two tracks a joint event has both tracks missed, one on peak j and the other missed,
-    or the two on different peaks i ≠ j. Summing the other track's options for each choice of
-    track 1 gives ``β_j^1 ∝ r_1j (m_2 + Σ_{k≠j} r_2k)`` and ``β_0^1 ∝ m_1 (m_2 + Σ_k r_2k)``
-    (likewise for track 2), and the normaliser is the sum of track 1's numerators, which counts
-    every event once. Only sums and products of non-negative terms appear: the leave-one-out
-    sums come from one product with a 0/1 matrix rather than from ``Σ − r``, so a dominant
-    peak shared by both tracks costs no precision. One track's event weights are its own row.
-    The result equals :func:`association_marginals` for a few array operations, whatever the
-    number of peaks (Fortmann, Bar-Shalom & Scheffe 1983; ``docs/papers/bearing-peaks.md``).
-
-    Parameters
-    ----------
-    weights : ndarray (B, s, m + 1), s = 1 or 2
-        Per track the likelihood ratios of the m peaks (0 where not gated) and, last, the
-        miss weight ``1 − P_D P_G``. Overwritten (scaled).
-
-    Returns
-    -------
-    ndarray (B, s, m + 1)
-        ``β_j^t`` in the first m columns, ``β_0^t`` last. A batch element whose events all
-        weigh 0 gets β = 0 and β₀ = 1, as in :func:`association_marginals`.
-    """
-    B, s, n = weights.shape
-    # Scaling a track's row scales every event alike, so β is unchanged; with every factor
-    # ≤ 1 no product overflows. The tiny floor keeps an all-zero row at zero instead of 0/0.
-    weights /= np.maximum.reduce(weights, axis=2, keepdims=True, initial=_TINY)
-    if s == 1:
-        num = weights
-    else:
-        num = weights * (weights @ _others(n))[:, ::-1]
-    Z = num[:, 0].sum(axis=1)
-    if not (Z > 0).all():
-        ok = Z > 0
-        num = np.where(ok[:, None, None], num / np.where(ok, Z, 1.0)[:, None, None], 0.0)
-        num[..., -1] = np.where(ok[:, None], num[..., -1], 1.0)
-        return num
-    num /= Z[:, None, None]
-    return num
-
-
-_TINY = 1e-300
-
-
-@lru_cache(maxsize=None)
-def _others(n: int) -> np.ndarray:
-    """``(n, n)`` 0/1 matrix: column j < n − 1 sums every entry but j (the other track's
-    options when this track takes peak j), the last column sums all (this track missed)."""
-    J = 1.0 - np.eye(n)
-    J[-1, -1] = 1.0
-    return J
 
 
 def cluster_tracks(gated: np.ndarray) -> np.ndarray:
@@ -407,151 +348,6 @@ def joint_association_probabilities(ratio: np.ndarray, miss: np.ndarray, gated: 
     beta = np.zeros((R, T, m))
     np.put_along_axis(beta, np.broadcast_to(cols[:, None, :], b_c.shape), b_c, axis=2)
     return beta, beta0, split
-
-
-def _cut_clusters(cluster, max_cluster_tracks: int):
-    """Groups of at most ``max_cluster_tracks`` tracks from tracks sorted by ``cluster`` (and,
-    within one, in the order a cut follows): ``too_big`` marks the tracks of a cluster that had
-    to be cut, ``new_group`` the first track of every group."""
-    new_cluster = np.r_[True, cluster[1:] != cluster[:-1]]
-    cluster_start = np.flatnonzero(new_cluster)
-    cluster_id = np.cumsum(new_cluster) - 1
-    cluster_size = np.diff(np.r_[cluster_start, cluster.size])
-    rank = np.arange(cluster.size) - cluster_start[cluster_id]
-    too_big = cluster_size[cluster_id] > max_cluster_tracks
-    return too_big, new_cluster | (too_big & (rank % max_cluster_tracks == 0))
-
-
-def _lone_track_marginals(ratio, miss):
-    """:func:`association_marginals` of clusters of one track ``(B, 1, m)``, without the
-    recursion: ``β_j = r_j / (miss + Σ r)``, ``β₀ = miss / (miss + Σ r)``."""
-    Z = miss + ratio.sum(axis=-1)
-    ok = Z > 0
-    Zs = np.where(ok, Z, 1.0)
-    return np.where(ok[..., None], ratio / Zs[..., None], 0.0), np.where(ok, miss / Zs, 1.0)
-
-
-def pair_association_probabilities(ratio, track, peak, miss, predicted_bearing, max_cluster_tracks: int = 12):
-    """:func:`joint_association_probabilities` from the gated track–peak pairs alone.
-
-    Many tracks, peaks and runs make the dense ``(R, T, m)`` layout mostly empty: each track
-    gates a few of a scan's peaks. Here only the gated pairs are given; tracks and peaks carry
-    global indices (fold a run axis in: ``run · T + track``). Clusters are the connected
-    components of the tracks-share-a-peak graph (:func:`scipy.sparse.csgraph.connected_components`),
-    cut as :func:`joint_association_probabilities` cuts them (in ``predicted_bearing`` order, at
-    most ``max_cluster_tracks`` tracks a group, flagged), and each group is solved by the same
-    recursion (:func:`association_marginals`) on its own peaks, all groups of one size in one
-    batch. tests/test_multitarget_trackers.py holds the two equal.
-
-    Parameters
-    ----------
-    ratio : ndarray (E,)
-        Likelihood ratio of each gated pair.
-    track, peak : ndarray of int (E,)
-        The pair's track (0 … N − 1) and peak (any non-negative integers).
-    miss : ndarray (N,)
-    predicted_bearing : ndarray (N,)
-        Orders the tracks of a cluster that has to be cut.
-    max_cluster_tracks : int
-
-    Returns
-    -------
-    beta : ndarray (E,)
-        β of each pair.
-    beta0 : ndarray (N,)
-    split : ndarray of bool (N,)
-    """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    N = miss.shape[0]
-    beta, beta0, split = np.zeros(ratio.shape), np.ones(N), np.zeros(N, bool)
-    if ratio.size == 0:
-        return beta, beta0, split
-    peaks, peak_local = np.unique(peak, return_inverse=True)
-    peak_local = peak_local.ravel()
-    # tracks are nodes 0 … N − 1, peaks N … N + M − 1; an edge per gated pair
-    M = peaks.size
-    graph = coo_matrix((np.ones(ratio.size), (track, N + peak_local)), shape=(N + M, N + M))
-    _, label = connected_components(graph, directed=False)
-    tracks = np.unique(track)
-    # order the tracks of each cluster as the dense form does: by predicted bearing, then index
-    order = tracks[np.lexsort((tracks, predicted_bearing[tracks], label[tracks]))]
-    too_big, new_group = _cut_clusters(label[order], max_cluster_tracks)
-    split[order[too_big]] = True
-    group_start = np.flatnonzero(new_group)
-    group_size = np.diff(np.r_[group_start, order.size])
-    group_of = np.empty(N, np.int64)
-    group_of[order] = np.cumsum(new_group) - 1
-    slot_in_group = np.empty(N, np.int64)
-    slot_in_group[order] = np.arange(order.size) - group_start[group_of[order]]
-    # each group's own peaks, in peak order, numbered from 0
-    g = group_of[track]
-    by = np.lexsort((peak_local, g))
-    first_of_peak = np.r_[True, (g[by][1:] != g[by][:-1]) | (peak_local[by][1:] != peak_local[by][:-1])]
-    peak_number = np.cumsum(first_of_peak) - 1
-    group_first_peak = np.zeros(group_start.size, np.int64)
-    starts = np.r_[True, g[by][1:] != g[by][:-1]]
-    group_first_peak[g[by][starts]] = peak_number[starts]
-    column = np.empty(ratio.size, np.int64)
-    column[by] = peak_number - group_first_peak[g[by]]
-    width = np.zeros(group_start.size, np.int64)
-    np.maximum.at(width, g, column + 1)
-    for s in np.unique(group_size):
-        groups = np.flatnonzero(group_size == s)
-        index = np.full(group_start.size, -1, np.int64)
-        index[groups] = np.arange(groups.size)
-        w = int(width[groups].max())
-        mine = index[g] >= 0
-        r = np.zeros((groups.size, s, w))
-        r[index[g[mine]], slot_in_group[track[mine]], column[mine]] = ratio[mine]
-        members = order[group_start[groups][:, None] + np.arange(s)]      # (batch, s) tracks
-        mm = miss[members]
-        bb, b0 = _lone_track_marginals(r, mm) if s == 1 else association_marginals(r, mm)
-        beta[mine] = bb[index[g[mine]], slot_in_group[track[mine]], column[mine]]
-        beta0[members] = b0
-    return beta, beta0, split
-
-
-def _clustered_marginals(r, miss, gated, predicted_bearing, max_cluster_tracks, split):
-    """Cluster per run, cut clusters larger than the limit, batch equal sizes across runs."""
-    R, T, m = r.shape
-    labels = cluster_tracks(gated) if T > 1 else np.zeros((R, 1), np.int64)
-    key = (labels + T * np.arange(R)[:, None]).ravel()
-    order = np.lexsort((predicted_bearing.ravel(), key))
-    too_big, new_group = _cut_clusters(key[order], max_cluster_tracks)
-    split.ravel()[order[too_big]] = True
-    group_start = np.flatnonzero(new_group)
-    group_size = np.diff(np.r_[group_start, key.size])
-    beta = np.zeros((R, T, m))
-    beta0 = np.ones((R, T))
-    for s in np.unique(group_size):
-        first = group_start[group_size == s]
-        flat = order[first[:, None] + np.arange(s)]  # (batch, s) flat (run, track) indices
-        run, trk = np.divmod(flat, T)
-        if s == 1:
-            bb, b0 = _lone_track_marginals(r[run, trk], miss[run, trk])
-        else:
-            bb, b0 = _cluster_marginals_on_own_peaks(r[run, trk], miss[run, trk])
-        beta[run, trk] = bb
-        beta0[run, trk] = b0
-    return beta, beta0
-
-
-def _cluster_marginals_on_own_peaks(r, miss):
-    """:func:`association_marginals` of a batch of clusters ``r`` (B, s, m), each solved on the
-    peaks its own tracks gate: a peak no track of a cluster gates has ratio 0 for all of them and
-    multiplies every joint event by 1, so dropping it leaves β exact, and the recursion's cost,
-    linear in the peaks, falls from a scan's to a cluster's (hundreds of clutter plots a scan)."""
-    own = (r > 0).any(axis=1)                                               # (B, m)
-    width = int(own.sum(axis=1).max(initial=0))
-    if width == r.shape[2]:
-        return association_marginals(r, miss)
-    cols = np.argsort(~own, axis=1, kind="stable")[:, :width]              # each cluster's peaks first
-    b, b0 = association_marginals(np.take_along_axis(r, cols[:, None, :], axis=2), miss)
-    beta = np.zeros(r.shape)
-    np.put_along_axis(beta, np.broadcast_to(cols[:, None, :], b.shape), b, axis=2)
-    return beta, b0
 
 
 # --------------------------------------------------------------------------- state update
@@ -839,46 +635,3 @@ def track_bearing_peaks(scans: list[ScanPeaks], x0: np.ndarray, P0: np.ndarray, 
     out["strength"][:, after] = strength[:, None] if strengths is None else strengths.swapaxes(0, 1)
     top.store(out["beta_top"][:, after], out["beta_index"][:, after])
     return out
-
-
-class _TopWeights:
-    """The ``TOP_WEIGHTS`` largest β of each track and scan and their peak indices.
-
-    Only the outputs need them, so the per-scan β are kept and sorted in blocks of many scans
-    (one sort per block instead of one per scan); a block is laid out padded to its widest scan
-    and sorted once it would exceed ``MEMORY_BUDGET_FLOATS``.
-    """
-
-    def __init__(self, R: int, T: int):
-        self.R, self.T = R, T
-        self.pending, self.width, self.done = [], 0, []
-
-    def add(self, beta: np.ndarray) -> None:
-        self.pending.append(beta)
-        self.width = max(self.width, beta.shape[2])
-        if len(self.pending) * self.R * self.T * self.width > MEMORY_BUDGET_FLOATS:
-            self._sort()
-
-    def _sort(self) -> None:
-        n, width = len(self.pending), self.width
-        block = np.zeros((n, self.R, self.T, max(width, 1)))
-        for j, beta in enumerate(self.pending):
-            block[j, ..., :beta.shape[2]] = beta
-        # stable: equal weights keep peak order; padding (0) sorts after every positive weight
-        index = np.argsort(-block, axis=3, kind="stable")[..., :TOP_WEIGHTS]
-        w = np.take_along_axis(block, index, axis=3)
-        # with fewer than TOP_WEIGHTS peaks in every scan of the block the last columns stay empty
-        index, w = index[..., :min(width, TOP_WEIGHTS)], w[..., :min(width, TOP_WEIGHTS)]
-        self.done.append((np.where(w > 0, w, np.nan), np.where(w > 0, index, -1)))
-        self.pending, self.width = [], 0
-
-    def store(self, top: np.ndarray, index: np.ndarray) -> None:
-        """Write into ``(R, scans, T, TOP_WEIGHTS)`` views of the outputs (NaN / −1 beyond)."""
-        if self.pending:
-            self._sort()
-        lo = 0
-        for w, ix in self.done:
-            hi = lo + w.shape[0]
-            top[:, lo:hi, :, :w.shape[3]] = w.swapaxes(0, 1)
-            index[:, lo:hi, :, :w.shape[3]] = ix.swapaxes(0, 1)
-            lo = hi
