@@ -8,7 +8,8 @@ State ``[x, y, ẋ, ẏ]``; plots ``(r, θ)`` are converted to ``(x, y)``.
 The loop (:func:`track_plots`) predicts with the white-acceleration model, picks the plot
 nearest to the prediction (no clutter in the paper's scenario; misses coast), and hands the
 prediction and the plot to an **update strategy**, which returns the posterior state and
-covariance, the innovation and its diagnostics. A polar EKF or a UKF is one more strategy (or a
+covariance, the innovation and its diagnostics (the strategies live in
+:mod:`trackreplay.trackers.radar_tws_strategies`). A polar EKF or a UKF is one more strategy (or a
 plugged tracker, see ``docs/trackers.md``); the loop does not change. The strategies:
 
 ``fixed``        Kalata gains at the nominal cross-range index λ̄ (the paper's "conventional").
@@ -59,28 +60,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from trackreplay.cores.filters.alpha_beta_gains import (
-    approximate_gains,
-    clamp_to_stability,
-    floor_velocity_factor,
-    kalata_steady_state,
-    steady_state_variances,
-    tracking_index,
-    velocity_factor,
-    with_startup,
-)
+from trackreplay.cores.filters.alpha_beta_gains import tracking_index
 from trackreplay.cores.filters.converted_measurements import (
     RELATIVE_VARIANCE_FLOOR,
     floored_polar_variances,
     rotated_diagonal,
 )
 from trackreplay.cores.filters.kalman import (
-    _cv_position_filter_covariances,
-    _cv_predict_components_scans,
-    _cv_states_with_gains,
-    cv_apply_gain_components,
     cv_floor_components,
-    cv_position_update_components,
     cv_predict_components,
     MATRIX_FROM_COMPONENTS,
 )
@@ -90,6 +77,10 @@ from trackreplay.cores.association.track_management import ConfirmationRule, End
 from trackreplay import vocabulary as vocab
 from trackreplay.errors import InputError
 from trackreplay.trackers.interface import Param, Tracker
+# the update strategies, and the scan loop's fast path (steady stretches as blocks, tested equal
+# to the loop scan by scan)
+from trackreplay.trackers.radar_tws_strategies import STRATEGIES, AlphaBetaGains, KalmanGains  # noqa: F401
+from trackreplay.trackers._radar_tws_blocks import _steady_block, _steady_stretches
 
 FLAG_CLAMPED = vocab.CLAMPED
 FLAG_COASTED = vocab.COASTED
@@ -159,122 +150,6 @@ class TrackerDesign:
         return float(tracking_index(self.sigma_v, self.scan_period_s, self.nominal_cross_range_m))
 
 
-# Strategies work on runs-last arrays: covariance components (10, n) as in trackreplay.cores.filters.kalman,
-# gains (8, n) = K_pos (00, 01, 10, 11) then K_vel (00, 01, 10, 11).
-
-
-class AlphaBetaGains:
-    """Decoupled α-β gain strategy; ``cross_gains(λ_k, λ̄)`` decides how the cross-range gains follow λ."""
-
-    def __init__(self, name: str, cross_gains):
-        self.name = name
-        self._cross_gains = cross_gains
-
-    def update(self, x_pred, c_pred, z_range, cos_b, sin_b, r_cov, sigmas, n_plots, design: TrackerDesign, dt: float):
-        """Posterior with the gain ``K = D₂ K̄₂ Dᵀ`` and the steady-state covariance those gains imply.
-
-        λ_k and β/T use this scan's interval ``dt`` (recorded scan times jitter); the fixed
-        filter's nominal λ̄ stays at the design period. ``sigmas`` are the plot's (floored)
-        along-range and cross-range error stds. The velocity variance of gains off Kalata's
-        curve is floored (``diag["floored"]``) so that the covariance is positive definite.
-        """
-        gain, c_post, diag = self.gain_and_covariance(c_pred, cos_b, sin_b, r_cov, sigmas, n_plots, design, dt)
-        x_post, innovation = _linear_update(x_pred, gain, z_range, cos_b, sin_b)
-        return x_post, c_post, innovation, gain, diag
-
-    def gain_and_covariance(self, c_pred, cos_b, sin_b, r_cov, sigmas, n_plots, design: TrackerDesign, dt):
-        """The gain ``(8, ...)``, the posterior covariance ``(10, ...)`` and the diagnostics of
-        :meth:`update`: functions of the plot alone (not of the predicted state or covariance),
-        so a stretch of scans can be taken in one call (:func:`_steady_block`). Elementwise:
-        ``dt`` may be an array shaped like the plots."""
-        T = dt
-        sigma_along, sigma_cross = sigmas
-        lam_c = tracking_index(design.sigma_v, T, sigma_cross)
-        alpha_r, beta_r, nu_r = kalata_steady_state(tracking_index(design.sigma_v, T, sigma_along))
-        if np.ndim(alpha_r) == 0:  # one range error for all runs (nothing floored)
-            alpha_r, beta_r, nu_r = (np.full(cos_b.shape, v) for v in (alpha_r, beta_r, nu_r))
-        alpha_c, beta_c, nu_c, clamped, floored = self._cross_gains(lam_c, design.lam_nominal)
-        if design.startup:
-            alpha_r, beta_r, nu_r = with_startup(alpha_r, beta_r, n_plots, nu_r)
-            alpha_c, beta_c, nu_c = with_startup(alpha_c, beta_c, n_plots, nu_c)
-        kp = rotated_diagonal(cos_b, sin_b, alpha_r, alpha_c)
-        kv = rotated_diagonal(cos_b, sin_b, beta_r / T, beta_c / T)
-        gain = np.stack([kp[0], kp[1], kp[1], kp[2], kv[0], kv[1], kv[1], kv[2]])
-        along = steady_state_variances(alpha_r, beta_r, T, sigma_along, nu_r)
-        cross = steady_state_variances(alpha_c, beta_c, T, sigma_cross, nu_c)
-        A = rotated_diagonal(cos_b, sin_b, along[0], cross[0])
-        B = rotated_diagonal(cos_b, sin_b, along[1], cross[1])
-        C = rotated_diagonal(cos_b, sin_b, along[2], cross[2])
-        c_post = np.stack([A[0], A[1], A[2], B[0], B[1], B[1], B[2], C[0], C[1], C[2]])
-        return gain, c_post, {"alpha": np.stack([alpha_r, alpha_c]), "beta": np.stack([beta_r, beta_c]),
-                              "lambda_cross": lam_c, "clamped": clamped, "floored": floored}
-
-
-# Cross-range gain rules: (λ_k, λ̄) → α, β, their velocity factor ν (alpha_beta_gains), clamped,
-# floored. Kalata and start-up gains imply a covariance with ρ² < 1/2, so only the approximate
-# rule, whose gains leave Kalata's curve, needs the velocity floor.
-
-
-def _fixed(lam_c, lam_bar):
-    no = np.zeros(lam_c.shape, bool)
-    return tuple(np.full_like(lam_c, v) for v in kalata_steady_state(lam_bar)) + (no, no)
-
-
-def _approximate(lam_c, lam_bar):
-    a, b, clamped = clamp_to_stability(*approximate_gains(lam_c, lam_bar))
-    nu, floored = floor_velocity_factor(a, b, velocity_factor(a, b))
-    return a, b, nu, clamped, floored
-
-
-def _exact(lam_c, lam_bar):
-    no = np.zeros(lam_c.shape, bool)
-    return kalata_steady_state(lam_c) + (no, no)
-
-
-class KalmanGains:
-    """Kalman gain with the converted-measurement covariance (reference strategy)."""
-
-    name = "kalman"
-
-    def update(self, x_pred, c_pred, z_range, cos_b, sin_b, r_cov, sigmas, n_plots, design: TrackerDesign, dt: float):
-        gain, c_post = cv_position_update_components(c_pred, *r_cov)
-        x_post, innovation = _linear_update(x_pred, gain, z_range, cos_b, sin_b)
-        return x_post, c_post, innovation, gain, self.diagnostics(gain, cos_b, sin_b, sigmas, design, dt)
-
-    @staticmethod
-    def diagnostics(gain, cos_b, sin_b, sigmas, design: TrackerDesign, dt):
-        """The gain seen in the (along-range, cross-range) frame as α and β, for comparison with
-        the α-β strategies, and λ_k (elementwise: ``dt`` may be an array)."""
-        T = dt
-        cc, ss, cs = cos_b * cos_b, sin_b * sin_b, cos_b * sin_b
-        k00, k01, k10, k11, g00, g01, g10, g11 = gain
-        alpha, beta = np.empty((2,) + k00.shape), np.empty((2,) + k00.shape)
-        kx, gx = cs * (k01 + k10), cs * (g01 + g10)
-        alpha[0] = cc * k00 + kx + ss * k11
-        alpha[1] = ss * k00 - kx + cc * k11
-        beta[0] = T * (cc * g00 + gx + ss * g11)
-        beta[1] = T * (ss * g00 - gx + cc * g11)
-        lam_c = tracking_index(design.sigma_v, T, sigmas[1])
-        no = np.zeros(cos_b.shape, bool)
-        return {"alpha": alpha, "beta": beta, "lambda_cross": lam_c, "clamped": no, "floored": no}
-
-
-def _linear_update(x_pred, gain, z_range, cos_b, sin_b):
-    """``x + K ν`` with the converted plot's innovation ``ν = (r cos θ, r sin θ) − H x``."""
-    nu = np.empty((2,) + z_range.shape)
-    nu[0] = z_range * cos_b - x_pred[0]
-    nu[1] = z_range * sin_b - x_pred[1]
-    return cv_apply_gain_components(x_pred, gain, nu), nu
-
-
-STRATEGIES = {
-    "fixed": AlphaBetaGains("fixed", _fixed),
-    "approximate": AlphaBetaGains("approximate", _approximate),
-    "exact": AlphaBetaGains("exact", _exact),
-    "kalman": KalmanGains(),
-}
-
-
 def _plot_variances(z_range, dt: float, design: TrackerDesign):
     """Along-range and cross-range variances of each run's plot, floored (module docstring).
 
@@ -340,103 +215,6 @@ BLOCK_RUN_SCANS = 1 << 18
 BLOCK_MAX_RUNS = 256
 
 
-def _steady_stretches(counts):
-    """For each scan k, how many scans from k on have a plot in every run (0 where scan k lacks one)."""
-    every = (counts > 0).all(axis=0)
-    idx = np.arange(len(every))
-    gaps = np.append(np.flatnonzero(~every), len(every))
-    return gaps[np.searchsorted(gaps, idx)] - idx
-
-
-def _block_plot_variances(z_r, dt, design: TrackerDesign):
-    """:func:`_plot_variances` of a block of scans ``(L, runs)`` with intervals ``dt`` ``(L,)``,
-    scan by scan as the loop decides it (a scan with nothing to floor keeps σ_r² and σ_r).
-
-    Returns ``(var_along, var_cross, floored, sigma_along, sigma_cross)``; ``floored`` is None when
-    no scan of the block was floored.
-    """
-    least = (design.sigma_v * dt * dt / MAX_TRACKING_INDEX) ** 2
-    var_r = design.sigma_range_m**2
-    var_cross = (z_r * design.sigma_bearing_rad) ** 2
-    lo, hi = np.maximum(RELATIVE_VARIANCE_FLOOR * var_r, least), var_r / RELATIVE_VARIANCE_FLOOR
-    common = (var_r >= least) & ~((var_cross < lo[:, None]) | (var_cross > hi)).any(axis=1)
-    if common.all():
-        return var_r, var_cross, None, design.sigma_range_m, z_r * design.sigma_bearing_rad
-    var_along_f, var_cross_f, floored = floored_polar_variances(z_r, design.sigma_range_m, design.sigma_bearing_rad)
-    low_along, low_cross = var_along_f < least[:, None], var_cross_f < least[:, None]
-    var_along_f = np.where(low_along, least[:, None], var_along_f)
-    var_cross_f = np.where(low_cross, least[:, None], var_cross_f)
-    keep = common[:, None]
-    var_along = np.where(keep, var_r, var_along_f)
-    var_cross = np.where(keep, var_cross, var_cross_f)
-    floored = ~keep & (floored | low_along | low_cross)
-    sigma_along = np.where(keep, design.sigma_range_m, np.sqrt(var_along))
-    sigma_cross = np.where(keep, z_r * design.sigma_bearing_rad, np.sqrt(var_cross))
-    return var_along, var_cross, floored, sigma_along, sigma_cross
-
-
-
-
-
-
-def _steady_block(first, stop, x, c, n_plots, plot_range, plot_bearing, times, design: TrackerDesign, strategy, out):
-    """Scans ``first`` to ``stop − 1`` of :func:`track_plots` in one pass, where every run has a
-    started, confirmed track, one plot in every scan, and no gate: then nothing the loop decides
-    depends on the states (every scan updates every run, no track starts or ends), the α-β gains
-    and covariances are functions of the plots alone, and the Kalman covariances of the plots and
-    the covariance the block starts from. Those are computed for the whole block at once; only
-    the recursions that must run scan after scan (the states, the Kalman covariance) do, on as
-    little as they need (:func:`~trackreplay.cores.filters.kalman._cv_states_with_gains`,
-    :func:`~trackreplay.cores.filters.kalman._cv_position_filter_covariances`). The outputs
-    are written into ``out`` (the loop's arrays); returns ``(x, c, n_plots)`` after the block.
-    """
-    L = stop - first
-    n_runs = x.shape[1]
-    dt = times[first:stop] - times[first - 1:stop - 1]
-    z_r = np.ascontiguousarray(plot_range[:, first:stop, 0].T)
-    z_b = np.ascontiguousarray(plot_bearing[:, first:stop, 0].T)
-    cos_b, sin_b = np.cos(z_b), np.sin(z_b)
-    zx, zy = z_r * cos_b, z_r * sin_b
-    var_along, var_cross, floored, sigma_along, sigma_cross = _block_plot_variances(z_r, dt, design)
-    r_cov = rotated_diagonal(cos_b, sin_b, var_along, var_cross)
-    T = np.broadcast_to(dt[:, None], (L, n_runs))
-    plots = n_plots[None, :] + np.arange(1, L + 1)[:, None]
-    if isinstance(strategy, KalmanGains):
-        gain, c_post = _cv_position_filter_covariances(c, r_cov, dt, design.sigma_v)
-        diag = strategy.diagnostics(gain, cos_b, sin_b, (sigma_along, sigma_cross), design, T)
-    else:
-        gain, c_post, diag = strategy.gain_and_covariance(None, cos_b, sin_b, r_cov, (sigma_along, sigma_cross),
-                                                          plots, design, T)
-    states = _cv_states_with_gains(x, gain, zx, zy, dt)
-    # the predictions each scan started from, all at once (the same operations as the loop's)
-    x_prev = np.concatenate([x[:, None], states[:, :-1]], axis=1)
-    c_prev = np.concatenate([c[:, None], c_post[:, :-1]], axis=1)
-    xp, cp = _cv_predict_components_scans(x_prev, c_prev, dt, design.sigma_v)
-    scans = slice(first, stop)
-    out["state"][scans] = states.transpose(1, 0, 2)
-    out["cov"][scans] = c_post[MATRIX_FROM_COMPONENTS].transpose(1, 0, 2)
-    out["used"][scans, 0], out["used"][scans, 1] = zx, zy
-    out["innov"][scans, 0], out["innov"][scans, 1] = zx - xp[0], zy - xp[1]
-    out["alpha"][scans] = diag["alpha"].transpose(1, 0, 2)
-    out["beta"][scans] = diag["beta"].transpose(1, 0, 2)
-    out["lam"][scans] = diag["lambda_cross"]
-    s_k = out["s_cov"][scans]
-    s_k[..., 0] = cp[0] + r_cov[0]
-    s_k[..., 1] = s_k[..., 2] = cp[1] + r_cov[1]
-    s_k[..., 3] = cp[2] + r_cov[2]
-    out["gains"][scans] = gain.transpose(1, 2, 0)
-    flags = out["flags"][scans]
-    if floored is not None:
-        flags |= np.where(floored, FLAG_FLOORED, 0).astype(np.uint16)
-    if diag["clamped"].any():
-        flags |= np.where(diag["clamped"], FLAG_CLAMPED, 0).astype(np.uint16)
-    if diag["floored"].any():
-        flags |= np.where(diag["floored"], FLAG_FLOORED, 0).astype(np.uint16)
-    return states[:, -1].copy(), c_post[:, -1].copy(), n_plots + L
-
-
-
-
 def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, strategy,
                 scan_blocks: bool = True) -> dict:
     """Run one tracker over all Monte Carlo runs at once.
@@ -453,7 +231,7 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
         One of :data:`STRATEGIES`.
     scan_blocks : bool
         Take stretches of steady scans (every run has a confirmed track and one plot a scan, no
-        gate) as blocks (:func:`_steady_block`) when the runs are few (at most
+        gate) as blocks (:func:`~trackreplay.trackers._radar_tws_blocks._steady_block`) when the runs are few (at most
         :data:`BLOCK_MAX_RUNS`): the same outputs, to the bit, with a few NumPy calls per block
         instead of a few hundred per scan (``docs/benchmarks.md``). False: scan by scan throughout
         (the reference form the tests hold the blocks to).

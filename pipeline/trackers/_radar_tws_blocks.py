@@ -1,0 +1,133 @@
+"""The fast path of the radar scan loop (:func:`trackreplay.trackers.radar_tws.track_plots`):
+stretches of steady scans taken as one block, the same outputs to the bit as the loop's scan by
+scan (``track_plots(scan_blocks=False)``, the plain form; tests/test_long_recording.py holds the
+two equal, clamps, floors, deletions and cut blocks included). The block sizes
+(``MIN_BLOCK_SCANS``, ``BLOCK_RUN_SCANS``, ``BLOCK_MAX_RUNS``) are the loop's, in
+:mod:`trackreplay.trackers.radar_tws`.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from trackreplay import vocabulary as vocab
+from trackreplay.cores.filters.converted_measurements import (
+    RELATIVE_VARIANCE_FLOOR,
+    floored_polar_variances,
+    rotated_diagonal,
+)
+from trackreplay.cores.filters.kalman import (
+    _cv_position_filter_covariances,
+    _cv_predict_components_scans,
+    _cv_states_with_gains,
+    MATRIX_FROM_COMPONENTS,
+)
+from trackreplay.trackers.radar_tws_strategies import KalmanGains
+
+if TYPE_CHECKING:
+    from trackreplay.trackers.radar_tws import TrackerDesign
+
+FLAG_CLAMPED = vocab.CLAMPED
+FLAG_FLOORED = vocab.FLOORED
+
+
+def _steady_stretches(counts):
+    """For each scan k, how many scans from k on have a plot in every run (0 where scan k lacks one)."""
+    every = (counts > 0).all(axis=0)
+    idx = np.arange(len(every))
+    gaps = np.append(np.flatnonzero(~every), len(every))
+    return gaps[np.searchsorted(gaps, idx)] - idx
+
+
+def _block_plot_variances(z_r, dt, design: TrackerDesign):
+    """:func:`~trackreplay.trackers.radar_tws._plot_variances` of a block of scans ``(L, runs)`` with intervals ``dt`` ``(L,)``,
+    scan by scan as the loop decides it (a scan with nothing to floor keeps σ_r² and σ_r).
+
+    Returns ``(var_along, var_cross, floored, sigma_along, sigma_cross)``; ``floored`` is None when
+    no scan of the block was floored.
+    """
+    least = (design.sigma_v * dt * dt / _plain.MAX_TRACKING_INDEX) ** 2
+    var_r = design.sigma_range_m**2
+    var_cross = (z_r * design.sigma_bearing_rad) ** 2
+    lo, hi = np.maximum(RELATIVE_VARIANCE_FLOOR * var_r, least), var_r / RELATIVE_VARIANCE_FLOOR
+    common = (var_r >= least) & ~((var_cross < lo[:, None]) | (var_cross > hi)).any(axis=1)
+    if common.all():
+        return var_r, var_cross, None, design.sigma_range_m, z_r * design.sigma_bearing_rad
+    var_along_f, var_cross_f, floored = floored_polar_variances(z_r, design.sigma_range_m, design.sigma_bearing_rad)
+    low_along, low_cross = var_along_f < least[:, None], var_cross_f < least[:, None]
+    var_along_f = np.where(low_along, least[:, None], var_along_f)
+    var_cross_f = np.where(low_cross, least[:, None], var_cross_f)
+    keep = common[:, None]
+    var_along = np.where(keep, var_r, var_along_f)
+    var_cross = np.where(keep, var_cross, var_cross_f)
+    floored = ~keep & (floored | low_along | low_cross)
+    sigma_along = np.where(keep, design.sigma_range_m, np.sqrt(var_along))
+    sigma_cross = np.where(keep, z_r * design.sigma_bearing_rad, np.sqrt(var_cross))
+    return var_along, var_cross, floored, sigma_along, sigma_cross
+
+
+
+
+
+
+def _steady_block(first, stop, x, c, n_plots, plot_range, plot_bearing, times, design: TrackerDesign, strategy, out):
+    """Scans ``first`` to ``stop − 1`` of :func:`~trackreplay.trackers.radar_tws.track_plots` in one pass, where every run has a
+    started, confirmed track, one plot in every scan, and no gate: then nothing the loop decides
+    depends on the states (every scan updates every run, no track starts or ends), the α-β gains
+    and covariances are functions of the plots alone, and the Kalman covariances of the plots and
+    the covariance the block starts from. Those are computed for the whole block at once; only
+    the recursions that must run scan after scan (the states, the Kalman covariance) do, on as
+    little as they need (:func:`~trackreplay.cores.filters.kalman._cv_states_with_gains`,
+    :func:`~trackreplay.cores.filters.kalman._cv_position_filter_covariances`). The outputs
+    are written into ``out`` (the loop's arrays); returns ``(x, c, n_plots)`` after the block.
+    """
+    L = stop - first
+    n_runs = x.shape[1]
+    dt = times[first:stop] - times[first - 1:stop - 1]
+    z_r = np.ascontiguousarray(plot_range[:, first:stop, 0].T)
+    z_b = np.ascontiguousarray(plot_bearing[:, first:stop, 0].T)
+    cos_b, sin_b = np.cos(z_b), np.sin(z_b)
+    zx, zy = z_r * cos_b, z_r * sin_b
+    var_along, var_cross, floored, sigma_along, sigma_cross = _block_plot_variances(z_r, dt, design)
+    r_cov = rotated_diagonal(cos_b, sin_b, var_along, var_cross)
+    T = np.broadcast_to(dt[:, None], (L, n_runs))
+    plots = n_plots[None, :] + np.arange(1, L + 1)[:, None]
+    if isinstance(strategy, KalmanGains):
+        gain, c_post = _cv_position_filter_covariances(c, r_cov, dt, design.sigma_v)
+        diag = strategy.diagnostics(gain, cos_b, sin_b, (sigma_along, sigma_cross), design, T)
+    else:
+        gain, c_post, diag = strategy.gain_and_covariance(None, cos_b, sin_b, r_cov, (sigma_along, sigma_cross),
+                                                          plots, design, T)
+    states = _cv_states_with_gains(x, gain, zx, zy, dt)
+    # the predictions each scan started from, all at once (the same operations as the loop's)
+    x_prev = np.concatenate([x[:, None], states[:, :-1]], axis=1)
+    c_prev = np.concatenate([c[:, None], c_post[:, :-1]], axis=1)
+    xp, cp = _cv_predict_components_scans(x_prev, c_prev, dt, design.sigma_v)
+    scans = slice(first, stop)
+    out["state"][scans] = states.transpose(1, 0, 2)
+    out["cov"][scans] = c_post[MATRIX_FROM_COMPONENTS].transpose(1, 0, 2)
+    out["used"][scans, 0], out["used"][scans, 1] = zx, zy
+    out["innov"][scans, 0], out["innov"][scans, 1] = zx - xp[0], zy - xp[1]
+    out["alpha"][scans] = diag["alpha"].transpose(1, 0, 2)
+    out["beta"][scans] = diag["beta"].transpose(1, 0, 2)
+    out["lam"][scans] = diag["lambda_cross"]
+    s_k = out["s_cov"][scans]
+    s_k[..., 0] = cp[0] + r_cov[0]
+    s_k[..., 1] = s_k[..., 2] = cp[1] + r_cov[1]
+    s_k[..., 3] = cp[2] + r_cov[2]
+    out["gains"][scans] = gain.transpose(1, 2, 0)
+    flags = out["flags"][scans]
+    if floored is not None:
+        flags |= np.where(floored, FLAG_FLOORED, 0).astype(np.uint16)
+    if diag["clamped"].any():
+        flags |= np.where(diag["clamped"], FLAG_CLAMPED, 0).astype(np.uint16)
+    if diag["floored"].any():
+        flags |= np.where(diag["floored"], FLAG_FLOORED, 0).astype(np.uint16)
+    return states[:, -1].copy(), c_post[:, -1].copy(), n_plots + L
+
+
+# The loop's module, reached when called (its MAX_TRACKING_INDEX). Imported last: that module
+# imports this one's names at its top, so either may be imported first.
+from trackreplay.trackers import radar_tws as _plain  # noqa: E402
