@@ -16,8 +16,11 @@ values").
 The record of a converted data set (``replay.scenario``) carries two fields a simulation's
 lacks: ``origin = "recording"`` and ``sources``, a JSON object naming the source of each value
 it records (:data:`SOURCES`). Files converted before these fields existed (seed ``-1``) and the
-WAV converter's records (scenario ``array-wav``) are recordings too. Only a simulation records
-its generating model, so only a simulation has Cramér–Rao bounds (``docs/evaluation.md``).
+WAV converter's records (scenario ``array-wav``) are recordings too, and so is a file with no
+record, or a record without parameters (one written by hand with
+:func:`trackreplay.contract.write_dataset`, or by an older tool): it says nothing about its sensor,
+so all its sensor values are unknown. Only a simulation records its generating model, so only a
+simulation has Cramér–Rao bounds (``docs/evaluation.md``).
 """
 
 from __future__ import annotations
@@ -67,16 +70,24 @@ def _record(scenario: dict) -> dict:
     return scenario if isinstance(scenario, dict) else {}
 
 
+def says_nothing(scenario: dict) -> bool:
+    """Whether a ``replay.scenario`` record is missing or holds no parameters: the file says
+    nothing about its sensor, so every sensor value of it is unknown (issue 28, item 1)."""
+    return not isinstance(_record(scenario).get("params"), dict)
+
+
 def is_recording(scenario: dict) -> bool:
     """Whether a ``replay.scenario`` record (as :attr:`trackreplay.contract.Dataset.scenario`
     gives it) is a converted recording's rather than a simulation's.
 
     A record written by a converter says ``origin = "recording"``; earlier converters wrote seed
-    ``-1`` (tables, foreign MCAP) or scenario ``array-wav``. A file without a record is neither
-    (a hand-written file: its design values are the defaults, as before)."""
+    ``-1`` (tables, foreign MCAP) or scenario ``array-wav``. A file without a record, or whose
+    record holds no parameters (written by hand with :func:`trackreplay.contract.write_dataset`,
+    or by an older tool), says nothing about its sensor: it is a recording too, every sensor
+    value of it unknown (:func:`says_nothing`), never the bundled scenario's."""
     rec = _record(scenario)
-    if not rec:
-        return False
+    if says_nothing(rec):
+        return True
     if rec.get("origin") == ORIGIN_RECORDING:
         return True
     return str(rec.get("seed", "")).strip() == "-1" or rec.get("scenario") == "array-wav"

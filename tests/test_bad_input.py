@@ -92,9 +92,18 @@ def radar_frames(n_scans: int = 5) -> dict:
     return {"/radar/plots": plots, "/radar/truth": truth}
 
 
+#: the plots' noise of :func:`radar_frames` (100 m in range, 0.01 rad in bearing)
+RADAR_FRAMES_SENSOR = {"sigma_range_m": 100.0, "sigma_bearing_deg": float(np.rad2deg(0.01))}
+
+
 def radar_metadata(params: dict | str) -> dict:
     text = params if isinstance(params, str) else json.dumps(params)
     return {METADATA_SCENARIO: {"scenario": "radar-tws", "params": text, "seed": "0"}}
+
+
+def xcorr_metadata(params: dict) -> dict:
+    """A simulation record of the bundled xcorr-crossing scenario with ``params`` changed."""
+    return {METADATA_SCENARIO: {"scenario": "xcorr-crossing", "params": json.dumps(params), "seed": "0"}}
 
 
 # --- xcorr peaks: two targets at 85° and 95° (strong, weak) plus one clutter peak per scan
@@ -132,7 +141,10 @@ def colored_frames():
 def test_the_hand_written_sets_replay_cleanly(tmp_path, emitter_frames, colored_frames):
     """Controls: every breakage below starts from a set the replay accepts."""
     frames, params = colored_frames
-    for name, channels, meta in [("radar", radar_frames(), None), ("xcorr", xcorr_frames(), None),
+    # the radar and xcorr sets record the sensor values they were made with (a file that says
+    # nothing about its sensor stops: tests/test_sensor_values.py, a file without a record)
+    for name, channels, meta in [("radar", radar_frames(), radar_metadata(RADAR_FRAMES_SENSOR)),
+                                 ("xcorr", xcorr_frames(), xcorr_metadata({})),
                                  ("emitter", emitter_frames, None),
                                  ("colored", frames, scenario_metadata("colored-imm", params, 0))]:
         res = invoke(write_frames(tmp_path / f"{name}.mcap", channels, meta), "--no-rrd")
@@ -202,16 +214,13 @@ def test_design_values_recorded_as_strings_are_parsed(tmp_path):
     a, b = invoke("eval", typed, "--json"), invoke("eval", text, "--json")
     assert a.exit_code == 0 and b.exit_code == 0, a.output + b.output
     assert json.loads(a.output) == json.loads(b.output)
-    default = invoke("eval", write_frames(tmp_path / "none.mcap", radar_frames(8)), "--json")
+    default = invoke("eval", write_frames(tmp_path / "none.mcap", radar_frames(8), radar_metadata({})), "--json")
     assert json.loads(default.output) != json.loads(a.output)  # the recorded value is used, not the default
 
 
 def test_xcorr_gate_recorded_as_string(tmp_path):
-    def meta(gate):
-        return {METADATA_SCENARIO: {"scenario": "xcorr-crossing", "params": json.dumps({"gate_deg": gate}), "seed": "0"}}
-
-    text = invoke("eval", write_frames(tmp_path / "s.mcap", xcorr_frames(), meta("5")), "--json")
-    typed = invoke("eval", write_frames(tmp_path / "f.mcap", xcorr_frames(), meta(5.0)), "--json")
+    text = invoke("eval", write_frames(tmp_path / "s.mcap", xcorr_frames(), xcorr_metadata({"gate_deg": "5"})), "--json")
+    typed = invoke("eval", write_frames(tmp_path / "f.mcap", xcorr_frames(), xcorr_metadata({"gate_deg": 5.0})), "--json")
     assert text.exit_code == 0, text.output
     assert json.loads(text.output) == json.loads(typed.output)
 

@@ -134,11 +134,15 @@ def test_a_recording_without_truth_starts_from_the_measurements(short_imm, tmp_p
     recording = tmp_path / "recording.mcap"
     with write_dataset(recording) as w:  # the measurements alone, as a converted recording holds them
         w.write_grid("/colored/measurements", times, {"position_m": z})
-    res = invoke(recording, "--no-rrd", "--out", tmp_path / "o" / "tracks.mcap")
+    # the file says nothing about its sensor: the noise variance is the user's to give
+    variance = ds.scenario["params"]["measurement_variance_m2"]
+    res = invoke(recording, "--no-rrd", "--set", f"measurement_variance_m2={variance}",
+                 "--out", tmp_path / "o" / "tracks.mcap")
     assert res.exit_code == 0, res.output
     assert "nis_time_average" in res.output and "rmse" not in res.output  # no truth: innovations only
     out = read_dataset(tmp_path / "o" / "tracks.mcap").channel("/tracks/colored/imm").grid("state")
     assert np.allclose(out[:, 0, 0], z[:, 0, 0] if z.ndim == 3 else z[:, 0])  # position from z₀
     refused = CliRunner().invoke(main, [str(recording), "--no-rrd", "--set", "track_start=truth",
+                                        "--set", f"measurement_variance_m2={variance}",
                                         "--out", str(tmp_path / "p" / "tracks.mcap")])
     assert refused.exit_code == 2 and "track_start" in refused.stderr

@@ -271,3 +271,47 @@ def test_a_file_of_an_earlier_converter_keeps_its_values_and_has_no_bound(tmp_pa
     simulated = json.loads(ok(invoke("eval", sim, "--json")).output)
     earlier = json.loads(ok(invoke("eval", old, "--json")).output)
     assert "pcrb_position_m" in bound_metrics(simulated) and bound_metrics(earlier) == set()
+
+
+def test_a_file_without_a_record_is_a_recording_whose_sensor_values_are_unknown(tmp_path):
+    """No ``replay.scenario`` record (written by hand, or by an older tool): nothing is borrowed from
+    the bundled scenario. A tracker needing the noise stops with one line naming the ``--set``s
+    (exit 2, the file untouched), ``replay info`` says so, and with the values given the replay
+    scores the simulation's numbers without its bounds (issue 28, item 1)."""
+    from trackreplay.contract import scenario_metadata
+    from trackreplay.recorders import simulator_for
+    from trackreplay.recorders.simulated import write_simulated
+
+    scenario = load_scenario("radar-tws").with_overrides({"n_scans": 10, "truth_process_noise_mps2": 0.5})
+    data = simulator_for(scenario.recorder)(scenario.params, 4, 2)
+    sim, bare = tmp_path / "sim.mcap", tmp_path / "bare.mcap"
+    write_simulated(sim, data, scenario_metadata(scenario.name, scenario.params, 2))
+    write_simulated(bare, data, {})
+    assert read_dataset(bare).scenario == {}
+    assert sv.says_nothing({}) and sv.is_recording({}) and not sv.is_simulation({})
+    assert sv.says_nothing({"contract": "replay.v2"}) and not sv.says_nothing(read_dataset(sim).scenario)
+
+    before = hashlib.sha256(bare.read_bytes()).hexdigest()
+    res = invoke("eval", bare, "--json")
+    errors = [line for line in res.stderr.splitlines() if line.strip()]
+    assert res.exit_code == 2 and len(errors) == 1 and "Traceback" not in res.output, res.output
+    assert errors[0].startswith(f"replay: error: {bare}: ")
+    assert "--set sigma_range_m=VALUE" in errors[0] and "--set sigma_bearing_deg=VALUE" in errors[0]
+    assert hashlib.sha256(bare.read_bytes()).hexdigest() == before
+
+    info = json.loads(ok(invoke("info", bare, "--json")).output)
+    assert info["origin"] == "recording" and info["says_nothing_of_its_sensor"] is True
+    values = info["sensor_values"]["radar-tws"]
+    assert values["sigma_range_m"] == {"value": None, "source": sv.UNKNOWN, "needs": "--set sigma_range_m=VALUE"}
+    assert "without a replay.scenario record" in ok(invoke("info", bare)).output
+
+    given = [f"--set={k}={scenario.params[k]}" for k in ("sigma_range_m", "sigma_bearing_deg")]
+    simulated = json.loads(ok(invoke("eval", sim, "--json")).output)
+    recording = json.loads(ok(invoke("eval", bare, "--json", *given)).output)
+    assert "pcrb_position_m" in bound_metrics(simulated) and bound_metrics(recording) == set()
+    key = lambda r: (r["tracker"], r["metric"], r["scope"])  # noqa: E731
+    same = {key(r): r["value"] for r in simulated if r["metric"] not in bound_metrics(simulated)}
+    got = {key(r): r["value"] for r in recording}
+    assert set(same) == set(got)
+    for k, v in same.items():
+        assert (v is None and got[k] is None) or np.isclose(v, got[k], rtol=1e-9, equal_nan=True), k

@@ -102,8 +102,8 @@ def dataset_info(path: Path, recover: bool = False) -> dict:
 
     dataset = read_dataset(path, recover=recover)
     record = dataset.scenario
-    origin = ("recording" if sv.is_recording(record) else "simulation" if sv.is_simulation(record)
-              else "unknown (no replay.scenario record)")
+    # a file without a record (or without parameters in it) is a recording that says nothing
+    origin = "recording" if sv.is_recording(record) else "simulation" if sv.is_simulation(record) else "unknown"
     channels = {topic: _channel_info(ch) for topic, ch in sorted(dataset.channels.items())}
     spans = [c["time_span_s"] for c in channels.values() if c["time_span_s"]]
     stages = applicable_stages(dataset.channels)
@@ -116,6 +116,7 @@ def dataset_info(path: Path, recover: bool = False) -> dict:
     shown = {k for values in sensor.values() for k in values}
     return {
         "file": str(path), "contract": dataset.contract, "origin": origin,
+        "says_nothing_of_its_sensor": sv.says_nothing(record),
         "scenario": record.get("scenario"), "seed": record.get("seed"),
         "package_version": record.get("package_version"),
         "runs": max((c["runs"] for c in channels.values()), default=0),
@@ -146,6 +147,9 @@ def print_info(info: dict) -> None:
     origin = info["origin"]
     if origin == "simulation":
         origin = f"a simulation of {info['scenario']} (seed {info['seed']})"
+    elif origin == "recording" and info["says_nothing_of_its_sensor"]:
+        origin = ("a recording without a replay.scenario record of its sensor (written by hand or by an older "
+                  "tool): its sensor values are unknown")
     elif origin == "recording":
         origin = f"a recording ({info['scenario']})"
     click.echo(f"{info['file']}: {origin}; contract {info['contract']}")
