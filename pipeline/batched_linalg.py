@@ -164,3 +164,22 @@ def over_stack(function, stack: np.ndarray):
     when there is one (every matrix meets the same routine either way)."""
     runner = stack_runner
     return function(stack) if runner is None else runner(function, stack)
+
+
+#: how :func:`over_blocks` computes independent pieces of work: ``None``, one after the other in
+#: the calling thread. Installed by the replay layer as :data:`stack_runner` is
+#: (:func:`trackreplay.stack_threads.blocks_over_threads`: the pieces on the cores at once)
+block_runner = None
+
+
+def over_blocks(function, pieces) -> list:
+    """``[function(piece) for piece in pieces]``, through the installed :data:`block_runner` when
+    there is one.
+
+    For a core's independent blocks of work (runs of a Monte Carlo set, each its own problem)
+    whose numpy calls release the GIL: every piece is computed by the same calls either way, so
+    the results are the same to the bit; only where they run differs. ``function`` must not
+    depend on the order of the pieces (it may write into disjoint parts of a shared array).
+    """
+    runner = block_runner
+    return [function(piece) for piece in pieces] if runner is None else runner(function, list(pieces))

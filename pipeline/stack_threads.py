@@ -5,10 +5,16 @@ trackers' EVDs (one per run and scan) are most of an array replay's filtering, s
 shares such a stack among the cores this process may use. The cores themselves start no
 threads: they call :func:`trackreplay.batched_linalg.over_stack`, which computes the stack in one
 call until :func:`install` (called by :func:`trackreplay.replay.replay`) hands it the splitter
-below. Benchmarks against single-core peers leave it uninstalled or set :data:`MAX_THREADS` to 1.
+below. The same holds for blocks of runs a core computes one after the other
+(:func:`trackreplay.batched_linalg.over_blocks`: the array trackers' PAST passes, batch EVDs and
+innovations, whose element-wise numpy calls release the GIL as well): once installed, the blocks
+run on the cores at once (:func:`blocks_over_threads`). Benchmarks against single-core peers leave
+it uninstalled or set :data:`MAX_THREADS` to 1.
 """
 
 from __future__ import annotations
+
+import threading
 
 import numpy as np
 
@@ -17,8 +23,10 @@ from trackreplay.machine import usable_cores
 
 
 def install() -> None:
-    """Let :func:`trackreplay.batched_linalg.over_stack` share large stacks among the cores."""
+    """Let :func:`trackreplay.batched_linalg.over_stack` share large stacks, and
+    :func:`trackreplay.batched_linalg.over_blocks` its blocks, among the cores."""
     batched_linalg.stack_runner = split_over_threads
+    batched_linalg.block_runner = blocks_over_threads
 
 
 #: work a thread takes at the least in :func:`split_over_threads`, in matrices × m³ (about 300
@@ -30,6 +38,39 @@ MAX_THREADS = 4
 
 
 _cores = usable_cores  # (a module name of its own, so that tests can set the count)
+#: set in a thread that computes one of :func:`blocks_over_threads`' pieces: a stack inside it is
+#: not split again (the pieces keep the cores busy already)
+_in_piece = threading.local()
+
+
+def blocks_over_threads(function, pieces: list) -> list:
+    """``[function(piece) for piece in pieces]`` with the pieces on up to :data:`MAX_THREADS`
+    threads at once (as many as the cores this process may use), the results in order.
+
+    For independent blocks of runs whose numpy calls release the GIL (element-wise passes over a
+    block, LAPACK stacks): each piece is computed by the same calls as in one thread, so the
+    results are the same to the bit. A stack that a piece hands to :func:`split_over_threads` is
+    computed in that piece's thread, and pieces started from inside a piece run in its thread,
+    one after the other. An exception a piece raises is raised here (the other pieces finish
+    first). The caller must not hold a lock that a finalizer may take (see
+    :func:`split_over_threads`).
+    """
+    threads = min(_cores(), MAX_THREADS, len(pieces))
+    if threads < 2 or getattr(_in_piece, "active", False):
+        return [function(piece) for piece in pieces]
+    from concurrent.futures import ThreadPoolExecutor
+
+    def run(piece):
+        _in_piece.active = True
+        try:
+            return function(piece)
+        finally:
+            _in_piece.active = False
+
+    # a pool per call, not kept: a process forked later (a sweep's workers) must not inherit it
+    with ThreadPoolExecutor(threads) as pool:
+        return list(pool.map(run, pieces))
+
 
 
 def split_over_threads(function, stack: np.ndarray):
@@ -52,6 +93,8 @@ def split_over_threads(function, stack: np.ndarray):
     lead = stack.shape[:-2]
     n = int(np.prod(lead, dtype=np.int64)) if lead else 1
     threads = min(_cores(), MAX_THREADS, n * stack.shape[-1] ** 3 // THREAD_MIN_WORK)
+    if getattr(_in_piece, "active", False):
+        threads = 1  # one of blocks_over_threads' pieces: the other pieces use the other cores
     if threads < 2:
         return function(stack)
     from concurrent.futures import ThreadPoolExecutor

@@ -62,6 +62,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from trackreplay import vocabulary as vocab
+from trackreplay.batched_linalg import over_blocks
 from trackreplay.cores.array.angular_innovation import INNOVATIONS, counted_flops
 from trackreplay.cores.array.flop_counts import ANALYTIC
 from trackreplay.cores.array.music import angle_grid, eigen_decomposition, music_spectrum, pick_peaks, sample_covariance, source_count
@@ -210,9 +211,11 @@ def _batch_subspaces(X: np.ndarray, sel: np.ndarray, n: int, past: np.ndarray, s
     :data:`FRONT_END_BLOCK_RUNS` runs at a time, in double precision: the covariances and full
     eigenvector stacks stay a few MB at any number of runs (every run is its own problem, so the
     blocks give the same numbers as one batch). With ``batch`` given (``subspace="batch"``)
-    the leading eigenvectors are also written there, for the filters to track.
+    the leading eigenvectors are also written there, for the filters to track. The blocks are
+    independent (each writes its own rows): a replay runs them on its cores at once
+    (:func:`trackreplay.batched_linalg.over_blocks`, the same bits).
     """
-    for first in range(0, len(sel), FRONT_END_BLOCK_RUNS):
+    def one_block(first: int) -> None:
         rows = sel[first:first + FRONT_END_BLOCK_RUNS]
         part = slice(first, first + len(rows))
         block = _runs(X, rows)[:, STARTUP_SCANS:].astype(complex)
@@ -221,6 +224,8 @@ def _batch_subspaces(X: np.ndarray, sel: np.ndarray, n: int, past: np.ndarray, s
             batch[part, STARTUP_SCANS:] = vectors
         sub_err[rows, STARTUP_SCANS:] = largest_principal_angle(past[part, STARTUP_SCANS:], vectors,
                                                                 b_orthonormal=True)
+
+    over_blocks(one_block, range(0, len(sel), FRONT_END_BLOCK_RUNS))
 
 
 @dataclass
@@ -276,11 +281,14 @@ def front_end(snapshots: np.ndarray, design: SubspaceTrackerDesign) -> FrontEnd:
         if batch is not None:
             batch[:, :STARTUP_SCANS] = head_batch
         # every run of a block in one PAST pass: the work per snapshot is a handful of
-        # element-wise operations, whose cost per call is amortised over the block's runs
-        for first in range(0, len(sel), PAST_BLOCK_RUNS):
+        # element-wise operations, whose cost per call is amortised over the block's runs; the
+        # blocks are independent (a replay runs them on its cores at once, the same bits)
+        def past_block(first: int, sel=sel, past=past, P=P) -> None:
             rows = sel[first:first + PAST_BLOCK_RUNS]
             part = slice(first, first + len(rows))
             past[part, 1:], _ = past_scans(past[part, 0], P[part], _runs(X, rows)[:, 1:], design.forgetting)
+
+        over_blocks(past_block, range(0, len(sel), PAST_BLOCK_RUNS))
         sub_err[sel, :STARTUP_SCANS] = largest_principal_angle(past[:, :STARTUP_SCANS], head_batch,
                                                                b_orthonormal=True)
         _batch_subspaces(X, sel, n, past, sub_err, batch)
@@ -324,14 +332,18 @@ def _innovation_in_blocks(innovation_fn, W: np.ndarray, theta_pred: np.ndarray, 
 
     Every run is its own problem (the same numbers as one call); the kernels' temporaries (Ryu's
     (2M × (2N+1)) matrix per target, the M × M projectors) then stay in cache and in reused
-    memory: over 1,000 runs at once they were fresh pages at every scan.
+    memory: over 1,000 runs at once they were fresh pages at every scan. A replay runs the
+    blocks on its cores at once (:func:`trackreplay.batched_linalg.over_blocks`, the same bits).
     """
     if len(W) <= INNOVATION_BLOCK_RUNS:
         return innovation_fn(W, theta_pred, spacing_wavelengths)
     out = np.empty(theta_pred.shape)
-    for first in range(0, len(W), INNOVATION_BLOCK_RUNS):
+
+    def one_block(first: int) -> None:
         part = slice(first, first + INNOVATION_BLOCK_RUNS)
         out[part] = innovation_fn(W[part], theta_pred[part], spacing_wavelengths)
+
+    over_blocks(one_block, range(0, len(W), INNOVATION_BLOCK_RUNS))
     return out
 
 
