@@ -198,7 +198,7 @@ def test_json_mcap_converts_to_the_table_rows_exactly_and_replays(tmp_path, monk
 def test_json_log_time_and_items_in_a_batch_larger_than_one_decode(tmp_path, monkeypatch):
     """Peaks from JSON with the log time as the time source, over more messages than one bulk
     decode takes (several batches), out of log-time order in the file."""
-    import trackreplay.recorders.foreign_mcap as fm
+    import trackreplay.recorders.foreign_decoding as fm
 
     monkeypatch.setattr(fm, "BATCH", 7)
     rng = np.random.default_rng(4)

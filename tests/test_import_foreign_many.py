@@ -323,7 +323,7 @@ def test_a_good_mapping_of_the_same_frames_converts(tmp_path, monkeypatch):
 def test_empty_messages_out_of_order_over_several_batches(tmp_path, monkeypatch):
     """Messages out of log-time order in the file, decoded in batches smaller than the file,
     with empty plot lists and the run read from the message: the same data set as in order."""
-    import trackreplay.recorders.foreign_mcap as fm
+    import trackreplay.recorders.foreign_decoding as fm
 
     monkeypatch.chdir(tmp_path)
     monkeypatch.setattr(fm, "BATCH", 5)
