@@ -521,17 +521,17 @@ def test_duplicated_frames_and_unequal_item_lists_are_refused(tmp_path, case, sh
 def test_the_value_check_counts_the_same_in_any_block(monkeypatch, block):
     """The value table's check runs in blocks of values (its temporaries stay small); the counts it
     reports, NaN, above and below, and complex magnitudes, do not depend on the block."""
-    import trackreplay.contract as contract
+    import trackreplay.contract.checking as checking
     from trackreplay.vocabulary import ValueSpec
 
-    monkeypatch.setattr(contract, "VALUES_CHECK_BLOCK", block)
+    monkeypatch.setattr(checking, "VALUES_CHECK_BLOCK", block)
     a = np.arange(20.0).reshape(4, 5)
     a[1, 2] = a[3, 4] = np.nan
-    assert contract._values_problem(a, ValueSpec()) == "holds 2 NaN/Inf value(s)"
+    assert checking._values_problem(a, ValueSpec()) == "holds 2 NaN/Inf value(s)"
     a = np.nan_to_num(a) - 3.0
-    assert contract._values_problem(a, ValueSpec(low=0.0)) == "holds 5 negative value(s)"  # -3, -2, -1 and the two NaN
-    assert contract._values_problem(a, ValueSpec(high=10.0)) == "holds 5 value(s) above 10"  # 14 … 18, less 3
+    assert checking._values_problem(a, ValueSpec(low=0.0)) == "holds 5 negative value(s)"  # -3, -2, -1 and the two NaN
+    assert checking._values_problem(a, ValueSpec(high=10.0)) == "holds 5 value(s) above 10"  # 14 … 18, less 3
     z = np.full((3, 4), 1e29 + 1e29j)
     z[2, 1] = 1e30 + 0j          # on the bound: accepted
     z[0, 3] = 8e29 + 8e29j       # |z| > 1e30 although neither part is
-    assert contract._values_problem(z, ValueSpec(kinds="fc", low=-1e30, high=1e30)) == "holds 1 value(s) above 1e+30"
+    assert checking._values_problem(z, ValueSpec(kinds="fc", low=-1e30, high=1e30)) == "holds 1 value(s) above 1e+30"

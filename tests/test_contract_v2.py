@@ -520,7 +520,8 @@ def message_blocks(draw):
 def test_frames_kept_per_message_equal_the_per_frame_arrays(blocks, writer_order):
     """A channel that keeps its messages' (scan, first run, count, time) answers run, scan,
     time_s, the grid's size, scan-major order and the scan times as the per-frame arrays do."""
-    from trackreplay.contract import ChannelData, _FrameBlocks
+    from trackreplay.contract import ChannelData
+    from trackreplay.contract.dataset import _FrameBlocks
 
     runs, scans, split = writer_order  # also the writer's own layout: every scan whole, maybe split in parts
     ordered = [(k, first, min(split, runs - first), float(k)) for k in range(scans) for first in range(0, runs, split)]
@@ -570,10 +571,10 @@ def column_layouts(path, topic):
 
 
 def test_symmetric_grids_are_stored_as_triangles_and_read_back_to_the_bit(tmp_path, monkeypatch):
-    import trackreplay.contract
+    import trackreplay.contract.writing
     from trackreplay.contract import FIXED, SYMMETRIC
 
-    monkeypatch.setattr(trackreplay.contract, "PACK_BLOCK_BYTES", 1)  # one scan per block: decided scan by scan
+    monkeypatch.setattr(trackreplay.contract.writing, "PACK_BLOCK_BYTES", 1)  # one scan per block: decided scan by scan
 
     rng = np.random.default_rng(11)
     runs, scans = 7, 5
@@ -612,7 +613,7 @@ def test_symmetric_grids_are_stored_as_triangles_and_read_back_to_the_bit(tmp_pa
     packed, whole = (tmp_path / "packTrue.mcap").stat().st_size, (tmp_path / "packFalse.mcap").stat().st_size
     assert packed < whole
     # blocks of scans (here all in one): the scan that is not symmetric keeps its block whole
-    monkeypatch.setattr(trackreplay.contract, "PACK_BLOCK_BYTES", 1 << 20)
+    monkeypatch.setattr(trackreplay.contract.writing, "PACK_BLOCK_BYTES", 1 << 20)
     with write_dataset(tmp_path / "block.mcap", pack_symmetric=True) as w:
         w.write_grid("/tracks/a", times, arrays)
     got = read_dataset(tmp_path / "block.mcap").channel("/tracks/a")
