@@ -1,6 +1,7 @@
 """The one Kalman filter against an independent textbook per-run implementation."""
 
 import numpy as np
+import pytest
 
 from trackreplay.cores.filters.kalman import gaussian_log_likelihood, kf_predict, kf_update, white_acceleration_model
 
@@ -130,3 +131,43 @@ def test_floor_on_matrix_entries_equals_floor_on_components():
     np.testing.assert_array_equal(components_to_matrix(fixed_c), np.moveaxis(fixed_e, 0, -1).reshape(40, 4, 4))
     np.testing.assert_array_equal(fixed_e[list(ENTRY_OF_COMPONENT)], fixed_c)
     assert np.linalg.eigvalsh(components_to_matrix(fixed_c)[floored_c]).min() > 0
+
+
+@pytest.mark.parametrize("shape", [(), (1,), (7,), (500,), (3, 9)])
+@pytest.mark.parametrize("scalar_r", [False, True])
+def test_cv_position_update_on_stacked_rows_equals_the_row_by_row_form_to_the_bit(monkeypatch, shape, scalar_r):
+    """cv_position_update_components takes batches up to ROWS_STACKED_RUNS on stacked rows
+    (_kalman_fast._cv_position_update_rows): the same operations in the same order, so the same
+    gain and posterior to the bit as the written-out form, for any batch shape and for R given
+    per run or once; and that posterior is the textbook P − K H P to rounding."""
+    from trackreplay.cores.filters import kalman
+
+    rng = np.random.default_rng(11)
+    M = rng.normal(size=shape + (4, 4))
+    P = M @ np.swapaxes(M, -1, -2) * 100 + np.eye(4)
+    c = np.moveaxis(P.reshape(shape + (16,))[..., list(kalman.ENTRY_OF_COMPONENT)], -1, 0).copy()
+    if scalar_r:
+        r = (30.0, -4.0, 55.0)
+    else:
+        L = rng.normal(size=shape + (2, 2))
+        Rm = L @ np.swapaxes(L, -1, -2) * 10 + np.eye(2)
+        r = (Rm[..., 0, 0], Rm[..., 0, 1], Rm[..., 1, 1])
+    stacked = kalman.cv_position_update_components(c, *r)
+    monkeypatch.setattr(kalman, "ROWS_STACKED_RUNS", 0)
+    written = kalman.cv_position_update_components(c, *r)
+    for a, b in zip(stacked, written):
+        assert a.shape == b.shape
+        np.testing.assert_array_equal(a, b)
+    textbook = kalman.cv_posterior_components(c, written[0])
+    np.testing.assert_allclose(stacked[1], textbook, rtol=1e-9, atol=1e-9 * np.abs(c).max())
+
+
+def test_fast_forms_moved_out_are_still_found_by_their_old_names():
+    """issue 29: the fast forms live in _kalman_fast; kalman still gives them by name."""
+    from trackreplay.cores.filters import _kalman_fast, kalman
+    from trackreplay.cores.filters.kalman import _cv_states_with_gains  # noqa: F401
+
+    for name in kalman._MOVED_TO_FAST_FORMS:
+        assert getattr(kalman, name) is getattr(_kalman_fast, name)
+    with pytest.raises(AttributeError):
+        kalman.no_such_form

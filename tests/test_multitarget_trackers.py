@@ -399,3 +399,19 @@ def test_joseph_products_contracted_equal_the_matmul_form():
     K, R = rng.normal(size=(600, 4, 2)), np.diag([400.0, 1e-5])
     np.testing.assert_allclose(_joseph_terms_contracted(A, P, K, R),
                                A @ P @ np.swapaxes(A, -1, -2) + K @ R @ np.swapaxes(K, -1, -2), rtol=1e-13, atol=1e-12)
+
+
+def test_covariance_prediction_of_a_slot_window_per_run_equals_F_P_Ft():
+    """The tracker predicts a window of every run's slots, a view that is not contiguous; the
+    product keeps the runs as a batch axis (one small BLAS call per run: one call over every
+    run's tracks woke OpenBLAS's threads) and equals F P Fᵀ to rounding, run by run."""
+    from trackreplay.cores.filters.track_filter import _congruence, _cv_model
+
+    rng = np.random.default_rng(4)
+    F, _ = _cv_model(1.0, 1.0)
+    A = rng.normal(size=(5, 40, 4, 4))
+    P = (A @ np.swapaxes(A, -1, -2))[:, :23]
+    got = _congruence(F, P)
+    assert got.shape == P.shape
+    np.testing.assert_allclose(got, F @ P @ F.T, rtol=1e-13, atol=1e-13)
+    np.testing.assert_array_equal(got[2], _congruence(F, P[2]))

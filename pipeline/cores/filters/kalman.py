@@ -7,7 +7,6 @@ one call, so a study costs one pass over the scans, not one Python loop per run.
 
 from __future__ import annotations
 
-from itertools import chain
 from math import factorial
 
 import numpy as np
@@ -73,6 +72,8 @@ def joseph_covariance(P: np.ndarray, K: np.ndarray, H: np.ndarray, R: np.ndarray
     (symmetric positive semi-definite for any gain, and for a singular or zero ``R``)."""
     A = np.eye(P.shape[-1]) - K @ H
     if P.ndim == 3 and P.shape[0] >= _CONTRACTION_BATCH:
+        from trackreplay.cores.filters._kalman_fast import _joseph_terms_contracted
+
         P_post = _joseph_terms_contracted(A, P, K, R)
     else:
         P_post = A @ P @ np.swapaxes(A, -1, -2) + K @ R @ np.swapaxes(K, -1, -2)
@@ -80,21 +81,8 @@ def joseph_covariance(P: np.ndarray, K: np.ndarray, H: np.ndarray, R: np.ndarray
 
 
 #: stacks of at least this many matrices take the Joseph products as two contractions
+#: (:func:`~trackreplay.cores.filters._kalman_fast._joseph_terms_contracted`)
 _CONTRACTION_BATCH = 512
-
-
-def _joseph_terms_contracted(A, P, K, R):
-    """``A P Aᵀ + K R Kᵀ`` of a stack ``(N, n, n)`` as two :func:`numpy.einsum` contractions with
-    an optimised path: for thousands of small matrices (a multi-target tracker's updates) it
-    costs less than four batched ``matmul`` calls (tests/test_multitarget_trackers.py holds the
-    two equal)."""
-    return (np.einsum("nij,njk,nlk->nil", A, P, A, optimize=_PATH_APA)
-            + np.einsum("nij,jk,nlk->nil", K, R, K, optimize=_PATH_KRK))
-
-
-# the contraction order, fixed once: left to right, as the matmul form multiplies
-_PATH_APA = ["einsum_path", (0, 1), (0, 1)]
-_PATH_KRK = ["einsum_path", (0, 1), (0, 1)]
 
 
 def gaussian_log_likelihood(innovation: np.ndarray, S: np.ndarray, return_parts: bool = False):
@@ -400,6 +388,11 @@ def cv_posterior_components(c, gain):
     return n
 
 
+#: Widest batch :func:`cv_position_update_components` takes on stacked rows: beyond, the stacked
+#: temporaries outgrow the cache and the row-by-row form costs less.
+ROWS_STACKED_RUNS = 2048
+
+
 def cv_position_update_components(c, r00, r01, r11):
     """Optimal gain and posterior covariance of a position measurement, in one pass.
 
@@ -420,7 +413,15 @@ def cv_position_update_components(c, r00, r01, r11):
         As :func:`cv_position_gain_components`.
     c_post : ndarray (10, runs)
         Posterior covariance components.
+
+    Up to :data:`ROWS_STACKED_RUNS` runs the same operations go as a dozen calls on stacked rows
+    (:func:`~trackreplay.cores.filters._kalman_fast._cv_position_update_rows`, the same numbers to
+    the bit, tests/test_kalman.py) instead of ninety on single rows.
     """
+    if 0 < c[0].size <= ROWS_STACKED_RUNS:
+        from trackreplay.cores.filters._kalman_fast import _cv_position_update_rows
+
+        return _cv_position_update_rows(c, r00, r01, r11)
     g = cv_position_gain_components(c, r00, r01, r11)
     a00, a01, a11 = c[A00], c[A01], c[A11]
     b00, b01, b10, b11 = c[B00], c[B01], c[B10], c[B11]
@@ -541,122 +542,6 @@ def cv_floor_components(c, live, floor: float = PIVOT_FLOOR, repair: float = REP
     return out, floored
 
 
-# --------------------------------------------------------------------------- CV kernel, scan axis
-# Fast forms of the CV kernel for many scans of few runs (a long recording): a scan loop over
-# one-element arrays pays a NumPy call per operation, so what does not depend on the previous
-# scan is taken for all scans at once and what does runs on Python floats.
-
-#: Up to this many runs, the scan-axis recursions below run on Python floats, run by run.
-SCALAR_RUNS = 4
-
-def _cv_states_with_gains(x, gain, zx, zy, dt, scalar_runs: int = SCALAR_RUNS):
-    """The states of ``L`` scans of a CV filter whose gains ``(8, L, runs)`` are known:
-    ``x⁻ = F x``, ``x = x⁻ + K (z − H x⁻)`` with position measurements ``zx``, ``zy`` ``(L, runs)``
-    and scan intervals ``dt`` ``(L,)``; ``x`` ``(4, runs)`` enters, ``(4, L, runs)`` leaves.
-
-    A fast form of :func:`cv_predict_components` then :func:`cv_apply_gain_components` scan after
-    scan: the same operations in the same order, so the same numbers to the bit
-    (tests/test_kalman.py). Up to ``scalar_runs`` runs it runs on Python floats, run by run (a
-    scan is then some twenty float operations instead of as many NumPy calls on one-element
-    arrays); beyond, one scan at a time on arrays over the runs.
-    """
-    L, n_runs = zx.shape
-    out = np.empty((4, L, n_runs))
-    if n_runs <= scalar_runs:
-        dts = dt.tolist()
-        for r in range(n_runs):
-            x0, x1, x2, x3 = x[:, r].tolist()
-            rows = []
-            for d, zxj, zyj, g0, g1, g2, g3, g4, g5, g6, g7 in zip(dts, zx[:, r].tolist(), zy[:, r].tolist(),
-                                                                     *gain[:, :, r].tolist()):
-                p0 = x0 + d * x2
-                p1 = x1 + d * x3
-                n0 = zxj - p0
-                n1 = zyj - p1
-                x0 = p0 + g0 * n0 + g1 * n1
-                x1 = p1 + g2 * n0 + g3 * n1
-                x2 = x2 + g4 * n0 + g5 * n1
-                x3 = x3 + g6 * n0 + g7 * n1
-                rows.append((x0, x1, x2, x3))
-            out[:, :, r] = np.fromiter(chain.from_iterable(rows), float, 4 * L).reshape(L, 4).T
-        return out
-    for j in range(L):
-        d = float(dt[j])
-        xp = np.empty_like(x)
-        xp[:2] = x[:2] + d * x[2:]
-        xp[2:] = x[2:]
-        nu = np.stack([zx[j] - xp[0], zy[j] - xp[1]])
-        x = out[:, j] = cv_apply_gain_components(xp, gain[:, j], nu)
-    return out
-
-
-def _cv_position_filter_covariances(c, r_cov, dt, sigma_v: float, scalar_runs: int = SCALAR_RUNS):
-    """The covariance recursion of a CV Kalman filter with a position measurement each scan (it
-    does not depend on the states): :func:`cv_predict_components` then
-    :func:`cv_position_update_components` for ``L`` scans, from the components ``c`` ``(10, runs)``,
-    with measurement covariances ``r_cov = (r00, r01, r11)`` each ``(L, runs)`` and intervals
-    ``dt`` ``(L,)``. Returns the gains ``(8, L, runs)`` and posterior covariances ``(10, L, runs)``.
-
-    A fast form of those two functions: up to ``scalar_runs`` runs on Python floats, written as
-    they write it (the same numbers to the bit, tests/test_kalman.py); beyond, their own calls
-    one scan at a time."""
-    r00, r01, r11 = r_cov
-    L, n_runs = r00.shape
-    gains = np.empty((8, L, n_runs))
-    posts = np.empty((10, L, n_runs))
-    if n_runs > scalar_runs:
-        x = np.zeros((4, n_runs))
-        for j in range(L):
-            _, cp = cv_predict_components(x, c, float(dt[j]), sigma_v)
-            gains[:, j], c = cv_position_update_components(cp, r00[j], r01[j], r11[j])
-            posts[:, j] = c
-        return gains, posts
-    q = sigma_v * sigma_v
-    for r in range(n_runs):
-        a00, a01, a11, b00, b01, b10, b11, c00, c01, c11 = c[:, r].tolist()
-        g_rows, c_rows = [], []
-        for d, q00, q01, q11 in zip(dt.tolist(), r00[:, r].tolist(), r01[:, r].tolist(), r11[:, r].tolist()):
-            # cv_predict_components
-            q4, q3, q2 = q * d**4 / 4, q * d**3 / 2, q * d * d
-            d2 = d * d
-            a00, a01, a11, b00, b01, b10, b11, c00, c11 = (
-                a00 + 2 * d * b00 + d2 * c00 + q4, a01 + d * (b01 + b10) + d2 * c01, a11 + 2 * d * b11 + d2 * c11 + q4,
-                b00 + d * c00 + q3, b01 + d * c01, b10 + d * c01, b11 + d * c11 + q3, c00 + q2, c11 + q2)
-            # cv_position_gain_components
-            s00, s01, s11 = a00 + q00, a01 + q01, a11 + q11
-            inv_det = 1.0 / (s00 * s11 - s01 * s01)
-            g = ((a00 * s11 - a01 * s01) * inv_det, (a01 * s00 - a00 * s01) * inv_det,
-                 (a01 * s11 - a11 * s01) * inv_det, (a11 * s00 - a01 * s01) * inv_det,
-                 (b00 * s11 - b10 * s01) * inv_det, (b10 * s00 - b00 * s01) * inv_det,
-                 (b01 * s11 - b11 * s01) * inv_det, (b11 * s00 - b01 * s01) * inv_det)
-            # cv_position_update_components (its S and 1/det are the gain's, recomputed alike)
-            m00 = (q00 * s11 - q01 * s01) * inv_det
-            m01 = (q01 * s00 - q00 * s01) * inv_det
-            m10 = (q01 * s11 - q11 * s01) * inv_det
-            m11 = (q11 * s00 - q01 * s01) * inv_det
-            a00, a01, a11, b00, b01, b10, b11, c00, c01, c11 = (
-                m00 * a00 + m01 * a01, m00 * a01 + m01 * a11, m10 * a01 + m11 * a11,
-                m00 * b00 + m01 * b10, m00 * b01 + m01 * b11, m10 * b00 + m11 * b10, m10 * b01 + m11 * b11,
-                c00 - (g[4] * b00 + g[5] * b10), c01 - (g[4] * b01 + g[5] * b11), c11 - (g[6] * b01 + g[7] * b11))
-            g_rows.append(g)
-            c_rows.append((a00, a01, a11, b00, b01, b10, b11, c00, c01, c11))
-        gains[:, :, r] = np.fromiter(chain.from_iterable(g_rows), float, 8 * L).reshape(L, 8).T
-        posts[:, :, r] = np.fromiter(chain.from_iterable(c_rows), float, 10 * L).reshape(L, 10).T
-    return gains, posts
-
-
-def _cv_predict_components_scans(x, c, dt, sigma_v: float):
-    """:func:`cv_predict_components` of ``(4, L, runs)`` states and ``(10, L, runs)`` covariances,
-    scan ``j`` predicted over ``dt[j]`` (``dt`` ``(L,)``): many scans in one call, the same numbers
-    to the bit (the process-noise terms are formed on Python floats, as there)."""
-    q = sigma_v * sigma_v
-    dts = dt.tolist()
-    q4 = np.array([q * d**4 / 4 for d in dts])[:, None]
-    q3 = np.array([q * d**3 / 2 for d in dts])[:, None]
-    q2 = np.array([q * d * d for d in dts])[:, None]
-    return _cv_predict_terms(x, c, dt[:, None], q4, q3, q2)
-
-
 # --------------------------------------------------------------------------- stacks, runs last
 
 
@@ -709,3 +594,17 @@ def stacked_kf_step(F, Q, fill_mean, x, P, y, H, R_meas):
         log_det = 2.0 * _sum(np.log(np.diagonal(L, axis1=1, axis2=2)), -1)
     ll = -0.5 * (nis + log_det + m * LOG_2PI)
     return x_post, P_post, ll, nis, nu, S
+
+
+#: fast forms that live in :mod:`trackreplay.cores.filters._kalman_fast` (issue 29: this module
+#: keeps the plain ones), still found here by their old names
+_MOVED_TO_FAST_FORMS = frozenset({"SCALAR_RUNS", "_cv_states_with_gains", "_cv_position_filter_covariances",
+                                  "_cv_predict_components_scans", "_joseph_terms_contracted"})
+
+
+def __getattr__(name: str):
+    if name in _MOVED_TO_FAST_FORMS:
+        from trackreplay.cores.filters import _kalman_fast
+
+        return getattr(_kalman_fast, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
