@@ -18,19 +18,15 @@ from trackreplay import vocabulary as vocab
 from trackreplay.trackers.interface import RadarPlots
 from trackreplay.errors import InputError, require_finite
 from trackreplay.stages.base import Stage, model_recorded
+from trackreplay.stages.evaluation_gates import gate_sigmas, round_up
 from trackreplay.stages.truth_sets import identity_slots, single_target
 from trackreplay.trackers.radar_tws import radar_pcrb
 from trackreplay.evaluators.standard import position_space
 
 #: radius, in standard deviations, of the two-dimensional Gaussian ellipse that holds all but
-#: 10⁻⁴ of it (√ of the χ² quantile with 2 degrees of freedom: √(−2 ln 10⁻⁴))
-GATE_SIGMAS = float(np.sqrt(-2.0 * np.log(1e-4)))
-
-
-def _round_up(value: float, digits: int = 2) -> float:
-    """``value`` rounded up to ``digits`` significant digits (a gate a reader can quote)."""
-    step = 10.0 ** (np.floor(np.log10(value)) - (digits - 1))
-    return float(np.ceil(value / step - 1e-9) * step)
+#: 10⁻⁴ of it (√ of the χ² quantile with 2 degrees of freedom: √(−2 ln 10⁻⁴)), the rule of
+#: :mod:`trackreplay.stages.evaluation_gates` in the plane
+GATE_SIGMAS = gate_sigmas(2)
 
 
 PLOTS = vocab.CHANNELS["radar_plots"]
@@ -127,7 +123,7 @@ class RadarTwsStage(Stage):
         if far.size == 0:
             return {}
         spread = np.hypot(float(sigma_range), float(far.max()) * np.deg2rad(float(design["sigma_bearing_deg"])))
-        gate = _round_up(GATE_SIGMAS * spread)
+        gate = round_up(GATE_SIGMAS * spread)
         return {"assignment_gate_m": gate, "siap_gate_m": gate, "ospa_cutoff_m": 2.0 * gate,
                 "hota_distance_m": 2.0 * gate, "gospa_switch_penalty_m": 2.0 * gate}
 
