@@ -18,12 +18,13 @@ from trackreplay.cores.filters.converted_measurements import (
     floored_polar_variances,
     rotated_diagonal,
 )
-from trackreplay.cores.filters.kalman import (
+# the Kalman recursions of a block, in the filters' fast forms (tested against the plain ones there)
+from trackreplay.cores.filters._kalman_fast import (
     _cv_position_filter_covariances,
     _cv_predict_components_scans,
     _cv_states_with_gains,
-    MATRIX_FROM_COMPONENTS,
 )
+from trackreplay.cores.filters.kalman import MATRIX_FROM_COMPONENTS
 from trackreplay.trackers.radar_tws_strategies import KalmanGains
 
 if TYPE_CHECKING:
@@ -79,8 +80,8 @@ def _steady_block(first, stop, x, c, n_plots, plot_range, plot_bearing, times, d
     and covariances are functions of the plots alone, and the Kalman covariances of the plots and
     the covariance the block starts from. Those are computed for the whole block at once; only
     the recursions that must run scan after scan (the states, the Kalman covariance) do, on as
-    little as they need (:func:`~trackreplay.cores.filters.kalman._cv_states_with_gains`,
-    :func:`~trackreplay.cores.filters.kalman._cv_position_filter_covariances`). The outputs
+    little as they need (:func:`~trackreplay.cores.filters._kalman_fast._cv_states_with_gains`,
+    :func:`~trackreplay.cores.filters._kalman_fast._cv_position_filter_covariances`). The outputs
     are written into ``out`` (the loop's arrays); returns ``(x, c, n_plots)`` after the block.
     """
     L = stop - first
