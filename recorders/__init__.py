@@ -2,32 +2,31 @@
 
 Each simulator module exposes ``validate(params)`` and ``simulate(params, runs, seed)``
 returning :class:`trackreplay.recorders.simulated.SimulatedData`. A scenario file's ``recorder`` key names
-its module here.
+its module (:func:`recorder_names`): no list to keep.
 """
 
 from __future__ import annotations
 
 import importlib
+from pathlib import Path
 
 from trackreplay.errors import InputError
 
-RECORDERS = {
-    "radar-tws": "trackreplay.recorders.radar_tws",
-    "xcorr-peaks": "trackreplay.recorders.xcorr_peaks",
-    "xcorr-signals": "trackreplay.recorders.xcorr_signals",
-    "array-snapshots": "trackreplay.recorders.array_snapshots",
-    "colored-noise": "trackreplay.recorders.colored_noise",
-    "tdoa-fdoa": "trackreplay.recorders.tdoa_fdoa",
-    "radar-multi": "trackreplay.recorders.radar_multi",
-    # one line per recorder: "name": "trackreplay.recorders.module",
-}
+
+def recorder_names() -> dict[str, str]:
+    """Simulator name -> its module: a scenario file's ``recorder = "radar-tws"`` is the module
+    ``recorders/radar_tws.py`` (the name with ``-`` written ``_``), one that defines ``simulate``."""
+    return {path.stem.replace("_", "-"): f"trackreplay.recorders.{path.stem}"
+            for path in sorted(Path(__file__).parent.glob("*.py"))
+            if not path.stem.startswith("_") and "\ndef simulate(" in path.read_text()}
 
 
 def recorder_module(recorder: str):
     """The simulator module registered under a scenario's ``recorder`` name."""
-    if recorder not in RECORDERS:
-        raise InputError(f"no simulator named {recorder!r} (have: {', '.join(sorted(RECORDERS))})")
-    return importlib.import_module(RECORDERS[recorder])
+    names = recorder_names()
+    if recorder not in names:
+        raise InputError(f"no simulator named {recorder!r} (have: {', '.join(sorted(names))})")
+    return importlib.import_module(names[recorder])
 
 
 def simulator_for(recorder: str):

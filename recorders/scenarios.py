@@ -137,10 +137,11 @@ def _complete_user_params(recorder: str, params: dict, path: Path) -> dict:
     """A user's scenario file checked against the bundled scenario of its recorder: parameters
     it leaves out take the bundled defaults, each value is read as its default's type, and a
     parameter the recorder does not know is refused (a typo would otherwise be ignored)."""
-    from trackreplay.recorders import RECORDERS
+    from trackreplay.recorders import recorder_names
 
-    if recorder not in RECORDERS:
-        raise InputError(f"unknown recorder {recorder!r} (known: {', '.join(sorted(RECORDERS))})", path)
+    known = recorder_names()
+    if recorder not in known:
+        raise InputError(f"unknown recorder {recorder!r} (known: {', '.join(sorted(known))})", path)
     template = None
     for name in available_scenarios():
         bundled = tomllib.loads((scenario_dir() / f"{name}.toml").read_text())
