@@ -153,6 +153,19 @@ def test_tally_counts_a_matmul_and_a_solve_by_hand():
     assert t.total == 4 * 2 * (3 + 2)  # per batch element
 
 
+def test_the_counts_remembered_per_shape_are_the_counted_ones():
+    """_counted_flops_memo (what a replay's flop table asks for, again and again) is counted_flops,
+    a dict of its own each time."""
+    from trackreplay.cores.array.angular_innovation import _counted_flops_memo
+
+    for strategy in INNOVATIONS:
+        for M, N, d in ((15, 5, 0.5), (15, 6, 0.5), (8, 3, 0.4), (40, 12, 0.5)):
+            first = _counted_flops_memo(strategy, M, N, d)
+            assert first == counted_flops(strategy, M, N, d)
+            first["steering"] = -1  # the caller's own copy
+            assert _counted_flops_memo(strategy, np.int64(M), N, d) == counted_flops(strategy, M, N, d)
+
+
 def test_counted_flops_follow_the_kernels_and_the_model_shape():
     """Counted FLOPs depend on shapes only; proposed's per-target cost is 16M²+… like the model,
     and Ryu's counted cost grows like N⁴ while the proposed one grows like N³."""

@@ -63,7 +63,7 @@ import numpy as np
 
 from trackreplay import vocabulary as vocab
 from trackreplay.batched_linalg import over_blocks
-from trackreplay.cores.array.angular_innovation import INNOVATIONS, counted_flops
+from trackreplay.cores.array.angular_innovation import INNOVATIONS, _counted_flops_memo
 from trackreplay.cores.array.flop_counts import ANALYTIC
 from trackreplay.cores.array.music import angle_grid, eigen_decomposition, music_spectrum, pick_peaks, sample_covariance, source_count
 from trackreplay.cores.array.past_subspace import (batch_signal_subspace, initial_state, largest_principal_angle, past_scans,
@@ -411,7 +411,7 @@ def innovation_flops(strategy: str, n_sensors: int, n_targets: int) -> dict:
     steering vectors excluded: both strategies build the same â, b̂ and the paper does not count
     them), ``steering`` (those steering vectors) and ``steps`` (counted FLOPs per step).
     """
-    steps = counted_flops(strategy, n_sensors, n_targets)
+    steps = _counted_flops_memo(strategy, n_sensors, n_targets)  # counted_flops, once per shape
     return {"model": int(ANALYTIC[strategy](n_sensors, n_targets)),
             "counted": int(sum(v for k, v in steps.items() if k != "steering")),
             "steering": int(steps["steering"]), "steps": steps}
