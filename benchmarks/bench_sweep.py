@@ -298,7 +298,7 @@ def main() -> int:
     print(f"    [bare interpreter {imp['python']:.2f} s; cumulative imports: "
           + ", ".join(f"{k} {v:.2f} s" for k, v in imp["top"]) + "]")
 
-    from trackreplay.sweep import _preload_worker
+    from trackreplay.sweep.executors import _preload_worker
 
     def dask_excl():
         t = time.perf_counter()

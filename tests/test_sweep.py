@@ -78,14 +78,16 @@ def test_resume_after_a_killed_sweep(tmp_path):
 
 
 def test_failing_point_is_reported_and_others_complete(tmp_path, monkeypatch):
-    real = sw._run_point
+    from trackreplay.sweep import point
+
+    real = point._run_point
 
     def flaky(task):
         if task.label.startswith("sigma_bearing_deg=2"):
             raise RuntimeError("sensor model exploded")
         return real(task)
 
-    monkeypatch.setattr(sw, "_run_point", flaky)
+    monkeypatch.setattr(point, "_run_point", flaky)  # run_point calls it
     rep = sw.run_sweep(grid(tmp_path), list(SPECS), tmp_path, "serial")
     assert set(rep.failed) == {"sigma_bearing_deg=2,nominal_cross_range_m=120", "sigma_bearing_deg=2,nominal_cross_range_m=150"}
     assert all("sensor model exploded" in e for e in rep.failed.values())

@@ -143,7 +143,10 @@ def test_interrupted_sweep_resumed_with_other_settings_computes_every_point(done
 
 def test_other_package_version_computes_points_again(done, monkeypatch):
     table = stored(done)
-    monkeypatch.setattr(sw, "__version__", "9.9.9")
+    from trackreplay.sweep import grid, outputs
+
+    for module in (grid, outputs):  # the point records and sweep.json
+        monkeypatch.setattr(module, "__version__", "9.9.9")
     res = cli(*sweep_args(done, "--resume"))
     assert res.exit_code == 0, res.output
     assert "2 done, 0 resumed" in res.output
@@ -503,7 +506,7 @@ def test_a_stop_landing_in_a_finalizer_prints_no_traceback(monkeypatch):
     # finalizer: Python would print "Exception ignored … Traceback" on the sweep's stderr
     from types import SimpleNamespace
 
-    from trackreplay import sweep as sw
+    from trackreplay.sweep import executors as sw
 
     reported = []
     monkeypatch.setattr(sys, "__unraisablehook__", reported.append)
