@@ -415,3 +415,22 @@ def test_covariance_prediction_of_a_slot_window_per_run_equals_F_P_Ft():
     assert got.shape == P.shape
     np.testing.assert_allclose(got, F @ P @ F.T, rtol=1e-13, atol=1e-13)
     np.testing.assert_array_equal(got[2], _congruence(F, P[2]))
+
+
+def test_cheapest_pair_of_each_track_by_runs_of_tracks_equals_the_sorted_form():
+    """pair_assignment's tracks alone take their cheapest pair: pairs given by track take one
+    minimum per track, others a stable sort; the same pairs, ties going to the first in order."""
+    from trackreplay.cores.association.gnn import _cheapest_of_each_track
+
+    rng = np.random.default_rng(5)
+    track = np.sort(rng.integers(0, 60, 400))
+    cost = rng.integers(0, 6, 400).astype(float)  # many ties
+    pairs = np.flatnonzero(rng.random(400) < 0.7)
+    by_runs = _cheapest_of_each_track(pairs, cost, track)
+    # the tracks in another order, each track's pairs keeping theirs: the sorted form
+    order = np.argsort(rng.random(60)[track], kind="stable")
+    inverse = np.argsort(order)
+    assert not (np.diff(track[order]) >= 0).all()
+    sorted_form = _cheapest_of_each_track(np.sort(inverse[pairs]), cost[order], track[order])
+    np.testing.assert_array_equal(np.sort(order[sorted_form]), by_runs)
+    assert _cheapest_of_each_track(np.array([], np.int64), cost, track).size == 0

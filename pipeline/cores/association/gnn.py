@@ -80,6 +80,26 @@ def _gnn_assignment_sparse(cost, gated, miss):
 DENSE_MATCHING_ENTRIES = 1 << 16
 
 
+def _cheapest_of_each_track(pairs, cost, track):
+    """Of the ``pairs`` (indices), each track's cheapest, the first in order among equal costs.
+
+    Pairs given by track (a tracker's, from :func:`numpy.nonzero`) take one minimum per run of
+    equal tracks (:func:`numpy.minimum.reduceat`); others are sorted by track and cost, a stable
+    sort (tests/test_multitarget_trackers.py holds the two equal)."""
+    if not pairs.size:
+        return pairs
+    t, c = track[pairs], cost[pairs]
+    new_track = np.r_[True, t[1:] != t[:-1]]
+    if (t[1:] >= t[:-1]).all() and not np.isnan(c).any():
+        starts = np.flatnonzero(new_track)
+        lowest = np.minimum.reduceat(c, starts)
+        at_lowest = np.flatnonzero(c == np.repeat(lowest, np.diff(np.append(starts, c.size))))
+        group = np.cumsum(new_track)[at_lowest]
+        return pairs[at_lowest[np.r_[True, group[1:] != group[:-1]]]]
+    pairs = pairs[np.lexsort((c, t))]
+    return pairs[np.r_[True, track[pairs][1:] != track[pairs][:-1]]]
+
+
 def pair_assignment(cost, track, plot, miss, dense_entries: int = DENSE_MATCHING_ENTRIES):
     """The GNN assignment from the gated track–plot pairs alone.
 
@@ -122,9 +142,7 @@ def pair_assignment(cost, track, plot, miss, dense_entries: int = DENSE_MATCHING
     # if cheaper than a miss (a track in clutter, away from the other tracks)
     shared_plot = np.bincount(plot)[plot] > 1
     alone = np.bincount(track, weights=shared_plot)[track] == 0
-    first = np.flatnonzero(alone)
-    first = first[np.lexsort((cost[first], track[first]))]
-    first = first[np.r_[True, track[first][1:] != track[first][:-1]]] if first.size else first
+    first = _cheapest_of_each_track(np.flatnonzero(alone), cost, track)
     chosen[first] = cost[first] < miss[track[first]]
     rest = np.flatnonzero(~alone)
     if rest.size == 0:
