@@ -26,7 +26,8 @@ from __future__ import annotations
 import numpy as np
 
 from trackreplay.evaluators.tracking_metrics import nanmean
-from trackreplay.batched_linalg import all_finite, sum_squares, whiten
+from trackreplay.batched_linalg import (all_finite, cholesky_lower, forward_substitute, positive_definite,
+                                       sum_squares, whiten)
 
 NORMAL_95 = 1.959963984540054  # the two-sided 95 % quantile of the standard normal
 
@@ -120,7 +121,59 @@ def whitened_innovations(out: dict):
 
 def normalised_squared(error, covariance):
     """``eᵀ P⁻¹ e`` over the last axes: ``‖w‖²`` of :func:`whitened` (NaN where it is)."""
-    return _whitened(error, covariance, squared=True)
+    e = np.asarray(error, float)
+    P = np.asarray(covariance, float)
+    if e.ndim >= 2 and P.ndim >= 3:
+        lead = np.broadcast_shapes(e.shape[:-1], P.shape[:-2])
+        axis = _stack_axis(P, lead)
+        if axis is not None:
+            return _normalised_squared_stack_last(e, P, lead, axis)
+    return _whitened(e, P, squared=True)
+
+
+def _stack_axis(P, lead):
+    """The leading axis along which ``P``'s matrices lie next to each other in memory (a
+    tracker's buffer holding the runs fastest), or None: along it the covariances already have
+    the layout of :mod:`trackreplay.batched_linalg` (every entry a contiguous vector of matrices)."""
+    if P.ndim - 2 != len(lead) or P.shape[:-2] != lead:
+        return None
+    for i, size in enumerate(lead):
+        if size > 1 and P.strides[i] == P.itemsize:
+            return i
+    return None
+
+
+def _normalised_squared_stack_last(e, P, lead, axis: int):
+    """:func:`normalised_squared` where ``P``'s matrices lie next to each other along the leading
+    ``axis``: the factors are taken on views of the buffer (no copy of the covariances into
+    the stack-last layout, which :func:`trackreplay.batched_linalg.whiten` makes), a block of
+    the other leading axes at a time. Every matrix meets the same operations in the same order
+    as in :func:`whiten`, so the values are the same to the bit (tests/test_evaluation_speed_paths.py)."""
+    n = e.shape[-1]
+    e = np.broadcast_to(e, lead + (n,))
+    out = np.empty(lead)
+    # the stack axis last: P (..., n, n, N), e (..., n, N), the output (..., N)
+    Pv = np.moveaxis(P, axis, -1)
+    ev = np.moveaxis(e, axis, -1)
+    ov = np.moveaxis(out, axis, -1)
+    others = ov.shape[:-1]
+    if not others:
+        Pv, ev, ov, others = Pv[None], ev[None], ov[None], (1,)
+    per_row = int(np.prod(others[1:], dtype=np.int64)) * ov.shape[-1]
+    rows = max(1, WHITEN_BLOCK // max(per_row, 1))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        for start in range(0, others[0], rows):
+            part = slice(start, start + rows)
+            L = cholesky_lower(Pv[part])
+            w = forward_substitute(L, ev[part][..., None, :])[..., 0, :]       # (..., n, N)
+            total = np.zeros(w.shape[:-2] + w.shape[-1:])
+            bad = ~positive_definite(L)
+            for i in range(n):  # as sum_squares and all_finite add and test, a component at a time
+                total += w[..., i, :] * w[..., i, :]
+                bad |= ~np.isfinite(w[..., i, :])
+            total[bad] = np.nan
+            ov[part] = total
+    return out
 
 
 def run_mean_interval(nx, prob: float = 0.95):
@@ -207,15 +260,22 @@ def effective_scans(nx, max_block: int = 1 << 20) -> float:
     pairs = n_runs * np.arange(n_scans, 0, -1.0) if whole else np.zeros(n_scans)
     step = max(1, max_block // size)
     scale = np.where(sd > 0, sd, 1.0)
+    # each block's sums over its runs are added run after run, a few runs' transforms at a time
+    # (FFT_ROWS): the same sums as of the block's transforms at once (each run's transform is
+    # its own), with a few MB of transforms held instead of 30 MB at 10,000 runs
+    rows = max(1, FFT_ROWS // size)
     for start in range(0, n_runs, step):
-        part = slice(start, start + step)
-        u = usable[part]
-        z = dev[part] / scale if whole else np.where(u, dev[part] / scale, 0.0)
-        fz = np.fft.rfft(z, size, axis=1)
-        products += np.fft.irfft(fz.real**2 + fz.imag**2, size, axis=1)[:, :n_scans].sum(axis=0)
+        block_products = block_pairs = None
+        for first in range(start, min(start + step, n_runs), rows):
+            part = slice(first, min(first + rows, start + step))
+            u = usable[part]
+            z = dev[part] / scale if whole else np.where(u, dev[part] / scale, 0.0)
+            block_products = _add_runs(block_products, _autocorrelation_sums(z, size, n_scans))
+            if not whole:
+                block_pairs = _add_runs(block_pairs, _autocorrelation_sums(u.astype(float), size, n_scans))
+        products += block_products
         if not whole:
-            fu = np.fft.rfft(u.astype(float), size, axis=1)
-            pairs += np.fft.irfft(fu.real**2 + fu.imag**2, size, axis=1)[:, :n_scans].sum(axis=0)
+            pairs += block_pairs
     with np.errstate(invalid="ignore", divide="ignore"):
         rho = products[1:] / products[0] * pairs[0] / pairs[1:]   # pooled correlation at lags 1..K−1
     rho = np.where(np.round(pairs[1:]) > 0, rho, 0.0)
@@ -224,6 +284,27 @@ def effective_scans(nx, max_block: int = 1 << 20) -> float:
     lags = np.arange(1, rho.size + 1)
     inflation = 1 + 2 * np.sum((1 - lags / K).clip(0) * rho * rho)
     return float(K / max(inflation, 1.0))
+
+
+#: values of the runs' transforms (runs × FFT length) :func:`effective_scans` holds at once
+FFT_ROWS = 1 << 17
+
+
+def _autocorrelation_sums(z, size: int, n_scans: int):
+    """Each run's (row's) autocorrelation sums ``Σ_k z_k z_{k+j}``, lags 0..n_scans−1, by FFT
+    of length ``size`` (≥ 2·n_scans: no wrap-around)."""
+    fz = np.fft.rfft(z, size, axis=1)
+    return np.fft.irfft(fz.real**2 + fz.imag**2, size, axis=1)[:, :n_scans]
+
+
+def _add_runs(total, rows):
+    """``total`` (None: nothing yet) plus the sum of ``rows`` over runs, added one run after
+    another as numpy adds an array over its first axis: ``rows.sum(axis=0)`` when ``total`` is
+    None, and otherwise the sum of the rows of ``[total, *rows]``, so that adding a block's runs
+    a few at a time gives the sums of the whole block to the bit."""
+    if total is None:
+        return rows.sum(axis=0)
+    return np.add.reduce(np.concatenate([total[None], rows]), axis=0)
 
 
 def consistency_summary(nx, dim: int, prob: float = 0.95, white: bool = False) -> dict:

@@ -251,8 +251,12 @@ def _sums_single(tracks, truths, gate: float, times=None, track_ids=None, truth_
     if track_velocities is None or truth_velocities is None:
         out["velocity_error_sum"] = np.full(R, np.nan)
     else:
-        dv = np.asarray(track_velocities, float)[ra, ka, 0] - np.asarray(truth_velocities, float)[ra, ka, 0]
-        out["velocity_error_sum"] = np.bincount(ra, np.sqrt(np.sum(dv * dv, axis=-1)), minlength=R)
+        # the speed error at every scan, then picked where associated: the same values as of the
+        # picked velocities, without gathering them (the slower step at 10,000 runs)
+        with np.errstate(invalid="ignore", over="ignore"):
+            dv = np.asarray(track_velocities, float)[:, :, 0] - np.asarray(truth_velocities, float)[:, :, 0]
+            speed_error = np.sqrt(np.sum(dv * dv, axis=-1))
+        out["velocity_error_sum"] = np.bincount(ra, speed_error[associated], minlength=R)
     scans = np.arange(K)
     # whether the track's latest report at or before each scan (its earliest at or after) is
     # associated: the latest associated report is the latest report

@@ -30,8 +30,8 @@ from trackreplay.evaluators.confidence import group_totals, jackknife, mean_inte
 from trackreplay.evaluators.consistency import (consistency_summary, innovation_whiteness, normalised_squared,
                                    whitened_innovations)
 from trackreplay.evaluators.hota import SUM_KEYS as HOTA_SUMS, hota_sums, pooled_hota
-from trackreplay.evaluators.set_distances import (_gospa_switching_single, gospa_switching, one_identity_per_run,
-                                      pairs_within, single_pair_distance)
+from trackreplay.evaluators.set_distances import gospa_switching, one_identity_per_run, pairs_within, single_pair_distance
+from trackreplay.evaluators.set_distances_fast import _gospa_switching_single
 from trackreplay.evaluators.siap import SUM_KEYS as SIAP_SUMS, pooled_siap, siap_sums
 from trackreplay.evaluators.tracking_metrics import nanmean
 from trackreplay.batched_linalg import all_finite, sum_squares
@@ -184,6 +184,49 @@ def _time_average(per_run_scan, groups: int = 10):
     jackknife interval over runs, from per-run sums and counts."""
     finite = np.isfinite(per_run_scan)
     return ratio_jackknife(np.sum(per_run_scan, axis=1, where=finite), np.sum(finite, axis=1), groups)
+
+
+#: the set distances (:func:`trackreplay.evaluators.set_distances.gospa_switching`) averaged over
+#: runs per scan, and those averaged over scans per run, for the per-scan table and the summary
+SCAN_MEAN_KEYS = ("ospa", "gospa", "localisation", "missed", "false", "gospa_switching", "half_switches")
+RUN_MEAN_KEYS = ("ospa", "gospa", "gospa_switching")
+
+
+class _ScanMeans:
+    """``nanmean(values, axis=0)`` of an (R, K) array given a block of runs at a time, in the
+    order of the runs (the values as floats, as ``values.astype(float)``).
+
+    numpy adds an (R, K) array over its first axis run after run; here each block is added
+    onto the total so far in the same way (the total as the block's first row), so the sums,
+    the counts and their ratios are those of :func:`trackreplay.evaluators.tracking_metrics.nanmean`
+    over the whole array, to the bit (tests/test_evaluation_speed_paths.py), without it ever
+    being held.
+    """
+
+    def __init__(self):
+        self.total = self.count = None
+
+    def add(self, block) -> None:
+        values = np.asarray(block, float)
+        missing = np.isnan(values)
+        if missing.any():
+            values = np.where(missing, 0.0, values)      # as np.nanmean leaves them out
+        count = np.sum(~missing, axis=0, dtype=np.intp)
+        if self.total is None:
+            self.total, self.count = np.add.reduce(values, axis=0), count
+        else:
+            self.total = np.add.reduce(np.concatenate([self.total[None], values]), axis=0)
+            self.count = self.count + count
+
+    def mean(self):
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return self.total / self.count
+
+
+def _small_slots(match, slots: int):
+    """Slot indices of the matches (−1 none) in the smallest integer type that holds them: the
+    NEES reads them after every block is joined (5 MB as int64 at 10,000 radar runs)."""
+    return match.astype(np.int8 if slots < 128 else np.int32 if slots < 2**31 else np.int64)
 
 
 #: values of the largest (R, K, S, T) intermediate of the set distances per block of runs
@@ -352,7 +395,7 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
             h = hota_sums(X, Y, d0, part_ids, part_truth_ids, space.angular, pairs=wide)
             si = siap_sums(X, Y, siap_gate, times, part_ids, part_truth_ids, space.angular, *vel,
                            pairs=pairs if siap_gate == space.gate else None)
-            return g, match, a, {key: h[key] for key in HOTA_SUMS}, {key: si[key] for key in SIAP_SUMS}
+            return reduce_sets(g), _small_slots(match, S), a, {key: h[key] for key in HOTA_SUMS}, {key: si[key] for key in SIAP_SUMS}
 
         def one_pair_measures(X, Y, part_ids, part_truth_ids, d0, siap_gate, vel):
             """:func:`sets_and_matches` where every run holds one target and one track identity
@@ -368,7 +411,7 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
             h = hota_module._sums_single(X, Y, d0, part_ids, part_truth_ids, space.angular, distance=d)
             si = siap_module._sums_single(X, Y, siap_gate, times, part_ids, part_truth_ids, space.angular, *vel,
                                           distance=d)
-            return g, match, a, {key: h[key] for key in HOTA_SUMS}, {key: si[key] for key in SIAP_SUMS}
+            return reduce_sets(g), _small_slots(match, S), a, {key: h[key] for key in HOTA_SUMS}, {key: si[key] for key in SIAP_SUMS}
 
         # a block of runs at a time: the assignments' temporaries stay a few MB at any number of runs
         truth_slot_ids = None if truth_ids is None else _as_slots(np.asarray(truth_ids)[..., None], 1)[..., 0]
@@ -380,21 +423,32 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
         velocity = None
         if space.velocity_components is not None and all(c in comps for c in space.velocity_components):
             velocity = [comps.index(c) for c in space.velocity_components]
+        # the per-scan means over runs of the set distances are added up block by block, in the
+        # order of the runs (the same sums as over the whole (R, K) arrays, which are never held:
+        # 46 MB at 10,000 radar runs); the blocks keep only the per-run means
+        scan_means = {key: _ScanMeans() for key in SCAN_MEAN_KEYS}
+
+        def reduce_sets(g):
+            for key, acc in scan_means.items():
+                acc.add(g[key])
+            return {key: nanmean(g[key], axis=1) for key in RUN_MEAN_KEYS}
+
         g, match, a, h, si = _in_run_blocks(sets_and_matches, R, K * S * tr.shape[2])
+        g.update({f"scan_{key}": acc.mean() for key, acc in scan_means.items()})
         u, scale = space.unit, space.scale
         # ---- OSPA / GOSPA per run and scan
         for key in ("ospa", "gospa", "localisation"):
             column = key if key in ("ospa", "gospa") else f"gospa_{key}"
-            cols[f"{column}_{u}"] = scale * nanmean(g[key].astype(float), axis=0)
+            cols[f"{column}_{u}"] = scale * g[f"scan_{key}"]
         for key in ("missed", "false"):
-            cols[f"gospa_{key}"] = nanmean(g[key].astype(float), axis=0)
+            cols[f"gospa_{key}"] = g[f"scan_{key}"]
         for key in ("ospa", "gospa"):
-            rows.append(_with_ci(name, f"{key}_mean_{u}", *(scale * v for v in mean_interval(nanmean(g[key], axis=1)))))
+            rows.append(_with_ci(name, f"{key}_mean_{u}", *(scale * v for v in mean_interval(g[key]))))
         # per-scan switching (not trajectory GOSPA): GOSPA plus γ^p/2 per half switch
-        cols[f"gospa_switching_{u}"] = scale * nanmean(g["gospa_switching"], axis=0)
-        cols["gospa_half_switches"] = nanmean(g["half_switches"].astype(float), axis=0)
+        cols[f"gospa_switching_{u}"] = scale * g["scan_gospa_switching"]
+        cols["gospa_half_switches"] = g["scan_half_switches"]
         rows.append(_with_ci(name, f"gospa_switching_mean_{u}",
-                             *(scale * v for v in mean_interval(nanmean(g["gospa_switching"], axis=1)))))
+                             *(scale * v for v in mean_interval(g["gospa_switching"]))))
         del g
         # ---- assignment over whole runs
         for key in ("mota", "idf1"):
@@ -442,6 +496,9 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
                 err[..., pos] = (err[..., pos] + np.pi) % (2 * np.pi) - np.pi
             err[match < 0] = np.nan                                 # in place: no second copy of the errors
             nees = _slot_mean(normalised_squared(err, P_m))         # (R, K)
+            # per run: the mean squared position error over its matched scans (NaN where unmatched, as err is)
+            matched_ms = nanmean(sum_squares(_components(err, pos)), axis=(1, 2))
+            del err, est_m, P_m  # the errors (20 MB at 10,000 radar runs) are not held through the summaries
             # errors correlate over scans: the time average's bounds come from the runs
             c = consistency_summary(nees, len(comps), prob, white=False)
             cols.update(anees=c["per_scan"], anees_low=c["low"], anees_high=c["high"])
@@ -451,8 +508,7 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
                                  c["time_ci_high"]))
             rows.append(_with_ci(name, "nees_time_average_low", c["time_low"], np.nan, np.nan, np.nan))
             rows.append(_with_ci(name, "nees_time_average_high", c["time_high"], np.nan, np.nan, np.nan))
-            sq = sum_squares(_components(err, pos))               # NaN where unmatched, as err is
-            rows.append(_with_ci(name, f"rmse_matched_position_{u}", *(scale * v for v in rms_interval(nanmean(sq, axis=(1, 2))))))
+            rows.append(_with_ci(name, f"rmse_matched_position_{u}", *(scale * v for v in rms_interval(matched_ms))))
         else:
             rows.append({"tracker": name, "metric": "nees", "scope": "no covariance", "value": None,
                          "se": None, "ci_low": None, "ci_high": None})

@@ -21,7 +21,8 @@ import pytest
 from trackreplay.evaluators import consistency, radar_tws, standard
 from trackreplay.evaluators.confidence import (RANDOM_GROUPS_MIN_RUNS, group_totals, jackknife, ratio_jackknife, run_groups,
                                    summary_intervals)
-from trackreplay.evaluators.set_distances import _every_permutation, optimal_assignment
+from trackreplay.evaluators.set_distances import optimal_assignment
+from trackreplay.evaluators.set_distances_fast import _every_permutation
 from trackreplay.batched_linalg import all_finite, sum_squares, whiten
 from trackreplay.vocabulary import CLAMPED, COASTED, INITIALISING, NO_TRACK
 
@@ -280,13 +281,13 @@ def test_the_single_target_forms_are_the_general_measures(seed):
     the single-target forms are those of the general forms, bit for bit (HOTA's plain form
     adds in another order: to rounding)."""
     from trackreplay.evaluators import assignment_metrics as am, hota, siap
-    from trackreplay.evaluators import set_distances as sd
+    from trackreplay.evaluators import set_distances as sd, set_distances_fast as sd_fast
 
     angular = seed % 4 == 0
     X, Y, track_ids, truth_ids, times, track_v, truth_v = _one_pair_sets(seed, angular=angular, with_ids=seed % 3 > 0)
     assert sd.one_identity_per_run(track_ids, all_finite(X)) and sd.one_identity_per_run(truth_ids, all_finite(Y))
     for per in ("track", "truth"):
-        _assert_same_values(sd._gospa_switching_single(X, Y, 2.0, 2.0, 1.5, track_ids, truth_ids, angular, per=per),
+        _assert_same_values(sd_fast._gospa_switching_single(X, Y, 2.0, 2.0, 1.5, track_ids, truth_ids, angular, per=per),
                             sd.gospa_switching(X, Y, 2.0, 2.0, 1.5, track_ids, truth_ids, angular, per=per))
     for convention in ("trackeval", "per-scan"):
         fast = am._single_target_matches(X, Y, 2.0, angular, track_ids, truth_ids)
@@ -363,3 +364,55 @@ def test_pooled_jackknife_from_group_totals_is_the_jackknife(runs):
     fast = standard._pooled_jackknife(statistic, sums, SUM_KEYS, runs, 10)
     plain = jackknife(lambda idx: statistic(sums, idx), runs, 10)
     np.testing.assert_allclose(np.array(fast, float), np.array(plain, float), rtol=1e-12, atol=1e-15)
+
+
+# ------------------------------------------------------------------ the 10,000-run radar replay's memory
+
+
+@pytest.mark.parametrize("lead,n", [((23, 7), 4), ((23, 7, 1), 4), ((5, 3, 2), 2), ((40,), 3)])
+def test_the_nees_on_the_buffer_is_the_nees_of_whitening(monkeypatch, lead, n):
+    """normalised_squared on covariances whose matrices lie runs fastest (a tracker's buffer)
+    factors views of the buffer; matrix by matrix (a C-order copy) gives the same bits."""
+    rng = np.random.default_rng(len(lead) * 10 + n)
+    A = rng.normal(size=lead + (n, n))
+    P = A @ np.swapaxes(A, -1, -2) + 0.5 * np.eye(n)
+    buffer = np.ascontiguousarray(np.moveaxis(P, 0, -1))           # (..., n, n, R): the runs fastest
+    runs_fastest = np.moveaxis(buffer, -1, 0)
+    e = rng.normal(size=lead + (n,))
+    missing, indefinite = tuple(min(1, s - 1) for s in lead), (2,) + (0,) * (len(lead) - 1)
+    e[missing] = np.nan
+    runs_fastest[indefinite] = -np.eye(n)                          # not positive definite: NaN
+    plain = consistency._whitened(e, np.ascontiguousarray(runs_fastest), squared=True)
+    assert consistency._stack_axis(runs_fastest, lead) == 0
+    monkeypatch.setattr(consistency, "WHITEN_BLOCK", 7)            # many blocks, one not full
+    fast = consistency.normalised_squared(e, runs_fastest)
+    np.testing.assert_array_equal(fast, plain)
+    assert np.isnan(fast[missing]) and np.isnan(fast[indefinite])
+
+
+@pytest.mark.parametrize("rows", [1, 3, 1 << 20])
+def test_effective_scans_a_few_runs_transforms_at_a_time_are_those_of_the_block(monkeypatch, rows):
+    rng = np.random.default_rng(rows)
+    nx = rng.chisquare(4, size=(300, 33)) + np.cumsum(rng.normal(size=(300, 33)), axis=1) ** 2
+    nx[:, :2] = np.nan
+    nx[rng.random(nx.shape) < 0.05] = np.nan
+    whole = [consistency.effective_scans(v, max_block=1 << 12) for v in (nx, np.nan_to_num(nx, nan=1.0))]
+    monkeypatch.setattr(consistency, "FFT_ROWS", rows * 64)        # FFT length 64: `rows` runs at a time
+    assert [consistency.effective_scans(v, max_block=1 << 12) for v in (nx, np.nan_to_num(nx, nan=1.0))] == whole
+
+
+@pytest.mark.parametrize("block", [1, 4, 7, 50])
+def test_scan_means_added_a_block_of_runs_at_a_time_are_nanmeans(block):
+    from trackreplay.evaluators.tracking_metrics import nanmean
+
+    rng = np.random.default_rng(block)
+    values = rng.standard_cauchy(size=(50, 9))
+    counts = rng.integers(0, 3, size=(50, 9))
+    with_nan = values.copy()
+    with_nan[rng.random(values.shape) < 0.2] = np.nan
+    with_nan[:, 4] = np.nan                                        # a scan no run covers: NaN
+    for whole in (values, counts, with_nan):
+        means = standard._ScanMeans()
+        for start in range(0, 50, block):
+            means.add(whole[start:start + block])
+        np.testing.assert_array_equal(means.mean(), nanmean(whole.astype(float), axis=0))

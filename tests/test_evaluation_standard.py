@@ -166,9 +166,9 @@ def test_small_sets_find_the_permutation_every_permutation_sum_finds(size, monke
     # independent route: every permutation's costs gathered and summed, the first of the
     # smallest sums in itertools' order; ties (rounded and repeated costs) must go the same way,
     # and problems split over several blocks must not interact
-    from trackreplay.evaluators import set_distances
+    from trackreplay.evaluators import set_distances_fast
 
-    monkeypatch.setattr(set_distances, "BRUTE_FORCE_BLOCK_SUMS", 1000 * math.factorial(size))
+    monkeypatch.setattr(set_distances_fast, "BRUTE_FORCE_BLOCK_SUMS", 1000 * math.factorial(size))
     rng = np.random.default_rng(size)
     costs = rng.random((2500, size, size))
     costs[:800] = np.round(costs[:800] * 3) / 7
@@ -176,7 +176,7 @@ def test_small_sets_find_the_permutation_every_permutation_sum_finds(size, monke
     perms = np.array(list(itertools.permutations(range(size))))
     sums = costs[:, np.arange(size)[None, :], perms].sum(axis=-1)
     first = np.argmin(sums, axis=1)
-    total, best = set_distances._every_permutation(costs)
+    total, best = set_distances_fast._every_permutation(costs)
     np.testing.assert_array_equal(total, sums[np.arange(len(costs)), first])
     np.testing.assert_array_equal(best, perms[first])
 

@@ -1,7 +1,7 @@
 """The evaluators' fast forms give bit for bit what the plain forms they replace give.
 
 * :func:`trackreplay.evaluators.set_distances.close_pairs` through its window along one component
-  (:func:`~trackreplay.evaluators.set_distances._close_pairs_windowed`) against every pair of every problem
+  (:func:`~trackreplay.evaluators.set_distances_fast._close_pairs_windowed`) against every pair of every problem
   (:func:`~trackreplay.evaluators.set_distances._close_pairs_dense`): the same pairs in the same order and
   the same distances, with absent rows, empty sets, pairs at the radius to the last bit,
   bearings wrapping at ±π and many problems in several blocks;
@@ -19,10 +19,11 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from trackreplay.evaluators import set_distances
+from trackreplay.evaluators import set_distances, set_distances_fast
 from trackreplay.evaluators.assignment_metrics import scan_matches
 from trackreplay.evaluators.life_tables import TARGET_SCHEMA, TRACK_SCHEMA, life_tables
-from trackreplay.evaluators.set_distances import _close_pairs_dense, _close_pairs_windowed, close_pairs, pairwise_distance
+from trackreplay.evaluators.set_distances import _close_pairs_dense, close_pairs, pairwise_distance
+from trackreplay.evaluators.set_distances_fast import _close_pairs_windowed
 
 # ------------------------------------------------------------------ close pairs
 
@@ -101,8 +102,8 @@ def test_windowed_close_pairs_in_many_blocks(monkeypatch, block_rows, candidates
     want = _close_pairs_dense(X, Y, 3.0)
     Xa, Ya = padded_sets(8, 300, 9, 11, 1, 1.0, 0.2, False, angular=True)
     want_angular = _close_pairs_dense(Xa, Ya, 0.2, angular=True)
-    monkeypatch.setattr(set_distances, "WINDOW_BLOCK_ROWS", block_rows)
-    monkeypatch.setattr(set_distances, "WINDOW_CANDIDATES", candidates)
+    monkeypatch.setattr(set_distances_fast, "WINDOW_BLOCK_ROWS", block_rows)
+    monkeypatch.setattr(set_distances_fast, "WINDOW_CANDIDATES", candidates)
     assert_same_pairs(_close_pairs_windowed(X, Y, 3.0), want)
     assert_same_pairs(_close_pairs_windowed(Xa, Ya, 0.2, angular=True), want_angular)
 
@@ -429,7 +430,7 @@ def test_stable_order_is_numpys_stable_argsort(top):
 def test_identity_pairs_are_the_unique_keys(monkeypatch, in_run_order, block):
     """Counted on dense keys (events in run order; in one block of runs or several) or by
     sorting: the pairs, indices and counts of np.unique."""
-    monkeypatch.setattr(set_distances, "DENSE_PAIRS_BLOCK", block)
+    monkeypatch.setattr(set_distances_fast, "DENSE_PAIRS_BLOCK", block)
     monkeypatch.setattr(set_distances, "DENSE_PAIRS_PER_EVENT", 16 if in_run_order else 0)
     rng = np.random.default_rng(8)
     runs, targets, tracks = 6, rng.integers(1, 30, 6), rng.integers(1, 300, 6)
@@ -456,12 +457,12 @@ def test_components_by_propagation_are_scipys(monkeypatch, edges, rows, cols, ch
 
     rng = np.random.default_rng(edges)
     if chain:   # row i – column i – row i+1 – …: one component as long as the graph, not settled in 2 rounds
-        monkeypatch.setattr(set_distances, "PROPAGATION_ROUNDS", 2)
+        monkeypatch.setattr(set_distances_fast, "PROPAGATION_ROUNDS", 2)
         a = np.concatenate([np.arange(rows - 1), np.arange(1, rows)])
         b = np.concatenate([np.arange(rows - 1), np.arange(rows - 1)])
     else:
         a, b = rng.integers(0, rows, edges), rng.integers(0, cols, edges)
-    n, label = set_distances._bipartite_components(a, b, rows, cols)
+    n, label = set_distances_fast._bipartite_components(a, b, rows, cols)
     graph = coo_matrix((np.ones(a.size, bool), (a, rows + b)), shape=(rows + cols,) * 2)
     want_n, want = connected_components(graph, directed=False)
     assert n == want_n
