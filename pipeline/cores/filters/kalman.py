@@ -72,9 +72,7 @@ def joseph_covariance(P: np.ndarray, K: np.ndarray, H: np.ndarray, R: np.ndarray
     (symmetric positive semi-definite for any gain, and for a singular or zero ``R``)."""
     A = np.eye(P.shape[-1]) - K @ H
     if P.ndim == 3 and P.shape[0] >= _CONTRACTION_BATCH:
-        from trackreplay.cores.filters._kalman_fast import _joseph_terms_contracted
-
-        P_post = _joseph_terms_contracted(A, P, K, R)
+        P_post = _fast._joseph_terms_contracted(A, P, K, R)
     else:
         P_post = A @ P @ np.swapaxes(A, -1, -2) + K @ R @ np.swapaxes(K, -1, -2)
     return 0.5 * (P_post + np.swapaxes(P_post, -1, -2))
@@ -419,9 +417,7 @@ def cv_position_update_components(c, r00, r01, r11):
     the bit, tests/test_kalman.py) instead of ninety on single rows.
     """
     if 0 < c[0].size <= ROWS_STACKED_RUNS:
-        from trackreplay.cores.filters._kalman_fast import _cv_position_update_rows
-
-        return _cv_position_update_rows(c, r00, r01, r11)
+        return _fast._cv_position_update_rows(c, r00, r01, r11)
     g = cv_position_gain_components(c, r00, r01, r11)
     a00, a01, a11 = c[A00], c[A01], c[A11]
     b00, b01, b10, b11 = c[B00], c[B01], c[B10], c[B11]
@@ -604,7 +600,10 @@ _MOVED_TO_FAST_FORMS = frozenset({"SCALAR_RUNS", "_cv_states_with_gains", "_cv_p
 
 def __getattr__(name: str):
     if name in _MOVED_TO_FAST_FORMS:
-        from trackreplay.cores.filters import _kalman_fast
-
-        return getattr(_kalman_fast, name)
+        return getattr(_fast, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+# last, as it imports this module's kernel (either module may be imported first: the other's
+# names are looked up when called)
+from trackreplay.cores.filters import _kalman_fast as _fast  # noqa: E402
