@@ -74,6 +74,7 @@ def evaluation_values(overrides: dict | None) -> dict:
         refused too: the baselines hold the trackers as they are), listing the known ones; or a
         value out of its range.
     """
+    from trackreplay.design_values import check
     from trackreplay.replay import evaluation_catalogue
     from trackreplay.stages import stage_named
     from trackreplay.recorders.scenarios import coerce
@@ -88,7 +89,7 @@ def evaluation_values(overrides: dict | None) -> dict:
         for stage, values in catalogue.items():
             if key in values:
                 out[key] = coerce(key, value, values[key])
-                stage_named(stage).check_design({key: out[key]})
+                check(stage_named(stage), {key: out[key]})
     return out
 
 

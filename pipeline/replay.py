@@ -14,12 +14,11 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from trackreplay import __version__, stack_threads
+from trackreplay import __version__, design_values, stack_threads, stage_running, stage_scoring
 from trackreplay.contract import METADATA_PROVENANCE, OUTPUT_ZSTD_LEVEL, Dataset, read_dataset, write_dataset
 from trackreplay.errors import InputError
 from trackreplay.isolation import DEFAULT_TRACKER_TIME_LIMIT_S
 from trackreplay.stages import applicable_stages, stage_for_outputs
-from trackreplay.stages import base as stage_base
 
 
 @dataclass
@@ -99,7 +98,7 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
            tracker_time_limit_s: float | None = DEFAULT_TRACKER_TIME_LIMIT_S) -> ReplayResult:
     """Replay every applicable stage over a data set.
 
-    Trackers go through in scoring units (:meth:`trackreplay.stages.base.Stage.run_units`): once
+    Trackers go through in scoring units (:func:`trackreplay.stage_running.run_units`): once
     the outputs gathered reach 64 MiB they are written (a large unit on a thread of its own,
     while the same outputs are scored), scored and released before the next tracker runs, so
     that on many runs the memory a replay needs grows with one tracker's outputs, not with all
@@ -163,8 +162,8 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
     chosen = select_trackers(stages, trackers, tracker_specs, ds, tracker_time_limit_s)
     designs = {}
     for stage in stages:
-        design = stage.design(ds, design_overrides, chosen[stage.name])
-        # later calls of stage.design(ds) (Rerun logging, figures) see the values this run used
+        design = design_values.resolve(stage, ds, design_overrides, chosen[stage.name])
+        # later resolutions on ds (Rerun logging, figures) see the values this run used
         ds.cache[("design", stage.name)] = design
         designs[stage.name] = design
     results, per_scan, summary, failures, life_parts = {}, [], [], [], []
@@ -173,7 +172,7 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
             design = designs[stage.name]
             tables = []
             t1 = time.perf_counter()
-            times, units = stage.run_units(ds, chosen[stage.name], design, tracker_time_limit_s)
+            times, units = stage_running.run_units(stage, ds, chosen[stage.name], design, tracker_time_limit_s)
             result = results[stage.name] = {"times": times, "tracks": {}}
             extras = {}
             for own, unit, errors in units:
@@ -188,7 +187,8 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
                     failures += errors
                     if scored:
                         tables.append((scored, p, s))
-                        lives = stage.life_tables(ds, {"times": times, "tracks": {n: unit[n] for n in scored}}, design)
+                        scored_unit = {"times": times, "tracks": {n: unit[n] for n in scored}}
+                        lives = stage_scoring.life_tables(stage, ds, scored_unit, design)
                         if lives is not None:
                             life_parts.append(lives)
                     timings["evaluate_s"] += time.perf_counter() - t2
@@ -237,7 +237,8 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
 
 
 def measure_isolated(stage, ds, times, unit: dict, own, design: dict):
-    """:meth:`Stage.measure` of a unit of trackers, one tracker's failure kept to that tracker.
+    """:func:`trackreplay.stage_scoring.measure` of a unit of trackers, one tracker's failure kept to
+    that tracker.
 
     A tracker whose outputs pass :func:`~trackreplay.trackers.interface.validate_outputs` may still
     hold something a measure cannot score (a plugged tracker's layout no evaluator foresaw).
@@ -254,7 +255,7 @@ def measure_isolated(stage, ds, times, unit: dict, own, design: dict):
     from trackreplay.trackers.interface import TrackerError
 
     try:
-        p, s = stage.measure(ds, {"times": times, "tracks": unit}, design)
+        p, s = stage_scoring.measure(stage, ds, {"times": times, "tracks": unit}, design)
         return list(own), p, s, []
     except TrackerError:
         pass
@@ -266,7 +267,8 @@ def measure_isolated(stage, ds, times, unit: dict, own, design: dict):
     scored, parts, errors = [], [], []
     for name in own:
         try:
-            parts.append(stage.measure(ds, {"times": times, "tracks": {name: unit[name], **extras}}, design))
+            parts.append(stage_scoring.measure(stage, ds, {"times": times, "tracks": {name: unit[name], **extras}},
+                                               design))
             scored.append(name)
         except Exception as exc:  # noqa: BLE001 - this tracker's failure, reported as one line
             errors.append(TrackerError(f"tracker {name!r}: its outputs could not be scored: {type(exc).__name__}: "
@@ -362,11 +364,11 @@ class _OutputWriter:
                                           zstd_level=OUTPUT_ZSTD_LEVEL, pack_symmetric=True)
             self._writer = self._context.__enter__()
 
-        beside = stage_base.outputs_nbytes(unit["tracks"]) >= stage_base.SCORING_UNIT_BYTES
+        beside = stage_running.outputs_nbytes(unit["tracks"]) >= stage_running.SCORING_UNIT_BYTES
 
         def job():
             t = time.perf_counter()
-            stage.write(self._writer, unit)
+            stage_running.write_outputs(stage, self._writer, unit)
             if beside:  # its bytes reach the disk now, beside the scoring, not in the final fsync
                 self._writer.sync()
             self.seconds += time.perf_counter() - t
@@ -453,8 +455,8 @@ def _outputs_of(ds, out_path, recover=False):
     if made_from and identity and made_from != identity:
         raise InputError(f"these outputs were made from another data set ({provenance.get('input', '?')}, "
                          f"sha256 {made_from[:12]}…), not {Path(ds.path).name} (sha256 {identity[:12]}…)", out_path)
-    result = stage.outputs_from_dataset(out)
-    if not stage.applies(ds.channels):
+    result = stage_running.read_outputs(stage, out)
+    if not all(t in ds.channels for t in stage.input_topics):
         raise InputError(f"these are {stage.name} outputs but {Path(ds.path).name} holds no {stage.name} input "
                          "channels", out_path)
     return stage, result, provenance
@@ -482,8 +484,8 @@ def evaluate_files(data_path, out_path=None, recover=False, tracker_specs=(), ev
                 raise InputError(f"--set {key}: with an output file only the evaluation's design values change "
                                  f"({', '.join(allowed)}); replay again to change a tracker's")
             design = {**design, key: coerce(key, value, allowed[key])}
-        stage.check_design(design)
-    p, s = stage.measure(ds, result, design)
+        design_values.check(stage, design)
+    p, s = stage_scoring.measure(stage, ds, result, design)
     return ReplayResult(ds, p.with_columns(pl.lit(stage.name).alias("stage")),
                         s.with_columns(pl.lit(stage.name).alias("stage")), {stage.name: result})
 
@@ -499,7 +501,7 @@ def replay_of_files(data_path, out_path, recover: bool = False) -> ReplayResult:
     if table.is_file():
         per_scan = pl.read_parquet(table)
     else:
-        per_scan, _ = stage.measure(ds, result, design)
+        per_scan, _ = stage_scoring.measure(stage, ds, result, design)
         per_scan = per_scan.with_columns(pl.lit(stage.name).alias("stage"))
     return ReplayResult(ds, per_scan, pl.DataFrame(), {stage.name: result})
 
@@ -507,7 +509,7 @@ def replay_of_files(data_path, out_path, recover: bool = False) -> ReplayResult:
 def _used_design(stage, ds, provenance) -> dict:
     """The design a replay used (its --set overrides included), from its outputs' provenance."""
     used = json.loads(provenance.get("design", "{}")).get(stage.name)
-    design = stage.design(ds, {k: v for k, v in (used or {}).items()
+    design = design_values.resolve(stage, ds, {k: v for k, v in (used or {}).items()
                                if k in stage.design_keys or k in stage.evaluation_defaults})
     ds.cache[("design", stage.name)] = design
     return design
@@ -561,7 +563,7 @@ def evaluation_overrides(stage, overrides: dict | None, command: str) -> dict:
     for key, value in (overrides or {}).items():
         if key not in allowed:
             try:
-                tracker_value = key in stage.parameter_defaults()
+                tracker_value = key in design_values.parameter_defaults(stage)
             except InputError:
                 tracker_value = False
             if tracker_value:
@@ -570,7 +572,7 @@ def evaluation_overrides(stage, overrides: dict | None, command: str) -> dict:
                                  "again to change a tracker's")
             raise InputError(f"--set {key}: not an evaluation design value of {stage.name} (known: {known})")
         out[key] = coerce(key, value, allowed[key])
-    stage.check_design(out)
+    design_values.check(stage, out)
     return out
 
 
@@ -604,7 +606,7 @@ def compare_files(a_path, b_path, data_path=None, pairs=None, recover=False, eva
     changed = evaluation_overrides(stage_a, evaluation, "compare")
     if changed:
         design = {**design, **changed}
-        stage_a.check_design(design)
+        design_values.check(stage_a, design)
         ds.cache[("design", stage_a.name)] = design  # the views see the values the scores used
     tracked = lambda r: [n for n, o in r["tracks"].items() if "state" in o]
     try:

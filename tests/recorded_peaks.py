@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from trackreplay import design_values, stage_running
 from trackreplay.contract import read_dataset, scenario_metadata
 from trackreplay.stages import stage_named
 from trackreplay.recorders.simulated import write_simulated
@@ -32,9 +33,9 @@ def track_recorded(data, params: dict, trackers=("jpda", "jpda_a"), overrides: d
         path = Path(folder) / f"peaks-{next(_FILES)}.mcap"
         write_simulated(path, data, scenario_metadata(scenario, params, seed=seed))
         dataset = read_dataset(path)
-        design = stage.design(dataset, overrides)
+        design = design_values.resolve(stage, dataset, overrides)
         entries = [e for e in stage.entries() if e.name in trackers]
-        out = stage.run(dataset, entries, design)
+        out = stage_running.run(stage, dataset, entries, design)
         truth = stage.decode(dataset, design).truth_bearing_rad
     assert not out["errors"], out["errors"]
     return {"tracks": out["tracks"], "truth": truth, "gate_rad": float(np.deg2rad(design["gate_deg"]))}

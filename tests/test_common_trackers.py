@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from trackreplay import vocabulary as vocab
+from trackreplay import stage_running, vocabulary as vocab
 from trackreplay.contract import read_dataset
 from trackreplay.registry import available_trackers
 from trackreplay.replay import replay
@@ -93,7 +93,7 @@ def test_covariance_symmetric_positive_definite(entry, tmp_path_factory):
 def test_write_read_round_trip_is_exact(entry, tmp_path_factory):
     res, stage, out_path = _replayed(entry, tmp_path_factory)
     written = res.results[stage.name]["tracks"][entry.name]
-    back = stage.outputs_from_dataset(read_dataset(out_path))["tracks"][entry.name]
+    back = stage_running.read_outputs(stage, read_dataset(out_path))["tracks"][entry.name]
     assert set(back) == set(written)
     for key, a in written.items():
         b = back[key]

@@ -9,6 +9,7 @@ import dataclasses
 import numpy as np
 import polars as pl
 
+from trackreplay import design_values
 from trackreplay.contract import read_dataset
 from trackreplay.replay import replay
 from trackreplay.stages import stage_named
@@ -29,7 +30,7 @@ def test_the_gate_is_the_plot_spread_at_the_farthest_range_rounded_up(tmp_path):
     path = _far_target(tmp_path / "far.mcap")
     ds = read_dataset(path)
     stage = stage_named("radar-tws")
-    design = stage.design(ds)
+    design = design_values.resolve(stage, ds)
     truth, _ = stage.decode_truth(ds)
     far = np.nanmax(np.hypot(truth[..., 0], truth[..., 1]))
     spread = np.hypot(design["sigma_range_m"], far * np.deg2rad(design["sigma_bearing_deg"]))

@@ -10,6 +10,7 @@ import numpy as np
 import polars as pl
 import pytest
 
+from trackreplay import design_values
 from trackreplay.evaluators.compare import direction
 from trackreplay.cores.filters.kalman import kf_predict, kf_update
 from trackreplay.cores.filters.pcrb import pcrb_recursion
@@ -50,7 +51,7 @@ def test_standard_measures_are_reported_for_every_tracker(demo_result):
 
 def test_ospa_never_exceeds_its_cutoff_and_gospa_parts_add_up(demo_result, demo_mcap):
     p = demo_result.per_scan
-    cutoff = stage_named("radar-tws").design(read_dataset(demo_mcap))["ospa_cutoff_m"]
+    cutoff = design_values.resolve(stage_named("radar-tws"), read_dataset(demo_mcap))["ospa_cutoff_m"]
     assert p["ospa_m"].drop_nulls().max() <= cutoff + 1e-9
     # with one target and one track GOSPA (p = 2, α = 2) is √(loc² + c²/2 (missed + false))
     g = p.select("gospa_m", "gospa_localisation_m", "gospa_missed", "gospa_false").drop_nulls()

@@ -25,6 +25,7 @@ import pytest
 from click.testing import CliRunner
 
 import test_common_trackers as common
+from trackreplay import design_values, stage_running
 from trackreplay.evaluators.consistency import consistency_summary, normalised_squared
 from trackreplay import vocabulary as vocab
 from trackreplay.contract import read_dataset
@@ -54,9 +55,9 @@ def run_trackers(path, names, specs, overrides=None, measurements=None):
     stage = RadarTwsStage()
     ds = read_dataset(path)
     entries = [table[n] for n in names]
-    design = stage.design(ds, overrides, entries)
+    design = design_values.resolve(stage, ds, overrides, entries)
     meas = measurements if measurements is not None else stage.decode(ds, design)
-    return {e.name: call_tracker(stage.build(e, design), meas) for e in entries}, meas, design
+    return {e.name: call_tracker(stage_running.build(e, design), meas) for e in entries}, meas, design
 
 
 def simulated(tmp_path_factory, name, runs, seed, **overrides) -> Path:
@@ -210,7 +211,7 @@ def test_stonesoup_adapter_runs_on_a_small_simulated_data_set(tmp_path):
 
     written = read_dataset(out)
     assert PREFIX + "stonesoup" in written.channels
-    tracks = RadarTwsStage().outputs_from_dataset(written)["tracks"]
+    tracks = stage_running.read_outputs(RadarTwsStage(), written)["tracks"]
     o = validate_outputs(tracks["stonesoup"], 12, 64, "stonesoup")
     state, flags = o["state"], o["flags"]
     assert state.shape == (12, 64, 4) and o["covariance"].shape == (12, 64, 4, 4)

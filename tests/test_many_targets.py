@@ -11,6 +11,7 @@ import numpy as np
 import polars as pl
 import pytest
 
+from trackreplay import design_values
 from trackreplay.contract import read_dataset, scenario_metadata
 from trackreplay.face.cli import main
 from trackreplay.replay import replay
@@ -135,7 +136,7 @@ def test_default_scenario_within_bounds_that_follow_from_track_life(tmp_path):
         assert _metric(s, tracker, "idf1") >= 0.8
         # GOSPA² ≈ c²/2 per missed or false target-scan (c = cut-off) + localisation; with about
         # 10 targets, 2 × 0.10 × 10 of them cost c²/2: GOSPA ≤ c·sqrt(1) = c
-        cutoff = stage_named("radar-tws").design(read_dataset(path))["ospa_cutoff_m"]
+        cutoff = design_values.resolve(stage_named("radar-tws"), read_dataset(path))["ospa_cutoff_m"]
         assert _metric(s, tracker, "gospa_mean_m") <= cutoff
 
 

@@ -26,7 +26,7 @@ import numpy as np
 import polars as pl
 import pytest
 
-from trackreplay import vocabulary as vocab
+from trackreplay import stage_running, vocabulary as vocab
 from trackreplay.contract import read_dataset
 from trackreplay.errors import InputError
 from trackreplay.face.cli import main
@@ -151,7 +151,7 @@ def outputs(path: Path) -> dict:
     """Tracker name → its output arrays, read back from a ``tracks.mcap``."""
     from trackreplay.stages.radar_tws import RadarTwsStage
 
-    return RadarTwsStage().outputs_from_dataset(read_dataset(path))["tracks"]
+    return stage_running.read_outputs(RadarTwsStage(), read_dataset(path))["tracks"]
 
 
 def eval_records(res) -> list[dict]:

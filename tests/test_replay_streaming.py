@@ -11,6 +11,7 @@ import polars as pl
 import pytest
 from polars.testing import assert_frame_equal
 
+from trackreplay import design_values, stage_running, stage_scoring
 from trackreplay.contract import read_dataset
 from trackreplay.replay import replay, select_trackers
 from trackreplay.stages import applicable_stages
@@ -26,11 +27,11 @@ def _all_at_once(path):
     chosen = select_trackers(stages, dataset=ds)  # the trackers replay() picks for this scene
     per_scan, summary, results = [], [], {}
     for stage in stages:
-        design = stage.design(ds, None, chosen[stage.name])
+        design = design_values.resolve(stage, ds, None, chosen[stage.name])
         ds.cache[("design", stage.name)] = design
-        result = stage.run(ds, chosen[stage.name], design)
+        result = stage_running.run(stage, ds, chosen[stage.name], design)
         result.pop("errors")
-        p, s = stage.measure(ds, result, design)
+        p, s = stage_scoring.measure(stage, ds, result, design)
         per_scan.append(p.with_columns(pl.lit(stage.name).alias("stage")))
         summary.append(s.with_columns(pl.lit(stage.name).alias("stage")))
         results[stage.name] = result
@@ -44,10 +45,8 @@ def _sorted(df):
 
 @pytest.mark.parametrize("name", BUNDLED)
 def test_one_tracker_at_a_time_scores_and_writes_what_all_at_once_does(name, tmp_path, monkeypatch):
-    from trackreplay.stages import base
-
     per_scan, summary, results = _all_at_once(DATA_DIR / name)
-    monkeypatch.setattr(base, "SCORING_UNIT_BYTES", 0)  # every tracker a unit of its own, as on many runs
+    monkeypatch.setattr(stage_running, "SCORING_UNIT_BYTES", 0)  # every tracker a unit of its own, as on many runs
     res = replay(DATA_DIR / name, out_path=tmp_path / "tracks.mcap")
     # the same rows and values, to the bit (only their order may differ)
     assert_frame_equal(_sorted(res.per_scan), _sorted(per_scan), check_exact=True)
@@ -56,7 +55,7 @@ def test_one_tracker_at_a_time_scores_and_writes_what_all_at_once_does(name, tmp
     out = read_dataset(tmp_path / "tracks.mcap")
     for stage_name, result in results.items():
         stage = next(s for s in applicable_stages(read_dataset(DATA_DIR / name).channels) if s.name == stage_name)
-        written = stage.outputs_from_dataset(out)["tracks"]
+        written = stage_running.read_outputs(stage, out)["tracks"]
         assert list(written) == list(result["tracks"])  # trackers in the order they ran, extras last
         for tracker, outputs in result["tracks"].items():
             for key, value in outputs.items():
@@ -65,16 +64,16 @@ def test_one_tracker_at_a_time_scores_and_writes_what_all_at_once_does(name, tmp
 
 
 def test_small_outputs_are_scored_in_one_unit_and_large_ones_apart(monkeypatch):
-    from trackreplay.stages import base, stage_named
+    from trackreplay.stages import stage_named
 
     stage = stage_named("radar-tws")
     ds = read_dataset(DATA_DIR / "radar_tws_demo.mcap")
     entries = select_trackers([stage])[stage.name]
-    design = stage.design(ds, None, entries)
-    _, units = stage.run_units(ds, entries, design)
+    design = design_values.resolve(stage, ds, None, entries)
+    _, units = stage_running.run_units(stage, ds, entries, design)
     assert [own for own, _, _ in units] == [[e.name for e in entries]]
-    monkeypatch.setattr(base, "SCORING_UNIT_BYTES", 1)
-    _, units = stage.run_units(ds, entries, design)
+    monkeypatch.setattr(stage_running, "SCORING_UNIT_BYTES", 1)
+    _, units = stage_running.run_units(stage, ds, entries, design)
     assert [own for own, _, _ in units] == [[e.name] for e in entries]
 
 
@@ -101,16 +100,13 @@ def test_a_stage_whose_views_read_every_run_keeps_them_all():
 
 @pytest.mark.parametrize("on_thread", [False, True])
 def test_a_failing_write_leaves_no_output_and_raises(tmp_path, monkeypatch, on_thread):
-    from trackreplay.stages import base
-    from trackreplay.stages.base import Stage
-
     if on_thread:  # every unit large enough to be written on the writer thread
-        monkeypatch.setattr(base, "SCORING_UNIT_BYTES", 0)
+        monkeypatch.setattr(stage_running, "SCORING_UNIT_BYTES", 0)
 
-    def broken(self, writer, result):
+    def broken(stage, writer, result):
         raise OSError("disk full")
 
-    monkeypatch.setattr(Stage, "write", broken)
+    monkeypatch.setattr(stage_running, "write_outputs", broken)
     with pytest.raises(OSError, match="disk full"):
         replay(DATA_DIR / "radar_tws_demo.mcap", out_path=tmp_path / "tracks.mcap")
     assert list(tmp_path.iterdir()) == []

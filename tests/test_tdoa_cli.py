@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from trackreplay import stage_running
 from trackreplay.face.cli import main
 from trackreplay.contract import read_dataset, write_dataset
 from trackreplay.replay import replay
@@ -271,7 +272,7 @@ def test_outputs_written_before_tracks_emitter_still_read(tmp_path):
                                                    for t, ch in out.channels.items()})
     stage = stage_for_outputs(old.channels)
     assert stage is not None and stage.family == "tdoa-fdoa"
-    now, before = stage.outputs_from_dataset(out), stage.outputs_from_dataset(old)
+    now, before = stage_running.read_outputs(stage, out), stage_running.read_outputs(stage, old)
     assert set(now["tracks"]) == set(before["tracks"]) and now["tracks"]
     for name in now["tracks"]:
         for key in now["tracks"][name]:

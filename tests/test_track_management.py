@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from trackreplay import vocabulary as vocab
+from trackreplay import design_values, vocabulary as vocab
 from trackreplay.contract import read_dataset
 from trackreplay.cores.association.jpda import STRATEGIES, BearingTrackerDesign, ScanPeaks, track_bearing_peaks
 from trackreplay.cores.association.track_management import EndingRule, coasting_run, ended
@@ -253,7 +253,7 @@ def _found(full: Path, tracks_of: Path, window: slice, overrides=None) -> dict:
     ds = read_dataset(full)
     found = {}
     for stage in applicable_stages(ds.channels):
-        design = stage.design(ds)
+        design = design_values.resolve(stage, ds)
         reference = stage.reference(ds, design)
         truth, space = stage.standard_truth(reference), stage.standard_space(design, reference)
         truth = truth if truth.ndim == 4 else truth[:, :, None]

@@ -23,6 +23,7 @@ import numpy as np
 import psutil
 import pytest
 
+from trackreplay import design_values
 from trackreplay.contract import read_dataset
 from trackreplay.isolation import ChildEnded, ChildRaised, ChildTimedOut, run_in_child, run_plugged_tracker
 
@@ -233,7 +234,7 @@ def test_a_plugged_trackers_outputs_through_the_child_equal_a_call_here(radar_sm
 
     ds = read_dataset(radar_small)
     stage = next(s for s in applicable_stages(ds.channels) if s.family == "radar-plots")
-    design = stage.design(ds)
+    design = design_values.resolve(stage, ds)
     measurements = stage.decode(ds, design)
     cls = next(c for c in RADAR if c.name == "kalman")
     values = {p.name: design[p.name] for p in cls.params}

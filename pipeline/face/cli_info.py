@@ -45,8 +45,8 @@ def _sensor_values(dataset, stage) -> dict:
     """``{name: {"value", "source", "note"?}}``: the sensor values ``stage`` would use on ``dataset``."""
     import numpy as np
 
-    from trackreplay import sensor_values as sv
-    from trackreplay.stages.base import design_notes
+    from trackreplay import design_values, sensor_values as sv
+    from trackreplay.design_values import design_notes
 
     out = {}
     family = stage.family
@@ -60,10 +60,10 @@ def _sensor_values(dataset, stage) -> dict:
     keys = sv.SENSOR_KEYS.get(family, ())
     if not keys:
         return out
-    design = stage.design(dataset)
+    design = design_values.resolve(stage, dataset)
     notes = design_notes(dataset, stage.name)
     recorded = sv.recorded_sources(dataset.scenario)
-    from_scenario = stage.scenario_sourced_keys()
+    from_scenario = design_values.scenario_sourced_keys(stage)
     recording = sv.is_recording(dataset.scenario)
     for key in keys:
         if key in WHOLE_FIELD.get(family, {}) and key not in recorded:

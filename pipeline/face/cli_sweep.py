@@ -134,6 +134,7 @@ def _sweep_design_defaults(scenario: str, fixed: dict, wanted, plugged) -> tuple
     """Design parameters (name → default) of the trackers a sweep runs and of its evaluation,
     after checking that every plugged tracker consumes what the scenario records; and the
     evaluation's alone."""
+    from trackreplay import design_values
     from trackreplay.registry import available_trackers
     from trackreplay.stages import STAGES
     from trackreplay.sweep import scenario_families
@@ -151,7 +152,7 @@ def _sweep_design_defaults(scenario: str, fixed: dict, wanted, plugged) -> tuple
     for stage in STAGES:
         if stage.family in families:
             entries = [e for e in chosen if e.family == stage.family]
-            out.update(stage.parameter_defaults(entries))
+            out.update(design_values.parameter_defaults(stage, entries))
             evaluation.update({k: v for k, v in stage.evaluation_defaults.items() if k not in evaluation})
     return out, evaluation
 

@@ -308,9 +308,10 @@ def fit_width(text: str, width: int = TABLE_WIDTH) -> str:
 
 def _truthless_stages(res) -> list[str]:
     """The stages of ``res`` whose data hold no truth (a recording)."""
+    from trackreplay import stage_scoring
     from trackreplay.stages import stages_named
 
-    return [s.name for s in stages_named(res.results) if not s.has_truth(res.dataset)]
+    return [s.name for s in stages_named(res.results) if not stage_scoring.has_truth(s, res.dataset)]
 
 
 def _table_summary(res) -> pl.DataFrame:
@@ -367,16 +368,17 @@ def _track_summary_block(summary: pl.DataFrame, stage: str) -> str:
 
 def _print_stage_reports(res) -> None:
     """What the stages add after the generic summary that it does not show (each result is
-    printed once: :meth:`trackreplay.stages.base.Stage.replay_report`), fitted to TABLE_WIDTH.
+    printed once: :func:`trackreplay.face.stage_text.replay_report`), fitted to TABLE_WIDTH.
     For data without truth, the track summary of every stage comes first."""
+    from trackreplay.face import stage_text
     from trackreplay.stages import stages_named
 
     truthless = _truthless_stages(res)
     for stage in stages_named(res.results):
-        text = stage.replay_report(res.summary, res.per_scan) or ""
+        text = stage_text.replay_report(stage, res.summary, res.per_scan) or ""
         if stage.name in truthless:
             text += "\n\n" + _track_summary_block(res.summary, stage.name)
-        text += "\n\n" + (stage.track_listing(res.dataset, res.results[stage.name]) or "")
+        text += "\n\n" + (stage_text.track_listing(stage, res.dataset, res.results[stage.name]) or "")
         if text.strip():
             click.echo("\n" + fit_width(text.strip("\n")))
 
@@ -412,7 +414,7 @@ def _list_outputs(folder: Path, groups, err: bool = False) -> None:
 def _print_design_notes(res) -> None:
     """What the stages chose for the user on this data set (a sensor value estimated from the
     data, say), one line each (``trackreplay.sensor_values``)."""
-    from trackreplay.stages.base import design_notes
+    from trackreplay.design_values import design_notes
 
     for stage in res.results:
         for note in design_notes(res.dataset, stage):

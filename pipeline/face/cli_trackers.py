@@ -17,10 +17,11 @@ def tracker_listing(specs=()) -> list[dict]:
     """Every tracker found (built-in, entry points, ``specs``) with its design parameters.
 
     A parameter whose default is None takes its value from the bundled scenario of the stage
-    that consumes the tracker's family (:meth:`trackreplay.stages.base.Stage.parameter_defaults`);
+    that consumes the tracker's family (:func:`trackreplay.design_values.parameter_defaults`);
     ``from`` says which (``"tracker"`` or ``"scenario <name>"``), and ``default`` stays None when
     neither has one (the value must then come from the data set or ``--set``).
     """
+    from trackreplay import design_values
     from trackreplay.registry import available_trackers
     from trackreplay.stages import STAGES
 
@@ -31,7 +32,7 @@ def tracker_listing(specs=()) -> list[dict]:
     for e in available_trackers(specs).values():
         stage = stages.get(e.family)
         try:
-            resolved = stage.parameter_defaults([e]) if stage is not None else {}
+            resolved = design_values.parameter_defaults(stage, [e]) if stage is not None else {}
         except InputError:  # a parameter neither the tracker nor the scenario sets: resolve one by one
             from trackreplay.recorders.scenarios import load_scenario
 

@@ -17,6 +17,7 @@ PAPER = {"strong": {"clutter_per_gate": 2.0, "amplitude_mean": 21000.0, "amplitu
 
 def reference_bearings(dataset, reference: str):
     """Reference bearings ``(R, K, T)``: the truth, or a tracker's estimates (as the paper's PDA tracks)."""
+    from trackreplay import design_values, stage_running
     from trackreplay.stages.bearing_peaks import PEAKS, TRUTH, BearingPeaksStage, read_truth
 
     truth = dataset.channels.get(TRUTH)
@@ -31,8 +32,8 @@ def reference_bearings(dataset, reference: str):
     stage = BearingPeaksStage()
     overrides = {} if truth is not None else {"track_start": "two-point"}
     entries = [e for e in stage.entries() if e.name == reference]
-    design = stage.design(dataset, overrides, entries)
-    out = stage.run(dataset, entries, design)["tracks"][reference]
+    design = design_values.resolve(stage, dataset, overrides, entries)
+    out = stage_running.run(stage, dataset, entries, design)["tracks"][reference]
     return out["state"][..., 0], reference
 
 

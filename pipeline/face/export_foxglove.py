@@ -293,6 +293,7 @@ def export_foxglove(tracks_path, out_path, runs: str | None = None, data_path=No
     InputError
         Not a replay output, a bad run list, an output path equal to an input.
     """
+    from trackreplay import stage_running
     from mcap.writer import CompressionType, Writer
 
     from trackreplay import __version__
@@ -307,7 +308,7 @@ def export_foxglove(tracks_path, out_path, runs: str | None = None, data_path=No
     if stage is None:
         raise InputError("holds no tracker outputs (expected /tracks/... channels): give a replay's tracks.mcap",
                          tracks_path)
-    result = stage.outputs_from_dataset(out_ds)
+    result = stage_running.read_outputs(stage, out_ds)
     tracks = {name: out for name, out in result["tracks"].items() if "state" in out}
     if not tracks:
         raise InputError("holds no tracker states to export", tracks_path)

@@ -39,9 +39,11 @@ def _n_tracks(out: dict, run: int) -> int:
 
 
 def _grid_step_rad(stage, dataset) -> float:
-    design = stage.design(dataset)
+    from trackreplay import design_values
+
+    design = design_values.resolve(stage, dataset)
     if "music_grid_step_deg" not in design:  # only plugged trackers ran: the built-ins' default
-        design = stage.design(dataset, entries=stage.entries())
+        design = design_values.resolve(stage, dataset, entries=stage.entries())
     return float(np.deg2rad(float(design["music_grid_step_deg"])))
 
 
@@ -67,11 +69,13 @@ def blueprint(stage, trackers, dataset=None, run: int = 0):
 
 
 def log_rerun(stage, rec, dataset, result: dict, per_scan, run: int = 0) -> None:
+    from trackreplay import design_values
+
     times = result["times"]
     scans = np.arange(len(times))
     X = stage.snapshots(dataset)
     run = min(run, X.shape[0] - 1)
-    design = stage.design(dataset)
+    design = design_values.resolve(stage, dataset)
     tracks = result["tracks"]
     n_run = max((_n_tracks(out, run) for out in tracks.values()), default=0)
     truth, _ = stage.truth(dataset, X.shape[:2])

@@ -85,6 +85,8 @@ def log_rerun(stage, rec, dataset, result: dict, per_scan, run: int = 0) -> None
     """Bearing–time record of one run: all peaks (viridis by amplitude, 0 … 30,000), truth
     (white), each tracker's tracks with their gate edges where it reports a gate centre; β₀, the
     largest β_j per track and the amplitudes ẑ_a on the timeline where reported."""
+    from trackreplay import design_values
+
     times = np.asarray(result["times"], float)
     scans = np.arange(len(times))
     peaks = stage.decode(dataset)
@@ -92,7 +94,7 @@ def log_rerun(stage, rec, dataset, result: dict, per_scan, run: int = 0) -> None
     lo, hi = _field_deg(peaks)
     ys = times / time_unit_s(float(np.nanmax(times) - np.nanmin(times)), hi - lo)
     _log_peaks(rec, peaks, run, scans, times, ys)
-    half = float(stage.design(dataset)["gate_deg"]) / 2
+    half = float(design_values.resolve(stage, dataset)["gate_deg"]) / 2
     for name, out in result["tracks"].items():
         if out["state"].ndim != 4:
             continue  # not a (runs, scans, tracks, state) tracker output

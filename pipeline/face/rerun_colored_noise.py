@@ -57,6 +57,8 @@ def blueprint(stage, trackers, dataset=None, run: int = 0):
 
 
 def log_rerun(stage, rec, dataset, result: dict, per_scan, run: int = 0) -> None:
+    from trackreplay import design_values
+
     times = result["times"]
     scans = np.arange(len(times))
     tracks = result["tracks"]
@@ -85,6 +87,6 @@ def log_rerun(stage, rec, dataset, result: dict, per_scan, run: int = 0) -> None
                    (31, 119, 180))
         if alpha is not None:
             log_series(rec, "/ar/alpha/truth", scans, times, alpha[run, :, 0], "truth", TRUTH_RGB)
-            R = float(stage.design(dataset)["measurement_variance_m2"])
+            R = float(design_values.resolve(stage, dataset)["measurement_variance_m2"])
             log_series(rec, "/ar/noise_variance/truth", scans, times, (1 - alpha[run, :, 0] ** 2) * R, "truth",
                        TRUTH_RGB)

@@ -61,6 +61,7 @@ def blueprint(stage, trackers, dataset=None, run: int = 0):
 
 
 def log_rerun(stage, rec, dataset, result: dict, per_scan, run: int = 0) -> None:
+    from trackreplay import design_values
     from trackreplay.cores.localisation.cep_plane import cep_plane, grid_axis
     from trackreplay.cores.localisation.crlb import ellipse_points
     from trackreplay.face.cep_plane_views import log_cep_plane
@@ -69,7 +70,7 @@ def log_rerun(stage, rec, dataset, result: dict, per_scan, run: int = 0) -> None
     R, E = obs["measured"].shape[:2]
     run = min(run, R - 1)
     truth = stage.truth(dataset)
-    design = stage.design(dataset)
+    design = design_values.resolve(stage, dataset)
     stationary = bool(design["stationary_emitter"])
     crlb = result["tracks"].get(emitter_eval.CRLB_ENTRY)
     sensors = obs["sensor_pos"][run, 0]

@@ -47,6 +47,7 @@ def write_recording(rrd_path, ds, stages, results, per_scan, rerun_run: int = 0)
 def log_comparison(comparison, rrd_path) -> None:
     """One recording with both replays on the same timeline: every tracker of A as ``A:name``
     and of B as ``B:name``, drawn by the stage's own views, which lay them side by side."""
+    from trackreplay import design_values, stage_scoring
     from trackreplay.face.timeline import recording
 
     stage, ds = comparison.stage, comparison.dataset
@@ -55,8 +56,8 @@ def log_comparison(comparison, rrd_path) -> None:
         tracks[f"A:{na}"] = comparison.result_a["tracks"][na]
         tracks[f"B:{nb}"] = comparison.result_b["tracks"][nb]
     result = {"times": comparison.result_a["times"], "tracks": tracks}
-    design = stage.design(ds)
-    per_scan, _ = stage.measure(ds, result, design)
+    design = design_values.resolve(stage, ds)
+    per_scan, _ = stage_scoring.measure(stage, ds, result, design)
     views = views_for(stage)
     with recording(rrd_path, "trackreplay-compare", "compare", views.blueprint(stage, list(tracks), ds, 0)) as rec:
         views.log_rerun(stage, rec, ds, result, per_scan, 0)

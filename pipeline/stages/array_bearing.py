@@ -11,8 +11,6 @@ bookkeeping live here: the trackers (``proposed``, ``ryu``) are in
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
 from trackreplay.evaluators import array_bearing as array_eval
@@ -20,7 +18,7 @@ from trackreplay import vocabulary as vocab
 from trackreplay.errors import InputError, require_finite
 from trackreplay.stages.base import Stage
 from trackreplay.evaluators.standard import bearing_space
-from trackreplay.trackers.interface import ArraySnapshots
+from trackreplay.trackers.interface import ArraySnapshots, Param
 
 SNAPSHOTS = vocab.CHANNELS["array_snapshots"]
 TRUTH = vocab.CHANNELS["array_truth"]
@@ -28,11 +26,13 @@ TRUTH = vocab.CHANNELS["array_truth"]
 
 class ArrayBearingStage(Stage):
     name = "array-bearing"
-    truth_channel = TRUTH  # without it, replay lists run 0's bearings per scan
+    listing = (0, "deg")  # without truth, replay lists run 0's bearings per scan
     family = "array-snapshots"
     # decoding (the array's d/λ) and evaluation (the swap/loss gate)
     design_keys = ("spacing_wavelengths", "track_gate_deg")
-    design_ranges = {"spacing_wavelengths": (0.0, 1e6), "track_gate_deg": (0.0, 180.0)}
+    params = (Param("spacing_wavelengths", None, "", "d/λ, element spacing in wavelengths", low=0.0, high=1e6),
+              Param("track_gate_deg", None, "deg", "a track within this of a target follows it (swap/loss "
+                    "accounting; docs/papers/array-bearing.md)", low=0.0, high=180.0))
 
     # ------------------------------------------------------------------ input
 
@@ -98,8 +98,6 @@ class ArrayBearingStage(Stage):
     def decode(self, dataset, design: dict) -> ArraySnapshots:
         X = self.snapshots(dataset)
         M, Ns = X.shape[2:]
-        if not design["spacing_wavelengths"] > 0:
-            raise InputError("spacing_wavelengths must be > 0")
         if "n_sources" in design:  # a built-in tracker's fixed N: can this array hold it?
             n_req = int(design["n_sources"])
             if n_req < 0:
@@ -148,16 +146,16 @@ class ArrayBearingStage(Stage):
         return None if truth is None else truth[..., None]
 
     def figures(self, per_scan, out_dir, title: str = "", result: dict | None = None, dataset=None) -> list:
-        """``report.png``: the bearing–time record of run 0 (tracks and truth, the array's ±90°
-        field); ``errors.png``: the MSE, innovation RMS and subspace error per scan."""
-        paths = []
+        """``report.png``: the bearing–time record of run 0 (tracks and truth; no field edges: the
+        array sees the whole half-plane, and ±90° would squeeze the tracks); ``errors.png``: the
+        MSE, innovation RMS and subspace error per scan."""
+        from trackreplay.evaluators.stage_figures import bearing_figures
+
+        truth = None
         if result is not None and dataset is not None:
             truth, _ = self.truth(dataset, self.snapshots(dataset).shape[:2])
-            # (no field edges: the array sees the whole half-plane, and ±90° would squeeze the tracks)
-            paths.append(self.bearing_time_record(result, out_dir, title, truth))
-        errors = self.per_scan_figure(per_scan, Path(out_dir) / "errors.png",
-                                      ("mse_deg2", "rms_innovation_deg", "subspace_error_deg"), title)
-        return paths + ([errors] if errors else [])
+        return bearing_figures(per_scan, None if dataset is None else result, out_dir, title, truth,
+                               ("mse_deg2", "rms_innovation_deg", "subspace_error_deg"))
 
     # the MSE and FLOP tables (and the counted FLOPs per step) repeat the snr_db and n_targets
     # scopes; the ratios are this layout's own

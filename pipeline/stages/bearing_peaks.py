@@ -10,8 +10,6 @@ Lee 1994; see ``docs/papers/bearing-peaks.md``), the scores in
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import polars as pl
 
@@ -161,7 +159,7 @@ def n_targets(peaks: dict, truth: np.ndarray | None, path, design: dict | None =
 
 class BearingPeaksStage(Stage):
     name = "xcorr-peaks"
-    truth_channel = TRUTH  # without it, replay lists run 0's bearings per scan
+    listing = (0, "deg")  # without truth, replay lists run 0's bearings per scan
     family = "bearing-peaks"
     # what the evaluator needs: the gate (judge of "on target") and the targets' roles; the
     # tracks to start on data without truth or labels
@@ -171,6 +169,8 @@ class BearingPeaksStage(Stage):
         """The peaks as :class:`~trackreplay.trackers.interface.BearingPeaks`, checked (decoded
         once per data set; the design does not enter)."""
         if "bearing_peaks" not in dataset.cache:
+            from trackreplay.design_values import resolve
+
             peaks = read_peaks(dataset)
             truth = read_truth(dataset, peaks["n_runs"], peaks["n_scans"])
             rate = read_truth_rate(dataset, truth)
@@ -178,7 +178,7 @@ class BearingPeaksStage(Stage):
             dataset.cache["bearing_peaks"] = BearingPeaks(
                 bearing_rad=bearing, amplitude=amplitude, origin=origin, counts=counts, times_s=peaks["times"],
                 field_rad=tuple(float(v) for v in np.deg2rad(field_deg(dataset))),
-                n_targets=n_targets(peaks, truth, dataset.path, design or self.design(dataset)),
+                n_targets=n_targets(peaks, truth, dataset.path, design or resolve(self, dataset)),
                 truth_bearing_rad=truth, truth_rate_radps=rate)
         return dataset.cache["bearing_peaks"]
 
@@ -204,16 +204,16 @@ class BearingPeaksStage(Stage):
     def figures(self, per_scan, out_dir, title: str = "", result: dict | None = None, dataset=None) -> list:
         """``report.png``: the bearing–time record of run 0 (peaks, truth, tracks); ``errors.png``:
         bearing RMSE, on-own-target fraction and the JPDA's miss probability per scan."""
-        paths = []
-        if result is not None and dataset is not None:
-            m = self.decode(dataset)
-            scan, slot = np.nonzero(np.arange(m.bearing_rad.shape[-1]) < m.counts[0][:, None])
-            peaks = (np.asarray(m.times_s, float)[scan], m.bearing_rad[0][scan, slot])
-            paths.append(self.bearing_time_record(result, out_dir, title, m.truth_bearing_rad, peaks,
-                                                  field_deg(dataset)))
-        errors = self.per_scan_figure(per_scan, Path(out_dir) / "errors.png",
-                                      ("rmse_bearing_deg", "on_own_target_fraction", "mean_beta0"), title)
-        return paths + ([errors] if errors else [])
+        from trackreplay.evaluators.stage_figures import bearing_figures
+
+        errors = ("rmse_bearing_deg", "on_own_target_fraction", "mean_beta0")
+        if result is None or dataset is None:
+            return bearing_figures(per_scan, None, out_dir, title, None, errors)
+        m = self.decode(dataset)
+        scan, slot = np.nonzero(np.arange(m.bearing_rad.shape[-1]) < m.counts[0][:, None])
+        peaks = (np.asarray(m.times_s, float)[scan], m.bearing_rad[0][scan, slot])
+        return bearing_figures(per_scan, result, out_dir, title, m.truth_bearing_rad, errors, peaks,
+                               field_deg(dataset))
 
     replay_report_lines = ()  # the Fig. 8 success table repeats success_rate, swap_rate and loss_rate
 

@@ -22,7 +22,8 @@ import numpy as np
 from trackreplay.evaluators import colored_noise_imm as colored_eval
 from trackreplay import vocabulary as vocab
 from trackreplay.errors import InputError, require_finite
-from trackreplay.stages.base import Stage, model_recorded
+from trackreplay.stage_scoring import model_recorded
+from trackreplay.stages.base import Stage
 from trackreplay.evaluators.standard import position_space
 from trackreplay.trackers.colored_noise import MODEL_NAMES, ar1_outputs, colored_noise_pcrb
 from trackreplay.trackers.interface import ColoredPositions
@@ -137,20 +138,14 @@ class ColoredNoiseImmStage(Stage):
         probabilities (the report figure when the data have no truth); and the thesis's figures."""
         from pathlib import Path
 
-        from trackreplay.evaluators.report_plots import plot_positions_time
+        from trackreplay.evaluators.stage_figures import positions_figure
 
         paths = super().figures(per_scan, out_dir, title)
         if result is not None and dataset is not None:
             z, times, state, _ = self.decode_inputs(dataset)
-            positions = {name: np.asarray(out["state"], float)[0, :, 0::3] for name, out in result["tracks"].items()
-                         if "state" in out and "flags" in out}
-            probabilities = {name: np.asarray(out["model_probabilities"], float)[0]
-                             for name, out in result["tracks"].items() if "model_probabilities" in out}
-            name = "positions.png" if paths else "report.png"
-            paths.append(plot_positions_time(times, positions, Path(out_dir) / name, z[0],
-                                             None if state is None else state[0, :, 0::3],
-                                             title=f"{title}: run 0" if title else "run 0",
-                                             model_probabilities=probabilities, model_names=MODEL_NAMES))
+            path = Path(out_dir) / ("positions.png" if paths else "report.png")
+            paths.append(positions_figure(result, path, times, z[0], None if state is None else state[0], title,
+                                          MODEL_NAMES))
         return paths + colored_eval.write_figures(per_scan, out_dir, title=title)
 
     # the RMSE, model-probability and AR tables repeat the scopes of the generic tables

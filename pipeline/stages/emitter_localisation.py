@@ -23,8 +23,6 @@ Rerun views in :mod:`trackreplay.face.rerun_emitter`. See ``docs/papers/tdoa-fdo
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
-
 import numpy as np
 
 from trackreplay.evaluators import emitter_localisation as emitter_eval
@@ -170,13 +168,6 @@ class EmitterLocalisationStage(Stage):
                                                       m.sensor_velocity_mps, m.pairs, m.carrier_hz, m.sigma,
                                                       bool(design["stationary_emitter"]))}
 
-    def outputs_from_dataset(self, out_dataset) -> dict:
-        result = super().outputs_from_dataset(out_dataset)
-        for out in result["tracks"].values():
-            if "iterations" in out:
-                out["iterations"] = np.nan_to_num(out["iterations"]).astype(np.int32)
-        return result
-
     # ------------------------------------------------------------------ evaluation
 
     def reference(self, dataset, design: dict) -> dict:
@@ -208,44 +199,15 @@ class EmitterLocalisationStage(Stage):
         emitter, every estimator's estimates over the runs with their 95 % ellipse, the joint
         CRLB's ellipse around the truth); with several noise levels (scans) also ``fig7.png``,
         RMSE and CRLB against the equivalent range noise (cf. Ho & Chan 1997, Fig. 7)."""
-        import polars as pl
+        from trackreplay.evaluators.stage_figures import emitter_geometry_figure, noise_study_figure
 
-        from trackreplay.evaluators.report_plots import plot_emitter_geometry, plot_metrics_vs
-
-        paths, out_dir = [], Path(out_dir)
+        paths = []
         if result is not None and dataset is not None:
-            scan = 0
             sensors = dataset.channel(SENSORS)
-            truth = self.truth(dataset)
-            estimates = {name: np.asarray(out["state"], float)[:, scan, :2] for name, out in result["tracks"].items()
-                         if "state" in out and "flags" in out}
-            reported = {name: np.nanmedian(np.asarray(out["covariance"], float)[:, scan, :2, :2], axis=0)
-                        for name, out in result["tracks"].items() if name in estimates and "covariance" in out
-                        and np.isfinite(np.asarray(out["covariance"], float)[:, scan, :2, :2]).all(axis=(1, 2)).any()}
-            crlb = result["tracks"].get("crlb", {}).get("crlb_covariance_joint")
-            bound = None
-            if crlb is not None and truth is not None:
-                block = np.asarray(crlb, float)[:, scan, :2, :2]
-                bound = np.nanmean(block, axis=0) if np.isfinite(block).all(axis=(1, 2)).any() else None
-            label = f"{title}, " if title else ""
-            paths.append(plot_emitter_geometry(sensors.grid("position_m")[0, scan], sensors.grid("velocity_mps")[0, scan],
-                                               out_dir / "report.png",
-                                               truth_m=None if truth is None else truth[0, scan, :2],
-                                               estimates=estimates, covariances=reported, bound_covariance=bound,
-                                               title=f"{label}scan {scan}: {len(result['times'])} scan(s), "
-                                                     f"{next(iter(estimates.values())).shape[0]} runs"))
-        levels = per_scan["sigma_range_m"].unique().len() if "sigma_range_m" in per_scan.columns else 0
-        if levels > 1 and "rmse_position_m" in per_scan.columns:
-            series = [per_scan.select("sigma_range_m", pl.format("{} RMSE", "tracker").alias("series"),
-                                      pl.col("rmse_position_m").alias("position error (m)"))]
-            if "crlb_position_m" in per_scan.columns:
-                series.append(per_scan.select("sigma_range_m", pl.format("{} CRLB", "tracker").alias("series"),
-                                              pl.col("crlb_position_m").alias("position error (m)")))
-            table = pl.concat(series).drop_nulls()
-            paths.append(plot_metrics_vs(table, "sigma_range_m", ["position error (m)"], out_dir / "fig7.png",
-                                         group="series", log_x=True, log_y=True,
-                                         title=f"{title}: position RMSE and CRLB against the range noise"))
-        return paths
+            paths.append(emitter_geometry_figure(result, out_dir, sensors.grid("position_m"),
+                                                 sensors.grid("velocity_mps"), self.truth(dataset), title))
+        fig7 = noise_study_figure(per_scan, out_dir, title)
+        return paths + ([fig7] if fig7 is not None else [])
 
     replay_report_lines = ()  # every table of the layout repeats a scope of the generic tables
     per_scan_axis = ("sigma_range_m", True)  # the scans of a noise study are its noise levels

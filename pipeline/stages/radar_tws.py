@@ -17,7 +17,8 @@ from trackreplay.cores.filters.converted_measurements import polar_to_cartesian
 from trackreplay import vocabulary as vocab
 from trackreplay.trackers.interface import RadarPlots
 from trackreplay.errors import InputError, require_finite
-from trackreplay.stages.base import Stage, model_recorded
+from trackreplay.stage_scoring import model_recorded
+from trackreplay.stages.base import Stage
 from trackreplay.stages.evaluation_gates import gate_sigmas, round_up
 from trackreplay.stages.truth_sets import identity_slots, single_target
 from trackreplay.trackers.radar_tws import radar_pcrb
@@ -137,27 +138,15 @@ class RadarTwsStage(Stage):
     def figures(self, per_scan, out_dir, title: str = "", result: dict | None = None, dataset=None) -> list:
         """``report.png``: the errors per scan (with truth), else the α cross-range per scan; and
         ``tracks.png``: run 0 in the plane, every plot, the truth and each tracker's track."""
-        from pathlib import Path
-
-        from trackreplay.evaluators.report_plots import plot_tracks_xy
+        from trackreplay.evaluators.stage_figures import plane_tracks_figure
 
         paths = super().figures(per_scan, out_dir, title)
         if result is not None and dataset is not None:
             rng, brg, counts, _ = self.decode_plots(dataset)
             have = np.arange(rng.shape[2])[None, :] < counts[0][:, None]
-            measured = polar_to_cartesian(rng[0][have], brg[0][have])
             truth = self.decode_truth(dataset)
-            # confirmed tracks: a tentative one is a hypothesis, and clutter starts many
-            hidden = vocab.NO_TRACK | vocab.DELETED | vocab.INITIALISING
-            tracks = {name: np.where(((np.asarray(out["flags"])[0] & hidden) > 0)[..., None],
-                                     np.nan, np.asarray(out["state"], float)[0, ..., :2])
-                      for name, out in result["tracks"].items() if "state" in out and "flags" in out}
-            truth_xy = None if truth is None else truth[0][0, :, :, :2]
-            paths.append(plot_tracks_xy(tracks, Path(out_dir) / "tracks.png", measured,
-                                        None if truth_xy is None else (truth_xy[:, 0] if truth_xy.shape[1] == 1
-                                                                       else truth_xy),
-                                        title=f"{title}: run 0 of {counts.shape[0]}" if title
-                                        else f"run 0 of {counts.shape[0]}"))
+            paths.append(plane_tracks_figure(result, out_dir, polar_to_cartesian(rng[0][have], brg[0][have]),
+                                             None if truth is None else truth[0][0, :, :, :2], counts.shape[0], title))
         return paths
 
     def reference(self, dataset, design: dict) -> dict:

@@ -65,7 +65,17 @@ class Param:
     high: float | None = None
 
     def check(self, value) -> None:
-        """Raise ``ValueError`` for a value this parameter does not accept."""
+        """Raise ``ValueError`` for a value this parameter does not accept: a number that is not
+        finite, or outside the open bounds (``low``, ``high``) where it has them.
+
+        The one check of a design value (``docs/trackers.md``): a tracker's parameters are
+        checked when it is constructed, a stage's own (:attr:`trackreplay.stages.base.Stage.params`,
+        the evaluation's design values) when a data set's design values are resolved
+        (:func:`trackreplay.design_values.check`). The messages read ``name = value must …``,
+        so that the resolution can prefix them with ``design value``.
+        """
+        if isinstance(value, float) and not np.isfinite(value):
+            raise ValueError(f"{self.name} = {value} must be finite")
         if self.low is None and self.high is None:
             return
         if value is None:
@@ -73,8 +83,9 @@ class Param:
         number = float(value)
         if not (np.isfinite(number) and (self.low is None or number > self.low)
                 and (self.high is None or number < self.high)):
-            bounds = f"({'-inf' if self.low is None else f'{self.low:g}'}, {'inf' if self.high is None else f'{self.high:g}'})"
-            raise ValueError(f"{self.name} must be a finite number in {bounds} (got {value!r})")
+            low = "-inf" if self.low is None else f"{self.low:g}"
+            high = "inf" if self.high is None else f"{self.high:g}"
+            raise ValueError(f"{self.name} = {number:g} must be in ({low}, {high})")
 
 
 class Tracker:
