@@ -20,9 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from trackreplay.errors import InputError
-from trackreplay.recorders.foreign_mapping import (EMPTY_SCAN_COLUMNS, TIME_COLUMN, ColumnSpec, FieldPath, Mapping,
-                                                   TableSpec, _explain_missing, _fields_of, _is_list, _kind,
-                                                   _MISSING)
+from trackreplay.recorders.foreign_mapping import (TIME_COLUMN, ColumnSpec, FieldPath, Mapping, TableSpec,
+                                                   _explain_missing, _fields_of, _formats, _is_list, _kind, _MISSING)
 
 BATCH = 4096  # messages decoded and gathered at a time: bounded memory, numpy-sized work
 # RecursionError: a message nested deeper than the decoders recurse (JSON arrays in arrays, say)
@@ -305,7 +304,9 @@ def read_foreign_mcap(src: str | Path, mapping: Mapping) -> ForeignTables:
 
     src = Path(src)
     _check_mcap(src)
-    collectors = {t: _Collector(spec, src, EMPTY_SCAN_COLUMNS.get(mapping.family, ()) if t == "measurements" else ())
+    # a family whose rows may mark a scan without items: a message with an empty list is one
+    empty_scan = _formats()[mapping.family].empty_scan_columns
+    collectors = {t: _Collector(spec, src, empty_scan if t == "measurements" else ())
                   for t, spec in mapping.tables.items()}
     by_topic: dict[str, list] = {}
     for c in collectors.values():

@@ -1,7 +1,8 @@
 """The mapping file of a foreign MCAP (``docs/importers.md``, "Recordings made by other tools"):
 a small TOML file saying which topic holds the measurements, where each message keeps its time,
 which list field holds the items of a message, and which field and unit give each column of the
-family's canonical table (:data:`trackreplay.recorders.table_formats.TABLE_FORMATS`).
+family's canonical table (:data:`trackreplay.recorders.table_formats.TABLE_FORMATS`), and for a
+family whose format says so a ``[truth]`` list of targets (its ``truth_list``).
 
 * :data:`UNITS`, :func:`unit_factor`: the units a mapping may name, converted to SI here (SI
   inside, everything else at this boundary only);
@@ -182,18 +183,13 @@ def _is_list(obj) -> bool:
 
 TABLE_KEYS = ("topic", "time", "items")
 TIME_COLUMN = "time_s"
-# [truth]: a list of targets with identities per message (many targets), for the radar family;
-# its rows are truth-only rows of the plots table (range and bearing empty)
+# [truth]: a list of targets with identities per message (many targets), for a family whose table
+# format names its columns (TableFormat.truth_list); its rows are truth-only rows of the
+# measurements table (the measurement empty)
 TRUTH_TABLE = "truth"
-TRUTH_FAMILIES = ("radar-plots",)
 # the optional table of values the recording's sensor had (its noise, scan period, …), recorded
 # with the source "mapping file" (trackreplay.sensor_values); what it does not say stays unknown
 SENSOR_TABLE = "sensor"
-TRUTH_COLUMNS = ("truth_id", "truth_x_m", "truth_y_m", "truth_vx_mps", "truth_vy_mps")
-# families whose message with an empty item list is still a scan (a row with these columns
-# empty marks a scan without plots, or peaks)
-EMPTY_SCAN_COLUMNS = {"radar-plots": ("range_m", "bearing_rad", "bearing_deg"),
-                      "bearing-peaks": ("bearing_rad", "bearing_deg", "amplitude", "origin")}
 # a truth time this close to a plots message's time is that scan's time (the same instant,
 # written in another form: a stamp here, milliseconds there)
 SAME_SCAN_S = 1e-6
@@ -238,11 +234,16 @@ def _formats() -> dict:
     return TABLE_FORMATS
 
 
+def _truth_families() -> tuple[str, ...]:
+    """The families whose mappings may add a ``[truth]`` list of targets."""
+    return tuple(f for f, fmt in _formats().items() if fmt.truth_list)
+
+
 def _table_columns(family: str, table: str) -> list:
     """Every column name the family's ``table`` accepts, as regular expressions read from
     ``TABLE_FORMATS`` (``truth<t>_bearing_rad`` stands for ``truth0_bearing_rad``, …)."""
     if table == TRUTH_TABLE:
-        return [re.compile(re.escape(c) + "$") for c in ("run", *TRUTH_COLUMNS)]
+        return [re.compile(re.escape(c) + "$") for c in ("run", *_formats()[family].truth_list)]
     out = []
     for col in _formats()[family].tables[table]:
         for name in col.name.split("|"):
@@ -253,7 +254,7 @@ def _table_columns(family: str, table: str) -> list:
 
 def _column_names(family: str, table: str) -> list[str]:
     if table == TRUTH_TABLE:
-        return ["run", *TRUTH_COLUMNS]
+        return ["run", *_formats()[family].truth_list]
     return [c.name.replace(" | ", "|") for c in _formats()[family].tables[table]]
 
 
@@ -296,10 +297,10 @@ def load_mapping(path: str | Path) -> Mapping:
         raise InputError(f"missing key 'family' (one of: {', '.join(formats)})", path)
     if family not in formats:
         raise InputError(f"family {family!r} has no table format (have: {', '.join(formats)})", path)
-    tables = _tables_of(family) + ((TRUTH_TABLE,) if family in TRUTH_FAMILIES else ())
+    tables = _tables_of(family) + ((TRUTH_TABLE,) if formats[family].truth_list else ())
     if TRUTH_TABLE in doc and TRUTH_TABLE not in tables:
         raise InputError(f"[truth] (a list of targets with identities) belongs to "
-                         f"{' or '.join(TRUTH_FAMILIES)} mappings; a {family} mapping carries its truth in the "
+                         f"{' or '.join(_truth_families())} mappings; a {family} mapping carries its truth in the "
                          "columns of [measurements]", path)
     unknown = [k for k in doc if k not in ("family", SENSOR_TABLE, *tables)]
     if unknown:
@@ -317,7 +318,7 @@ def load_mapping(path: str | Path) -> Mapping:
     if "sensors" in tables and "sensors" not in specs:
         raise InputError(f"missing table [sensors] (a {family} mapping reads the sensors too)", path)
     if TRUTH_TABLE in specs:
-        _check_truth_spec(specs, path)
+        _check_truth_spec(specs, formats[family].truth_list, path)
     if sensor:  # names and types checked here, so that a bad value names the mapping file
         from trackreplay.recorders.tables import _given_values
 
@@ -328,16 +329,17 @@ def load_mapping(path: str | Path) -> Mapping:
     return Mapping(family, specs, path, dict(sensor))
 
 
-def _check_truth_spec(specs: dict, path) -> None:
-    """[truth] gives an identity and the whole state of every target; the truth then comes from
-    there alone, and both tables say the run or neither does."""
+def _check_truth_spec(specs: dict, columns: tuple, path) -> None:
+    """[truth] gives an identity and the whole state of every target (``columns``, the format's
+    ``truth_list``); the truth then comes from there alone, and both tables say the run or
+    neither does."""
     have = {c.name for c in specs[TRUTH_TABLE].columns}
-    missing = [c for c in TRUTH_COLUMNS if c not in have]
+    missing = [c for c in columns if c not in have]
     if missing:
         raise InputError(f"[truth]: missing column(s) {', '.join(missing)} (each target of a truth list gives "
-                         f"{', '.join(TRUTH_COLUMNS)})", path)
+                         f"{', '.join(columns)})", path)
     meas = {c.name for c in specs["measurements"].columns}
-    twice = [c for c in TRUTH_COLUMNS if c in meas]
+    twice = [c for c in columns if c in meas]
     if twice:
         raise InputError(f"[measurements] {twice[0]}: with a [truth] table the truth comes from there alone (map it "
                          "in [truth])", path)

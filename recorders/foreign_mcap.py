@@ -5,7 +5,7 @@ its time, which list field holds the items of a message (one row per item), and 
 unit give each column of the family's canonical table
 (``trackreplay.recorders.table_formats.TABLE_FORMATS``)::
 
-    family = "radar-plots"
+    family = "…"                   # a family with a table format, e.g. the radar's (its FORMAT.family)
 
     [measurements]
     topic = "/radar/scan"
@@ -15,12 +15,13 @@ unit give each column of the family's canonical table
     bearing_rad = { field = "azimuth", unit = "deg" }
     run = "/run_id"                # optional; "/" starts at the message, not the item
 
-A radar-plots mapping may add a ``[truth]`` table (the same keys; columns ``truth_id`` and the
-four truth columns, optionally ``run``): a truth list of many targets, one truth-only row of the
-plots table per target, matched to the plots message of the same time (within
-:data:`SAME_SCAN_S`; a time no plots message has is a scan without plots). For radar plots and
-peaks, a message whose item list is empty still makes its scan (a row with the measurement
-empty, see :class:`~trackreplay.recorders.foreign_decoding._Collector`).
+A mapping of a family whose format has a ``truth_list`` (the radar's: ``truth_id`` and the four
+truth columns, optionally ``run``) may add a ``[truth]`` table (the same keys): a truth list of
+many targets, one truth-only row of the plots table per target, matched to the plots message of
+the same time (within :data:`SAME_SCAN_S`; a time no plots message has is a scan without plots).
+For a family whose format has ``empty_scan_columns`` (radar plots, peaks), a message whose item
+list is empty still makes its scan (a row with the measurement empty, see
+:class:`~trackreplay.recorders.foreign_decoding._Collector`).
 
 The messages are decoded by the MCAP ecosystem's decoders chosen by the channel's encoding
 (``cdr`` with a ``ros2msg`` schema: ``mcap_ros2``; ``protobuf``: ``mcap_protobuf``; ``json``: the
@@ -45,7 +46,8 @@ import numpy as np
 
 from trackreplay.errors import InputError
 from trackreplay.recorders.foreign_decoding import ForeignTables, read_foreign_mcap
-from trackreplay.recorders.foreign_mapping import SAME_SCAN_S, TIME_COLUMN, TRUTH_TABLE, UNITS, Mapping, load_mapping
+from trackreplay.recorders.foreign_mapping import (SAME_SCAN_S, TIME_COLUMN, TRUTH_TABLE, UNITS, Mapping, _formats,
+                                                   load_mapping)
 
 __all__ = ["SAME_SCAN_S", "UNITS", "ForeignTables", "Mapping", "convert_foreign_mcap", "dataset_from_foreign",
            "load_mapping", "read_foreign_mcap"]
@@ -100,7 +102,7 @@ def _measurement_rows(got: ForeignTables, mapping: Mapping, src: Path):
         tables.append(np.zeros(idx.size, np.int8))
         messages.append(idx)
         items.append(np.full(idx.size, -1, np.int64))
-        what = "peaks" if mapping.family == "bearing-peaks" else "plots"
+        what = _formats()[mapping.family].item_word
         got.notes.append(f"{idx.size} message(s) on {meas_spec.topic} with an empty {meas_spec.items.text} list: "
                          f"scans without {what}")
     if truth is not None:
@@ -137,7 +139,8 @@ def _matched_truth(got: ForeignTables, mapping: Mapping, plots, src: Path):
         t = np.where(np.abs(near - t) <= SAME_SCAN_S, near, t)
     truth = truth.with_columns(pl.Series(TIME_COLUMN, t))
     run = truth["run"].to_numpy() if "run" in truth.columns else np.zeros(truth.height, np.int64)
-    ident = truth["truth_id"].to_numpy()
+    fmt = _formats()[mapping.family]
+    ident = truth[fmt.truth_list[0]].to_numpy()  # the list's first column is the target's identity
     # a target once a scan: the first repeat (in row order) is named with its message
     keys = pl.DataFrame({"run": run, "t": t, "id": ident, "row": np.arange(truth.height)})
     first = keys.group_by(["run", "t", "id"], maintain_order=True).agg(pl.col("row").first().alias("first"))
@@ -163,8 +166,8 @@ def _matched_truth(got: ForeignTables, mapping: Mapping, plots, src: Path):
         i = int(alone["row"][0])
         run_txt = f" of run {_n_id(run[i])}" if "run" in truth.columns else ""
         got.notes.append(f"{scans} truth time(s) on {spec.topic} match no message on {meas_spec.topic} (within "
-                         f"{SAME_SCAN_S:g} s): each is a scan without plots (the first: message {msg[i]}, time "
-                         f"{float(t[i])!r} s{run_txt})")
+                         f"{SAME_SCAN_S:g} s): each is a scan without {fmt.item_word} (the first: message {msg[i]}, "
+                         f"time {float(t[i])!r} s{run_txt})")
     return truth
 
 

@@ -1,25 +1,36 @@
-"""The table of every family with a tabular form (radar plots, cross-correlation peaks,
-TDOA/FDOA measurements with a table of sensors, positions in coloured noise): one entry per
-family in :data:`TABLE_FORMATS`, holding everything a family's table import and export is —
-its columns (units, meanings), the notes of what forms a scan and what is refused, the fewest
-scans its trackers need, its reader (:mod:`trackreplay.recorders.table_readers`) and its
-exporter (:mod:`trackreplay.recorders.table_exporters`).
+"""What a family's table is, and the registry of the families that have one.
 
-The command-line help of ``replay convert <command>`` is written from an entry, and
-``docs/importers.md`` is tested to list every column. A mapping file of a foreign MCAP names
-the same columns (:mod:`trackreplay.recorders.foreign_mapping`).
+A family with a tabular form declares it once, in its own module (:data:`TABLE_MODULES`: one
+``recorders/<family>_table.py`` per family), as a :class:`TableFormat` named ``FORMAT``: its
+columns (units, meanings), the notes of what forms a scan and what is refused, the fewest scans
+its trackers need, its reader and exporter, the ``replay convert`` command that reads it and the
+words of its help, its sample files, and the hooks the generic importers call where a family
+differs (a sensors table, values the data imply, a check against the recorded sensor values, a
+foreign MCAP's truth list and scans without items). The generic code
+(:mod:`trackreplay.recorders.tables`, :mod:`trackreplay.recorders.table_rows`,
+:mod:`trackreplay.recorders.foreign_mcap`, :mod:`trackreplay.face.cli_convert_tables`) reads
+these fields and never names a family.
+
+:data:`TABLE_FORMATS` (``{family: TableFormat}``, in the order of :data:`TABLE_MODULES`) is
+built on first use. This module and the families' modules import neither numpy nor polars at
+import time: ``replay --help`` lists the convert commands from the formats without them
+(``tests/test_startup_imports.py``). ``docs/importers.md`` is tested to list every column; a
+mapping file of a foreign MCAP names the same columns (:mod:`trackreplay.recorders.foreign_mapping`).
 """
 
 from __future__ import annotations
 
+import functools
+import importlib
 from dataclasses import dataclass, field
 from typing import Callable, NamedTuple
 
 from trackreplay import vocabulary as vocab
 from trackreplay.errors import InputError
-from trackreplay.recorders import table_exporters as exporters
-from trackreplay.recorders import table_readers as readers
-from trackreplay.recorders.table_rows import _PEAK_RATE, _PEAK_TRUTH, AXES
+
+#: the modules (in ``trackreplay.recorders``) that declare a family's table format, one per
+#: family, in the order the formats are listed
+TABLE_MODULES = ("radar_table", "xcorr_table", "tdoa_fdoa_table", "colored_table")
 
 
 class TableColumn(NamedTuple):
@@ -47,8 +58,9 @@ class TableFormat:
     summary : str
         What a row is.
     tables : dict
-        ``"measurements"`` (and ``"sensors"`` for tdoa-fdoa) → tuple of :class:`TableColumn`;
-        the keys of :func:`trackreplay.recorders.tables.tables_from_dataset`'s result.
+        ``"measurements"`` (and ``"sensors"`` for a family with a table of sensors) → tuple of
+        :class:`TableColumn`; the keys of :func:`trackreplay.recorders.tables.tables_from_dataset`'s
+        result.
     notes : tuple of str
         What forms a scan and what is refused, beyond the rules every table follows.
     min_scans : int
@@ -56,16 +68,39 @@ class TableFormat:
     read : callable
         ``read(rows)`` (``read(rows, sensors)`` for a family with a sensors table): the rows
         (:class:`~trackreplay.recorders.table_rows._Rows`), validated, → the arrays the family's
-        simulator builds, :class:`~trackreplay.recorders.simulated.SimulatedData`
-        (:mod:`trackreplay.recorders.table_readers`).
+        simulator builds, :class:`~trackreplay.recorders.simulated.SimulatedData`.
     export : callable
-        ``export(dataset)`` → ``{table: DataFrame}``, the way back
-        (:mod:`trackreplay.recorders.table_exporters`).
+        ``export(dataset)`` → ``{table: DataFrame}``, the way back.
     name_patterns : tuple of re.Pattern
         Measurement columns numbered per target (``truth0_bearing_rad``, …).
     extra_names : tuple of str
         Measurement column names written per axis in :attr:`tables` (``truth_<axis>_m``),
         spelled out.
+    aliases : tuple of str
+        Earlier names of :attr:`command`, still accepted.
+    title : str
+        The family's tables in a few words, capitalised (the converter's help).
+    item_word : str
+        What an item of a scan is called, plural (``wrote …: 120 plots``; "scans without plots").
+    samples : dict
+        ``{table: file name}`` of the bundled sample in ``data/samples`` (the help's example).
+    sample_sensor_values : dict
+        The sensor values the samples were made with (``docs/importers.md``, "Sample tables").
+    table_help : dict
+        ``{table: help}`` of the converter's option for each table beside the measurements.
+    empty_scan_columns : tuple of str
+        The measurement columns a row leaves empty to mark a scan without items; a foreign
+        message with an empty item list is such a scan. Empty: every scan has its rows.
+    truth_list : tuple of str
+        The columns of a foreign mapping's ``[truth]`` table (a list of targets with identities
+        per message, its rows truth-only rows of the measurements table), the target's identity
+        first; empty: the family's mappings carry their truth in the columns of ``[measurements]``.
+    data_values : callable, optional
+        ``data_values(data, params)`` → ``(values, notes)``: values the imported data imply
+        that the user did not give (recorded with the source "data"), and what to tell the user.
+    check_values : callable, optional
+        ``check_values(data, params, path)``: refuse what the replay would refuse given the
+        recorded values (raises :class:`~trackreplay.errors.InputError` naming ``path``).
 
     Iterating over a format gives the columns of its measurements table.
     """
@@ -81,6 +116,16 @@ class TableFormat:
     export: Callable | None = None
     name_patterns: tuple = ()
     extra_names: tuple = ()
+    aliases: tuple = ()
+    title: str = ""
+    item_word: str = "rows"
+    samples: dict = field(default_factory=dict)
+    sample_sensor_values: dict = field(default_factory=dict)
+    table_help: dict = field(default_factory=dict)
+    empty_scan_columns: tuple = ()
+    truth_list: tuple = ()
+    data_values: Callable | None = None
+    check_values: Callable | None = None
 
     @property
     def columns(self) -> tuple:
@@ -106,11 +151,15 @@ class TableFormat:
         return tuple(out)
 
 
-_RUN = TableColumn("run", "index", False, "Monte Carlo run or recording index, from 0 without gaps (default 0)")
-_TIME = TableColumn("time_s | time", "s", True, "scan time; the rows of one run and time form one scan")
+# columns several families share
+RUN = TableColumn("run", "index", False, "Monte Carlo run or recording index, from 0 without gaps (default 0)")
+TIME = TableColumn("time_s | time", "s", True, "scan time; the rows of one run and time form one scan")
+#: a planar state's truth columns: position and velocity
+TRUTH_XY = ("truth_x_m", "truth_y_m", "truth_vx_mps", "truth_vy_mps")
 
 
-def _truth_xy(what: str) -> tuple:
+def truth_xy_columns(what: str) -> tuple:
+    """The four columns of :data:`TRUTH_XY`, ``what`` (the true target, emitter) described."""
     return (
         TableColumn("truth_x_m", "m", False, f"{what} x at the scan (e.g. from GPS), for scoring; the same on "
                                              "every row of one run and time; all four truth columns or none"),
@@ -120,112 +169,28 @@ def _truth_xy(what: str) -> tuple:
     )
 
 
-TABLE_FORMATS: dict[str, TableFormat] = {f.family: f for f in (
-    TableFormat(
-        "radar-plots", "plots", "radar_plots", "one row per radar plot (range, bearing) of a scan",
-        {"measurements": (
-            _RUN, _TIME,
-            TableColumn("range_m", "m", True, "plot range, ≥ 0"),
-            TableColumn("bearing_rad | bearing_deg", "rad | °", True,
-                        "plot bearing, counter-clockwise from +x (x = r cos θ, y = r sin θ)"),
-            *_truth_xy("true target"),
-            TableColumn("truth_id", "index", False,
-                        "identity of the target the row's truth columns describe (many targets: a long "
-                        "table, one row per plot and per target; a plot on the same row came from it)"),
-        )},
-        ("Several rows of one run and time are several plots of that scan.",
-         "With truth_id, the truth is a set of targets per scan: every row naming a target gives its state "
-         "(the same on every row of that target and scan); rows with range and bearing empty carry truth "
-         "alone, rows with the truth columns empty a plot alone (clutter, or of no known target).",
-         "A row with range and bearing both empty marks a scan without plots (it may carry the truth); "
-         "it may not share its scan with plots or with another such row.",
-         "Refused: a negative range; a scan whose truth columns disagree between rows; with truth, a run "
-         "without a row at one of the scan times; fewer than 3 scans."),
-        min_scans=3, read=readers.read_radar_plots, export=exporters.export_radar_plots),
-    TableFormat(
-        "bearing-peaks", "peaks", "bearing_peaks", "one row per cross-correlation peak (bearing, amplitude) of a scan",
-        {"measurements": (
-            _RUN, _TIME,
-            TableColumn("bearing_rad | bearing_deg", "rad | °", True,
-                        "peak bearing θ = arccos(C·D/d), within the sensor's field "
-                        "(field_min_deg … field_max_deg)"),
-            TableColumn("amplitude", "-", True, "peak amplitude, ≥ 0"),
-            TableColumn("origin", "index", False,
-                        "target a true peak came from (0, 1, …), −1 for clutter or unknown (default −1); for "
-                        "judging only, trackers never read it"),
-            TableColumn("truth<t>_bearing_rad | truth<t>_bearing_deg", "rad | °", False,
-                        "true bearing of target t = 0, 1, … at the scan, for scoring; the same on every row of "
-                        "one run and time"),
-            TableColumn("truth<t>_bearing_rate_radps | truth<t>_bearing_rate_degps", "rad/s | °/s", False,
-                        "its bearing rate (with the bearings, for every target or none)"),
-        )},
-        ("Several rows of one run and time are several peaks of that scan, kept in the order of the file.",
-         "A row with bearing, amplitude (and origin) empty marks a scan without peaks.",
-         "Refused: a negative amplitude, an origin below −1, a bearing outside the sensor's field recorded "
-         "for the replay, truth that disagrees within a scan, fewer than 3 scans."),
-        min_scans=3, read=readers.read_bearing_peaks, export=exporters.export_bearing_peaks,
-        name_patterns=(_PEAK_TRUTH, _PEAK_RATE)),
-    TableFormat(
-        "tdoa-fdoa", "tdoa-fdoa", "tdoa_fdoa", "one row per sensor pair of a measurement epoch",
-        {"measurements": (
-            _RUN, TableColumn("time_s | time", "s", True, "epoch time; the rows of one run and time form one epoch"),
-            TableColumn("sensor_a", "index", True, "first sensor of the pair (a sensor of the sensors table, from 0)"),
-            TableColumn("sensor_b", "index", True, "second sensor of the pair"),
-            TableColumn("tdoa_s", "s", True, "time difference of arrival (r_a − r_b)/c"),
-            TableColumn("fdoa_hz", "Hz", True, "frequency difference of arrival f₀(ṙ_a − ṙ_b)/c"),
-            TableColumn("sigma_tdoa_s", "s", True, "standard deviation of the TDOA, > 0"),
-            TableColumn("sigma_fdoa_hz", "Hz", True, "standard deviation of the FDOA, > 0"),
-            TableColumn("carrier_hz", "Hz", True, "the emitter's carrier f₀, > 0; the same on every row of an epoch"),
-            *_truth_xy("true emitter"),
-            TableColumn("prior_x_m", "m", False,
-                        "a coarse fix Gauss-Newton may start from (initial_guess=prior); the same on every row "
-                        "of an epoch; all four prior columns or none (without them the replay starts from a "
-                        "grid search: initial_guess=grid)"),
-            TableColumn("prior_y_m", "m", False, "the fix's y"),
-            TableColumn("prior_vx_mps", "m/s", False, "the fix's x velocity"),
-            TableColumn("prior_vy_mps", "m/s", False, "the fix's y velocity"),
-         ),
-         "sensors": (
-            _RUN, TableColumn("time_s | time", "s", True, "epoch time (the measurement table's epochs)"),
-            TableColumn("sensor", "index", True, "sensor index, 0 … S−1 in every epoch"),
-            TableColumn("x_m", "m", True, "sensor position x"),
-            TableColumn("y_m", "m", True, "sensor position y"),
-            TableColumn("vx_mps", "m/s", True, "sensor velocity x"),
-            TableColumn("vy_mps", "m/s", True, "sensor velocity y"),
-         )},
-        ("Every epoch lists the same pairs (in any order; the first epoch's order is kept) and the sensors "
-         "table lists every sensor once per epoch.",
-         "Refused: a pair of a sensor with itself or repeated in an epoch, a sensor index the sensors table "
-         "does not list, σ or carrier ≤ 0, an epoch missing from either table, a duplicated (run, time, "
-         "sensor) or (run, time, pair), values that disagree within an epoch."),
-        min_scans=1, read=readers.read_tdoa_fdoa, export=exporters.export_tdoa_fdoa),
-    TableFormat(
-        "colored-position", "positions", "colored_positions", "one row per position measurement (run and time)",
-        {"measurements": (
-            _RUN, TableColumn("time_s | time", "s", True, "measurement time, evenly spaced"),
-            TableColumn("x_m", "m", True, "measured position, first axis"),
-            TableColumn("y_m", "m", False, "second axis (a 2-D target)"),
-            TableColumn("z_m", "m", False, "third axis (with y_m)"),
-            TableColumn("truth_<axis>_m", "m", False,
-                        "true position on each axis (truth_x_m, …), for scoring and the thesis's true start"),
-            TableColumn("truth_v<axis>_mps", "m/s", False, "true velocity (truth_vx_mps, …)"),
-            TableColumn("truth_a<axis>_mps2", "m/s²", False,
-                        "true acceleration (truth_ax_mps2, …); the three truth columns of every axis or none"),
-            TableColumn("truth_alpha_<axis>", "-", False,
-                        "true AR(1) coefficient of the axis's measurement noise, in [−1, 1] (with the truth)"),
-        )},
-        ("One row per run and time: a duplicated (run, time) is refused.",
-         "Refused: uneven time steps, fewer than 4 scans, truth for some axes only."),
-        min_scans=4, read=readers.read_colored_positions, export=exporters.export_colored_positions,
-        extra_names=tuple(n for a in AXES for n in (f"truth_{a}_m", f"truth_v{a}_mps", f"truth_a{a}_mps2",
-                                                    f"truth_alpha_{a}"))),
-)}
+@functools.cache
+def table_formats() -> dict[str, TableFormat]:
+    """``{family: TableFormat}`` of every module of :data:`TABLE_MODULES`, in that order."""
+    formats = {}
+    for name in TABLE_MODULES:
+        fmt = importlib.import_module(f"trackreplay.recorders.{name}").FORMAT
+        formats[fmt.family] = fmt
+    return formats
+
+
+def __getattr__(name: str):
+    # TABLE_FORMATS is built on first use: the families' modules import this one for TableFormat
+    if name == "TABLE_FORMATS":
+        return table_formats()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def _check_family(family: str) -> TableFormat:
-    if family not in TABLE_FORMATS:
-        raise InputError(f"no table format for the family {family!r} (have: {', '.join(TABLE_FORMATS)})")
-    return TABLE_FORMATS[family]
+    formats = table_formats()
+    if family not in formats:
+        raise InputError(f"no table format for the family {family!r} (have: {', '.join(formats)})")
+    return formats[family]
 
 
 def scenario_of(family: str) -> str:

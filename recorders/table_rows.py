@@ -10,14 +10,14 @@ table follows (``docs/importers.md``, "Tables of measurements"), one
   :func:`_markers` build the arrays of values a scan shares, of items (plots, peaks) and of
   scans without items.
 
-The families' own rules are in :mod:`trackreplay.recorders.table_readers`; the columns of each
-family in :data:`trackreplay.recorders.table_formats.TABLE_FORMATS`.
+Each family's own rules, its reader, are in its module (the ``read`` of its
+:class:`~trackreplay.recorders.table_formats.TableFormat`, :data:`~trackreplay.recorders.table_formats.TABLE_MODULES`),
+with its columns.
 """
 
 from __future__ import annotations
 
 import difflib
-import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,22 +27,7 @@ import polars as pl
 from trackreplay import vocabulary as vocab
 from trackreplay.errors import InputError
 
-# the column names and channels the families' readers and exporters share
-AXES = ("x", "y", "z")
 MAX_RUNS = 1 << 24  # the contract's bound on a run index
-MAX_SENSORS = 1 << 16  # the contract's bound on a pair's sensor index
-
-_CH = vocab.CHANNELS
-_PLOTS, _RADAR_TRUTH = _CH["radar_plots"], _CH["radar_truth"]
-_PEAKS, _XCORR_TRUTH = _CH["xcorr_peaks"], _CH["xcorr_truth"]
-_MEAS, _SENSORS, _PRIOR, _EMITTER_TRUTH = (_CH["emitter_measurements"], _CH["emitter_sensors"], _CH["emitter_prior"],
-                                           _CH["emitter_truth"])
-_COLORED, _COLORED_TRUTH = _CH["colored_measurements"], _CH["colored_truth"]
-
-_TRUTH_XY = ("truth_x_m", "truth_y_m", "truth_vx_mps", "truth_vy_mps")
-_PRIOR_XY = ("prior_x_m", "prior_y_m", "prior_vx_mps", "prior_vy_mps")
-_PEAK_TRUTH = re.compile(r"^truth(\d+)_bearing_(rad|deg)$")
-_PEAK_RATE = re.compile(r"^truth(\d+)_bearing_rate_(radps|degps)$")
 
 
 # --------------------------------------------------------------------------- reading files

@@ -1,6 +1,7 @@
 """Tables of measurements (CSV or Parquet) ↔ data sets, for every measurement family with a
-tabular form: radar plots, cross-correlation peaks, TDOA/FDOA measurements (with a table of
-sensors) and positions in coloured noise. The array family has its own WAV converter.
+tabular form (:data:`TABLE_FORMATS`, one module per family: radar plots, cross-correlation peaks,
+TDOA/FDOA measurements with a table of sensors, positions in coloured noise). A family without one
+(the array's snapshots) has a converter of its own.
 
 A table is *long*: one row per measurement item (a plot, a peak, a sensor pair, a position),
 with the Monte Carlo run (or recording index) and the scan time on every row. The rows of one
@@ -13,19 +14,19 @@ command-line help is written from it (and ``docs/importers.md`` is tested to lis
 * :func:`tables_from_dataset` is the way back: a data set's input channels (and the truth the
   tables carry) as tables in the import format, so that simulate → export → import gives the
   same arrays bit for bit;
-* :func:`convert_table` is what ``replay convert plots|peaks|tdoa-fdoa|positions`` runs: read,
+* :func:`convert_table` is what ``replay convert <command>`` of a table format runs: read,
   validate, record the sensor and design values the user gave with ``--set`` (nothing from a
   bundled scenario: :mod:`trackreplay.sensor_values`) and what the data hold, and write the data
   set.
 
 This module is the public face of the table importers and exporters; the work is done in
 
-* :mod:`trackreplay.recorders.table_formats`: :data:`TABLE_FORMATS`, one entry per family (its
-  columns, notes, fewest scans, reader and exporter);
+* :mod:`trackreplay.recorders.table_formats`: :class:`TableFormat` and :data:`TABLE_FORMATS`, the
+  formats the families declare in their own modules (``TABLE_MODULES``: each family's columns,
+  notes, fewest scans, reader, exporter, command and the hooks where it differs);
 * :mod:`trackreplay.recorders.table_rows`: :func:`read_table` and the validation every table
   shares (the rules below);
-* :mod:`trackreplay.recorders.table_readers`: each family's rows → arrays;
-* :mod:`trackreplay.recorders.table_exporters`: each family's arrays → tables, and :func:`write_table`.
+* :mod:`trackreplay.recorders.table_exporters`: what the exporters share, and :func:`write_table`.
 
 Rules every importer applies (a broken rule is one :class:`~trackreplay.errors.InputError` naming
 the file and the first row at fault; rows are counted from 1 after the header):
@@ -60,12 +61,13 @@ from trackreplay import vocabulary as vocab
 from trackreplay.errors import InputError
 from trackreplay.recorders.simulated import SimulatedData, write_simulated
 from trackreplay.recorders.table_exporters import write_table
-from trackreplay.recorders.table_formats import TABLE_FORMATS, TableColumn, TableFormat, _check_family, scenario_of
-from trackreplay.recorders.table_rows import _PEAKS, _PRIOR, _n, _Rows, read_table
+from trackreplay.recorders.table_formats import (TABLE_FORMATS, TableColumn, TableFormat, _check_family, scenario_of,
+                                                 table_formats)
+from trackreplay.recorders.table_rows import _Rows, read_table
 
-__all__ = ["TABLE_FORMATS", "ConvertReport", "TableColumn", "TableFormat", "check_peak_field", "convert_table",
-           "dataset_from_table", "exportable_families", "read_table", "scenario_of", "sensor_summary",
-           "table_file_names", "table_parameters", "tables_from_dataset", "write_imported", "write_table"]
+__all__ = ["TABLE_FORMATS", "ConvertReport", "TableColumn", "TableFormat", "convert_table", "dataset_from_table",
+           "exportable_families", "read_table", "scenario_of", "sensor_summary", "table_file_names",
+           "table_parameters", "tables_from_dataset", "write_imported", "write_table"]
 
 
 # --------------------------------------------------------------------------- importing and exporting
@@ -78,13 +80,13 @@ def dataset_from_table(family: str, rows: pl.DataFrame, path, sensors: pl.DataFr
     Parameters
     ----------
     family : str
-        ``radar-plots``, ``bearing-peaks``, ``tdoa-fdoa`` or ``colored-position``.
+        A family with a table format (a key of :data:`TABLE_FORMATS`).
     rows : polars.DataFrame
         The measurements table (:data:`TABLE_FORMATS`); columns may be numbers or text to parse.
     path : str or Path
         The file the rows came from (named in every message).
     sensors : polars.DataFrame, optional
-        The sensors table (tdoa-fdoa only, required there).
+        The sensors table (of a family whose format has one; required there).
     sensors_path : str or Path, optional
         Its file.
 
@@ -124,8 +126,9 @@ def tables_from_dataset(dataset, family: str) -> dict[str, pl.DataFrame]:
     Returns
     -------
     dict
-        ``{"measurements": DataFrame}``, plus ``"sensors"`` for tdoa-fdoa. Angles are in
-        radians; times are the data set's scan times plus its recorded ``first_time_s``.
+        ``{"measurements": DataFrame}``, plus ``"sensors"`` for a format with a sensors table.
+        Angles are in radians; times are the data set's scan times plus its recorded
+        ``first_time_s``.
 
     Raises
     ------
@@ -147,15 +150,17 @@ def tables_from_dataset(dataset, family: str) -> dict[str, pl.DataFrame]:
 def exportable_families(dataset) -> tuple[list[str], list[str]]:
     """Families of a data set with a table format, and those present without one."""
     have = [f for f, fam in vocab.FAMILIES.items() if all(c in dataset.channels for c in fam.inputs)]
-    return [f for f in have if f in TABLE_FORMATS], [f for f in have if f not in TABLE_FORMATS]
+    formats = table_formats()
+    return [f for f in have if f in formats], [f for f in have if f not in formats]
 
 
 def table_file_names(family: str, suffix: str) -> dict[str, str]:
     """File names ``replay export --table`` gives a family's tables (keys as in
     :func:`tables_from_dataset`)."""
-    stem = _check_family(family).stem
+    fmt = _check_family(family)
+    stem = fmt.stem
     names = {"measurements": f"{stem}.{suffix}"}
-    if "sensors" in TABLE_FORMATS[family].tables:
+    if "sensors" in fmt.tables:
         names["sensors"] = f"{stem}_sensors.{suffix}"
     return names
 
@@ -209,9 +214,9 @@ def table_parameters(family: str, overrides: dict | None = None,
     notes on choices made for the user.
 
     Nothing is taken from a bundled scenario: a sensor value the user did not give is unknown
-    (``docs/importers.md``, "Sensor values"). A tdoa-fdoa table without prior columns records
-    ``initial_guess = "grid"`` (the replay then starts Gauss-Newton from a coarse grid search)
-    unless the user says otherwise.
+    (``docs/importers.md``, "Sensor values"). A family's format may add values the data imply
+    that the user did not give (its ``data_values``, recorded with the source "data": a table of
+    TDOA/FDOA measurements without a prior fix records ``initial_guess = "grid"``).
 
     Returns
     -------
@@ -228,10 +233,12 @@ def table_parameters(family: str, overrides: dict | None = None,
     for values, source in ((mapped, sv.MAPPING_FILE), (flagged, sv.CONVERTER_FLAG)):
         params.update(values)
         sources.update(dict.fromkeys(values, source))
-    if family == "tdoa-fdoa" and data is not None and _PRIOR not in data.fixed and "initial_guess" not in params:
-        params["initial_guess"] = "grid"
-        sources["initial_guess"] = sv.DATA
-        notes.append("no prior columns: recorded initial_guess=grid (Gauss-Newton starts from a coarse grid search)")
+    implied = _check_family(family).data_values
+    if implied is not None and data is not None:
+        values, told = implied(data, params)
+        params.update(values)
+        sources.update(dict.fromkeys(values, sv.DATA))
+        notes += told
     if data is not None:
         times = np.asarray(data.times, dtype=float)
         facts = {"n_runs": int(data.n_runs), "n_scans": int(times.size),
@@ -261,23 +268,6 @@ def sensor_summary(family: str, params: dict, sources: dict) -> str:
     return "sensor values: " + "; ".join(parts)
 
 
-def check_peak_field(data: SimulatedData, params: dict, path) -> None:
-    """Refuse peaks outside the sensor's field (``field_min_deg`` … ``field_max_deg`` of
-    ``params``), which the replay would refuse, naming the first peak with its run and time
-    (``data``'s own times)."""
-    arrays, counts = data.ragged[_PEAKS]
-    # an unknown field is the whole of what a bearing θ = arccos(C·D/d) can be (the stage's too)
-    lo, hi = float(params.get("field_min_deg", 0.0)), float(params.get("field_max_deg", 180.0))
-    b = arrays["bearing_rad"]
-    have = np.arange(b.shape[2]) < counts[..., None]
-    outside = have & ((b < np.deg2rad(lo) - 1e-12) | (b > np.deg2rad(hi) + 1e-12))
-    if outside.any():
-        r, k, j = (int(v[0]) for v in np.nonzero(outside))
-        raise InputError(f"peak bearing {np.rad2deg(b[r, k, j]):.6g}° (run {r}, time {_n(data.times[k])} s) lies "
-                         f"outside the sensor's field [{lo:g}°, {hi:g}°] the replay uses; give the field with --set "
-                         "field_min_deg=… --set field_max_deg=…", path)
-
-
 def write_imported(family: str, data: SimulatedData, dst, overrides, scenario: str, source: dict, path,
                    mapped: dict | None = None):
     """Write an imported data set: the one way a table or a foreign recording becomes one.
@@ -286,8 +276,9 @@ def write_imported(family: str, data: SimulatedData, dst, overrides, scenario: s
     file) and what the data hold (:func:`table_parameters`), ``source`` (the input files'
     names) and the first time ``first_time_s`` (scan times start at 0: MCAP log times are
     unsigned), marks the record a recording with the source of every value
-    (:mod:`trackreplay.sensor_values`), and refuses peaks outside the sensor's field
-    (:func:`check_peak_field`, naming ``path``). Written atomically.
+    (:mod:`trackreplay.sensor_values`), and refuses what the replay would refuse given the
+    recorded values (the format's ``check_values``, e.g. peaks outside the sensor's field, naming
+    ``path``). Written atomically.
 
     Returns
     -------
@@ -306,8 +297,9 @@ def write_imported(family: str, data: SimulatedData, dst, overrides, scenario: s
 
     params, notes, sources = table_parameters(family, overrides, data, mapped)
     t0 = float(data.times[0])
-    if family == "bearing-peaks":
-        check_peak_field(data, params, path)
+    check = _check_family(family).check_values
+    if check is not None:
+        check(data, params, path)
     params.update(source, first_time_s=t0)
     sources.update(dict.fromkeys([*source, "first_time_s"], sv.DATA))
     metadata = scenario_metadata(scenario, params, seed=-1)
@@ -331,12 +323,14 @@ def convert_table(family: str, src, dst, overrides: dict | None = None, sensors_
     fmt = _check_family(family)
     rows = read_table(src)
     sensors = None
-    if family == "tdoa-fdoa":
+    if "sensors" in fmt.tables:
         if sensors_src is None:
-            raise InputError("a tdoa-fdoa table needs its sensors table (--sensors SENSORS)", src)
+            raise InputError(f"a {family} table needs its sensors table (--sensors SENSORS)", src)
         sensors = read_table(sensors_src)
     elif sensors_src is not None:
-        raise InputError(f"--sensors belongs to tdoa-fdoa tables, not to {fmt.command}", sensors_src)
+        with_sensors = [f for f, other in table_formats().items() if "sensors" in other.tables]
+        raise InputError(f"--sensors belongs to {' and '.join(with_sensors)} tables, not to {fmt.command}",
+                         sensors_src)
     data = dataset_from_table(family, rows, src, sensors, sensors_src)
     source = {"source_table": Path(src).name}
     if sensors_src is not None:

@@ -1,10 +1,12 @@
-"""``replay convert plots|peaks|tdoa-fdoa|positions``: tables of measurements (CSV or Parquet) →
+"""``replay convert <command>`` of every table format: tables of measurements (CSV or Parquet) →
 data sets, and ``replay export --table``'s writing of them the other way.
 
 Registered under the existing ``replay convert`` group (this module is listed in
-``trackreplay.face.cli.EXTENSION_MODULES``; its CONVERT_COMMANDS join the group). ``plots-csv``, the
-earlier name of ``plots``, stays as an alias. The formats, the checks and the numbers are in
-:mod:`trackreplay.recorders.tables`; the help texts are written from its ``TABLE_FORMATS``.
+``trackreplay.face.cli.EXTENSION_MODULES``; its CONVERT_COMMANDS join the group). The commands,
+their help texts and words are written from the formats the families declare
+(:data:`trackreplay.recorders.table_formats.TABLE_FORMATS`: each format's command, its aliases,
+earlier names that stay, its title, item word, samples and columns); this module names no
+family. The checks and the numbers are in :mod:`trackreplay.recorders.tables`.
 """
 
 from __future__ import annotations
@@ -14,15 +16,12 @@ from pathlib import Path
 
 import click
 
+# the formats alone: neither numpy nor polars (starting `replay` lists these commands)
+from trackreplay.recorders.table_formats import scenario_of, table_formats
+
 COMMANDS: list = []  # no top-level command
 
 HELP_WIDTH = 100
-ITEMS = {"radar-plots": "plots", "bearing-peaks": "peaks", "tdoa-fdoa": "pair measurements",
-         "colored-position": "positions"}
-TITLES = {"radar-plots": "Radar plots", "bearing-peaks": "Cross-correlation peaks",
-          "tdoa-fdoa": "TDOA/FDOA measurements", "colored-position": "Positions in coloured noise"}
-SAMPLES = {"radar-plots": ("radar_plots.csv", None), "bearing-peaks": ("bearing_peaks.csv", None),
-           "tdoa-fdoa": ("tdoa_fdoa.csv", "tdoa_fdoa_sensors.csv"), "colored-position": ("colored_positions.csv", None)}
 
 
 def _column_lines(columns, indent: str = "  ") -> list[str]:
@@ -44,13 +43,13 @@ def _column_lines(columns, indent: str = "  ") -> list[str]:
 
 
 def format_help(family: str, command: str) -> str:
-    """The --help text of a table converter, from the family's :data:`trackreplay.recorders.tables.TABLE_FORMATS` entry."""
+    """The --help text of a table converter, from the family's
+    :data:`trackreplay.recorders.table_formats.TABLE_FORMATS` entry."""
     from trackreplay.sensor_values import SENSOR_KEYS
-    from trackreplay.recorders.tables import TABLE_FORMATS, scenario_of
 
-    fmt = TABLE_FORMATS[family]
-    sample, sensors = SAMPLES[family]
-    lines = [f"{TITLES[family]} table (.csv or .parquet) → data set (MCAP), ready for `replay`.", "",
+    fmt = table_formats()[family]
+    sample, sensors = fmt.samples["measurements"], fmt.samples.get("sensors")
+    lines = [f"{fmt.title} table (.csv or .parquet) → data set (MCAP), ready for `replay`.", "",
              f"{fmt.summary[0].upper()}{fmt.summary[1:]}. Say what you know about the sensor with --set "
              f"(its noise, scan period, …: {', '.join(SENSOR_KEYS.get(family, ())) or 'none; they are columns'}); "
              f"what you do not say stays unknown, never taken from the bundled {scenario_of(family)} scenario, "
@@ -65,17 +64,15 @@ def format_help(family: str, command: str) -> str:
               "text, NaN or Inf); an error names the file and the first bad row (rows counted from 1 after the "
               "header). See docs/importers.md.", ""]
     extra = f" --sensors data/samples/{sensors}" if sensors else ""
-    given = "".join(f" --set {k}={v}" for k, v in SAMPLE_SENSOR_VALUES.get(family, {}).items())
+    given = "".join(f" --set {k}={v}" for k, v in fmt.sample_sensor_values.items())
     lines += ["\b", "Example:", f"  replay convert {command} data/samples/{sample}{extra} -o rec.mcap{given}",
               "  replay info rec.mcap", "  replay rec.mcap --no-rrd"]
     return "\n".join(lines)
 
 
-#: the sensor values the bundled samples were made with (docs/importers.md, "Sample tables")
-SAMPLE_SENSOR_VALUES = {"radar-plots": {"sigma_range_m": 100, "sigma_bearing_deg": 1, "scan_period_s": 5},
-                        "bearing-peaks": {"strong_sigma_p_deg": 1.3, "weak_sigma_p_deg": 1.8, "field_min_deg": 70,
-                                          "field_max_deg": 110},
-                        "colored-position": {"measurement_variance_m2": 100}}
+#: the sensor values the bundled samples were made with (docs/importers.md, "Sample tables"), per
+#: family (its format's sample_sensor_values)
+SAMPLE_SENSOR_VALUES = {f: fmt.sample_sensor_values for f, fmt in table_formats().items() if fmt.sample_sensor_values}
 
 
 class _TableCommand(click.Command):
@@ -98,10 +95,11 @@ def _convert_command(name: str, family: str, alias_of: str | None = None) -> cli
         click.Option(["-o", "--output"], required=True, type=click.Path(dir_okay=False, path_type=Path),
                      help="The data set to write (never the input itself)."),
     ]
-    if family == "tdoa-fdoa":  # the one family with a second table
+    fmt = table_formats()[family]
+    if "sensors" in fmt.tables:  # a format with a second table: the sensors
         params.append(click.Option(["--sensors", "sensors_path"], required=True,
                                    type=click.Path(dir_okay=False, path_type=Path),
-                                   help="The sensors table (.csv or .parquet): positions and velocities per epoch."))
+                                   help=fmt.table_help["sensors"]))
     params += [
         click.Option(["--set", "sets"], multiple=True, metavar="NAME=VALUE",
                      help="A sensor value (sigma_range_m=50) or design value recorded with the data; "
@@ -118,13 +116,13 @@ def _convert_command(name: str, family: str, alias_of: str | None = None) -> cli
         refuse_replacing_file(output, force)
         rep = convert_table(family, table_path, output, parse_assignments(sets), sensors_path)
         click.echo(f"wrote {output}: {rep.messages} messages, {rep.runs} run(s) × {rep.scans} scan(s), "
-                   f"{rep.items} {ITEMS[family]}; {'with truth' if rep.truth else 'no truth'}")
+                   f"{rep.items} {fmt.item_word}; {'with truth' if rep.truth else 'no truth'}")
         for note in rep.notes:
             click.echo(f"note: {note}")
         click.echo(sensor_summary(family, rep.params, rep.sources))
 
     short = (f"Alias of `{alias_of}` (its earlier name)." if alias_of
-             else f"{TITLES[family]} table (CSV or Parquet) → MCAP.")
+             else f"{fmt.title} table (CSV or Parquet) → MCAP.")
     return _TableCommand(name, callback=callback, params=params, short_help=short, family=family,
                          help_name=alias_of or name)
 
@@ -135,7 +133,7 @@ def export_tables(data: Path, out_dir: Path, fmt: str, recover: bool, force: boo
     from trackreplay.contract import read_dataset
     from trackreplay.errors import InputError
     from trackreplay.paths import OutputSet, refuse_input_overwrite, refuse_replacing_file
-    from trackreplay.recorders.tables import TABLE_FORMATS, exportable_families, table_file_names, tables_from_dataset, write_table
+    from trackreplay.recorders.tables import exportable_families, table_file_names, tables_from_dataset, write_table
 
     if out_dir.exists() and not out_dir.is_dir():
         raise InputError("is a file; --table writes its tables into a folder", out_dir)
@@ -144,7 +142,7 @@ def export_tables(data: Path, out_dir: Path, fmt: str, recover: bool, force: boo
     dataset = read_dataset(data, recover=recover)
     families, skipped = exportable_families(dataset)
     if not families:
-        raise InputError(f"no channels of a family with a table format ({', '.join(TABLE_FORMATS)}); channels "
+        raise InputError(f"no channels of a family with a table format ({', '.join(table_formats())}); channels "
                          f"present: {', '.join(sorted(dataset.channels)) or 'none'}", data)
     plan = []
     for family in families:
@@ -166,17 +164,13 @@ def export_tables(data: Path, out_dir: Path, fmt: str, recover: bool, force: boo
     for family in families:
         names = table_file_names(family, fmt)
         sensors = f" --sensors {out_dir / names['sensors']}" if "sensors" in names else ""
-        click.echo(f"back: replay convert {TABLE_FORMATS[family].command} {out_dir / names['measurements']}{sensors} "
+        click.echo(f"back: replay convert {table_formats()[family].command} {out_dir / names['measurements']}{sensors} "
                    "-o DATA.mcap")
 
 
-#: command → (family, the command it is an alias of)
-TABLE_COMMANDS = {
-    "plots": ("radar-plots", None),
-    "plots-csv": ("radar-plots", "plots"),
-    "peaks": ("bearing-peaks", None),
-    "tdoa-fdoa": ("tdoa-fdoa", None),
-    "positions": ("colored-position", None),
-}
+#: command → (family, the command it is an alias of): each format's command, then its aliases
+TABLE_COMMANDS = {name: (family, alias_of)
+                  for family, fmt in table_formats().items()
+                  for name, alias_of in ((fmt.command, None), *((a, fmt.command) for a in fmt.aliases))}
 # added under `replay convert` by trackreplay.face.cli
 CONVERT_COMMANDS = [_convert_command(name, family, alias_of) for name, (family, alias_of) in TABLE_COMMANDS.items()]
