@@ -22,6 +22,11 @@ class InputError(Exception):
         super().__init__(f"{self.path}: {problem}" if self.path else problem)
 
 
+class DesignValueError(InputError, ValueError):
+    """A design value its parameter does not accept (:meth:`trackreplay.trackers.interface.Param.check`):
+    the user's input (one line, exit 2) and, to code that builds a tracker, a ``ValueError``."""
+
+
 def require_finite(name: str, values, path: str | Path | None = None) -> None:
     """Raise :class:`InputError` if ``values`` holds NaN or Inf.
 

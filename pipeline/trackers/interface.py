@@ -35,7 +35,7 @@ import numpy as np
 
 from trackreplay import vocabulary as vocab
 from trackreplay.batched_linalg import cholesky_lower, positive_definite
-from trackreplay.errors import InputError
+from trackreplay.errors import DesignValueError, InputError
 
 
 @dataclass(frozen=True)
@@ -65,8 +65,9 @@ class Param:
     high: float | None = None
 
     def check(self, value) -> None:
-        """Raise ``ValueError`` for a value this parameter does not accept: a number that is not
-        finite, or outside the open bounds (``low``, ``high``) where it has them.
+        """Raise :class:`~trackreplay.errors.DesignValueError` (an input error that is also a
+        ``ValueError``) for a value this parameter does not accept: a number that is not finite,
+        or outside the open bounds (``low``, ``high``) where it has them.
 
         The one check of a design value (``docs/trackers.md``): a tracker's parameters are
         checked when it is constructed, a stage's own (:attr:`trackreplay.stages.base.Stage.params`,
@@ -75,17 +76,17 @@ class Param:
         so that the resolution can prefix them with ``design value``.
         """
         if isinstance(value, float) and not np.isfinite(value):
-            raise ValueError(f"{self.name} = {value} must be finite")
+            raise DesignValueError(f"{self.name} = {value} must be finite")
         if self.low is None and self.high is None:
             return
         if value is None:
-            raise ValueError(f"{self.name} has no value: pass it, or replay a data set whose scenario records it")
+            raise DesignValueError(f"{self.name} has no value: pass it, or replay a data set whose scenario records it")
         number = float(value)
         if not (np.isfinite(number) and (self.low is None or number > self.low)
                 and (self.high is None or number < self.high)):
             low = "-inf" if self.low is None else f"{self.low:g}"
             high = "inf" if self.high is None else f"{self.high:g}"
-            raise ValueError(f"{self.name} = {number:g} must be in ({low}, {high})")
+            raise DesignValueError(f"{self.name} = {number:g} must be in ({low}, {high})")
 
 
 class Tracker:
