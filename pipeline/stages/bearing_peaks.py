@@ -17,6 +17,7 @@ from trackreplay.evaluators import track_association as assoc_eval
 from trackreplay import vocabulary as vocab
 from trackreplay.errors import InputError, require_finite
 from trackreplay.stages.base import Stage
+from trackreplay.stages.evaluation_gates import gates_from_spread
 from trackreplay.evaluators.standard import bearing_space
 from trackreplay.trackers.interface import BearingPeaks
 from trackreplay.trackers.peak_roles import roles_for
@@ -183,6 +184,16 @@ class BearingPeaksStage(Stage):
         return dataset.cache["bearing_peaks"]
 
     evaluation_defaults = {"ospa_cutoff_deg": 10.0, "ospa_order": 2.0, "assignment_gate_deg": 5.0}
+
+    def evaluation_defaults_from_data(self, dataset, design: dict) -> dict:
+        """The matching gate from the peaks' bearing noise (docs/evaluation.md, "Evaluation design
+        values"): a true peak's bearing has σ ``strong_sigma_p_deg`` or ``weak_sigma_p_deg`` (the
+        strong and the weak target's; the larger is taken), and the gate is the half-width holding
+        all but 10⁻⁴ of a one-dimensional Gaussian of it (3.89 σ), rounded up to two significant
+        digits; the cut-off c is twice it (:mod:`trackreplay.stages.evaluation_gates`). A recording
+        that says neither σ keeps the fixed values."""
+        sigmas = [float(design[k]) for k in ("strong_sigma_p_deg", "weak_sigma_p_deg") if design.get(k) is not None]
+        return gates_from_spread(max(sigmas), 1, "deg") if sigmas else {}
 
     def reference(self, dataset, design: dict) -> dict:
         m = self.decode(dataset)

@@ -24,6 +24,7 @@ from trackreplay import vocabulary as vocab
 from trackreplay.errors import InputError, require_finite
 from trackreplay.stage_scoring import model_recorded
 from trackreplay.stages.base import Stage
+from trackreplay.stages.evaluation_gates import gates_from_spread
 from trackreplay.evaluators.standard import position_space
 from trackreplay.trackers.colored_noise import MODEL_NAMES, ar1_outputs, colored_noise_pcrb
 from trackreplay.trackers.interface import ColoredPositions
@@ -96,6 +97,16 @@ class ColoredNoiseImmStage(Stage):
     # ------------------------------------------------------------------ evaluation
 
     evaluation_defaults = {"ospa_cutoff_m": 100.0, "ospa_order": 2.0, "assignment_gate_m": 50.0}
+
+    def evaluation_defaults_from_data(self, dataset, design: dict) -> dict:
+        """The matching gate from the measurement noise (docs/evaluation.md, "Evaluation design
+        values"): each axis of a measured position has variance ``measurement_variance_m2`` (the
+        coloured noise's stationary variance), so its error in the plane has spread √(2σ²); the
+        gate holds all but 10⁻⁴ of a two-dimensional Gaussian of it (4.29 ×), rounded up to two
+        significant digits, and the cut-off c is twice it (:mod:`trackreplay.stages.evaluation_gates`).
+        A recording that does not say the variance keeps the fixed values."""
+        variance = design.get("measurement_variance_m2")
+        return {} if variance is None else gates_from_spread(float(np.sqrt(2.0 * float(variance))), 2, "m")
 
     def reference(self, dataset, design: dict) -> dict:
         _, times, state, alpha = self.decode_inputs(dataset)

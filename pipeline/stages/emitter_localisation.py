@@ -31,6 +31,7 @@ from trackreplay.cores.localisation.tdoa_fdoa_crlb import truth_bounds
 from trackreplay.cores.localisation.tdoa_fdoa_model import MEASUREMENT_KINDS, equivalent_sigmas, underdetermined_reason
 from trackreplay.errors import InputError, require_finite
 from trackreplay.stages.base import Stage
+from trackreplay.stages.evaluation_gates import gates_from_spread
 from trackreplay.evaluators.standard import position_space
 from trackreplay.trackers.interface import TdoaFdoa
 
@@ -186,6 +187,27 @@ class EmitterLocalisationStage(Stage):
     # measures compare positions
     # localisation errors are hundreds of metres at the demo's geometry (its √tr CRLB ≈ 660 m)
     evaluation_defaults = {"ospa_cutoff_m": 5000.0, "ospa_order": 2.0, "assignment_gate_m": 2000.0}
+
+    def evaluation_defaults_from_data(self, dataset, design: dict) -> dict:
+        """The matching gate from the measurements' noise and the geometry (docs/evaluation.md,
+        "Evaluation design values"): the spread of a fix is √tr of the joint TDOA/FDOA CRLB's
+        position block at the truth (the σ of every pair, the carrier and the sensors' positions
+        are in the measurements), the largest over runs and epochs where it exists; the gate holds
+        all but 10⁻⁴ of a two-dimensional Gaussian of it (4.29 ×), rounded up to two significant
+        digits, and the cut-off c is twice it (:mod:`trackreplay.stages.evaluation_gates`). The
+        joint bound is the tightest: an estimator of one kind alone that lands outside its gate
+        is farther off than the data allow. Without truth, or where no bound exists (a singular
+        geometry everywhere), the fixed values."""
+        truth = self.truth(dataset)
+        if truth is None:
+            return {}
+        obs = self.observations(dataset)
+        bounds = truth_bounds(truth, obs["sensor_pos"], obs["sensor_vel"], obs["pairs"], obs["carrier_hz"],
+                              obs["sigma"], bool(design["stationary_emitter"]), kinds=("joint",))
+        cov = bounds["crlb_covariance_joint"]
+        spread = np.sqrt(cov[..., 0, 0] + cov[..., 1, 1])[~bounds["crlb_singular_joint"]]
+        spread = spread[np.isfinite(spread)]
+        return gates_from_spread(float(spread.max()), 2, "m") if spread.size else {}
 
     def standard_space(self, design: dict, reference: dict | None = None):
         return position_space(design, truth_components=(0, 1), position_components=(0, 1))
