@@ -118,7 +118,11 @@ def compile_bytecode(tree: str | None) -> None:
     import importlib.util
 
     if tree is not None:
-        compileall.compile_dir(str(Path(tree) / "trackreplay"), quiet=1)
+        # compile_dir skips linked folders: every file by the path the interpreter will see
+        for folder, _, files in os.walk(Path(tree) / "trackreplay", followlinks=True):
+            for name in files:
+                if name.endswith(".py"):
+                    compileall.compile_file(os.path.join(folder, name), quiet=1)
         return
     for package in ("trackreplay", "trackreplay.evaluators", "trackreplay.recorders"):  # the folders it maps
         spec = importlib.util.find_spec(package)
