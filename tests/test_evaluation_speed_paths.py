@@ -181,6 +181,7 @@ def test_the_standard_measures_in_blocks_of_runs_are_those_of_one_block(monkeypa
                                      cutoff=60.0, gate=40.0)
     one_scan, one = standard.evaluate_standard(np.arange(K, dtype=float), {"t": out}, truth, space)
     monkeypatch.setattr(standard, "SET_BLOCK", 4 * K)          # blocks of 4 runs, the last of 1
+    monkeypatch.setattr(standard, "NEES_BLOCK", 2 * R * 4)      # the NEES two scans at a time, the last one
     blocks_scan, blocks = standard.evaluate_standard(np.arange(K, dtype=float), {"t": out}, truth, space)
     assert one.equals(blocks) and one_scan.equals(blocks_scan)
 
