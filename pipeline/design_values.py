@@ -127,12 +127,13 @@ def resolve(stage, dataset, overrides: dict | None = None, entries=None) -> dict
     (:meth:`~trackreplay.stages.base.Stage.evaluation_defaults_from_data`), and :func:`check`.
 
     A recording (:func:`trackreplay.sensor_values.is_recording`) says what it knows about its
-    sensor; a sensor value it does not say (:data:`trackreplay.sensor_values.SENSOR_KEYS`) is
+    sensor; a sensor value it does not say (its family's ``sensor_keys``) is
     never the bundled scenario's: it is estimated from the data where the family documents how
-    (:data:`trackreplay.sensor_values.ESTIMABLE`; the estimate is noted in :func:`design_notes`),
+    (the family's ``estimable_keys``; the estimate is noted in :func:`design_notes`),
     else None, *unknown*, and a tracker that needs it stops with one line naming the ``--set``
     it needs (:func:`trackreplay.stage_running.run_units`)."""
     from trackreplay import sensor_values as sv
+    from trackreplay import vocabulary as vocab
     from trackreplay.recorders.scenarios import coerce
 
     if not overrides and entries is None and ("design", stage.name) in dataset.cache:
@@ -142,7 +143,7 @@ def resolve(stage, dataset, overrides: dict | None = None, entries=None) -> dict
     recorded = dataset.scenario.get("params", {})
     unknowable = set()
     if sv.is_recording(dataset.scenario):
-        unknowable = set(sv.SENSOR_KEYS.get(stage.family, ())) & scenario_sourced_keys(stage, entries)
+        unknowable = set(vocab.FAMILIES[stage.family].sensor_keys) & scenario_sourced_keys(stage, entries)
     out, notes = {}, []
     for k, default in defaults.items():
         try:
@@ -150,7 +151,7 @@ def resolve(stage, dataset, overrides: dict | None = None, entries=None) -> dict
         except InputError as exc:  # the file's metadata, not the command line, is at fault
             raise InputError(f"scenario record: {exc.problem}", dataset.path) from None
         if k in unknowable and k not in recorded:
-            how = sv.ESTIMABLE.get(stage.family, {}).get(k)
+            how = sv.ESTIMATES.get(k) if k in vocab.FAMILIES[stage.family].estimable_keys else None
             # what an estimate reads: the scan times of the family's first input channel
             out[k] = None if how is None else sv.estimate(k, dataset.channel(stage.input_topics[0]).times())
             if out[k] is not None and k not in (overrides or {}):

@@ -37,24 +37,12 @@ UNKNOWN = "unknown"
 EARLIER_CONVERTER = "an earlier converter (possibly the bundled scenario's value)"
 SOURCES = (SIMULATION, CONVERTER_FLAG, MAPPING_FILE, DATA, ESTIMATED, UNKNOWN, EARLIER_CONVERTER)
 
-#: per measurement family, the design values that describe the sensor (the rest of a stage's
-#: design values are the trackers' own choices). The TDOA/FDOA family carries its sensor in the
-#: measurements themselves (σ of every pair, the carrier, the sensors' positions).
-SENSOR_KEYS = {
-    "radar-plots": ("scan_period_s", "sigma_range_m", "sigma_bearing_deg", "detection_probability",
-                    "clutter_per_scan", "min_range_m", "max_range_m", "sector_half_width_deg"),
-    "bearing-peaks": ("scan_period_s", "strong_sigma_p_deg", "weak_sigma_p_deg", "field_min_deg", "field_max_deg"),
-    "array-snapshots": ("scan_period_s", "spacing_wavelengths"),
-    "tdoa-fdoa": (),
-    "colored-position": ("measurement_variance_m2",),
-}
+# Which design values describe a family's sensor, which it estimates from the data, and which its
+# measurements carry are declared with the family (trackreplay.vocabulary.Family: sensor_keys,
+# estimable_keys, sensor_arrays).
 
-#: per family, the sensor values the family estimates from the data when a recording does not
-#: say them, and how (the estimate itself is :func:`estimate`)
-ESTIMABLE = {
-    "radar-plots": {"scan_period_s": "the median interval between scan times"},
-    "bearing-peaks": {"scan_period_s": "the median interval between scan times"},
-}
+#: how a sensor value a family may estimate is estimated from the data (:func:`estimate`)
+ESTIMATES = {"scan_period_s": "the median interval between scan times"}
 
 #: what a record may say about the data themselves, recorded by every converter from the file
 DATA_KEYS = ("n_runs", "n_scans", "time_span_s")
@@ -124,7 +112,7 @@ def recorded_sources(scenario: dict) -> dict:
 
 
 def estimate(key: str, times_s) -> float | None:
-    """The estimate of sensor value ``key`` from the data (see :data:`ESTIMABLE`), or None.
+    """The estimate of sensor value ``key`` from the data (see :data:`ESTIMATES`), or None.
 
     The scan period is the median interval between successive scan times: robust to a missing
     scan, which doubles one interval, and exact on evenly spaced scans."""

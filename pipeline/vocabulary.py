@@ -119,6 +119,14 @@ class Family:
         defaults for its simulations; a recording's sensor values come from the recording).
     former_output_prefixes : tuple of str
         Prefixes earlier versions wrote the family's outputs on (their files still read).
+    sensor_keys : tuple of str
+        The design values that describe the sensor (the rest of a stage's design values are the
+        trackers' own choices): a data set says them, or they are unknown
+        (:mod:`trackreplay.sensor_values`).
+    estimable_keys : tuple of str
+        Sensor values the family estimates from the data when a recording does not say them.
+    sensor_arrays : tuple of str
+        Sensor values the measurements themselves carry (one per pair and epoch, say).
     """
 
     name: str
@@ -129,6 +137,9 @@ class Family:
     space: str
     scenario: str
     former_output_prefixes: tuple[str, ...] = ()
+    sensor_keys: tuple[str, ...] = ()
+    estimable_keys: tuple[str, ...] = ()
+    sensor_arrays: tuple[str, ...] = ()
 
     @property
     def output_prefixes(self) -> tuple[str, ...]:
@@ -139,18 +150,26 @@ class Family:
 FAMILIES = {
     f.name: f for f in (
         Family("radar-plots", (CHANNELS["radar_plots"],), CHANNELS["radar_truth"], "/tracks/radar/",
-               "[x, y, vx, vy] in m and m/s, one track per run or per track slot", "position (m)", "radar-tws"),
+               "[x, y, vx, vy] in m and m/s, one track per run or per track slot", "position (m)", "radar-tws",
+               sensor_keys=("scan_period_s", "sigma_range_m", "sigma_bearing_deg", "detection_probability",
+                            "clutter_per_scan", "min_range_m", "max_range_m", "sector_half_width_deg"),
+               estimable_keys=("scan_period_s",)),
         Family("bearing-peaks", (CHANNELS["xcorr_peaks"],), CHANNELS["xcorr_truth"], "/tracks/xcorr/",
-               "[bearing, bearing rate] in rad and rad/s per track slot", "bearing (rad)", "xcorr-crossing"),
+               "[bearing, bearing rate] in rad and rad/s per track slot", "bearing (rad)", "xcorr-crossing",
+               sensor_keys=("scan_period_s", "strong_sigma_p_deg", "weak_sigma_p_deg", "field_min_deg",
+                            "field_max_deg"),
+               estimable_keys=("scan_period_s",)),
         Family("array-snapshots", (CHANNELS["array_snapshots"],), CHANNELS["array_truth"], "/tracks/array/",
-               "[bearing, bearing rate] in rad and rad/s per track slot", "bearing (rad)", "array-crossing"),
+               "[bearing, bearing rate] in rad and rad/s per track slot", "bearing (rad)", "array-crossing",
+               sensor_keys=("scan_period_s", "spacing_wavelengths")),
         Family("tdoa-fdoa", (CHANNELS["emitter_measurements"], CHANNELS["emitter_sensors"]),
                CHANNELS["emitter_truth"], "/tracks/emitter/",
                "[x, y, vx, vy] in m and m/s, one estimate per epoch", "position (m)", "tdoa-fdoa",
-               former_output_prefixes=("/emitter/estimates/",)),
+               former_output_prefixes=("/emitter/estimates/",),
+               sensor_arrays=("carrier_hz", "sigma_tdoa_s", "sigma_fdoa_hz")),
         Family("colored-position", (CHANNELS["colored_measurements"],), CHANNELS["colored_truth"],
                "/tracks/colored/", "[p, v, a] in m, m/s, m/s² per axis, axes concatenated",
-               "position (m)", "colored-imm"),
+               "position (m)", "colored-imm", sensor_keys=("measurement_variance_m2",)),
     )
 }
 

@@ -186,20 +186,20 @@ class ConvertReport:
 def _given_values(family: str, given: dict, what: str) -> dict:
     """``given`` (``--set`` or a mapping file's ``[sensor]`` table) parsed to each value's type:
     a parameter of the family's bundled scenario takes its default's type, another sensor value
-    of the family (:data:`trackreplay.sensor_values.SENSOR_KEYS`, e.g. a multi-target radar's
+    of the family (its ``sensor_keys`` in :data:`trackreplay.vocabulary.FAMILIES`, e.g. a multi-target radar's
     clutter) a number. Anything else is refused, naming the known values."""
-    from trackreplay.sensor_values import SENSOR_KEYS
     from trackreplay.recorders.scenarios import coerce, load_scenario
+    from trackreplay.vocabulary import FAMILIES
 
     defaults = load_scenario(scenario_of(family)).params
     out = {}
     for key, raw in given.items():
         if key in defaults:
             out[key] = coerce(key, raw, defaults[key])
-        elif key in SENSOR_KEYS.get(family, ()):
+        elif key in FAMILIES[family].sensor_keys:
             out[key] = coerce(key, raw, 0.0)
         else:
-            known = ", ".join(sorted(set(defaults) | set(SENSOR_KEYS.get(family, ()))))
+            known = ", ".join(sorted(set(defaults) | set(FAMILIES[family].sensor_keys)))
             raise InputError(f"{what}: unknown parameter {key!r} for {family} (known: {known})")
         if out[key] is None:
             raise InputError(f"{what}: parameter {key!r}: cannot read {raw!r}")
@@ -250,15 +250,15 @@ def table_parameters(family: str, overrides: dict | None = None,
 
 def sensor_summary(family: str, params: dict, sources: dict) -> str:
     """One line saying which sensor values a converted data set records and which it leaves
-    unknown (:data:`trackreplay.sensor_values.SENSOR_KEYS`), for the converters to print."""
-    from trackreplay.sensor_values import ESTIMABLE, SENSOR_KEYS
+    unknown (the family's ``sensor_keys``), for the converters to print."""
+    from trackreplay.vocabulary import FAMILIES
 
-    keys = SENSOR_KEYS.get(family, ())
+    keys = FAMILIES[family].sensor_keys
     if not keys:
         return f"sensor values: in the measurements ({family} carries its noise and geometry per item)"
     given = [(f"{k}={params[k]:g}" if isinstance(params[k], float) else f"{k}={params[k]}") + f" ({sources.get(k, '?')})"
              for k in keys if k in params]
-    estimated = [k for k in keys if k not in params and k in ESTIMABLE.get(family, {})]
+    estimated = [k for k in keys if k not in params and k in FAMILIES[family].estimable_keys]
     unknown = [k for k in keys if k not in params and k not in estimated]
     parts = [f"given {', '.join(given)}"] if given else []
     if estimated:

@@ -45,13 +45,13 @@ def _column_lines(columns, indent: str = "  ") -> list[str]:
 def format_help(family: str, command: str) -> str:
     """The --help text of a table converter, from the family's
     :data:`trackreplay.recorders.table_formats.TABLE_FORMATS` entry."""
-    from trackreplay.sensor_values import SENSOR_KEYS
+    from trackreplay.vocabulary import FAMILIES
 
     fmt = table_formats()[family]
     sample, sensors = fmt.samples["measurements"], fmt.samples.get("sensors")
     lines = [f"{fmt.title} table (.csv or .parquet) → data set (MCAP), ready for `replay`.", "",
              f"{fmt.summary[0].upper()}{fmt.summary[1:]}. Say what you know about the sensor with --set "
-             f"(its noise, scan period, …: {', '.join(SENSOR_KEYS.get(family, ())) or 'none; they are columns'}); "
+             f"(its noise, scan period, …: {', '.join(FAMILIES[family].sensor_keys) or 'none; they are columns'}); "
              f"what you do not say stays unknown, never taken from the bundled {scenario_of(family)} scenario, "
              "and a tracker that needs it asks for it. `replay info DATA` shows every value and its source.", ""]
     for key, columns in fmt.tables.items():

@@ -17,13 +17,6 @@ import click
 
 COMMANDS: list = []
 
-#: a field of bearings the recording does not give: the stage reads the whole of it
-#: (``trackreplay.stages.bearing_peaks.field_deg``)
-WHOLE_FIELD = {"bearing-peaks": {"field_min_deg": 0.0, "field_max_deg": 180.0}}
-
-#: sensor values of the TDOA/FDOA family live in its measurements, one per pair and epoch
-MEASURED_SENSOR_ARRAYS = {"tdoa-fdoa": ("carrier_hz", "sigma_tdoa_s", "sigma_fdoa_hz")}
-
 
 def _plain(value):
     """A value as JSON holds it (numpy scalars and tuples made plain)."""
@@ -46,18 +39,20 @@ def _sensor_values(dataset, stage) -> dict:
     import numpy as np
 
     from trackreplay import design_values, sensor_values as sv
+    from trackreplay import vocabulary as vocab
     from trackreplay.design_values import design_notes
 
     out = {}
     family = stage.family
-    for name in MEASURED_SENSOR_ARRAYS.get(family, ()):
+    declared = vocab.FAMILIES[family]
+    for name in declared.sensor_arrays:  # carried by the measurements, one per pair and epoch
         topic = stage.input_topics[0]
         ch = dataset.channels[topic]
         if name in ch.arrays:
             values = np.concatenate([np.ravel(a) for a in ch.array(name)]).astype(float)
             low, high = float(values.min()), float(values.max())
             out[name] = {"value": low if low == high else [low, high], "source": f"{sv.DATA} ({topic})"}
-    keys = sv.SENSOR_KEYS.get(family, ())
+    keys = declared.sensor_keys
     if not keys:
         return out
     design = design_values.resolve(stage, dataset)
@@ -66,9 +61,9 @@ def _sensor_values(dataset, stage) -> dict:
     from_scenario = design_values.scenario_sourced_keys(stage)
     recording = sv.is_recording(dataset.scenario)
     for key in keys:
-        if key in WHOLE_FIELD.get(family, {}) and key not in recorded:
-            out[key] = {"value": WHOLE_FIELD[family][key], "source": f"{sv.UNKNOWN}: the whole field a bearing "
-                        "arccos(C·D/d) can have is read, 0° … 180°"}
+        if key in stage.when_unsaid and key not in recorded:  # what the stage reads instead
+            value, why = stage.when_unsaid[key]
+            out[key] = {"value": value, "source": f"{sv.UNKNOWN}: {why}"}
             continue
         if key not in design and key not in recorded:
             continue
@@ -79,7 +74,7 @@ def _sensor_values(dataset, stage) -> dict:
         elif value is None:
             source = sv.UNKNOWN
         elif note is not None:
-            source = f"{sv.ESTIMATED} from {sv.ESTIMABLE[family][key]}"
+            source = f"{sv.ESTIMATED} from {sv.ESTIMATES[key]}"
         elif key not in from_scenario:
             source = "the trackers' own default (the file does not say it)"
         elif recording:

@@ -33,17 +33,18 @@ def _declared_scopes(summary: pl.DataFrame) -> list[str]:
     than silently missing (a stage leaves out a scope no scan falls in)."""
     import polars as pl
 
-    from trackreplay.evaluators.radar_tws import SCOPES as RADAR_SCOPES
+    from trackreplay.stages import STAGE_CLASSES, stage_named
 
+    known = {name for name, _, _ in STAGE_CLASSES}
     stages = summary["stage"].unique(maintain_order=True).to_list() if "stage" in summary.columns else []
     out = []
-    for stage in stages:
-        if stage == "radar-tws":
-            out += RADAR_SCOPES
-        elif stage == "colored-noise-imm":
-            part = summary.filter(pl.col("stage") == stage)
-            if "rmse_position_m" in part["metric"].to_list():  # the kinematic scopes need truth
-                out += ("overall", "manoeuvre", "constant_velocity")
+    for name in stages:
+        stage = stage_named(name) if name in known else None
+        if stage is None or not stage.declared_scopes:
+            continue
+        need = stage.declared_scopes_need
+        if need is None or need in summary.filter(pl.col("stage") == name)["metric"].to_list():
+            out += stage.declared_scopes
     return list(dict.fromkeys(out))
 
 

@@ -59,6 +59,13 @@ class Stage:
         The state component a data set without truth lists per scan and its unit ("deg":
         radians shown in degrees; :func:`trackreplay.face.stage_text.track_listing`); None: no
         listing.
+    when_unsaid : dict
+        ``{sensor value: (what the stage reads instead, why)}`` for a sensor value a recording
+        need not say (``replay info`` prints it as the value used).
+    declared_scopes : tuple of str
+        Scopes the family's report always shows, named even when no scan falls in one.
+    declared_scopes_need : str or None
+        A metric without which the declared scopes do not apply (truth-only scopes).
     """
 
     name = ""
@@ -72,6 +79,9 @@ class Stage:
     per_scan_axis: tuple = ("scan", False)
     replay_report_lines: tuple | None = None
     listing: tuple | None = None
+    when_unsaid: dict = {}
+    declared_scopes: tuple = ()
+    declared_scopes_need: str | None = None
 
     # --- identity: what the family's declaration in trackreplay.vocabulary fixes
 

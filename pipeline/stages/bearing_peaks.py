@@ -183,6 +183,9 @@ class BearingPeaksStage(Stage):
                 truth_bearing_rad=truth, truth_rate_radps=rate)
         return dataset.cache["bearing_peaks"]
 
+    # the field of bearings a recording does not give: every bearing arccos(C·D/d) can have
+    when_unsaid = {key: (value, "the whole field a bearing arccos(C·D/d) can have is read, 0° … 180°")
+                   for key, value in (("field_min_deg", 0.0), ("field_max_deg", 180.0))}
     evaluation_defaults = {"ospa_cutoff_deg": 10.0, "ospa_order": 2.0, "assignment_gate_deg": 5.0}
 
     def evaluation_defaults_from_data(self, dataset, design: dict) -> dict:

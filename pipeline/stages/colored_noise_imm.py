@@ -96,6 +96,8 @@ class ColoredNoiseImmStage(Stage):
 
     # ------------------------------------------------------------------ evaluation
 
+    # the kinematic scopes need truth
+    declared_scopes, declared_scopes_need = ("overall", "manoeuvre", "constant_velocity"), "rmse_position_m"
     evaluation_defaults = {"ospa_cutoff_m": 100.0, "ospa_order": 2.0, "assignment_gate_m": 50.0}
 
     def evaluation_defaults_from_data(self, dataset, design: dict) -> dict:

@@ -130,6 +130,7 @@ class RadarTwsStage(Stage):
 
     # HOTA's distance scale d₀ and GOSPA's switch penalty γ default to the cut-off c, the SIAP
     # gate to the assignment gate
+    declared_scopes = tuple(radar_eval.SCOPES)
     evaluation_defaults = {"ospa_cutoff_m": 1000.0, "ospa_order": 2.0, "assignment_gate_m": 500.0,
                            "hota_distance_m": 1000.0, "gospa_switch_penalty_m": 1000.0, "siap_gate_m": 500.0}
     report_metrics = ("rmse_position_m", "rmse_velocity_mps", "npe", "alpha_cross")
