@@ -146,24 +146,35 @@ def _nearest_neighbour_update(design: MultiTargetDesign, x, P, H, S, pairs: Gate
     """The GNN assignment of the ``usable`` pairs and the Kalman update of the tracks that took a plot."""
     f = design.track_filter
     R, slots = x.shape[:2]
-    log_det = np.log(_det(S))
-    run, slot, k = np.nonzero(usable)
+    n, m = x.shape[-1], f.measurement_size
+    # every (run, slot) as one flat track index and every pair as one flat index: gathers along one
+    # axis cost a fraction of indexing by (run, slot, k) arrays, for the same elements in the same order
+    x, P = np.ascontiguousarray(x), np.ascontiguousarray(P)   # (views unless they were not already)
+    log_det = np.log(_det(S)).reshape(-1)
+    pair = np.flatnonzero(usable)
+    track = pair // usable.shape[-1]                           # run · slots + slot
+    run = track // slots
+    plot = pairs.plot.reshape(-1)[pair]
     # the run axis folded into the track and plot indices: one problem, runs never sharing a plot
-    chosen = pair_assignment(pairs.squared_distance[run, slot, k] + log_det[run, slot], run * slots + slot,
-                             run * pairs.plots + pairs.plot[run, slot, k], (design.gate_chi2 + log_det).ravel())
-    run, slot, k = run[chosen], slot[chosen], k[chosen]
-    hit = np.zeros((R, slots), bool)
-    hit[run, slot] = True
-    claimed = np.zeros((R, pairs.plots), bool)
-    claimed[run, pairs.plot[run, slot, k]] = True
-    innovation = np.full(x.shape[:-1] + (f.measurement_size,), np.nan)
-    if run.size == 0:  # every track coasts
+    chosen = pair_assignment(pairs.squared_distance.reshape(-1)[pair] + log_det[track], track,
+                             run * pairs.plots + plot, design.gate_chi2 + log_det)
+    pair, track, run, plot = pair[chosen], track[chosen], run[chosen], plot[chosen]
+    hit = np.zeros(R * slots, bool)
+    hit[track] = True
+    hit = hit.reshape(R, slots)
+    claimed = np.zeros(R * pairs.plots, bool)
+    claimed[run * pairs.plots + plot] = True
+    claimed = claimed.reshape(R, pairs.plots)
+    innovation = np.full(x.shape[:-1] + (m,), np.nan)
+    if track.size == 0:  # every track coasts
         return ScanAssociation(x, P, hit, claimed, innovation, np.full(S.shape, np.nan), np.zeros(hit.shape, np.uint32))
-    picked = pairs.innovation[run, slot, k]                  # (hits, m): each hit track's plot
+    picked = pairs.innovation.reshape(-1, m)[pair]              # (hits, m): each hit track's plot
     # the update of the tracks that took a plot only (the others coast on their prediction)
-    x_upd, P_upd, _ = f.update(x[run, slot], P[run, slot], H[run, slot], S[run, slot], picked)
-    x[run, slot], P[run, slot] = x_upd, P_upd  # in place: the loop's own prediction arrays
-    innovation[run, slot] = picked
+    x_flat, P_flat = x.reshape(-1, n), P.reshape(-1, n, n)
+    x_upd, P_upd, _ = f.update(x_flat[track], P_flat[track], H.reshape(-1, m, n)[track], S.reshape(-1, m, m)[track],
+                               picked)
+    x_flat[track], P_flat[track] = x_upd, P_upd  # in place: the loop's own prediction arrays
+    innovation.reshape(-1, m)[track] = picked
     covariance = np.where(hit[..., None, None], S, np.nan)
     return ScanAssociation(x, P, hit, claimed, innovation, covariance, np.zeros(hit.shape, np.uint32))
 
