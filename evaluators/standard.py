@@ -419,7 +419,8 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
             h = hota_sums(X, Y, d0, part_ids, part_truth_ids, space.angular, pairs=wide)
             si = siap_sums(X, Y, siap_gate, times, part_ids, part_truth_ids, space.angular, *vel,
                            pairs=pairs if siap_gate == space.gate else None)
-            return reduce_sets(g), _small_slots(match, S), a, {key: h[key] for key in HOTA_SUMS}, {key: si[key] for key in SIAP_SUMS}
+            return (reduce_sets(g), _small_slots(match, S), a, {key: h[key] for key in HOTA_SUMS},
+                    {key: si[key] for key in SIAP_SUMS})
 
         def one_pair_measures(X, Y, part_ids, part_truth_ids, d0, siap_gate, vel):
             """:func:`sets_and_matches` where every run holds one target and one track identity
@@ -435,7 +436,8 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
             h = hota_module._sums_single(X, Y, d0, part_ids, part_truth_ids, space.angular, distance=d)
             si = siap_module._sums_single(X, Y, siap_gate, times, part_ids, part_truth_ids, space.angular, *vel,
                                           distance=d)
-            return reduce_sets(g), _small_slots(match, S), a, {key: h[key] for key in HOTA_SUMS}, {key: si[key] for key in SIAP_SUMS}
+            return (reduce_sets(g), _small_slots(match, S), a, {key: h[key] for key in HOTA_SUMS},
+                    {key: si[key] for key in SIAP_SUMS})
 
         # a block of runs at a time: the assignments' temporaries stay a few MB at any number of runs
         truth_slot_ids = None if truth_ids is None else _as_slots(np.asarray(truth_ids)[..., None], 1)[..., 0]

@@ -183,8 +183,9 @@ def replay(path, trackers=None, out_path=None, rrd_path=None, recover=False, des
                     failures += errors
                     if scored:
                         tables.append((scored, p, s))
-                        scored_unit = {"times": times, "tracks": {n: unit[n] for n in scored}}
-                        lives = stage_scoring.life_tables(stage, ds, scored_unit, design)
+                        # (no name of its own: it would hold this unit's outputs through the next one)
+                        lives = stage_scoring.life_tables(
+                            stage, ds, {"times": times, "tracks": {n: unit[n] for n in scored}}, design)
                         if lives is not None:
                             life_parts.append(lives)
                     timings["evaluate_s"] += time.perf_counter() - t2
