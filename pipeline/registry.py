@@ -18,6 +18,7 @@ See ``docs/trackers.md``.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import importlib
 import importlib.util
@@ -187,11 +188,19 @@ def _builtin_entries(modules=BUILTIN_MODULES) -> list[TrackerEntry]:
     return out
 
 
-def _entry_point_entries(time_limit_s: float | None = DEFAULT_TRACKER_TIME_LIMIT_S) -> list[TrackerEntry]:
+@functools.lru_cache(maxsize=8)
+def _entry_points_on(search_path: tuple[str, ...]) -> tuple:
+    """The tracker entry points of the distributions on ``search_path``: scanning them costs
+    5–8 ms, and a replay asks once per scoring of every stage (the same ``sys.path`` gives the
+    same answer; a path added, as a test's site folder is, scans again)."""
     from importlib.metadata import entry_points
 
+    return tuple(entry_points(group=ENTRY_POINT_GROUP))
+
+
+def _entry_point_entries(time_limit_s: float | None = DEFAULT_TRACKER_TIME_LIMIT_S) -> list[TrackerEntry]:
     out = []
-    for ep in entry_points(group=ENTRY_POINT_GROUP):
+    for ep in _entry_points_on(tuple(sys.path)):
         where = f"entry point {ep.name} ({ep.value})"
         if ep.module not in sys.modules:
             _tried_in_child(ep.load, where, time_limit_s)
