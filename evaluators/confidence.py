@@ -35,7 +35,13 @@ def t_quantile(dof, prob: float = 0.95):
     from scipy.special import stdtrit
 
     dof = np.asarray(dof, float)
-    return stdtrit(np.where(dof >= 1, dof, np.nan), (1 + prob) / 2)
+    dof = np.where(dof >= 1, dof, np.nan)
+    if dof.size <= 16:
+        return stdtrit(dof, (1 + prob) / 2)
+    # the degrees of freedom of a per-scan table repeat (runs - 1 in almost every scan), and
+    # stdtrit's inversion costs ~0.1 ms a value: evaluate each distinct one once (same values)
+    distinct, where = np.unique(dof, return_inverse=True)
+    return stdtrit(distinct, (1 + prob) / 2)[where.reshape(dof.shape)]
 
 
 def mean_interval(values, axis: int = 0, prob: float = 0.95):
