@@ -160,14 +160,3 @@ def test_cv_position_update_on_stacked_rows_equals_the_row_by_row_form_to_the_bi
         np.testing.assert_array_equal(a, b)
     textbook = kalman.cv_posterior_components(c, written[0])
     np.testing.assert_allclose(stacked[1], textbook, rtol=1e-9, atol=1e-9 * np.abs(c).max())
-
-
-def test_fast_forms_moved_out_are_still_found_by_their_old_names():
-    """issue 29: the fast forms live in _kalman_fast; kalman still gives them by name."""
-    from trackreplay.cores.filters import _kalman_fast, kalman
-    from trackreplay.cores.filters.kalman import _cv_states_with_gains  # noqa: F401
-
-    for name in kalman._MOVED_TO_FAST_FORMS:
-        assert getattr(kalman, name) is getattr(_kalman_fast, name)
-    with pytest.raises(AttributeError):
-        kalman.no_such_form

@@ -10,7 +10,7 @@ next to the radar, one run (Python floats) and many (arrays).
 import numpy as np
 import pytest
 
-from trackreplay.cores.filters import kalman
+from trackreplay.cores.filters import _kalman_fast, kalman
 from trackreplay.trackers import radar_tws as rt
 
 BASE = dict(scan_period_s=5.0, design_sigma_v_mps2=0.98, sigma_range_m=100.0, sigma_bearing_deg=1.0,
@@ -97,8 +97,8 @@ def test_kalman_scan_axis_forms_equal_the_kernel_scan_by_scan(scalar_runs):
     r_cov = (along * np.cos(theta) ** 2 + cross * np.sin(theta) ** 2, (along - cross) * np.cos(theta) * np.sin(theta),
              along * np.sin(theta) ** 2 + cross * np.cos(theta) ** 2)
     zx, zy = rng.normal(size=(L, n_runs)) * 1e3, rng.normal(size=(L, n_runs)) * 1e3
-    gains, posts = kalman._cv_position_filter_covariances(c0, r_cov, dt, sigma_v, scalar_runs=scalar_runs)
-    states = kalman._cv_states_with_gains(x0, gains, zx, zy, dt, scalar_runs=scalar_runs)
+    gains, posts = _kalman_fast._cv_position_filter_covariances(c0, r_cov, dt, sigma_v, scalar_runs=scalar_runs)
+    states = _kalman_fast._cv_states_with_gains(x0, gains, zx, zy, dt, scalar_runs=scalar_runs)
     x, c = x0, c0
     for j in range(L):
         xp, cp = kalman.cv_predict_components(x, c, float(dt[j]), sigma_v)
@@ -110,7 +110,7 @@ def test_kalman_scan_axis_forms_equal_the_kernel_scan_by_scan(scalar_runs):
     # the predictions of many scans in one call
     x_prev = np.concatenate([x0[:, None], states[:, :-1]], axis=1)
     c_prev = np.concatenate([c0[:, None], posts[:, :-1]], axis=1)
-    xp_all, cp_all = kalman._cv_predict_components_scans(x_prev, c_prev, dt, sigma_v)
+    xp_all, cp_all = _kalman_fast._cv_predict_components_scans(x_prev, c_prev, dt, sigma_v)
     for j in range(L):
         xp, cp = kalman.cv_predict_components(x_prev[:, j], c_prev[:, j], float(dt[j]), sigma_v)
         np.testing.assert_array_equal(xp_all[:, j], xp)

@@ -392,7 +392,7 @@ def test_gain_from_a_given_two_by_two_S_equals_the_batched_solve():
 
 
 def test_joseph_products_contracted_equal_the_matmul_form():
-    from trackreplay.cores.filters.kalman import _joseph_terms_contracted
+    from trackreplay.cores.filters._kalman_fast import _joseph_terms_contracted
 
     rng = np.random.default_rng(7)
     A, P = rng.normal(size=(600, 4, 4)), rng.normal(size=(600, 4, 4))

@@ -592,18 +592,6 @@ def stacked_kf_step(F, Q, fill_mean, x, P, y, H, R_meas):
     return x_post, P_post, ll, nis, nu, S
 
 
-#: fast forms that live in :mod:`trackreplay.cores.filters._kalman_fast` (issue 29: this module
-#: keeps the plain ones), still found here by their old names
-_MOVED_TO_FAST_FORMS = frozenset({"SCALAR_RUNS", "_cv_states_with_gains", "_cv_position_filter_covariances",
-                                  "_cv_predict_components_scans", "_joseph_terms_contracted"})
-
-
-def __getattr__(name: str):
-    if name in _MOVED_TO_FAST_FORMS:
-        return getattr(_fast, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
 # last, as it imports this module's kernel (either module may be imported first: the other's
 # names are looked up when called)
 from trackreplay.cores.filters import _kalman_fast as _fast  # noqa: E402
