@@ -269,7 +269,7 @@ def front_end_times(runs: int, repeats: int) -> None:
 
     from trackreplay.cores.array.music import eigen_decomposition, sample_covariance
     from trackreplay.cores.array.past_subspace import batch_signal_subspace, initial_state, largest_principal_angle, past_scans
-    from trackreplay.trackers import array_bearing as ab
+    from trackreplay.trackers import array as ab
     from trackreplay.recorders.array_snapshots import simulate
     from trackreplay.recorders.scenarios import load_scenario
 
@@ -336,8 +336,8 @@ def front_end_times(runs: int, repeats: int) -> None:
 
 def crossing_rate_sensitivity(runs: int, factors=(1.0, 1.33, 2.0)) -> None:
     """Why the all-runs MSE is far above the paper's: tracks merge at slow crossings."""
-    from trackreplay.evaluators.array_bearing import evaluate
-    from trackreplay.trackers.array_bearing import SubspaceTrackerDesign, track_bearings
+    from trackreplay.evaluators.array import evaluate
+    from trackreplay.trackers.array import SubspaceTrackerDesign, track_bearings
     from trackreplay.recorders.array_snapshots import float_list, simulate
     from trackreplay.recorders.scenarios import load_scenario
 
@@ -364,7 +364,7 @@ def crossing_rate_sensitivity(runs: int, factors=(1.0, 1.33, 2.0)) -> None:
 
 def past_lag(runs: int = 50) -> None:
     """Bias of the tracks behind two targets at ±≈1°/s: PAST's exponential memory vs batch EVD."""
-    from trackreplay.trackers.array_bearing import SubspaceTrackerDesign, track_bearings
+    from trackreplay.trackers.array import SubspaceTrackerDesign, track_bearings
     from trackreplay.recorders.array_snapshots import simulate
     from trackreplay.recorders.scenarios import load_scenario
 

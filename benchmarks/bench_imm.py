@@ -57,7 +57,7 @@ import numpy as np
 from trackreplay.cores.filters.imm import MeasurementStream, ModelFilter, imm_filter, kinematic_model, single_model_filter
 from trackreplay.cores.filters.kalman import gaussian_log_likelihood, kf_predict, kf_update
 from trackreplay.cores.filters.srif import srif_filter
-from trackreplay.trackers.colored_noise import TRACKERS, parse_matrix
+from trackreplay.trackers.colored import TRACKERS, parse_matrix
 from trackreplay.trackers.interface import ColoredPositions
 from trackreplay.recorders.colored_noise import simulate
 from trackreplay.recorders.scenarios import load_scenario

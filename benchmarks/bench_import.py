@@ -61,7 +61,7 @@ sys.path.insert(0, str(REPO / "scripts"))
 from make_foreign_samples import RADAR_SCAN_MSGDEF  # noqa: E402  (the sample's message type)
 
 RETURNS_PER_SCAN = 20
-RADAR_MAP = """family = "radar-plots"
+RADAR_MAP = """family = "radar"
 [measurements]
 topic = "/radar/scan"
 time = "header.stamp"
@@ -89,7 +89,7 @@ def _scan_rows(n_rows: int, entries: int, period_s: float) -> tuple[np.ndarray, 
 
 
 def radar_table(n_rows: int, seed: int = 0) -> pl.DataFrame:
-    """100 runs × K scans × 20 plots of radar-plots rows."""
+    """100 runs × K scans × 20 plots of radar rows."""
     run, t = _scan_rows(n_rows, RETURNS_PER_SCAN, 5.0)
     rng = np.random.default_rng(seed)
     return pl.DataFrame({"run": run, "time_s": t, "range_m": rng.uniform(1e3, 2e4, run.size),
@@ -230,11 +230,11 @@ def main() -> int:
     try:
         t0 = time.perf_counter()
         tables = {
-            "radar plots CSV": ("radar-plots", work / "plots.csv", lambda p: radar_table(_rows_for(args.size_mb, 52)).write_csv(p)),
-            "radar plots Parquet": ("radar-plots", work / "plots.parquet",
+            "radar plots CSV": ("radar", work / "plots.csv", lambda p: radar_table(_rows_for(args.size_mb, 52)).write_csv(p)),
+            "radar plots Parquet": ("radar", work / "plots.parquet",
                                     lambda p: radar_table(_rows_for(args.size_mb, 16.5)).write_parquet(p)),
-            "peaks CSV": ("bearing-peaks", work / "peaks.csv", lambda p: peaks_table(_rows_for(args.size_mb, 50)).write_csv(p)),
-            "positions CSV": ("colored-position", work / "positions.csv",
+            "peaks CSV": ("xcorr", work / "peaks.csv", lambda p: peaks_table(_rows_for(args.size_mb, 50)).write_csv(p)),
+            "positions CSV": ("colored", work / "positions.csv",
                               lambda p: positions_table(_rows_for(args.size_mb, 48)).write_csv(p)),
         }
         for label, (family, path, make) in tables.items():

@@ -37,7 +37,7 @@ sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from trackreplay.cores.association.jpda import STRATEGIES, scans_from_padded, track_bearing_peaks  # noqa: E402
 from trackreplay.cores.filters.kalman import two_point_start  # noqa: E402
-from trackreplay.trackers.bearing_peaks import core_design, design_from  # noqa: E402
+from trackreplay.trackers.xcorr import core_design, design_from  # noqa: E402
 from trackreplay.recorders.scenarios import load_scenario  # noqa: E402
 from trackreplay.recorders.xcorr_peaks import simulate  # noqa: E402
 from timing import spread, time_repeats  # noqa: E402

@@ -124,12 +124,12 @@ def bench_filterpy(data: Path, repeats: int) -> dict:
     from trackreplay.contract import read_dataset
     from trackreplay.cores.filters.converted_measurements import converted_covariance, polar_to_cartesian
     from trackreplay.cores.filters.kalman import white_acceleration_model
-    from trackreplay.stages.radar_tws import RadarTwsStage
+    from trackreplay.stages.radar import RadarStage
     from trackreplay.trackers.radar_tws import STRATEGIES, track_plots
     from trackreplay.recorders.scenarios import load_scenario
 
     ds = read_dataset(data)
-    rng, brg, counts, times = RadarTwsStage().decode_plots(ds)
+    rng, brg, counts, times = RadarStage().decode_plots(ds)
     design = design_from({**load_scenario("radar-tws").params, **ds.scenario.get("params", {})})
     T = design.scan_period_s
     z = polar_to_cartesian(rng[..., 0], brg[..., 0])

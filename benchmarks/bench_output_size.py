@@ -92,7 +92,7 @@ def main() -> None:
     scale = args.runs / min(args.sample_runs, args.runs)
     totals = {k: 0.0 for k in ("raw", "zstd1", "packed1", "zstd9", "shuffle9", "packed9", "best")}
     per_name: dict[str, dict] = {}
-    for tracker, outputs in result.results["radar-tws"]["tracks"].items():
+    for tracker, outputs in result.results["radar"]["tracks"].items():
         for name, a in outputs.items():
             s = sizes(np.asarray(a)[:args.sample_runs], symmetric=name.endswith("covariance"))
             row = per_name.setdefault(name, {k: 0.0 for k in totals})

@@ -58,7 +58,7 @@ from trackreplay.cores.filters.converted_measurements import converted_covarianc
 from trackreplay.trackers.radar_tws import STRATEGIES, TrackerDesign, track_plots
 from trackreplay.cores.filters.kalman import white_acceleration_model
 from trackreplay.replay import replay
-from trackreplay.stages.radar_tws import RadarTwsStage
+from trackreplay.stages.radar import RadarStage
 from trackreplay.recorders import simulator_for
 from trackreplay.recorders.scenarios import load_scenario
 from trackreplay.recorders.simulated import record, write_simulated
@@ -116,7 +116,7 @@ def heading(text: str) -> None:
 
 
 def design_from(params: dict) -> TrackerDesign:
-    """The tracker design the replay uses for this scenario (see RadarTwsStage.run)."""
+    """The tracker design the replay uses for this scenario (see RadarStage.run)."""
     return TrackerDesign(
         scan_period_s=params["scan_period_s"],
         sigma_v=params["design_sigma_v_mps2"],
@@ -238,7 +238,7 @@ def main(argv=None) -> int:
         # ------------------------------------------------------------------ figure 2
         heading(f"[2] Filter only: Kalman over {args.runs} runs (same data, same model)")
         ds = read_dataset(data_path)
-        rng, brg, counts, times = RadarTwsStage().decode_plots(ds)
+        rng, brg, counts, times = RadarStage().decode_plots(ds)
         design = design_from(params)
         T = design.scan_period_s
         if not (np.all(counts == 1) and np.allclose(np.diff(times), T)):

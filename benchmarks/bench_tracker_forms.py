@@ -27,7 +27,7 @@ from timing import time_repeats
 
 class FirstPlotBatch(Tracker):
     name = "first_plot_batch"
-    family = "radar-plots"
+    family = "radar"
 
     def track(self, plots):
         r, b = plots.range_m[..., 0], plots.bearing_rad[..., 0]
@@ -38,7 +38,7 @@ class FirstPlotBatch(Tracker):
 
 class FirstPlotRun(Tracker):
     name = "first_plot_run"
-    family = "radar-plots"
+    family = "radar"
     form = "run"
 
     def track_run(self, plots):

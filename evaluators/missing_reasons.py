@@ -26,11 +26,11 @@ NOTE = "note"
 #: the reason of a metric that compares with a truth the data set does not have
 NO_TRUTH = "the data set has no truth to compare the estimates with"
 
-#: metrics taken over the emitter family's estimates in its ``truth`` class (trackreplay.evaluators.emitter_localisation)
+#: metrics taken over the emitter family's estimates in its ``truth`` class (trackreplay.evaluators.tdoa_fdoa)
 TRUTH_CLASS_METRICS = ("rmse_position_m", "crlb_position_m", "position_efficiency", "inside_50pct_position",
                        "rmse_velocity_mps", "crlb_velocity_mps", "velocity_efficiency", "inside_50pct_velocity",
                        "mean_cost_per_dof", "mean_iterations", "converged_fraction")
-#: the emitter family's class counts, in the order of trackreplay.evaluators.emitter_localisation.CLASSES
+#: the emitter family's class counts, in the order of trackreplay.evaluators.tdoa_fdoa.CLASSES
 CLASS_COUNTS = ("runs_truth", "runs_elsewhere", "runs_diverged", "runs_not_converged", "runs_underdetermined",
                 "runs_unclassified")
 #: metrics that read a state's covariance (NEES and the error ellipses)
@@ -178,7 +178,7 @@ def _reason(tracker: str, metric: str, scope: str, facts: _TrackerFacts | None, 
             return f"its bound {bound} has no value"
     if metric.endswith("_held") and not (rows.get((tracker, "held_rate", scope)) or 0) > 0:
         # taken over the tracks held (on their own target at the last scan, never swapped:
-        # trackreplay.evaluators.track_association)
+        # trackreplay.evaluators.xcorr)
         return "no track held its target to the last scan, over which it is taken"
     if metric.startswith(BOUND_METRICS):
         return ("the bound is not finite at any scan scored here: its information matrix is singular or overflows "

@@ -64,7 +64,7 @@ def rmse_overall(estimate, truth):
 
 
 def normalised_position_error(estimate_xy, truth_xy, measured_xy):
-    """NPE per scan (Efe, Atherton & Bather 1998; ``docs/papers/radar-tws.md``).
+    """NPE per scan (Efe, Atherton & Bather 1998; ``docs/papers/radar.md``).
 
     ``NPE_k = √(Σ_runs ‖p̂_k − p_k‖²) / √(Σ_runs ‖z_k − p_k‖²)``; NPE ≥ 1 means the tracker is no
     better than the raw (converted) plots. Runs where either side is missing are left out of

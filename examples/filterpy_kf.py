@@ -6,7 +6,7 @@ Run it beside the built-in radar trackers::
 
 This is an adapter: a ``filterpy.kalman.KalmanFilter`` (Labbe, *Kalman and Bayesian Filters in
 Python*) configured to do what the built-in ``kalman`` reference tracker does
-(``pipeline/trackers/radar_tws.py``, ``docs/papers/radar-tws.md``), scan by scan and one run at
+(``pipeline/trackers/radar_tws.py``, ``docs/papers/radar.md``), scan by scan and one run at
 a time:
 
 * each plot ``(r, θ)`` is converted to ``z = (r cos θ, r sin θ)`` with the converted covariance
@@ -77,7 +77,7 @@ class FilterPyKF(Tracker):
 
     name = "filterpy_kf"
     label = "FilterPy KF"
-    family = "radar-plots"
+    family = "radar"
     form = "run"
     params = (
         Param("design_sigma_v_mps2", None, "m/s²", "design acceleration noise σ_v", low=0.0),

@@ -22,7 +22,7 @@ Bar-Shalom, Li & Kirubarajan 2001, §10.3):
   form ``(I − KH) P (I − KH)ᵀ + K R Kᵀ``, symmetrised.
 
 Track start and plot choice are those of the built-ins (``track_plots`` in
-``pipeline/trackers/radar_tws.py``, ``docs/papers/radar-tws.md``): the first plot is remembered,
+``pipeline/trackers/radar_tws.py``, ``docs/papers/radar.md``): the first plot is remembered,
 the second gives position and velocity difference with the two-point covariance
 ``[[R₁, R₁/Δt], [R₁/Δt, (R₀ + R₁)/Δt²]]`` (``R`` the converted covariance of each plot), filtering
 starts at the third plot, and when a scan holds several plots the one nearest (in x/y) to the
@@ -149,7 +149,7 @@ class PolarEKF(Tracker):
 
     name = "polar_ekf"
     label = "polar EKF"
-    family = "radar-plots"
+    family = "radar"
     form = "batch"
     params = (
         Param("design_sigma_v_mps2", None, "m/s²", "design acceleration noise σ_v (white-acceleration CV model)", low=0.0),

@@ -103,7 +103,7 @@ class StoneSoupTracker(Tracker):
 
     name = "stonesoup"
     label = "Stone Soup EKF"
-    family = "radar-plots"
+    family = "radar"
     form = "run"
     params = (
         Param("design_sigma_v_mps2", None, "m/s²", "σ_v; Stone Soup ConstantVelocity q = σ_v²", low=0.0),

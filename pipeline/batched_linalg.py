@@ -13,7 +13,7 @@ that an entry ``A[..., i, j, :]`` is a contiguous vector; constants broadcast as
 trackers' outputs hold it. Numpy only, no I/O: the IMM cores (Kwon 1997, ch. IV.3; Blom &
 Bar-Shalom 1988), the trackers' output checks (``trackreplay.trackers.interface``) and the
 evaluators' NEES/NIS (``trackreplay.evaluators.consistency``) share it (``docs/evaluation.md``,
-``docs/papers/colored-noise-imm.md``).
+``docs/papers/colored.md``).
 """
 
 from __future__ import annotations

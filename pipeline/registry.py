@@ -33,15 +33,9 @@ from trackreplay.trackers.interface import Tracker, tracker_name
 
 ENTRY_POINT_GROUP = "trackreplay.trackers"
 
-# One line per family: the modules that hold its built-in trackers, each exposing TRACKERS (a
-# tuple of classes); a replay imports only its family's numerics
-BUILTIN_FAMILY_MODULES = {
-    "radar-plots": ("trackreplay.trackers.radar_tws", "trackreplay.trackers.radar_multi_target"),
-    "bearing-peaks": ("trackreplay.trackers.bearing_peaks",),
-    "array-snapshots": ("trackreplay.trackers.array_bearing",),
-    "tdoa-fdoa": ("trackreplay.trackers.emitter",),
-    "colored-position": ("trackreplay.trackers.colored_noise",),
-}
+# The modules that hold each family's built-in trackers (each exposing TRACKERS, a tuple of
+# classes), from the families' declaration; a replay imports only its family's numerics
+BUILTIN_FAMILY_MODULES = {f.name: f.builtin_tracker_modules for f in vocab.FAMILIES.values()}
 BUILTIN_MODULES = tuple(m for modules in BUILTIN_FAMILY_MODULES.values() for m in modules)
 
 
@@ -67,6 +61,9 @@ def _check_class(obj, spec: str) -> type:
     if not (isinstance(obj, type) and issubclass(obj, Tracker)):
         what = f"class {obj.__qualname__}" if isinstance(obj, type) else f"{type(obj).__name__} {obj!r}"
         raise InputError(f"{spec}: {what} is not a Tracker subclass (see docs/trackers.md)")
+    if obj.family in vocab.FORMER_FAMILY_NAMES:
+        raise InputError(f"{spec}: tracker {tracker_name(obj)!r} has family {obj.family!r}, which is now called "
+                         f"{vocab.FORMER_FAMILY_NAMES[obj.family]!r} (family = {vocab.FORMER_FAMILY_NAMES[obj.family]!r})")
     if obj.family not in vocab.FAMILIES:
         raise InputError(f"{spec}: tracker {tracker_name(obj)!r} has family {obj.family!r}; known families: "
                          f"{', '.join(vocab.FAMILIES)}")

@@ -98,7 +98,15 @@ TIME_LIMIT_S = 1e10  # scan times: finite and within ±317 years of the recordin
 
 @dataclass(frozen=True)
 class Family:
-    """A measurement family: what a tracker consumes and what its state means.
+    """A measurement family, declared once: what a tracker consumes, what its state means, and
+    where its pieces live.
+
+    One name per paper: the family's ``name`` is also its stage's name, its outputs' prefix
+    (``/tracks/<name>/``), and, with ``-`` written ``_``, the stem of every module that is the
+    family's own (``stages/<stem>.py``, ``face/rerun_<stem>.py``, ``evaluators/<stem>.py``,
+    ``face/cli_<stem>.py``, ``trackers/<stem>*.py``) and of its page ``docs/papers/<name>.md``.
+    The registries of stages, trackers, Rerun views and paper commands read this table; no other
+    module branches on a family (``tests/test_families.py`` counts it).
 
     Attributes
     ----------
@@ -108,15 +116,24 @@ class Family:
         Channels that must all be present.
     truth : str
         The channel holding ground truth, when a file has it.
-    output_prefix : str
-        Tracker ``NAME`` writes its outputs on ``output_prefix + NAME``.
     state : str
-        The state vector's components and units.
+        The state vector's components and units, in words.
+    state_components : tuple of (str, str)
+        ``(name, unit)`` of one track slot's state components, as exports label them; names with
+        an ``{axis}`` field repeat per axis (``x, vx, ax, y, vy, ay`` for two axes).
     space : str
         The space the generic evaluators compare tracks and truth in.
     scenario : str
         The bundled scenario whose parameters name the family's design values (and give their
         defaults for its simulations; a recording's sensor values come from the recording).
+    measurement_class : str
+        The class of :mod:`trackreplay.trackers.interface` a tracker of the family is given.
+    stage_class : str
+        The class of ``stages/<stem>.py`` that decodes, runs and scores the family.
+    tracker_modules : tuple of str
+        Modules of ``trackers/`` holding the family's built-in trackers (each exposes TRACKERS).
+    commands : bool
+        Whether ``face/cli_<stem>.py`` adds paper-specific commands to ``replay``.
     former_output_prefixes : tuple of str
         Prefixes earlier versions wrote the family's outputs on (their files still read).
     sensor_keys : tuple of str
@@ -127,51 +144,105 @@ class Family:
         Sensor values the family estimates from the data when a recording does not say them.
     sensor_arrays : tuple of str
         Sensor values the measurements themselves carry (one per pair and epoch, say).
+    former_names : tuple of str
+        Names earlier versions gave the family (a plugged tracker or mapping file that uses one
+        is told the new name).
     """
 
     name: str
     inputs: tuple[str, ...]
     truth: str
-    output_prefix: str
     state: str
+    state_components: tuple[tuple[str, str], ...]
     space: str
     scenario: str
+    measurement_class: str
+    stage_class: str
+    tracker_modules: tuple[str, ...]
+    commands: bool = False
     former_output_prefixes: tuple[str, ...] = ()
     sensor_keys: tuple[str, ...] = ()
     estimable_keys: tuple[str, ...] = ()
     sensor_arrays: tuple[str, ...] = ()
+    former_names: tuple[str, ...] = ()
+
+    @property
+    def stem(self) -> str:
+        """The family's name as a module name."""
+        return self.name.replace("-", "_")
+
+    @property
+    def output_prefix(self) -> str:
+        """Tracker ``NAME`` writes its outputs on ``output_prefix + NAME``."""
+        return f"/tracks/{self.name}/"
 
     @property
     def output_prefixes(self) -> tuple[str, ...]:
         """Every prefix the family's outputs are read from: today's first."""
         return (self.output_prefix, *self.former_output_prefixes)
 
+    @property
+    def stage(self) -> str:
+        """``module:Class`` of the family's stage."""
+        return f"trackreplay.stages.{self.stem}:{self.stage_class}"
+
+    @property
+    def view(self) -> str:
+        """The module that draws the family's results in Rerun."""
+        return f"trackreplay.face.rerun_{self.stem}"
+
+    @property
+    def builtin_tracker_modules(self) -> tuple[str, ...]:
+        return tuple(f"trackreplay.trackers.{m}" for m in self.tracker_modules)
+
+    @property
+    def command_module(self) -> str | None:
+        return f"trackreplay.face.cli_{self.stem}" if self.commands else None
+
+
+_XY = (("x", "m"), ("y", "m"), ("vx", "m/s"), ("vy", "m/s"))
+_BEARING = (("bearing", "rad"), ("bearing_rate", "rad/s"))
 
 FAMILIES = {
     f.name: f for f in (
-        Family("radar-plots", (CHANNELS["radar_plots"],), CHANNELS["radar_truth"], "/tracks/radar/",
-               "[x, y, vx, vy] in m and m/s, one track per run or per track slot", "position (m)", "radar-tws",
-               sensor_keys=("scan_period_s", "sigma_range_m", "sigma_bearing_deg", "detection_probability",
-                            "clutter_per_scan", "min_range_m", "max_range_m", "sector_half_width_deg"),
-               estimable_keys=("scan_period_s",)),
-        Family("bearing-peaks", (CHANNELS["xcorr_peaks"],), CHANNELS["xcorr_truth"], "/tracks/xcorr/",
-               "[bearing, bearing rate] in rad and rad/s per track slot", "bearing (rad)", "xcorr-crossing",
-               sensor_keys=("scan_period_s", "strong_sigma_p_deg", "weak_sigma_p_deg", "field_min_deg",
-                            "field_max_deg"),
-               estimable_keys=("scan_period_s",)),
-        Family("array-snapshots", (CHANNELS["array_snapshots"],), CHANNELS["array_truth"], "/tracks/array/",
-               "[bearing, bearing rate] in rad and rad/s per track slot", "bearing (rad)", "array-crossing",
-               sensor_keys=("scan_period_s", "spacing_wavelengths")),
-        Family("tdoa-fdoa", (CHANNELS["emitter_measurements"], CHANNELS["emitter_sensors"]),
-               CHANNELS["emitter_truth"], "/tracks/emitter/",
-               "[x, y, vx, vy] in m and m/s, one estimate per epoch", "position (m)", "tdoa-fdoa",
-               former_output_prefixes=("/emitter/estimates/",),
-               sensor_arrays=("carrier_hz", "sigma_tdoa_s", "sigma_fdoa_hz")),
-        Family("colored-position", (CHANNELS["colored_measurements"],), CHANNELS["colored_truth"],
-               "/tracks/colored/", "[p, v, a] in m, m/s, m/s² per axis, axes concatenated",
-               "position (m)", "colored-imm", sensor_keys=("measurement_variance_m2",)),
+        Family(
+            name="radar", inputs=(CHANNELS["radar_plots"],), truth=CHANNELS["radar_truth"],
+            state="[x, y, vx, vy] in m and m/s, one track per run or per track slot", state_components=_XY,
+            space="position (m)", scenario="radar-tws", measurement_class="RadarPlots", stage_class="RadarStage",
+            tracker_modules=("radar_tws", "radar_multi_target"),
+            sensor_keys=("scan_period_s", "sigma_range_m", "sigma_bearing_deg", "detection_probability",
+                         "clutter_per_scan", "min_range_m", "max_range_m", "sector_half_width_deg"),
+            estimable_keys=("scan_period_s",), former_names=("radar-plots",)),
+        Family(
+            name="xcorr", inputs=(CHANNELS["xcorr_peaks"],), truth=CHANNELS["xcorr_truth"],
+            state="[bearing, bearing rate] in rad and rad/s per track slot", state_components=_BEARING,
+            space="bearing (rad)", scenario="xcorr-crossing", measurement_class="BearingPeaks",
+            stage_class="XcorrStage", tracker_modules=("xcorr",), commands=True,
+            sensor_keys=("scan_period_s", "strong_sigma_p_deg", "weak_sigma_p_deg", "field_min_deg", "field_max_deg"),
+            estimable_keys=("scan_period_s",), former_names=("bearing-peaks",)),
+        Family(
+            name="array", inputs=(CHANNELS["array_snapshots"],), truth=CHANNELS["array_truth"],
+            state="[bearing, bearing rate] in rad and rad/s per track slot", state_components=_BEARING,
+            space="bearing (rad)", scenario="array-crossing", measurement_class="ArraySnapshots",
+            stage_class="ArrayStage", tracker_modules=("array",), commands=True,
+            sensor_keys=("scan_period_s", "spacing_wavelengths"), former_names=("array-snapshots",)),
+        Family(
+            name="tdoa-fdoa", inputs=(CHANNELS["emitter_measurements"], CHANNELS["emitter_sensors"]),
+            truth=CHANNELS["emitter_truth"], state="[x, y, vx, vy] in m and m/s, one estimate per epoch",
+            state_components=_XY, space="position (m)", scenario="tdoa-fdoa", measurement_class="TdoaFdoa",
+            stage_class="TdoaFdoaStage", tracker_modules=("tdoa_fdoa",), commands=True,
+            sensor_arrays=("carrier_hz", "sigma_tdoa_s", "sigma_fdoa_hz"),
+            former_output_prefixes=("/tracks/emitter/", "/emitter/estimates/")),
+        Family(
+            name="colored", inputs=(CHANNELS["colored_measurements"],), truth=CHANNELS["colored_truth"],
+            state="[p, v, a] in m, m/s, m/s² per axis, axes concatenated",
+            state_components=(("{axis}", "m"), ("v{axis}", "m/s"), ("a{axis}", "m/s²")),
+            space="position (m)", scenario="colored-imm", measurement_class="ColoredPositions",
+            stage_class="ColoredStage", tracker_modules=("colored",), commands=True,
+            sensor_keys=("measurement_variance_m2",), former_names=("colored-position",)),
     )
 }
+FORMER_FAMILY_NAMES = {old: f.name for f in FAMILIES.values() for old in f.former_names}
 
 
 # --------------------------------------------------------------------------- tracker outputs

@@ -1,7 +1,7 @@
 """Uniform-linear-array snapshot simulator: N far-field moving targets, complex M × Ns per scan.
 
 Ryu, Lee & Lee (2001), signal model (eqs. (1)–(5)) and simulation set-up (section V); see
-``docs/papers/array-bearing.md``.
+``docs/papers/array.md``.
 
     r(t) = Σₙ sₙ(t) a(θₙ) + n(t),   a(θ) = [1, γ, …, γ^(M−1)]ᵀ,  γ = exp(j 2π (d/λ) sin θ)
 

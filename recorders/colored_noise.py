@@ -1,6 +1,6 @@
 """Targets seen through position measurements with AR(1) coloured noise (Kwon 1997, ch. II, V).
 
-See ``docs/papers/colored-noise-imm.md``. Measurement per axis ``z_k = p_k + ν_k`` with
+See ``docs/papers/colored.md``. Measurement per axis ``z_k = p_k + ν_k`` with
 ``ν_k = α_k ν_{k−1} + η_k``, ``var(η_k) = (1 − α_k²) R`` and ``ν_0 ~ N(0, R)``, so ``var(ν_k) = R``
 at every scan even where α changes (eqs. 2.9–2.11). Three trajectories (``trajectory``):
 

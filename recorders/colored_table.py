@@ -4,7 +4,7 @@ AR(1) coefficient of each axis's noise; its format (:data:`FORMAT`: columns, not
 ``replay convert positions``, samples), its reader (:func:`read_colored_positions`) and its
 exporter (:func:`export_colored_positions`).
 
-The noise model and its filters: ``docs/papers/colored-noise-imm.md``. numpy, polars and the
+The noise model and its filters: ``docs/papers/colored.md``. numpy, polars and the
 shared table helpers are imported by the functions that use them: ``replay --help`` lists the
 convert commands from :data:`FORMAT` without them.
 """
@@ -146,7 +146,7 @@ def export_colored_positions(dataset) -> dict:
 
 #: the coloured-noise family's table format
 FORMAT = TableFormat(
-    "colored-position", "positions", "colored_positions", "one row per position measurement (run and time)",
+    "colored", "positions", "colored_positions", "one row per position measurement (run and time)",
     {"measurements": (
         RUN, TableColumn("time_s | time", "s", True, "measurement time, evenly spaced"),
         TableColumn("x_m", "m", True, "measured position, first axis"),

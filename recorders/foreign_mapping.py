@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 from operator import attrgetter, itemgetter
 from pathlib import Path
 
+from trackreplay import vocabulary as vocab
 from trackreplay.errors import InputError
 
 # --------------------------------------------------------------------------- units
@@ -295,6 +296,9 @@ def load_mapping(path: str | Path) -> Mapping:
     family = doc.get("family")
     if family is None:
         raise InputError(f"missing key 'family' (one of: {', '.join(formats)})", path)
+    if family in vocab.FORMER_FAMILY_NAMES:
+        raise InputError(f"family {family!r} is now called {vocab.FORMER_FAMILY_NAMES[family]!r}: "
+                         f"write family = {vocab.FORMER_FAMILY_NAMES[family]!r}", path)
     if family not in formats:
         raise InputError(f"family {family!r} has no table format (have: {', '.join(formats)})", path)
     tables = _tables_of(family) + ((TRUTH_TABLE,) if formats[family].truth_list else ())

@@ -4,7 +4,7 @@ format (:data:`FORMAT`: columns, notes, ``replay convert plots``, samples), its 
 (:func:`read_radar_plots`), its exporter (:func:`export_radar_plots`) and what a foreign MCAP's
 mapping of it may add (a ``[truth]`` list of targets; a message without plots is a scan).
 
-The radar and its trackers: ``docs/papers/radar-tws.md``. numpy, polars and the shared table
+The radar and its trackers: ``docs/papers/radar.md``. numpy, polars and the shared table
 helpers are imported by the functions that use them: ``replay --help`` lists the convert
 commands from :data:`FORMAT` without them.
 """
@@ -26,7 +26,7 @@ PLOTS, TRUTH = vocab.CHANNELS["radar_plots"], vocab.CHANNELS["radar_truth"]
 
 
 def read_radar_plots(t: _Rows) -> SimulatedData:
-    """A radar-plots table → the plots (range, bearing) of every scan and, with the truth columns,
+    """A radar table → the plots (range, bearing) of every scan and, with the truth columns,
     the truth: one state a scan, or with ``truth_id`` a set of targets (:func:`_radar_truth_set`)."""
     import numpy as np
 
@@ -140,7 +140,7 @@ def export_radar_plots(dataset) -> dict:
 
 #: the radar family's table format
 FORMAT = TableFormat(
-    "radar-plots", "plots", "radar_plots", "one row per radar plot (range, bearing) of a scan",
+    "radar", "plots", "radar_plots", "one row per radar plot (range, bearing) of a scan",
     {"measurements": (
         RUN, TIME,
         TableColumn("range_m", "m", True, "plot range, ≥ 0"),

@@ -1,6 +1,6 @@
 """Track-while-scan radar simulator: one target, plots (range, bearing) per scan, plus truth.
 
-Kim & Lee (2006), the paper's simulation (``docs/papers/radar-tws.md``). Radar at the origin, bearing
+Kim & Lee (2006), the paper's simulation (``docs/papers/radar.md``). Radar at the origin, bearing
 counter-clockwise from +x. Random numbers are drawn in a fixed order and shape whatever the
 parameters (process noise, range noise, bearing noise, detection draws), so two data sets that
 differ in one parameter share their noise (common random numbers) and a seed fixes every byte.

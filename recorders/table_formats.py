@@ -1,7 +1,7 @@
 """What a family's table is, and the registry of the families that have one.
 
 A family with a tabular form declares it once, in its own module (:data:`TABLE_MODULES`: one
-``recorders/<family>_table.py`` per family), as a :class:`TableFormat` named ``FORMAT``: its
+``recorders/<stem>_table.py`` per family), as a :class:`TableFormat` named ``FORMAT``: its
 columns (units, meanings), the notes of what forms a scan and what is refused, the fewest scans
 its trackers need, its reader and exporter, the ``replay convert`` command that reads it and the
 words of its help, its sample files, and the hooks the generic importers call where a family
@@ -23,14 +23,16 @@ from __future__ import annotations
 import functools
 import importlib
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Callable, NamedTuple
 
 from trackreplay import vocabulary as vocab
 from trackreplay.errors import InputError
 
-#: the modules (in ``trackreplay.recorders``) that declare a family's table format, one per
-#: family, in the order the formats are listed
-TABLE_MODULES = ("radar_table", "xcorr_table", "tdoa_fdoa_table", "colored_table")
+#: the modules (in ``trackreplay.recorders``) that declare a family's table format: a declared
+#: family's ``recorders/<stem>_table.py`` where it has one, in the declaration's order
+TABLE_MODULES = tuple(f"{family.stem}_table" for family in vocab.FAMILIES.values()
+                      if (Path(__file__).parent / f"{family.stem}_table.py").is_file())
 
 
 class TableColumn(NamedTuple):

@@ -1,6 +1,6 @@
 """Cross-correlation peaks from the paper's stochastic model: per-scan peak lists plus truth.
 
-Park, Ryu & Lee (1994), the stochastic model and the experiments (see ``docs/papers/bearing-peaks.md``).
+Park, Ryu & Lee (1994), the stochastic model and the experiments (see ``docs/papers/xcorr.md``).
 Each scan of each run yields a set of peaks ``(z_p, z_a)`` (bearing in radians, amplitude):
 
 * one true peak per target, detected with probability ``P_D`` and not during a data-loss
@@ -19,7 +19,7 @@ come in pairs, each pair the paper's two targets; ``n_targets`` (default 2, the 
 ⌈n/2⌉ pairs side by side, pair j (targets 2j, 2j+1) centred ``(j − (P−1)/2)·pair_spacing_deg``
 from ``center_bearing_deg`` (P pairs); with an odd count the last pair has only its first
 target (for one target: a single straight track through the centre). Target t's strength role
-is the ``roles`` pattern cycled (:mod:`trackreplay.trackers.peak_roles`).
+is the ``roles`` pattern cycled (:mod:`trackreplay.trackers.xcorr_peak_roles`).
 
 * ``crossing``: targets move at ``±tan(ψ/2)`` °/s and cross at mid-run with angle ψ
   (``crossing_angle_deg``); the run starts and ends with the targets ``end_separation_deg``
@@ -45,7 +45,7 @@ import numpy as np
 from scipy.special import ndtr, ndtri
 
 from trackreplay.errors import InputError, check_all, require_finite_params
-from trackreplay.trackers.peak_roles import track_roles
+from trackreplay.trackers.xcorr_peak_roles import track_roles
 from trackreplay.vocabulary import CHANNELS
 from trackreplay.recorders.simulated import SimulatedData
 

@@ -1,6 +1,6 @@
 """Cross-correlation peaks made the physical way: two-channel signals → correlation → maxima.
 
-Park, Ryu & Lee (1994), measurement way (b) (see ``docs/papers/bearing-peaks.md``). Two sensors ``d`` apart
+Park, Ryu & Lee (1994), measurement way (b) (see ``docs/papers/xcorr.md``). Two sensors ``d`` apart
 receive each target's broadband signal directly and via one multipath echo, plus independent
 sensor noise (spec eq. 1 with an echo added)::
 

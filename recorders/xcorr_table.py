@@ -5,7 +5,7 @@ samples), its reader (:func:`read_bearing_peaks`), its exporter (:func:`export_b
 the check of the peaks against the sensor's field recorded with them (:func:`check_peak_field`)
 and what a foreign MCAP's mapping of it may add (a message without peaks is a scan).
 
-A peak's bearing is θ = arccos(C·D/d) of the cross-correlation delay (``docs/papers/bearing-peaks.md``).
+A peak's bearing is θ = arccos(C·D/d) of the cross-correlation delay (``docs/papers/xcorr.md``).
 numpy, polars and the shared table helpers are imported by the functions that use them:
 ``replay --help`` lists the convert commands from :data:`FORMAT` without them.
 """
@@ -48,7 +48,7 @@ def _peak_truth_columns(t: _Rows) -> tuple[list[str], list[str]]:
 
 
 def read_bearing_peaks(t: _Rows) -> SimulatedData:
-    """A bearing-peaks table → the peaks (bearing, amplitude, origin) of every scan and, with the
+    """A xcorr table → the peaks (bearing, amplitude, origin) of every scan and, with the
     truth columns, each target's true bearing (and rate) a scan."""
     import numpy as np
 
@@ -153,7 +153,7 @@ def check_peak_field(data: SimulatedData, params: dict, path) -> None:
 
 #: the cross-correlation family's table format
 FORMAT = TableFormat(
-    "bearing-peaks", "peaks", "bearing_peaks", "one row per cross-correlation peak (bearing, amplitude) of a scan",
+    "xcorr", "peaks", "bearing_peaks", "one row per cross-correlation peak (bearing, amplitude) of a scan",
     {"measurements": (
         RUN, TIME,
         TableColumn("bearing_rad | bearing_deg", "rad | °", True,

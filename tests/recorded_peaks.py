@@ -20,7 +20,7 @@ _FILES = itertools.count()
 
 def track_recorded(data, params: dict, trackers=("jpda", "jpda_a"), overrides: dict | None = None,
                    seed: int = 0, scenario: str = "xcorr-crossing") -> dict:
-    """Write ``data`` (a :class:`trackreplay.recorders.simulated.SimulatedData` of the bearing-peaks
+    """Write ``data`` (a :class:`trackreplay.recorders.simulated.SimulatedData` of the xcorr
     ``scenario`` with ``params``) and run its trackers through the family's stage.
 
     Returns
@@ -28,7 +28,7 @@ def track_recorded(data, params: dict, trackers=("jpda", "jpda_a"), overrides: d
     dict
         ``{"tracks": {tracker: outputs}, "truth": (R, K, T) bearings, "gate_rad": V}``.
     """
-    stage = stage_named("xcorr-peaks")
+    stage = stage_named("xcorr")
     with tempfile.TemporaryDirectory(prefix="peaks-") as folder:
         path = Path(folder) / f"peaks-{next(_FILES)}.mcap"
         write_simulated(path, data, scenario_metadata(scenario, params, seed=seed))

@@ -7,7 +7,7 @@ Each is converted as a user would (``replay convert array-wav REC.wav --spacing-
 --frequency-hz 3430``) and replayed with no ``--set``: the source count must be right and every
 source tracked within 0.5° of the truth at the scans' time stamps, start-up included, by both
 trackers, static and moving, at 15, 20 and 25 dB, at d = λ/2 and at d = 0.29 λ (where the diffuse
-noise is far from white). See ``docs/papers/array-bearing.md`` (Recordings: wideband sources).
+noise is far from white). See ``docs/papers/array.md`` (Recordings: wideband sources).
 """
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ def converted(tmp_path_factory):
 
 def errors_deg(result, tracker, sources):
     """``(scans, sources)``: each source's distance to the nearest track at the scans' time stamps."""
-    stage = result.results["array-bearing"]
+    stage = result.results["array"]
     times = np.asarray(stage["times"], float)
     est = stage["tracks"][tracker]["state"][0, :, :, 0]  # (K, slots)
     truth = np.stack([s.bearing_rad(times) for s in sources], -1)  # (K, N)
@@ -68,7 +68,7 @@ def test_count_right_and_every_source_within_half_a_degree_at_the_defaults(conve
     assert params["n_sources"] == len(sources), printed
     assert f"{len(sources)} source(s) by wideband MDL" in printed
     for tracker in ("proposed", "ryu"):
-        state = result.results["array-bearing"]["tracks"][tracker]["state"]
+        state = result.results["array"]["tracks"][tracker]["state"]
         assert state.shape[2] == len(sources)  # one track per source, no false one
         assert np.all(np.isfinite(state[0, 1:, :, 0]))  # none deleted
         worst = errors_deg(result, tracker, sources).max(axis=0)
@@ -83,14 +83,14 @@ def test_scans_are_stamped_at_their_centre_and_moving_tracks_do_not_trail(conver
     mcap, sources, _, aligned = converted["moving-25dB"]
     ds = read_dataset(mcap)
     p = ds.scenario["params"]
-    times = np.asarray(aligned.results["array-bearing"]["times"], float)
+    times = np.asarray(aligned.results["array"]["times"], float)
     centre = ((p["snapshots_per_scan"] - 1) * p["hop"] + p["nfft"]) / (2 * p["sample_rate_hz"])
     assert times[0] == pytest.approx(centre) and np.diff(times) == pytest.approx(p["scan_period_s"])
     printed = replay(mcap, design_overrides={"align_subspace_instant": False})
     offset = subspace_instant_offset("past", 0.97, p["scan_period_s"], p["snapshots_per_scan"], times.size)[-1]
     settled = slice(6, None)  # PAST's start forgotten (offset within 1 % of its limit)
     for result, expected in ((aligned, 0.0), (printed, offset)):
-        stage = result.results["array-bearing"]
+        stage = result.results["array"]
         est = stage["tracks"]["proposed"]["state"][0, settled, :, 0]
         for j, source in enumerate(sorted(sources, key=lambda s: s.start_rad)):
             signed = np.rad2deg(np.mean(est[:, j] - source.bearing_rad(times[settled])))

@@ -21,7 +21,7 @@ from trackreplay.cores.array.past_subspace import (
     past_update,
     principal_angles,
 )
-from trackreplay.trackers import array_bearing as ab
+from trackreplay.trackers import array as ab
 
 M = 8
 

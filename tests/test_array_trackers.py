@@ -1,15 +1,15 @@
-"""The array-snapshots trackers on the tracker interface: registration, the output vocabulary and
+"""The array trackers on the tracker interface: registration, the output vocabulary and
 flags, the shared start-up/subspace memo, FLOP outputs, design checks, and an evaluator that reads
 only the vocabulary."""
 
 import numpy as np
 import pytest
 
-from trackreplay.evaluators.array_bearing import evaluate
+from trackreplay.evaluators.array import evaluate
 from trackreplay import vocabulary as vocab
 from trackreplay.errors import InputError
 from trackreplay.registry import trackers_of_family
-from trackreplay.trackers import array_bearing as ab
+from trackreplay.trackers import array as ab
 from trackreplay.trackers.interface import ArraySnapshots, call_tracker
 from trackreplay.recorders.array_snapshots import simulate
 from trackreplay.recorders.scenarios import load_scenario
@@ -34,7 +34,7 @@ def small():
 
 def test_both_strategies_are_registered_trackers_of_the_family():
     assert [cls.name for cls in ab.TRACKERS] == ["proposed", "ryu"]
-    entries = {e.name: e for e in trackers_of_family("array-snapshots")}
+    entries = {e.name: e for e in trackers_of_family("array")}
     assert {"proposed", "ryu"} <= set(entries)
     for name in ("proposed", "ryu"):
         assert entries[name].builtin and entries[name].cls.form == "batch"

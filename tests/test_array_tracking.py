@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from trackreplay.evaluators.array_bearing import associate, follow_events
+from trackreplay.evaluators.array import associate, follow_events
 from trackreplay.face.cli import main
 from trackreplay.contract import read_dataset, scenario_metadata, write_dataset
 from trackreplay.cores.array.linear_array import beamwidth_rad
@@ -106,7 +106,7 @@ def test_mse_falls_as_snr_rises(crossing):
 
 def test_both_algorithms_give_the_same_tracks_and_mse(crossing):
     _, res = crossing
-    tracks = res.results["array-bearing"]["tracks"]
+    tracks = res.results["array"]["tracks"]
     a, b = tracks["proposed"]["state"][..., 0], tracks["ryu"]["state"][..., 0]
     assert np.nanmax(np.abs(a - b)) < 1e-9  # identical innovations → identical filters
     for v in (0, 5, 10):
@@ -205,7 +205,7 @@ def test_wav_recording_goes_through_the_same_trackers(tmp_path):
     assert ds.channel("/array/snapshots").arrays["snapshots"][0].shape == (8, 30)
     assert ds.scenario["params"]["spacing_wavelengths"] == pytest.approx(0.04 * 2000 / 343.0)
     res = replay(mcap)
-    est = np.rad2deg(res.results["array-bearing"]["tracks"]["proposed"]["state"][0, 2:, :, 0])
+    est = np.rad2deg(res.results["array"]["tracks"]["proposed"]["state"][0, 2:, :, 0])
     assert est.shape[-1] == 2
     assert np.all(np.abs(est - [-20.0, 25.0]) < 1.0)
     assert ds.scenario["params"]["bearing_positive_toward"] == "last channel"
@@ -214,7 +214,7 @@ def test_wav_recording_goes_through_the_same_trackers(tmp_path):
     r = runner.invoke(main, ["convert", "array-wav", str(wav), "-o", str(mirrored), "--spacing-m", "0.04",
                              "--frequency-hz", "2000", "--nfft", "256", "--positive-toward", "first"])
     assert r.exit_code == 0, r.output
-    other = np.rad2deg(replay(mirrored).results["array-bearing"]["tracks"]["proposed"]["state"][0, 2:, :, 0])
+    other = np.rad2deg(replay(mirrored).results["array"]["tracks"]["proposed"]["state"][0, 2:, :, 0])
     assert np.all(np.abs(other - [-25.0, 20.0]) < 1.0)
 
 

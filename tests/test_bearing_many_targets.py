@@ -21,7 +21,7 @@ from trackreplay import vocabulary as vocab
 from trackreplay.contract import read_dataset
 from trackreplay.face.cli import main
 from trackreplay.replay import replay
-from trackreplay.trackers.peak_roles import roles_for, track_roles
+from trackreplay.trackers.xcorr_peak_roles import roles_for, track_roles
 from trackreplay.recorders import array_snapshots, xcorr_peaks
 from trackreplay.recorders.scenarios import load_scenario
 
@@ -155,7 +155,7 @@ def test_peak_trackers_follow_n_well_separated_targets(tmp_path, n):
     # the filter's own steady-state error; 1.5× leaves room for JPDA's β₀ (it assumes clutter),
     # the lag in the turns and the Monte Carlo error of 12 runs (measured ratio 0.92–1.05)
     bound = 1.5 * steady_state_sigma(design["q_deg2"], sigma_p ** 2)
-    outputs = res.results["xcorr-peaks"]["tracks"]
+    outputs = res.results["xcorr"]["tracks"]
     assert set(outputs) == {"jpda", "jpda_a"}
     for name, out in outputs.items():
         check_slots(out, runs, K, n)
@@ -177,7 +177,7 @@ def test_xcorr_crossing_with_four_targets_replays_with_cycled_role_scopes(tmp_pa
     path = simulate("xcorr-crossing", tmp_path / "c4.mcap", 6, 3, n_targets=4, crossing_angle_deg=30)
     res = replay(path)
     truth = res.dataset.channel("/xcorr/truth").grid("bearing_rad")
-    for out in res.results["xcorr-peaks"]["tracks"].values():
+    for out in res.results["xcorr"]["tracks"].values():
         assert out["state"].shape[2] == 4 and out["track_id"].shape == out["flags"].shape
     scopes = set(res.summary.filter(res.summary["metric"] == "held_rate")["scope"])
     assert scopes == {"track=0:strong", "track=1:weak", "track=2:strong", "track=3:weak"}
@@ -219,7 +219,7 @@ def test_array_trackers_follow_n_spread_targets(tmp_path, n):
     # as well (measured 0.66–0.84 of it at 0 dB); 1.5× leaves room for PAST's lag
     crb = np.sqrt(6 / ((np.pi * np.cos(theta)) ** 2 * M * (M * M - 1) * Ns * 10 ** (snr / 10)))
     bound = 1.5 * np.rad2deg(np.sqrt(np.mean(crb ** 2, axis=0)))
-    outputs = res.results["array-bearing"]["tracks"]
+    outputs = res.results["array"]["tracks"]
     assert {"proposed", "ryu"} <= set(outputs)
     for name in ("proposed", "ryu"):
         out = outputs[name]

@@ -12,7 +12,7 @@ import trackreplay.batched_linalg as batched_linalg
 import trackreplay.stack_threads as stack_threads
 from trackreplay.recorders.array_snapshots import simulate
 from trackreplay.recorders.scenarios import load_scenario
-from trackreplay.trackers import array_bearing as ab
+from trackreplay.trackers import array as ab
 
 
 def test_blocks_on_threads_are_the_pieces_in_order_and_a_stack_inside_one_is_not_split(monkeypatch):

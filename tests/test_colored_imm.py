@@ -191,12 +191,12 @@ def test_pimm_equals_mimm_k(thesis_experiment):
     for m in ("rmse_position_m", "rmse_velocity_mps", "rmse_acceleration_mps2"):
         a, b = metric(res, "pimm", m), metric(res, "mimm_k", m)
         assert abs(a - b) <= 1e-6 * b
-    tracks = res.results["colored-noise-imm"]["tracks"]
+    tracks = res.results["colored"]["tracks"]
     assert np.max(np.abs(tracks["pimm"]["state"][..., 0] - tracks["mimm_k"]["state"][..., 0])) < 1e-6
 
 
 def test_before_the_estimator_is_warm_the_decorrelating_imm_is_the_plain_one(thesis_experiment):
-    tracks = thesis_experiment.results["colored-noise-imm"]["tracks"]
+    tracks = thesis_experiment.results["colored"]["tracks"]
     warm = tracks["ar_estimator"]["warm"][0].astype(bool)
     first_warm = int(np.argmax(warm))
     a, b = tracks["mimm_k"]["state"][:, :first_warm], tracks["imm"]["state"][:, :first_warm]

@@ -10,7 +10,7 @@ import pytest
 
 from trackreplay.cores.filters.kalman import kf_predict, kf_update
 from trackreplay.replay import replay
-from trackreplay.trackers.colored_noise import colored_noise_pcrb
+from trackreplay.trackers.colored import colored_noise_pcrb
 from trackreplay.recorders.scenarios import load_scenario
 from trackreplay.recorders.simulated import record
 

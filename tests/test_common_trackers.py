@@ -19,9 +19,9 @@ from trackreplay.stages import STAGES
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 # one bundled data set per measurement family
-DEMO = {"radar-plots": "radar_tws_demo.mcap", "bearing-peaks": "xcorr_crossing_demo.mcap",
-        "array-snapshots": "array_crossing_demo.mcap", "tdoa-fdoa": "tdoa_fdoa_demo.mcap",
-        "colored-position": "colored_imm_demo.mcap"}
+DEMO = {"radar": "radar_tws_demo.mcap", "xcorr": "xcorr_crossing_demo.mcap",
+        "array": "array_crossing_demo.mcap", "tdoa-fdoa": "tdoa_fdoa_demo.mcap",
+        "colored": "colored_imm_demo.mcap"}
 ALL_FLAG_BITS = np.dtype(vocab.FLAG_DTYPE).type(sum(vocab.FLAGS.values()))
 ENTRIES = sorted(available_trackers().values(), key=lambda e: (e.family, e.name))
 

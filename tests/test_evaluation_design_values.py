@@ -142,16 +142,16 @@ def test_sweep_scores_every_point_with_the_set_values_as_eval_does(runner, execu
     # the evaluation values change no point's seed: every point scores the same data set
     assert table["seed"].n_unique() == 1 and table["seed"].to_list() == default["seed"].to_list()
     spec = json.loads(Path("s/sweep.json").read_text())
-    assert spec["evaluation"]["radar-tws"]["assignment_gate_m"] == 30.0
-    assert spec["evaluation"]["radar-tws"]["ospa_cutoff_m"] == {"ospa_cutoff_m=200": 200.0, "ospa_cutoff_m=300": 300.0}
+    assert spec["evaluation"]["radar"]["assignment_gate_m"] == 30.0
+    assert spec["evaluation"]["radar"]["ospa_cutoff_m"] == {"ospa_cutoff_m=200": 200.0, "ospa_cutoff_m=300": 300.0}
     assert json.loads(pl.read_parquet_metadata("s/sweep.parquet")["replay.evaluation"]) == spec["evaluation"]
     for label in table["point"].unique().to_list():
         point = Path("s/points") / label
         cutoff = label.rsplit("=", 1)[1]
-        used = json.loads((point / "point.json").read_text())["evaluation"]["radar-tws"]
+        used = json.loads((point / "point.json").read_text())["evaluation"]["radar"]
         assert used["assignment_gate_m"] == 30.0 and used["ospa_cutoff_m"] == float(cutoff)
         design = json.loads(read_dataset(point / "tracks.mcap").metadata[METADATA_PROVENANCE]["design"])
-        assert design["radar-tws"]["assignment_gate_m"] == 30.0
+        assert design["radar"]["assignment_gate_m"] == 30.0
         # the point's metrics are those eval gives on its data set with the same values
         expect = eval_values(runner, point / "data.mcap", "--trackers", "kalman", *sets(GATE, f"ospa_cutoff_m={cutoff}"))
         for r in table.filter(pl.col("point") == label).iter_rows(named=True):
@@ -178,7 +178,7 @@ def test_replay_records_the_set_values_in_its_outputs_provenance(runner, radar_s
     res = invoke(runner, radar_small, "--no-rrd", "--figures", "none", "--trackers", "kalman", "--out", "o/t.mcap",
                  *sets(GATE))
     assert res.exit_code == 0, res.output
-    design = json.loads(read_dataset("o/t.mcap").metadata[METADATA_PROVENANCE]["design"])["radar-tws"]
+    design = json.loads(read_dataset("o/t.mcap").metadata[METADATA_PROVENANCE]["design"])["radar"]
     assert design["assignment_gate_m"] == 30.0
 
 

@@ -13,7 +13,7 @@ from trackreplay import design_values
 from trackreplay.contract import read_dataset
 from trackreplay.replay import replay
 from trackreplay.stages import stage_named
-from trackreplay.stages.radar_tws import GATE_SIGMAS
+from trackreplay.stages.radar import GATE_SIGMAS
 from trackreplay.recorders.scenarios import load_scenario
 from trackreplay.recorders.simulated import record
 
@@ -29,7 +29,7 @@ def _far_target(path, sigma_bearing_deg=1.0):
 def test_the_gate_is_the_plot_spread_at_the_farthest_range_rounded_up(tmp_path):
     path = _far_target(tmp_path / "far.mcap")
     ds = read_dataset(path)
-    stage = stage_named("radar-tws")
+    stage = stage_named("radar")
     design = design_values.resolve(stage, ds)
     truth, _ = stage.decode_truth(ds)
     far = np.nanmax(np.hypot(truth[..., 0], truth[..., 1]))

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from trackreplay.stages.evaluation_gates import GATE_MISS_PROBABILITY, gate_sigmas, gates_from_spread, round_up
-from trackreplay.stages.radar_tws import GATE_SIGMAS
+from trackreplay.stages.radar import GATE_SIGMAS
 
 
 def _outside_ball(radius_sigmas: float, dims: int, n: int = 400_000) -> float:

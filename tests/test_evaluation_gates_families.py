@@ -23,8 +23,8 @@ def _gates(stage: str, path: Path, overrides=None) -> dict:
 
 
 @pytest.mark.parametrize("stage, demo, unit, dims, spread", [
-    ("xcorr-peaks", "xcorr_crossing_demo", "deg", 1, 1.8),            # the weak target's peaks, σ 1.8°
-    ("colored-noise-imm", "colored_imm_demo", "m", 2, np.sqrt(200.0)),  # σ² = 100 m² on each axis
+    ("xcorr", "xcorr_crossing_demo", "deg", 1, 1.8),            # the weak target's peaks, σ 1.8°
+    ("colored", "colored_imm_demo", "m", 2, np.sqrt(200.0)),  # σ² = 100 m² on each axis
 ])
 def test_the_gate_is_the_rule_applied_to_the_recorded_noise(stage, demo, unit, dims, spread):
     gate = round_up(gate_sigmas(dims) * spread)
@@ -37,9 +37,9 @@ def test_the_emitter_gate_is_the_joint_crlb_at_the_truth():
 
 
 def test_set_wins_and_the_array_family_keeps_its_fixed_values():
-    got = _gates("xcorr-peaks", DATA / "xcorr_crossing_demo.mcap", {"assignment_gate_deg": "4"})
+    got = _gates("xcorr", DATA / "xcorr_crossing_demo.mcap", {"assignment_gate_deg": "4"})
     assert got == {"assignment_gate_deg": 4.0, "ospa_cutoff_deg": 14.2}
-    assert _gates("array-bearing", DATA / "array_crossing_demo.mcap") == {"assignment_gate_deg": 3.0,
+    assert _gates("array", DATA / "array_crossing_demo.mcap") == {"assignment_gate_deg": 3.0,
                                                                          "ospa_cutoff_deg": 10.0}
 
 
@@ -49,7 +49,7 @@ def test_a_recording_that_does_not_say_its_noise_keeps_the_fixed_values(tmp_path
     bare = tmp_path / "bare.mcap"
     with write_dataset(bare) as w:  # no record: the noise variance is unknown
         w.write_grid("/colored/measurements", ch.times(), {"position_m": ch.grid("position_m")})
-    assert _gates("colored-noise-imm", bare) == {"assignment_gate_m": 50.0, "ospa_cutoff_m": 100.0}
+    assert _gates("colored", bare) == {"assignment_gate_m": 50.0, "ospa_cutoff_m": 100.0}
     # the variance given on the command line is the data set's noise, so the gate follows it
-    assert _gates("colored-noise-imm", bare, {"measurement_variance_m2": "25"}) == {"assignment_gate_m": 31.0,
+    assert _gates("colored", bare, {"measurement_variance_m2": "25"}) == {"assignment_gate_m": 31.0,
                                                                                    "ospa_cutoff_m": 62.0}

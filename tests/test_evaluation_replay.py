@@ -51,7 +51,7 @@ def test_standard_measures_are_reported_for_every_tracker(demo_result):
 
 def test_ospa_never_exceeds_its_cutoff_and_gospa_parts_add_up(demo_result, demo_mcap):
     p = demo_result.per_scan
-    cutoff = design_values.resolve(stage_named("radar-tws"), read_dataset(demo_mcap))["ospa_cutoff_m"]
+    cutoff = design_values.resolve(stage_named("radar"), read_dataset(demo_mcap))["ospa_cutoff_m"]
     assert p["ospa_m"].drop_nulls().max() <= cutoff + 1e-9
     # with one target and one track GOSPA (p = 2, α = 2) is √(loc² + c²/2 (missed + false))
     g = p.select("gospa_m", "gospa_localisation_m", "gospa_missed", "gospa_false").drop_nulls()
@@ -188,9 +188,9 @@ def test_a_tracker_without_covariance_is_reported_as_such_not_as_zero(demo_resul
     from trackreplay.evaluators.standard import evaluate_standard
     from trackreplay.face.cli_text import _print_summary
 
-    result = demo_result.results["radar-tws"]
+    result = demo_result.results["radar"]
     bare = {"bare": {"state": result["tracks"]["kalman"]["state"], "flags": result["tracks"]["kalman"]["flags"]}}
-    stage = next(s for s in __import__("trackreplay.stages", fromlist=["STAGES"]).STAGES if s.name == "radar-tws")
+    stage = next(s for s in __import__("trackreplay.stages", fromlist=["STAGES"]).STAGES if s.name == "radar")
     design = demo_result.dataset.cache[("design", "radar-tws")]
     reference = stage.reference(demo_result.dataset, design)
     _, summary = evaluate_standard(result["times"], bare, stage.standard_truth(reference), stage.standard_space(design))

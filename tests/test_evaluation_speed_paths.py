@@ -18,7 +18,7 @@ import numpy as np
 import polars as pl
 import pytest
 
-from trackreplay.evaluators import consistency, radar_tws, standard
+from trackreplay.evaluators import consistency, radar, standard
 from trackreplay.evaluators.confidence import (RANDOM_GROUPS_MIN_RUNS, group_totals, jackknife, ratio_jackknife, run_groups,
                                    summary_intervals)
 from trackreplay.evaluators.set_distances import optimal_assignment
@@ -94,9 +94,9 @@ def _assert_same_table(fast: pl.DataFrame, plain: pl.DataFrame, rtol=RTOL):
 @pytest.mark.parametrize("left_out", [False, True], ids=["alone", "left-out"])
 def test_radar_group_summaries_are_the_scores_of_the_groups(left_out):
     times, tracks, measured, truth, cross, pcrb = _radar_outputs(43)
-    per_scan, summary, groups = radar_tws.evaluate(times, tracks, measured, truth, cross, 1.0, pcrb,
+    per_scan, summary, groups = radar.evaluate(times, tracks, measured, truth, cross, 1.0, pcrb,
                                                    groups=10, left_out=left_out)
-    plain_scan, plain = radar_tws.evaluate(times, tracks, measured, truth, cross, 1.0, pcrb)
+    plain_scan, plain = radar.evaluate(times, tracks, measured, truth, cross, 1.0, pcrb)
     _assert_same_table(summary, plain)
     assert per_scan.columns == plain_scan.columns
     for c in per_scan.columns[3:]:
@@ -105,7 +105,7 @@ def test_radar_group_summaries_are_the_scores_of_the_groups(left_out):
     for part, table in zip(run_groups(43, 10), groups):
         runs = np.setdiff1d(np.arange(43), part) if left_out else part
         sub = {n: {k: v[runs] for k, v in o.items()} for n, o in tracks.items()}
-        _, expected = radar_tws.evaluate(times, sub, measured[runs], truth[runs], cross[runs], 1.0, pcrb)
+        _, expected = radar.evaluate(times, sub, measured[runs], truth[runs], cross[runs], 1.0, pcrb)
         _assert_same_table(table, expected)
 
 
@@ -117,7 +117,7 @@ def test_summary_intervals_from_group_totals_match_rescoring(runs):
 
     def score(d, groups=None, left_out=False):
         r = d["reference"]
-        return radar_tws.evaluate(times, d["tracks"], r["measured"], r["truth"], r["cross"], 1.0, pcrb,
+        return radar.evaluate(times, d["tracks"], r["measured"], r["truth"], r["cross"], 1.0, pcrb,
                                   groups=groups, left_out=left_out)
 
     _, fast = summary_intervals(score, data, runs, score_groups=score)

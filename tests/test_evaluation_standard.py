@@ -68,7 +68,7 @@ def model_matched(tmp_path_factory):
     record(path, sc, runs=300, seed=3)
     ds = read_dataset(path)
     res = replay(path, trackers=["kalman"], dataset=ds)
-    return res.results["radar-tws"], ds.channel("/radar/truth").grid("state")
+    return res.results["radar"], ds.channel("/radar/truth").grid("state")
 
 
 SPACE = EvaluationSpace((0, 1, 2, 3), (0, 1), False, cutoff=1000.0, gate=1000.0)

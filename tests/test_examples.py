@@ -32,7 +32,7 @@ from trackreplay.contract import read_dataset
 from trackreplay.face.cli import main
 from trackreplay.registry import available_trackers
 from trackreplay.replay import replay
-from trackreplay.stages.radar_tws import RadarTwsStage
+from trackreplay.stages.radar import RadarStage
 from trackreplay.trackers.interface import RadarPlots, call_tracker, validate_outputs
 
 REPO = Path(__file__).resolve().parents[1]
@@ -40,7 +40,7 @@ DEMO = REPO / "data" / "radar_tws_demo.mcap"
 FILTERPY = str(REPO / "examples" / "filterpy_kf.py") + ":FilterPyKF"
 POLAR = str(REPO / "examples" / "polar_ekf.py") + ":PolarEKF"
 STONESOUP = str(REPO / "examples" / "stonesoup_tracker.py") + ":StoneSoupTracker"
-PREFIX = vocab.FAMILIES["radar-plots"].output_prefix
+PREFIX = vocab.FAMILIES["radar"].output_prefix
 ALL_FLAG_BITS = np.dtype(vocab.FLAG_DTYPE).type(sum(vocab.FLAGS.values()))
 
 
@@ -52,7 +52,7 @@ def run_trackers(path, names, specs, overrides=None, measurements=None):
     """Outputs of the named trackers on ``path`` through the stage and ``call_tracker`` (the
     path a replay takes), with the design values the replay would use."""
     table = available_trackers(specs)
-    stage = RadarTwsStage()
+    stage = RadarStage()
     ds = read_dataset(path)
     entries = [table[n] for n in names]
     design = design_values.resolve(stage, ds, overrides, entries)
@@ -119,7 +119,7 @@ def test_filterpy_kf_equals_kalman_with_missed_plots(tmp_path_factory):
 
 def test_filterpy_kf_equals_kalman_with_several_plots_per_scan():
     # a second, false plot 2 km away in every other scan: both must take the nearest one
-    stage = RadarTwsStage()
+    stage = RadarStage()
     rng, brg, counts, times = stage.decode_plots(read_dataset(DEMO))
     R = 30
     r2 = np.full((R, len(times), 2), np.nan)
@@ -211,7 +211,7 @@ def test_stonesoup_adapter_runs_on_a_small_simulated_data_set(tmp_path):
 
     written = read_dataset(out)
     assert PREFIX + "stonesoup" in written.channels
-    tracks = stage_running.read_outputs(RadarTwsStage(), written)["tracks"]
+    tracks = stage_running.read_outputs(RadarStage(), written)["tracks"]
     o = validate_outputs(tracks["stonesoup"], 12, 64, "stonesoup")
     state, flags = o["state"], o["flags"]
     assert state.shape == (12, 64, 4) and o["covariance"].shape == (12, 64, 4, 4)

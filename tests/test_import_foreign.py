@@ -42,7 +42,7 @@ float64 azimuth
 string label
 """
 
-RADAR_MAP = """family = "radar-plots"
+RADAR_MAP = """family = "radar"
 [measurements]
 topic = "/radar/scan"
 time = "header.stamp"
@@ -119,7 +119,7 @@ def position_bodies(n=40):
              "pose": {"position": {"x": float(1000 + 150 * 0.05 * k + rng.normal(0, 10))}}} for k in range(n)]
 
 
-POSITION_MAP = """family = "colored-position"
+POSITION_MAP = """family = "colored"
 [measurements]
 topic = "/fix"
 time = "stamp"
@@ -166,7 +166,7 @@ def test_ros2_mcap_converts_to_the_table_rows_exactly_and_replays(tmp_path, monk
     res = invoke("convert", "mcap", src, "--map", "radar.toml", "-o", "ours.mcap")
     assert res.exit_code == 0, res.output
     assert f"{len(scans)} messages on /radar/scan → {expected.height} rows" in res.output
-    same_dataset(tmp_path / "ours.mcap", via_table("radar-plots", expected, src, tmp_path / "table.mcap"))
+    same_dataset(tmp_path / "ours.mcap", via_table("radar", expected, src, tmp_path / "table.mcap"))
     ds = read_dataset(tmp_path / "ours.mcap")
     assert ds.channel("/radar/plots").n_runs == 2
 
@@ -190,7 +190,7 @@ def test_json_mcap_converts_to_the_table_rows_exactly_and_replays(tmp_path, monk
 
     res = invoke("convert", "mcap", src, "--map", "pos.toml", "-o", "ours.mcap")
     assert res.exit_code == 0, res.output
-    same_dataset(tmp_path / "ours.mcap", via_table("colored-position", expected, src, tmp_path / "table.mcap"))
+    same_dataset(tmp_path / "ours.mcap", via_table("colored", expected, src, tmp_path / "table.mcap"))
     res = invoke(src, "--map", "pos.toml", "--no-rrd", "--trackers", "kf", "--set", "measurement_variance_m2=100")
     assert res.exit_code == 0, res.output
 
@@ -209,7 +209,7 @@ def test_json_log_time_and_items_in_a_batch_larger_than_one_decode(tmp_path, mon
     order = [*range(15, 30), *range(15)]  # the second half of the recording first in the file
     src = write_json(tmp_path / "peaks.mcap", [bodies[i] for i in order], topic="/peaks",
                      log_times=[log_times[i] for i in order])
-    (tmp_path / "peaks.toml").write_text('family = "bearing-peaks"\n[measurements]\ntopic = "/peaks"\n'
+    (tmp_path / "peaks.toml").write_text('family = "xcorr"\n[measurements]\ntopic = "/peaks"\n'
                                          'time = "log_time"\nitems = "peaks"\n'
                                          'bearing_rad = { field = "az_mrad", unit = "mrad" }\namplitude = "amp"\n')
     got = read_foreign_mcap(src, load_mapping(tmp_path / "peaks.toml")).tables["measurements"]
@@ -257,7 +257,7 @@ def test_protobuf_mcap_converts_to_the_table_rows_exactly(tmp_path, monkeypatch)
                 rows.append((50 + k + 500_000_000 * 1e-9, b, a))
             w.write_message("/xcorr/out", msg, log_time=10**9 * (k + 1), publish_time=10**9 * (k + 1))
         w.finish()
-    (tmp_path / "pb.toml").write_text('family = "bearing-peaks"\n[measurements]\ntopic = "/xcorr/out"\n'
+    (tmp_path / "pb.toml").write_text('family = "xcorr"\n[measurements]\ntopic = "/xcorr/out"\n'
                                       'time = "stamp"\nitems = "peaks"\n'
                                       'bearing_rad = { field = "bearing_deg", unit = "deg" }\namplitude = "amplitude"\n')
     t, b, a = (np.asarray(c) for c in zip(*rows))
@@ -265,7 +265,7 @@ def test_protobuf_mcap_converts_to_the_table_rows_exactly(tmp_path, monkeypatch)
     assert read_foreign_mcap(tmp_path / "pb.mcap", load_mapping(tmp_path / "pb.toml")).tables["measurements"].equals(expected)
     res = invoke("convert", "mcap", "pb.mcap", "--map", "pb.toml", "-o", "ours.mcap")
     assert res.exit_code == 0, res.output
-    same_dataset(tmp_path / "ours.mcap", via_table("bearing-peaks", expected, tmp_path / "pb.mcap", tmp_path / "t.mcap"))
+    same_dataset(tmp_path / "ours.mcap", via_table("xcorr", expected, tmp_path / "pb.mcap", tmp_path / "t.mcap"))
 
 
 TDOA_MAP = """family = "tdoa-fdoa"
@@ -426,14 +426,14 @@ BAD = {
     "unit of another kind": (lambda p: _ros2_case(p, RADAR_MAP.replace('unit = "km"', 'unit = "deg"')),
                              "map.toml", ["unit 'deg' measures angle", "range_m is a length"]),
     "column not of the family": (lambda p: _ros2_case(p, RADAR_MAP.replace("range_m =", "rng_m =")),
-                                 "map.toml", ["'rng_m' is not a column of the radar-plots measurements table"]),
-    "mapping without family": (lambda p: _ros2_case(p, RADAR_MAP.replace('family = "radar-plots"\n', "")),
+                                 "map.toml", ["'rng_m' is not a column of the radar measurements table"]),
+    "mapping without family": (lambda p: _ros2_case(p, RADAR_MAP.replace('family = "radar"\n', "")),
                                "map.toml", ["missing key 'family'"]),
     "mapping without topic": (lambda p: _ros2_case(p, RADAR_MAP.replace('topic = "/radar/scan"\n', "")),
                               "map.toml", ["missing key 'topic'"]),
     "mapping without time": (lambda p: _ros2_case(p, RADAR_MAP.replace('time = "header.stamp"\n', "")),
                              "map.toml", ["missing key 'time'"]),
-    "mapping without measurements": (lambda p: _ros2_case(p, 'family = "radar-plots"\n'),
+    "mapping without measurements": (lambda p: _ros2_case(p, 'family = "radar"\n'),
                                      "map.toml", ["missing table [measurements]"]),
     "mapping with an unknown key": (lambda p: _ros2_case(p, RADAR_MAP + "[extra]\nx = 1\n"),
                                     "map.toml", ["unknown key 'extra'"]),

@@ -74,14 +74,14 @@ SAMPLE_CASES = [("ros2_radar_many.mcap", "ros2_radar_many_map.toml", expected_ro
 
 def truth_by_scan(path: Path):
     """{id: state} per run and scan, from the converted data set (identity-stable slots)."""
-    state, ids = stage_named("radar-tws").decode_truth(read_dataset(path))
+    state, ids = stage_named("radar").decode_truth(read_dataset(path))
     assert state.shape == ids.shape + (4,)
     return [[{int(i): tuple(s) for i, s in zip(ids[r, k], state[r, k]) if i >= 0} for k in range(ids.shape[1])]
             for r in range(ids.shape[0])]
 
 
 def check_converted(path: Path, expected) -> None:
-    stage = stage_named("radar-tws")
+    stage = stage_named("radar")
     ds = read_dataset(path)
     assert stage.holds_many_targets(ds)
     rng, brg, counts, _ = stage.decode_plots(ds)
@@ -111,7 +111,7 @@ def test_sample_converts_with_its_truth_set(tmp_path, monkeypatch, sample, mappi
     assert len(empty) >= 2 and all(exp[r][k][1] for r, k in empty)
     if blind is not None:
         assert [k for _, k in empty] == list(blind)
-    counts = stage_named("radar-tws").decode_plots(read_dataset(tmp_path / "many.mcap"))[2]
+    counts = stage_named("radar").decode_plots(read_dataset(tmp_path / "many.mcap"))[2]
     assert counts.sum() > sum(len(t) for scans in exp for _, t in scans) * 0.85  # clutter beyond the targets' plots
     ids = {i for scans in exp for _, t in scans for i in t}
     assert ids == {3, 7, 12, 21, 40}
@@ -181,7 +181,7 @@ def frames(n=6, empty=(2,), dup=None, drop_id=None, drop_field=None, id_value=No
     return out
 
 
-MAP = """family = "radar-plots"
+MAP = """family = "radar"
 [measurements]
 topic = "/scan"
 time = "stamp"
@@ -210,7 +210,7 @@ def test_an_empty_plots_list_is_a_scan_with_or_without_truth(tmp_path, monkeypat
     one_topic(tmp_path / "in.mcap", bodies)
     (tmp_path / "many.toml").write_text(MAP)
     assert invoke("convert", "mcap", "in.mcap", "--map", "many.toml", "-o", "many.mcap").exit_code == 0
-    counts = stage_named("radar-tws").decode_plots(read_dataset(tmp_path / "many.mcap"))[2]
+    counts = stage_named("radar").decode_plots(read_dataset(tmp_path / "many.mcap"))[2]
     assert counts.tolist() == [[0, 2, 0, 2, 2, 0]]
     got = truth_by_scan(tmp_path / "many.mcap")[0]
     assert [sorted(g) for g in got] == [[5, 9]] * 6
@@ -220,7 +220,7 @@ def test_an_empty_plots_list_is_a_scan_with_or_without_truth(tmp_path, monkeypat
     (tmp_path / "plots.toml").write_text(MAP.split("[truth]")[0])
     assert invoke("convert", "mcap", "in.mcap", "--map", "plots.toml", "-o", "plots.mcap").exit_code == 0
     ds = read_dataset(tmp_path / "plots.mcap")
-    assert stage_named("radar-tws").decode_plots(ds)[2].tolist() == [[0, 2, 0, 2, 2, 0]]
+    assert stage_named("radar").decode_plots(ds)[2].tolist() == [[0, 2, 0, 2, 2, 0]]
     assert ds.channels.get("/radar/truth") is None
 
     # one target's truth read from the message ("/…"): the scan without plots keeps it
@@ -229,7 +229,7 @@ def test_an_empty_plots_list_is_a_scan_with_or_without_truth(tmp_path, monkeypat
     (tmp_path / "single.toml").write_text(single)
     res = invoke("convert", "mcap", "in.mcap", "--map", "single.toml", "-o", "single.mcap")
     assert res.exit_code == 0, res.output
-    state, ids = stage_named("radar-tws").decode_truth(read_dataset(tmp_path / "single.mcap"))
+    state, ids = stage_named("radar").decode_truth(read_dataset(tmp_path / "single.mcap"))
     assert state[0, :, 0, 0].tolist() == [10000.0 + 50 * k for k in range(6)]
 
 
@@ -252,7 +252,7 @@ def test_truth_on_its_own_topic_matches_the_scans_by_time(tmp_path, monkeypatch)
     assert "1 truth time(s) on /truth match no message on /scan" in res.output
     assert "scan without plots (the first: message 4, time 120.0000003 s)" in res.output
     ds = read_dataset(tmp_path / "out.mcap")
-    counts = stage_named("radar-tws").decode_plots(ds)[2]
+    counts = stage_named("radar").decode_plots(ds)[2]
     assert counts.tolist() == [[2, 2, 2, 2, 0, 2, 2]]  # 7 scans, not 13: the others joined their plots
     assert np.allclose(ds.channel("/radar/plots").times(), 5.0 * np.arange(7), atol=1e-6)
     got = truth_by_scan(tmp_path / "out.mcap")[0]
@@ -284,14 +284,14 @@ BAD = {
                                           ["truth_id", "non-integer value 9.5", "topic /scan, message 1"]),
     "a negative truth id": (frames(id_value=-2), MAP, "in.mcap", ["truth_id", "-2", "topic /scan, message 1"]),
     "an unknown truth column": (frames(), MAP.replace('truth_id = "id"', 'truth_id = "id"\nrange_m = "r"'),
-                                "map.toml", ["'range_m' is not a column of the radar-plots truth table"]),
+                                "map.toml", ["'range_m' is not a column of the radar truth table"]),
     "truth in both tables": (frames(), MAP.replace('bearing_rad = { field = "az", unit = "deg" }',
                                                    'bearing_rad = { field = "az", unit = "deg" }\ntruth_x_m = "/x"'),
                              "map.toml", ["[measurements] truth_x_m", "comes from there alone"]),
     "the run in one table only": (frames(), MAP.replace('items = "plots"', 'items = "plots"\nrun = "/run"'),
                                   "map.toml", ["[measurements] maps run but [truth] does not"]),
-    "truth for another family": (frames(), MAP.replace('"radar-plots"', '"bearing-peaks"'), "map.toml",
-                                 ["[truth] (a list of targets with identities) belongs to radar-plots mappings"]),
+    "truth for another family": (frames(), MAP.replace('"radar"', '"xcorr"'), "map.toml",
+                                 ["[truth] (a list of targets with identities) belongs to radar mappings"]),
     "a truth topic not in the file": (frames(), MAP.replace('topic = "/scan"\ntime = "stamp"\nitems = "truth"',
                                                             'topic = "/truth"\ntime = "stamp"\nitems = "truth"'),
                                       "in.mcap", ["'/truth' is not in the file"]),
@@ -341,7 +341,7 @@ def test_empty_messages_out_of_order_over_several_batches(tmp_path, monkeypatch)
         assert res.exit_code == 0, res.output
         assert "3 message(s) on /scan with an empty plots list" in res.output
     a, b = read_dataset(tmp_path / "in_order.out.mcap"), read_dataset(tmp_path / "shuffled.out.mcap")
-    stage = stage_named("radar-tws")
+    stage = stage_named("radar")
     assert stage.decode_plots(a)[2].tolist() == [[2, 0, 2, 2, 0, 2, 2, 2], [2, 2, 2, 2, 2, 2, 0, 2]]
     for x, y in zip(stage.decode_plots(a), stage.decode_plots(b)):
         assert np.array_equal(x, y, equal_nan=True)

@@ -43,12 +43,12 @@ def sha(path: Path) -> str:
 
 # (scenario, overrides, family, command, runs): small, with empty scans where a family has them
 ROUND_TRIPS = [
-    ("radar-tws", ["detection_probability=0.7", "n_scans=20"], "radar-plots", "plots"),
+    ("radar-tws", ["detection_probability=0.7", "n_scans=20"], "radar", "plots"),
     ("xcorr-crossing", ["crossing_angle_deg=40", "detection_probability=0.5", "background_clutter_per_gate=0.2",
-                        "strong_clutter_per_gate=0.2", "weak_clutter_per_gate=0.2"], "bearing-peaks", "peaks"),
+                        "strong_clutter_per_gate=0.2", "weak_clutter_per_gate=0.2"], "xcorr", "peaks"),
     ("tdoa-fdoa", ["n_epochs=3", "noise_scales=1,2,4"], "tdoa-fdoa", "tdoa-fdoa"),
-    ("colored-circle", ["n_samples=25"], "colored-position", "positions"),
-    ("colored-imm", ["n_samples=30"], "colored-position", "positions"),
+    ("colored-circle", ["n_samples=25"], "colored", "positions"),
+    ("colored-imm", ["n_samples=30"], "colored", "positions"),
 ]
 # arrays of the simulated channels the tables do not carry (none of them is read by a stage)
 NOT_CARRIED = {"/xcorr/truth": {"detected", "strength"}, "/emitter/prior": {"std"}, "/colored/truth": {"noise_m"}}
@@ -106,7 +106,7 @@ def test_a_table_without_truth_and_with_absolute_times_round_trips_through_the_a
     rng, counts = ds.channel("/radar/plots").ragged("range_m")
     np.testing.assert_array_equal(counts, [[2, 0, 1, 1]])
     assert ds.scenario["params"]["first_time_s"] == 1000.5
-    back = tables_from_dataset(ds, "radar-plots")["measurements"]
+    back = tables_from_dataset(ds, "radar")["measurements"]
     assert back["time_s"].to_list() == [1000.5, 1000.5, 1005.5, 1010.5, 1015.5]
     assert back["range_m"].to_list() == rows["range_m"].to_list()
     np.testing.assert_array_equal(back["bearing_rad"].to_numpy(), np.deg2rad(rows["bearing_deg"].to_numpy()))
@@ -231,7 +231,7 @@ BAD = [
     _case("positions", POS.replace("1,3,", "1,NaN,"), "column 'x_m' holds NaN at data row 3"),
     _case("positions", POS.replace("1,3,", "0.2,3,"), "time_s goes back within run 0 at data row 3"),
     _case("positions", POS.replace(",truth_ax_mps2", "").replace(",0\n", "\n"), "truth columns need all of"),
-    _case("positions", POS.replace("1.5,4,1.5,1,0\n", ""), "3 scan time(s); the colored-position trackers need at "
+    _case("positions", POS.replace("1.5,4,1.5,1,0\n", ""), "3 scan time(s); the colored trackers need at "
           "least 4"),
     _case("positions", POS.replace("truth_x_m", "truth_alpha_x"), "truth columns need all of"),
 ]
@@ -282,7 +282,7 @@ def test_the_tables_the_bad_cases_start_from_convert(tmp_path, name):
 def test_the_api_names_the_path_it_is_given():
     rows = pl.DataFrame({"time_s": [0.0, 5.0, 10.0], "range_m": [1.0, -1.0, 2.0], "bearing_rad": [0.0, 0.0, 0.0]})
     with pytest.raises(Exception) as info:
-        dataset_from_table("radar-plots", rows, "from/a/mapping.mcap")
+        dataset_from_table("radar", rows, "from/a/mapping.mcap")
     assert str(info.value) == "from/a/mapping.mcap: column 'range_m' holds a negative value -1 at data row 2"
 
 

@@ -42,7 +42,7 @@ def test_a_simulation_says_its_channels_and_that_every_value_is_a_simulation_par
         assert got["arrays"] == sorted(ch.arrays)
     times = ds.channel("/radar/plots").times()
     assert info["time_span_s"] == [float(times.min()), float(times.max())]
-    radar = info["sensor_values"]["radar-tws"]
+    radar = info["sensor_values"]["radar"]
     assert radar["sigma_range_m"] == {"value": 42.0, "source": sv.SIMULATION}
     assert radar["scan_period_s"]["source"] == sv.SIMULATION
     text = invoke("info", sim)
@@ -55,7 +55,7 @@ def test_a_recording_says_each_value_given_estimated_or_unknown(tmp_path):
     res = invoke("convert", "plots", SAMPLES / "radar_plots.csv", "-o", rec, "--set", "sigma_range_m=80")
     assert res.exit_code == 0, res.output
     info = info_json(rec)
-    radar = info["sensor_values"]["radar-tws"]
+    radar = info["sensor_values"]["radar"]
     assert info["origin"] == "recording" and info["truth"] is True
     assert radar["sigma_range_m"] == {"value": 80.0, "source": sv.CONVERTER_FLAG}
     assert radar["sigma_bearing_deg"] == {"value": None, "source": sv.UNKNOWN, "needs": "--set sigma_bearing_deg=VALUE"}
@@ -74,7 +74,7 @@ def test_a_mapping_files_values_say_so(tmp_path):
     res = invoke("convert", "mcap", SAMPLES / "json_radar_many.mcap", "--map", SAMPLES / "json_radar_many_map.toml",
                  "-o", rec)
     assert res.exit_code == 0, res.output
-    radar = info_json(rec)["sensor_values"]["radar-tws"]
+    radar = info_json(rec)["sensor_values"]["radar"]
     assert radar["clutter_per_scan"] == {"value": 1.5, "source": sv.MAPPING_FILE}
     assert radar["detection_probability"] == {"value": 0.85, "source": sv.MAPPING_FILE}
 
@@ -119,7 +119,7 @@ def test_a_wav_recording_says_its_geometry_comes_from_the_converters_flags(tmp_p
                  "--frequency-hz", 2000, "--nfft", 256, "--snapshots-per-scan", 10)
     assert res.exit_code == 0, res.output + (res.stderr or "")
     info = info_json(rec)
-    values = info["sensor_values"]["array-bearing"]
+    values = info["sensor_values"]["array"]
     assert info["origin"] == "recording" and info["truth"] is False
     assert values["spacing_wavelengths"]["source"] == sv.CONVERTER_FLAG
     recorded = read_dataset(rec).scenario["params"]

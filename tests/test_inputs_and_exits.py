@@ -18,13 +18,13 @@ import sys
 from trackreplay.trackers.interface import Tracker
 
 class ExitsInTrack(Tracker):
-    name, family = "exits_in_track", "radar-plots"
+    name, family = "exits_in_track", "radar"
 
     def track(self, plots):
         sys.exit({code})
 
 class ExitsWhenBuilt(Tracker):
-    name, family = "exits_when_built", "radar-plots"
+    name, family = "exits_when_built", "radar"
 
     def __init__(self, **design):
         super().__init__(**design)

@@ -7,7 +7,7 @@ Carlo error" means within 2 paired standard errors (≈ 95 %). Seeds are fixed.
 What the paper reports and what we assert:
 
 * strong/weak pair: JPDA_A's success is at least JPDA's at every crossing angle and every
-  minimum distance (paper: far better; here too: see docs/papers/bearing-peaks.md);
+  minimum distance (paper: far better; here too: see docs/papers/xcorr.md);
 * similar strengths: the paper says JPDA_A is "slightly better or equal". We assert it is
   never worse beyond MC error for both similar pairs, that weak/weak is within MC error at
   every angle (jointly over the five angles: each within 2.58 paired standard errors, the
@@ -15,7 +15,7 @@ What the paper reports and what we assert:
   similar strengths is smaller than for strong/weak. For strong/strong the gain exceeds MC
   error at some angles (the amplitude term also rejects clutter, whose amplitudes are far
   below a strong track's): reported, not hidden.
-* the shape of Fig. 8 with the default design (q read as (0.1°)², docs/papers/bearing-peaks.md):
+* the shape of Fig. 8 with the default design (q read as (0.1°)², docs/papers/xcorr.md):
   JPDA_A's strong/weak success does not fall from the largest crossing angle to the smallest
   beyond MC error, while JPDA's does. The paper's percentages themselves are not asserted.
 """
@@ -23,7 +23,7 @@ What the paper reports and what we assert:
 import numpy as np
 import pytest
 
-from trackreplay.evaluators.track_association import paired_difference, track_outcomes
+from trackreplay.evaluators.xcorr import paired_difference, track_outcomes
 from recorded_peaks import track_recorded
 from trackreplay.recorders import xcorr_peaks
 from trackreplay.recorders.scenarios import load_scenario

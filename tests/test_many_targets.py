@@ -27,7 +27,7 @@ from trackreplay.trackers.interface import Param, Tracker
 
 class TwoSlots(Tracker):
     """Echoes the first two plots of every scan as two tracks (slot j is track j)."""
-    name, family = "two_slots", "radar-plots"
+    name, family = "two_slots", "radar"
     params = (Param("offset_m", 0.0, "m"),)
 
     def track(self, plots):
@@ -67,7 +67,7 @@ def test_truth_sets_round_trip_with_their_identities(tmp_path):
     path = _write(tmp_path / "m.mcap", params, 3, 4)
     written, counts = data.ragged["/radar/truth"]
     ds = read_dataset(path)
-    stage = stage_named("radar-tws")
+    stage = stage_named("radar")
     state, ids = stage.decode_truth(ds)
     assert stage.holds_many_targets(ds)
     for r in range(3):
@@ -86,7 +86,7 @@ def test_truth_sets_round_trip_with_their_identities(tmp_path):
 
 def test_a_single_target_file_is_a_set_of_one(demo_mcap):
     ds = read_dataset(demo_mcap)
-    stage = stage_named("radar-tws")
+    stage = stage_named("radar")
     state, ids = stage.decode_truth(ds)
     assert state.shape[2] == 1 and (ids == 0).all() and not stage.holds_many_targets(ds)
     np.testing.assert_array_equal(state[:, :, 0], ds.channel("/radar/truth").grid("state"))
@@ -106,7 +106,7 @@ def test_clean_scene_every_target_found_and_no_identity_lost(tmp_path):
     params = _scenario(clutter_per_scan=0.0, detection_probability=1.0, turning_fraction=0.0, n_scans=40,
                        initial_targets_mean=4.0, birth_rate_per_scan=0.0, survival_probability=1.0)
     path = _write(tmp_path / "clean.mcap", params, 4, 21)
-    stage = stage_named("radar-tws")
+    stage = stage_named("radar")
     truth, ids = stage.decode_truth(read_dataset(path))
     assert _separated(truth, ids, 2000.0)  # the premise: no two targets ever share a gate
     res = replay(path)
@@ -136,7 +136,7 @@ def test_default_scenario_within_bounds_that_follow_from_track_life(tmp_path):
         assert _metric(s, tracker, "idf1") >= 0.8
         # GOSPA² ≈ c²/2 per missed or false target-scan (c = cut-off) + localisation; with about
         # 10 targets, 2 × 0.10 × 10 of them cost c²/2: GOSPA ≤ c·sqrt(1) = c
-        cutoff = design_values.resolve(stage_named("radar-tws"), read_dataset(path))["ospa_cutoff_m"]
+        cutoff = design_values.resolve(stage_named("radar"), read_dataset(path))["ospa_cutoff_m"]
         assert _metric(s, tracker, "gospa_mean_m") <= cutoff
 
 
@@ -205,7 +205,7 @@ import numpy as np
 from trackreplay.trackers.interface import Tracker
 
 class _Base(Tracker):
-    family = "radar-plots"
+    family = "radar"
 
     def outputs(self, plots):
         R, K = plots.counts.shape
@@ -263,7 +263,7 @@ def test_a_long_table_of_many_targets_converts_with_its_truth_set(runner, tmp_pa
     assert res.exit_code == 0, res.output
     assert "7 plots; with truth" in res.output
     ds = read_dataset(Path("many.mcap"))
-    stage = stage_named("radar-tws")
+    stage = stage_named("radar")
     state, ids = stage.decode_truth(ds)
     assert stage.holds_many_targets(ds)
     # scan 1: target 1 without a plot keeps its truth; scan 3: neither plots nor targets
@@ -359,7 +359,7 @@ def test_replay_writes_the_target_and_track_tables(runner):
     res = runner.invoke(main, [str(data), "--no-rrd", "--figures", "none", "--out", "o/t.mcap", "--trackers", "gnn"])
     assert res.exit_code == 0, res.output
     targets, lives = pl.read_parquet("o/targets.parquet"), pl.read_parquet("o/track_lives.parquet")
-    truth = stage_named("radar-tws").decode_truth(read_dataset(data))[1]
+    truth = stage_named("radar").decode_truth(read_dataset(data))[1]
     assert targets.height == sum(np.unique(truth[r][truth[r] >= 0]).size for r in range(truth.shape[0]))
     assert targets["tracked_fraction"].is_between(0, 1).all() and (lives["scans"] > 0).all()
     # a track is reported once confirmed: never before its target appeared
@@ -386,6 +386,6 @@ def test_a_plugged_two_slot_tracker_in_check(runner, radar_small, two_slots):
 def test_a_variant_runs_when_named_and_not_by_default(tmp_path):
     """``ukf`` (the GNN with another filter) is a built-in a replay runs only when named."""
     path = _write(tmp_path / "few.mcap", _scenario(n_scans=12, initial_targets_mean=3.0), 2, 7)
-    assert set(replay(path).results["radar-tws"]["tracks"]) == {"gnn", "jpda_mt"}
-    named = replay(path, trackers=["gnn", "jpda_mt", "ukf"]).results["radar-tws"]["tracks"]
+    assert set(replay(path).results["radar"]["tracks"]) == {"gnn", "jpda_mt"}
+    named = replay(path, trackers=["gnn", "jpda_mt", "ukf"]).results["radar"]["tracks"]
     assert set(named) == {"gnn", "jpda_mt", "ukf"}

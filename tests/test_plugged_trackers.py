@@ -34,8 +34,8 @@ from trackreplay.registry import ENTRY_POINT_GROUP, available_trackers
 from trackreplay.replay import replay
 from trackreplay.trackers.interface import TrackerError, call_tracker, validate_outputs
 
-PREFIX = vocab.FAMILIES["radar-plots"].output_prefix  # /tracks/radar/
-STAGE = "radar-tws"
+PREFIX = vocab.FAMILIES["radar"].output_prefix  # /tracks/radar/
+STAGE = "radar"
 REPO_DATA = Path(__file__).resolve().parents[1] / "data"
 
 TRACKERS = '''
@@ -55,7 +55,7 @@ def echo(r, b, counts, offset):
 
 class PlotEcho(Tracker):
     name = "plot_echo"
-    family = "radar-plots"
+    family = "radar"
     params = (Param("offset_m", 0.0, "m", "added to the x of every estimate"),
               Param("sigma_range_m", None, "m", "plot range noise (from the scenario)"))
 
@@ -69,7 +69,7 @@ class PlotEcho(Tracker):
 
 class PlotEchoRun(Tracker):
     name = "plot_echo_run"
-    family = "radar-plots"
+    family = "radar"
     form = "run"
     params = (Param("offset_m", 0.0, "m", "added to the x of every estimate"),)
 
@@ -80,7 +80,7 @@ class PlotEchoRun(Tracker):
 
 class Boom(Tracker):
     name = "boom"
-    family = "radar-plots"
+    family = "radar"
     form = "run"
 
     def track_run(self, plots):
@@ -90,7 +90,7 @@ class Boom(Tracker):
 
 class BadShape(Tracker):
     name = "bad_shape"
-    family = "radar-plots"
+    family = "radar"
 
     def track(self, plots):
         return {"state": np.zeros((3, 4)), "flags": np.zeros(3, np.uint16)}
@@ -98,7 +98,7 @@ class BadShape(Tracker):
 
 class ShortState(Tracker):
     name = "short_state"
-    family = "radar-plots"
+    family = "radar"
 
     def track(self, plots):  # [x, y, vx] where the family's state is [x, y, vx, vy]
         R, K = plots.counts.shape
@@ -108,7 +108,7 @@ class ShortState(Tracker):
 
 class NanState(Tracker):
     name = "nan_state"
-    family = "radar-plots"
+    family = "radar"
 
     def track(self, plots):
         shape = plots.counts.shape
@@ -149,9 +149,9 @@ def assert_one_error_line(res, *fragments):
 
 def outputs(path: Path) -> dict:
     """Tracker name → its output arrays, read back from a ``tracks.mcap``."""
-    from trackreplay.stages.radar_tws import RadarTwsStage
+    from trackreplay.stages.radar import RadarStage
 
-    return stage_running.read_outputs(RadarTwsStage(), read_dataset(path))["tracks"]
+    return stage_running.read_outputs(RadarStage(), read_dataset(path))["tracks"]
 
 
 def eval_records(res) -> list[dict]:
@@ -197,15 +197,15 @@ def test_replay_trackers_lists_a_plugged_tracker(runner, plugged):
     res = runner.invoke(main, ["trackers", "--tracker", "plugged.py:PlotEcho", "--tracker", "plugged.py:PlotEchoRun"])
     assert res.exit_code == 0, res.output
     rows = {line.split()[0]: line.split() for line in res.stdout.splitlines() if line.strip()}
-    assert rows["plot_echo"][1:5] == ["radar-plots", "batch", "always", "plugged.py:PlotEcho"]
-    assert rows["plot_echo_run"][1:3] == ["radar-plots", "run"]
+    assert rows["plot_echo"][1:5] == ["radar", "batch", "always", "plugged.py:PlotEcho"]
+    assert rows["plot_echo_run"][1:3] == ["radar", "run"]
     section = res.stdout.split("design parameters of plot_echo:")[1].split("\n\n")[0]
     assert "offset_m" in section and "added to the x of every estimate" in section
     assert rows["offset_m"][1:4] == ["0", "m", "tracker"]
 
     listing = json.loads(runner.invoke(main, ["trackers", "--tracker", "plugged.py:PlotEcho", "--json"]).stdout)
     row = next(r for r in listing if r["name"] == "plot_echo")
-    assert (row["family"], row["form"], row["stage"]) == ("radar-plots", "batch", STAGE)
+    assert (row["family"], row["form"], row["stage"]) == ("radar", "batch", STAGE)
     params = {p["name"]: p for p in row["params"]}
     assert params["offset_m"] == {"name": "offset_m", "default": 0.0, "unit": "m", "from": "tracker",
                                   "doc": "added to the x of every estimate"}
@@ -248,10 +248,10 @@ def test_set_through_the_python_api(radar_small, plugged):
 
 
 def test_run_form_equals_batch_form(radar_small, plugged):
-    from trackreplay.stages.radar_tws import RadarTwsStage
+    from trackreplay.stages.radar import RadarStage
 
     table = available_trackers([f"{plugged}:PlotEcho", f"{plugged}:PlotEchoRun"])
-    meas = RadarTwsStage().decode(read_dataset(radar_small), {})
+    meas = RadarStage().decode(read_dataset(radar_small), {})
     batch = call_tracker(table["plot_echo"].cls(offset_m=3.0, sigma_range_m=100.0), meas)
     per_run = call_tracker(table["plot_echo_run"].cls(offset_m=3.0), meas)
     np.testing.assert_array_equal(per_run["state"], batch["state"])
@@ -327,7 +327,7 @@ def test_failing_constructor_gives_one_line(runner, radar_small, plugged):
     ("plugged.py:Nope", ["plugged.py", "no class 'Nope'", "PlotEcho"]),
     ("plugged.py:NotATracker", ["plugged.py:NotATracker", "is not a Tracker subclass"]),
     ("plugged.py:echo", ["plugged.py:echo", "is not a Tracker subclass"]),
-    ("plugged.py:Sonar", ["'sonar'", "family 'sonar-pings'", "radar-plots"]),
+    ("plugged.py:Sonar", ["'sonar'", "family 'sonar-pings'", "radar"]),
     ("broken.py:PlotEcho", ["broken.py", "importing it raised ZeroDivisionError"]),
     ("no_such_module_xyz:PlotEcho", ["no_such_module_xyz", "cannot import"]),
     ("plugged.py", ["'plugged.py'", "no installed tracker has that name"]),
@@ -355,7 +355,7 @@ def test_two_trackers_with_one_name_are_refused(runner, radar_small, plugged):
 def test_plugged_tracker_of_a_family_the_file_lacks(runner, plugged, tmp_path):
     data = REPO_DATA / "xcorr_crossing_demo.mcap"
     res = runner.invoke(main, [str(data), "--tracker", "plugged.py:PlotEcho", "--no-rrd", "--out", "o/t.mcap"])
-    assert_one_error_line(res, "'plot_echo'", "radar-plots")
+    assert_one_error_line(res, "'plot_echo'", "radar")
 
 
 # --------------------------------------------------------------------------- check and sweep
@@ -424,7 +424,7 @@ def test_entry_point_tracker_is_found_by_name(runner, radar_small, installed):
     res = runner.invoke(main, ["trackers"])
     assert res.exit_code == 0, res.output
     row = next(line.split() for line in res.stdout.splitlines() if line.startswith("extra_echo"))
-    assert row[1:3] == ["radar-plots", "batch"] and "trackreplay-extra" in row
+    assert row[1:3] == ["radar", "batch"] and "trackreplay-extra" in row
 
     # not run by default (installed is not chosen), but by name: --tracker NAME or --trackers
     res = runner.invoke(main, [str(radar_small), "--no-rrd", "--out", "a/t.mcap"])
@@ -501,7 +501,7 @@ def test_param_bounds_are_checked_by_the_base_class():
     from trackreplay.trackers.interface import Param, Tracker
 
     class Bounded(Tracker):
-        name, family = "bounded", "radar-plots"
+        name, family = "bounded", "radar"
         params = (Param("gain", 0.5, "", "a gain in (0, 1)", low=0.0, high=1.0),)
 
     assert Bounded(gain=0.25).gain == 0.25
@@ -620,7 +620,7 @@ from trackreplay.trackers.interface import Tracker
 
 class Shifted(Tracker):
     """The first plot of every scan, shifted by a constant from the module beside this file."""
-    name, family = "shifted", "radar-plots"
+    name, family = "shifted", "radar"
 
     def track(self, plots):
         import numpy as np

@@ -1,6 +1,6 @@
 """The paper's TWS scenario over 500+ Monte Carlo runs: properties, not copied numbers.
 
-Findings these tests pin down (see docs/papers/radar-tws.md):
+Findings these tests pin down (see docs/papers/radar.md):
 * NPE < 1 at every filtered scan for all four filters (α-β with the textbook start-up gains);
 * the Kalman reference beats the α-β filters when they start cold from steady-state gains on
   the paper's constant-velocity truth, and beats them all when the truth follows the filters'
@@ -12,7 +12,7 @@ Findings these tests pin down (see docs/papers/radar-tws.md):
 import numpy as np
 import pytest
 
-from trackreplay.evaluators.radar_tws import evaluate, filtered_mask
+from trackreplay.evaluators.radar import evaluate, filtered_mask
 from trackreplay.cores.filters.alpha_beta_gains import kalata_gains
 from trackreplay.cores.filters.converted_measurements import polar_to_cartesian
 from trackreplay.trackers.radar_tws import FLAG_CLAMPED, STRATEGIES, TrackerDesign, track_plots

@@ -66,7 +66,7 @@ def test_one_tracker_at_a_time_scores_and_writes_what_all_at_once_does(name, tmp
 def test_small_outputs_are_scored_in_one_unit_and_large_ones_apart(monkeypatch):
     from trackreplay.stages import stage_named
 
-    stage = stage_named("radar-tws")
+    stage = stage_named("radar")
     ds = read_dataset(DATA_DIR / "radar_tws_demo.mcap")
     entries = select_trackers([stage])[stage.name]
     design = design_values.resolve(stage, ds, None, entries)
@@ -82,9 +82,9 @@ def test_kept_runs_are_the_first_runs_of_the_full_outputs():
     full = replay(path)
     kept = replay(path, keep_runs=2)
     assert_frame_equal(kept.summary, full.summary)
-    for tracker, outputs in full.results["radar-tws"]["tracks"].items():
+    for tracker, outputs in full.results["radar"]["tracks"].items():
         for key, value in outputs.items():
-            short = kept.results["radar-tws"]["tracks"][tracker][key]
+            short = kept.results["radar"]["tracks"][tracker][key]
             assert short.shape == (2,) + value.shape[1:]
             np.testing.assert_array_equal(short, value[:2])
 

@@ -65,7 +65,7 @@ def plots_table(path: Path, times, runs: int = 1, seed: int = 0) -> Path:
 
 
 def provenance_design(tracks: Path) -> dict:
-    return json.loads(read_dataset(tracks).metadata[METADATA_PROVENANCE]["design"])["radar-tws"]
+    return json.loads(read_dataset(tracks).metadata[METADATA_PROVENANCE]["design"])["radar"]
 
 
 # --------------------------------------------------------------------------- converted with and without
@@ -104,7 +104,7 @@ from trackreplay.trackers.interface import Param, Tracker
 
 class FirstPlot(Tracker):
     """Needs nothing of the sensor: the first plot of each scan, as x/y."""
-    name, family = "first_plot", "radar-plots"
+    name, family = "first_plot", "radar"
     params = (Param("weight", 1.0),)
 
     def track(self, plots):
@@ -264,7 +264,7 @@ def test_a_file_of_an_earlier_converter_keeps_its_values_and_has_no_bound(tmp_pa
     data = simulator_for(scenario.recorder)(scenario.params, 4, 2)
     sim, old = tmp_path / "sim.mcap", tmp_path / "old.mcap"
     write_simulated(sim, data, scenario_metadata(scenario.name, scenario.params, 2))
-    write_simulated(old, data, scenario_metadata("radar-plots table", scenario.params, -1))
+    write_simulated(old, data, scenario_metadata("radar table", scenario.params, -1))
     record = read_dataset(old).scenario
     assert sv.is_recording(record) and not sv.is_simulation(record)
     assert set(sv.recorded_sources(record).values()) == {sv.EARLIER_CONVERTER}
@@ -301,7 +301,7 @@ def test_a_file_without_a_record_is_a_recording_whose_sensor_values_are_unknown(
 
     info = json.loads(ok(invoke("info", bare, "--json")).output)
     assert info["origin"] == "recording" and info["says_nothing_of_its_sensor"] is True
-    values = info["sensor_values"]["radar-tws"]
+    values = info["sensor_values"]["radar"]
     assert values["sigma_range_m"] == {"value": None, "source": sv.UNKNOWN, "needs": "--set sigma_range_m=VALUE"}
     assert "without a replay.scenario record" in ok(invoke("info", bare)).output
 

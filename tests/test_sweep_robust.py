@@ -204,7 +204,7 @@ TRACKER = textwrap.dedent('''
 
     class FirstPlot(Tracker):
         name = "first_plot"
-        family = "radar-plots"
+        family = "radar"
         form = "run"
 
         def track_run(self, plots):
@@ -424,7 +424,7 @@ from trackreplay.trackers.interface import Param, Tracker
 class Doomed(Tracker):
     """Kills the process that runs it (its parent: the sweep's worker) where doom > 0."""
 
-    name, family = "doomed", "radar-plots"
+    name, family = "doomed", "radar"
     params = (Param("doom", 0.0),)
 
     def track(self, plots):

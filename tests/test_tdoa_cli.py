@@ -114,7 +114,7 @@ def test_estimators_are_trackers_and_the_bound_travels_in_the_outputs(triangle3,
     evaluator needs is the stage's ``crlb`` extra output, written and read back exactly; a
     plugged tracker of the family is scored against the joint bound."""
     plugged = tmp_path / "plugged.py"
-    plugged.write_text("from trackreplay.trackers.emitter import JointTdoaFdoa\n\n\n"
+    plugged.write_text("from trackreplay.trackers.tdoa_fdoa import JointTdoaFdoa\n\n\n"
                        "class MyJoint(JointTdoaFdoa):\n    name = 'my_joint'\n")
     out = tmp_path / "t.mcap"
     res = replay(triangle3, out_path=out, tracker_specs=[f"{plugged}:MyJoint"])
@@ -124,7 +124,7 @@ def test_estimators_are_trackers_and_the_bound_travels_in_the_outputs(triangle3,
     bound = tracks["crlb"]
     assert bound["whitened_jacobian_joint"].shape == (300, 1, 6, 4)
     assert bound["crlb_covariance_tdoa"].shape == (300, 1, 2, 2)
-    back = read_dataset(out).channel("/tracks/emitter/crlb")
+    back = read_dataset(out).channel("/tracks/tdoa-fdoa/crlb")
     for key, a in bound.items():
         np.testing.assert_array_equal(back.grid(key), a, err_msg=key)
     tdoa = tracks["tdoa"]
@@ -258,7 +258,7 @@ def test_cep_plane_command_writes_png_and_recording(runner, tmp_path):
 
 def test_outputs_written_before_tracks_emitter_still_read(tmp_path):
     """The emitter family wrote /emitter/estimates/<estimator> before its outputs moved under
-    /tracks/emitter/ like every family's: such a file still reads, the same arrays."""
+    /tracks/tdoa-fdoa/ like every family's: such a file still reads, the same arrays."""
     from types import SimpleNamespace
 
     from trackreplay.replay import replay
@@ -267,8 +267,8 @@ def test_outputs_written_before_tracks_emitter_still_read(tmp_path):
     data = Path(__file__).resolve().parents[1] / "data" / "tdoa_fdoa_demo.mcap"
     replay(data, out_path=tmp_path / "tracks.mcap")
     out = read_dataset(tmp_path / "tracks.mcap")
-    assert any(t.startswith("/tracks/emitter/") for t in out.channels)
-    old = SimpleNamespace(path=out.path, channels={t.replace("/tracks/emitter/", "/emitter/estimates/"): ch
+    assert any(t.startswith("/tracks/tdoa-fdoa/") for t in out.channels)
+    old = SimpleNamespace(path=out.path, channels={t.replace("/tracks/tdoa-fdoa/", "/emitter/estimates/"): ch
                                                    for t, ch in out.channels.items()})
     stage = stage_for_outputs(old.channels)
     assert stage is not None and stage.family == "tdoa-fdoa"

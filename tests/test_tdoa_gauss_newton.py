@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 from scipy.optimize import least_squares
 
-from trackreplay.evaluators.emitter_localisation import ELSEWHERE, TRUTH, classify
+from trackreplay.evaluators.tdoa_fdoa import ELSEWHERE, TRUTH, classify
 from trackreplay.cores.localisation.batched_least_squares import covariance_from_factor, scaled_least_squares
 from trackreplay.cores.localisation.crlb import crlb
 from trackreplay.cores.localisation.gauss_newton import gauss_newton

@@ -96,8 +96,8 @@ def test_an_unlabelled_start_does_as_well_as_the_labelled_one_and_as_the_truth_o
     within Monte Carlo error (paired); and, over the runs where both it and the truth start
     follow their targets, the bearing error after start-up within Monte Carlo error of the
     truth start's. (Both measurement starts succeed less often than the truth start: the gap is
-    reported in docs/papers/bearing-peaks.md, not hidden here.)"""
-    from trackreplay.evaluators.track_association import paired_difference, track_outcomes
+    reported in docs/papers/xcorr.md, not hidden here.)"""
+    from trackreplay.evaluators.xcorr import paired_difference, track_outcomes
     from trackreplay.evaluators.tracking_metrics import nanmean
     from recorded_peaks import track_recorded
     from trackreplay.recorders import xcorr_peaks
@@ -202,7 +202,7 @@ def test_a_tentative_radar_track_that_cannot_be_confirmed_is_deleted():
 def test_an_array_track_that_leaves_the_field_is_deleted_and_never_reported_outside_it():
     """d = 0.6 λ: the field free of grating lobes is |θ| < arcsin(1/0.6 − 1) = 41.8°. A target
     moving from 0° to 78° leaves it at scan 21; its track ends within a scan, flagged."""
-    from trackreplay.trackers import array_bearing as ab
+    from trackreplay.trackers import array as ab
     from trackreplay.trackers.interface import ArraySnapshots
     from trackreplay.recorders.array_snapshots import steering_vectors
     from trackreplay.recorders.scenarios import load_scenario
@@ -228,7 +228,7 @@ def test_an_array_track_that_leaves_the_field_is_deleted_and_never_reported_outs
 
 
 def test_a_scan_without_enough_peaks_leaves_a_slot_empty_instead_of_failing():
-    from trackreplay.trackers.bearing_peaks import one_point_start, strongest_start_peaks
+    from trackreplay.trackers.xcorr import one_point_start, strongest_start_peaks
 
     bearing = np.deg2rad(np.array([[[80.0, 95.0, 0.0]], [[88.0, 0.0, 0.0]]]))  # (R=2, K=1, W=3)
     amplitude = np.array([[[9000.0, 20000.0, 0.0]], [[30000.0, 0.0, 0.0]]])
@@ -299,7 +299,7 @@ def test_peak_tracks_started_from_one_peak_are_found_as_often_as_truth_started_o
     weak track is pulled off by clutter in some runs before the crossing, so ≥ 95 % is not a
     property of the tracker. What the start must do is find the targets as often as the truth
     start does (paired over the same 150 runs, within Monte Carlo error), before the crossing."""
-    from trackreplay.evaluators.track_association import paired_difference
+    from trackreplay.evaluators.xcorr import paired_difference
     from trackreplay.recorders.scenarios import load_scenario
     from trackreplay.recorders.simulated import record
 
@@ -325,7 +325,7 @@ def test_colored_filters_started_from_measurements_converge_to_the_truth_started
     record(full, load_scenario("colored-imm").with_overrides(
         {"n_samples": 400, "manoeuvre_first_sample": 150, "manoeuvre_last_sample": 250}), 30, 8)
     truth = read_dataset(full).channel(vocab.CHANNELS["colored_truth"]).grid("state")
-    results = {start: replay(full, design_overrides={"track_start": start}).results["colored-noise-imm"]["tracks"]
+    results = {start: replay(full, design_overrides={"track_start": start}).results["colored"]["tracks"]
                for start in ("truth", "measurements")}
     late, early = slice(200, None), slice(1, 6)
     for name, out in results["truth"].items():

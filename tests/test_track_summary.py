@@ -161,10 +161,10 @@ def test_mean_nis_bounds_are_the_chi2_interval_of_n_times_m_dof():
 
 
 SCENARIOS = {"radar-tws": ("radar-tws", ["--set", "n_scans=20"]),
-             "xcorr-crossing": ("xcorr-peaks", ["--set", "crossing_angle_deg=20"]),
-             "array-crossing": ("array-bearing", ["--set", "n_scans=12"]),
+             "xcorr-crossing": ("xcorr", ["--set", "crossing_angle_deg=20"]),
+             "array-crossing": ("array", ["--set", "n_scans=12"]),
              "tdoa-fdoa": ("tdoa-fdoa", []),
-             "colored-imm": ("colored-noise-imm", ["--set", "n_samples=200", "--set", "manoeuvre_first_sample=60",
+             "colored-imm": ("colored", ["--set", "n_samples=200", "--set", "manoeuvre_first_sample=60",
                                                    "--set", "manoeuvre_last_sample=120"])}
 ERROR_METRICS = ("rmse", "ospa", "gospa", "nees", "mota", "idf1", "crlb", "pcrb", "efficiency", "success_rate")
 

@@ -44,21 +44,21 @@ def first_plot_states(plots):
 
 
 class Fine(Tracker):
-    name, family = "fine", "radar-plots"
+    name, family = "fine", "radar"
 
     def track(self, plots):
         return first_plot_states(plots)
 
 
 class OsExitInTrack(Tracker):
-    name, family = "os_exit_in_track", "radar-plots"
+    name, family = "os_exit_in_track", "radar"
 
     def track(self, plots):
         os._exit(0)
 
 
 class OsExitWhenBuilt(Tracker):
-    name, family = "os_exit_when_built", "radar-plots"
+    name, family = "os_exit_when_built", "radar"
 
     def __init__(self, **design):
         super().__init__(**design)
@@ -69,21 +69,21 @@ class OsExitWhenBuilt(Tracker):
 
 
 class OsExitInTrackRun(Tracker):
-    name, family, form = "os_exit_in_track_run", "radar-plots", "run"
+    name, family, form = "os_exit_in_track_run", "radar", "run"
 
     def track_run(self, plots):
         os._exit(5)
 
 
 class SysExitInTrack(Tracker):
-    name, family = "sys_exit_in_track", "radar-plots"
+    name, family = "sys_exit_in_track", "radar"
 
     def track(self, plots):
         sys.exit(3)
 
 
 class SleepsForever(Tracker):
-    name, family = "sleeps_forever", "radar-plots"
+    name, family = "sleeps_forever", "radar"
 
     def track(self, plots):
         Path(os.environ["TRACKER_STARTED"]).write_text(str(os.getpid()))
@@ -233,7 +233,7 @@ def test_a_plugged_trackers_outputs_through_the_child_equal_a_call_here(radar_sm
     from trackreplay.trackers.radar_tws import TRACKERS as RADAR
 
     ds = read_dataset(radar_small)
-    stage = next(s for s in applicable_stages(ds.channels) if s.family == "radar-plots")
+    stage = next(s for s in applicable_stages(ds.channels) if s.family == "radar")
     design = design_values.resolve(stage, ds)
     measurements = stage.decode(ds, design)
     cls = next(c for c in RADAR if c.name == "kalman")

@@ -5,7 +5,7 @@ and the replayed bearings land on the true ones with the documented sign.
 The recordings are simulated here from known sources, in plain numpy: band-limited white noise
 per source, delayed for a uniform linear array by a phase ramp in the frequency domain
 (fractional delays), plus white sensor noise; see ``docs/importers.md`` (WAV section) and
-``docs/papers/array-bearing.md``.
+``docs/papers/array.md``.
 """
 
 from __future__ import annotations
@@ -60,7 +60,7 @@ def convert(tmp_path, name, angles_deg, snr_db, *extra):
 
 
 def bearings_deg(result, tracker):
-    return np.rad2deg(result.results["array-bearing"]["tracks"][tracker]["state"][0, :, :, 0])
+    return np.rad2deg(result.results["array"]["tracks"][tracker]["state"][0, :, :, 0])
 
 
 GEOMETRIES = [([-30.0, 5.0, 40.0], 25.0), ([-45.0, -10.0, 20.0], 25.0), ([-20.0, 25.0], 25.0)]
@@ -83,7 +83,7 @@ def test_default_count_is_right_where_one_bin_is_not_and_bearings_land_on_the_tr
             # positive bearing is on the side of the last channel
             assert np.all(np.abs(est - np.array(angles)) < 0.5), (angles, tracker, est)
         # today's count without the converter's: MDL on the tracked bin at start-up
-        old = replay(mcap, design_overrides={"n_sources": 0}).results["array-bearing"]["tracks"]["proposed"]
+        old = replay(mcap, design_overrides={"n_sources": 0}).results["array"]["tracks"]["proposed"]
         one_bin_wrong += int(old["source_count"][0, 0] != len(angles))
     assert one_bin_wrong >= 1  # the change matters: one bin over-counts these wideband sources
 

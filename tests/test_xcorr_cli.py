@@ -138,7 +138,7 @@ def test_empty_scans_coast_and_stay_finite(base_data, tmp_path):
     p, data = _modified(base_data, empty)
     path = _write(tmp_path / "gap.mcap", data, p)
     res = replay(path)
-    out = res.results["xcorr-peaks"]["tracks"]["jpda_a"]
+    out = res.results["xcorr"]["tracks"]["jpda_a"]
     assert np.all(out["flags"][:, 10:20] & FLAG_COASTED)
     assert np.all(out["beta0"][:, 10:20] == 1.0)
     var = out["covariance"][:, 9:20, :, 0, 0]

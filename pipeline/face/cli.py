@@ -40,6 +40,7 @@ from trackreplay.errors import InputError
 from trackreplay.face import progress
 from trackreplay.face.cli_common import InternalError, UserError
 from trackreplay.face.cli_data import convert_group
+from trackreplay.vocabulary import FAMILIES
 
 
 class ReplayGroup(click.Group):
@@ -189,19 +190,16 @@ COMMAND_MODULES: tuple[str, ...] = (
     "trackreplay.face.cli_export",    # view, export
 )
 
-# Paper-specific commands (e.g. `replay crlb`) live next to their paper's code; each module
-# listed here exposes COMMANDS, a list of click commands added to `replay`, and may expose
-# CONVERT_COMMANDS, added under `replay convert` (the modules never import this one: no circle).
-EXTENSION_MODULES: tuple[str, ...] = (
-    "trackreplay.face.cli_emitter",
-    "trackreplay.face.cli_colored_noise",
-    "trackreplay.face.cli_xcorr",
-    "trackreplay.face.cli_array",
+# Paper-specific commands (e.g. `replay crlb`) live next to their paper's code, in
+# face/cli_<stem>.py of the families declared with commands (trackreplay.vocabulary.FAMILIES); the
+# convert modules below add importers. Each module exposes COMMANDS, a list of click commands added
+# to `replay`, and may expose CONVERT_COMMANDS, added under `replay convert` (the modules never
+# import this one: no circle).
+EXTENSION_MODULES: tuple[str, ...] = tuple(f.command_module for f in FAMILIES.values() if f.commands) + (
     "trackreplay.face.cli_convert_upgrade",
     "trackreplay.face.cli_convert_tables",
     "trackreplay.face.cli_convert_foreign",
     "trackreplay.face.cli_info",
-    # one line per module: "trackreplay.cli_<paper>",
 )
 
 

@@ -1,5 +1,5 @@
 """``replay convert array-wav``: a multichannel WAV array recording → snapshot channels, the input
-of the array-snapshot bearing trackers (Ryu, Lee & Lee 2001; ``docs/papers/array-bearing.md``).
+of the array-snapshot bearing trackers (Ryu, Lee & Lee 2001; ``docs/papers/array.md``).
 
 Registered under the existing ``replay convert`` group (this module is listed in
 ``trackreplay.face.cli.EXTENSION_MODULES``; its CONVERT_COMMANDS join the group).
@@ -48,7 +48,7 @@ def array_wav_cmd(wav_path, output, spacing_m, frequency_hz, sound_speed_mps, nf
       replay rec.mcap                       # follows the counted sources
       replay rec.mcap --set n_sources=2     # or a number of your own
     """
-    from trackreplay.recorders.wav_array import convert_array_wav
+    from trackreplay.recorders.array_wav import convert_array_wav
 
     from trackreplay.paths import refuse_input_overwrite, refuse_replacing_file
 

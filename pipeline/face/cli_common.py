@@ -175,10 +175,10 @@ scenario record, or the data set itself, may give others (docs/evaluation.md, "E
 \b
   radar-tws          ospa_cutoff_m=1000, ospa_order=2, assignment_gate_m=500,
                      hota_distance_m=1000, gospa_switch_penalty_m=1000, siap_gate_m=500
-  xcorr-peaks        ospa_cutoff_deg=10, ospa_order=2, assignment_gate_deg=5
-  array-bearing      ospa_cutoff_deg=10, ospa_order=2, assignment_gate_deg=3
+  xcorr        ospa_cutoff_deg=10, ospa_order=2, assignment_gate_deg=5
+  array      ospa_cutoff_deg=10, ospa_order=2, assignment_gate_deg=3
   tdoa-fdoa          ospa_cutoff_m=5000, ospa_order=2, assignment_gate_m=2000
-  colored-noise-imm  ospa_cutoff_m=100, ospa_order=2, assignment_gate_m=50"""
+  colored  ospa_cutoff_m=100, ospa_order=2, assignment_gate_m=50"""
 
 
 EVALUATION_SET_HELP = ("Score with this evaluation design value (the matching gate, the GOSPA cut-off and order, "

@@ -33,7 +33,7 @@ def convert_mcap_cmd(src, map_path, output, sets, force):
     tdoa-fdoa), where each column of the family's table comes from:
 
     \b
-      family = "radar-plots"
+      family = "radar"
       [measurements]
       topic = "/radar/scan"          # the topic to read
       time = "header.stamp"          # "log_time", a stamp (sec + nanosec), or

@@ -18,7 +18,7 @@ PAPER = {"strong": {"clutter_per_gate": 2.0, "amplitude_mean": 21000.0, "amplitu
 def reference_bearings(dataset, reference: str):
     """Reference bearings ``(R, K, T)``: the truth, or a tracker's estimates (as the paper's PDA tracks)."""
     from trackreplay import design_values, stage_running
-    from trackreplay.stages.bearing_peaks import PEAKS, TRUTH, BearingPeaksStage, read_truth
+    from trackreplay.stages.xcorr import PEAKS, TRUTH, XcorrStage, read_truth
 
     truth = dataset.channels.get(TRUTH)
     if reference == "auto":
@@ -29,7 +29,7 @@ def reference_bearings(dataset, reference: str):
         if bearings is None:
             raise InputError(f"no {TRUTH} channel: use --reference jpda_a (tracker estimates)", dataset.path)
         return bearings, reference
-    stage = BearingPeaksStage()
+    stage = XcorrStage()
     overrides = {} if truth is not None else {"track_start": "two-point"}
     entries = [e for e in stage.entries() if e.name == reference]
     design = design_values.resolve(stage, dataset, overrides, entries)
@@ -41,7 +41,7 @@ def fit_dataset(path, reference: str = "auto", gate_deg: float | None = None, th
     """Read a peak data set and fit the model; returns ``(PeakModelFit, roles)``."""
     from trackreplay.contract import read_dataset
     from trackreplay.cores.association.peak_model_fit import fit_peak_model
-    from trackreplay.stages.bearing_peaks import field_deg, read_peaks, recorded_float
+    from trackreplay.stages.xcorr import field_deg, read_peaks, recorded_float
 
     ds = read_dataset(path)
     peaks = read_peaks(ds)
@@ -53,7 +53,7 @@ def fit_dataset(path, reference: str = "auto", gate_deg: float | None = None, th
     field = tuple(math.radians(float(v)) for v in field_deg(ds))
     fit = fit_peak_model(peaks["bearing"], peaks["amplitude"], peaks["run"], peaks["scan"], ref, gate, threshold,
                          field, name)
-    from trackreplay.trackers.peak_roles import roles_for
+    from trackreplay.trackers.xcorr_peak_roles import roles_for
 
     # the recorded roles cycled over the data's targets (a recording without them: track0, …)
     roles = (list(roles_for(params, len(fit.tracks))) if "pair" in params or "roles" in params
@@ -175,10 +175,10 @@ def association_table(table, swept: list[str], path=None):
 
     wide = table.pivot(on="metric", index=[*swept, "tracker"], values="value", aggregate_function="first")
     if "success_rate" not in wide.columns:
-        raise InputError("the sweep has no success_rate metric (needs /xcorr/truth): not an xcorr-peaks study", path)
+        raise InputError("the sweep has no success_rate metric (needs /xcorr/truth): not an xcorr study", path)
     missing = [c for c in ("success_rate_stderr", "swap_rate", "loss_rate", "runs") if c not in wide.columns]
     if missing:
-        raise InputError(f"the sweep lacks metric(s) {', '.join(missing)}: not an xcorr-peaks study", path)
+        raise InputError(f"the sweep lacks metric(s) {', '.join(missing)}: not an xcorr study", path)
     return wide.select(*swept, "tracker", "success_rate", "success_rate_stderr", "swap_rate", "loss_rate", "runs").sort(
         [*swept[1:], swept[0], "tracker"])
 

@@ -40,6 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from trackreplay.errors import InputError
+from trackreplay.vocabulary import FAMILIES
 
 DEFAULT_RUNS = 10
 SCHEMA_ENCODING = "jsonschema"
@@ -68,14 +69,14 @@ class ExportReport:
 
 
 def state_names(family: str | None, n: int) -> list[tuple[str, str]]:
-    """``(name, unit)`` of the ``n`` state components of a family's tracks (one track slot)."""
-    if family in ("radar-plots", "tdoa-fdoa") and n == 4:
-        return [("x", "m"), ("y", "m"), ("vx", "m/s"), ("vy", "m/s")]
-    if family in ("bearing-peaks", "array-snapshots") and n == 2:
-        return [("bearing", "rad"), ("bearing_rate", "rad/s")]
-    if family == "colored-position" and n % 3 == 0 and n // 3 <= 3:
-        axes = "xyz"[: n // 3]
-        return [(f"{p}{a}", u) for a in axes for p, u in (("", "m"), ("v", "m/s"), ("a", "m/s²"))]
+    """``(name, unit)`` of the ``n`` state components of a family's tracks (one track slot), as
+    its declaration names them (:attr:`trackreplay.vocabulary.Family.state_components`)."""
+    components = FAMILIES[family].state_components if family in FAMILIES else ()
+    k = len(components)
+    if k and all("{axis}" in name for name, _ in components) and n % k == 0 and n // k <= 3:
+        return [(name.format(axis=a), unit) for a in "xyz"[: n // k] for name, unit in components]
+    if k and n == k:
+        return list(components)
     return [(f"s{i}", "") for i in range(n)]
 
 

@@ -9,20 +9,17 @@ from __future__ import annotations
 import importlib
 from pathlib import Path
 
-VIEW_MODULES = {
-    "radar-tws": "trackreplay.face.rerun_radar_tws",
-    "xcorr-peaks": "trackreplay.face.rerun_bearing_peaks",
-    "colored-noise-imm": "trackreplay.face.rerun_colored_noise",
-    "array-bearing": "trackreplay.face.rerun_array_bearing",
-    "tdoa-fdoa": "trackreplay.face.rerun_emitter",
-}
+from trackreplay.vocabulary import FAMILIES
+
+# stage name -> the module of its views, ``face/rerun_<stem>.py`` (the family's declaration)
+VIEW_MODULES = {f.name: f.view for f in FAMILIES.values()}
 
 
 def views_for(stage):
     """The module (or fallback) that draws ``stage``'s results in Rerun."""
     name = VIEW_MODULES.get(stage.name)
     if name is None:
-        raise KeyError(f"no Rerun views registered for stage {stage.name!r} (add it to VIEW_MODULES)")
+        raise KeyError(f"no Rerun views registered for stage {stage.name!r} (a family's views live in face/rerun_<stem>.py)")
     return importlib.import_module(name)
 
 

@@ -13,14 +13,9 @@ import importlib
 
 from trackreplay import vocabulary as vocab
 
-# (stage name, measurement family, "module:Class"); one line per stage
-STAGE_CLASSES = (
-    ("radar-tws", "radar-plots", "trackreplay.stages.radar_tws:RadarTwsStage"),
-    ("xcorr-peaks", "bearing-peaks", "trackreplay.stages.bearing_peaks:BearingPeaksStage"),
-    ("array-bearing", "array-snapshots", "trackreplay.stages.array_bearing:ArrayBearingStage"),
-    ("tdoa-fdoa", "tdoa-fdoa", "trackreplay.stages.emitter_localisation:EmitterLocalisationStage"),
-    ("colored-noise-imm", "colored-position", "trackreplay.stages.colored_noise_imm:ColoredNoiseImmStage"),
-)
+# (stage name, measurement family, "module:Class"), read off the families' one declaration: a
+# family's stage is named as the family
+STAGE_CLASSES = tuple((f.name, f.name, f.stage) for f in vocab.FAMILIES.values())
 
 _LOADED: dict = {}
 

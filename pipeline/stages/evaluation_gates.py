@@ -15,7 +15,7 @@ the first update, so a gate this wide does not cut a track off a target it follo
 narrow still calls a track that wanders many σ away a miss. The χ² gate is the validation region
 of Bar-Shalom, Li & Kirubarajan, *Estimation with Applications to Tracking and Navigation* (2001),
 applied here to the measurement error rather than the innovation; the radar stage's rule
-(``RadarTwsStage.evaluation_defaults_from_data``) is this one with d = 2.
+(``RadarStage.evaluation_defaults_from_data``) is this one with d = 2.
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@ A tracker is a class with four class attributes and one method (see ``docs/track
 
     class MyTracker(Tracker):
         name = "my_tracker"            # how the CLI, tables and output channels name it
-        family = "radar-plots"         # the measurement family it consumes (vocabulary.FAMILIES)
+        family = "radar"         # the measurement family it consumes (vocabulary.FAMILIES)
         form = "batch"                 # "batch": all runs at once; "run": one run at a time
         params = (Param("sigma_range_m", 50.0, "m", "plot range noise"),)
 
@@ -255,8 +255,8 @@ class ColoredPositions(Measurements):
         return 3 * int(self.position_m.shape[-1])  # [p, v, a] per axis
 
 
-MEASUREMENTS = {"radar-plots": RadarPlots, "bearing-peaks": BearingPeaks, "array-snapshots": ArraySnapshots,
-                "tdoa-fdoa": TdoaFdoa, "colored-position": ColoredPositions}
+# family name -> its measurement class, as the families' declaration names it
+MEASUREMENTS = {f.name: globals()[f.measurement_class] for f in vocab.FAMILIES.values()}
 
 
 # --------------------------------------------------------------------------- calling a tracker

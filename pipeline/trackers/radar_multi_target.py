@@ -475,7 +475,7 @@ class _MultiTargetTracker(Tracker):
     """A multi-target radar tracker: :func:`track_multi_target` with one association strategy
     and one per-track filter class."""
 
-    family = "radar-plots"
+    family = "radar"
     targets = "many"
     params = PARAMS
     association = ""                         # a key of ASSOCIATIONS

@@ -2,7 +2,7 @@
 
 The paper (after Kalata 1984 and Fitzgerald's decoupled filter) filters converted radar plots
 with α-β gains designed at a nominal cross-range error, and proposes gains linearised in the
-tracking index λ_k so they follow the plot's range. See ``docs/papers/radar-tws.md``.
+tracking index λ_k so they follow the plot's range. See ``docs/papers/radar.md``.
 State ``[x, y, ẋ, ẏ]``; plots ``(r, θ)`` are converted to ``(x, y)``.
 
 The loop (:func:`track_plots`) predicts with the white-acceleration model, picks the plot
@@ -479,7 +479,7 @@ def chi2_2dof_gate(probability: float) -> float:
 class _RadarStrategyTracker(Tracker):
     """One of the four strategies of :data:`STRATEGIES` run by :func:`track_plots`."""
 
-    family = "radar-plots"
+    family = "radar"
     params = PARAMS
 
     def __init__(self, **design):

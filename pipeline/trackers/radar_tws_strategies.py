@@ -1,5 +1,5 @@
 """The update strategies of the radar track-while-scan trackers (Kim & Lee 2006;
-``docs/papers/radar-tws.md``): what :func:`trackreplay.trackers.radar_tws.track_plots` hands the
+``docs/papers/radar.md``): what :func:`trackreplay.trackers.radar_tws.track_plots` hands the
 prediction and the plot to, and what returns the posterior, the innovation and the per-axis α, β
 of the gain (see :mod:`trackreplay.trackers.radar_tws` for the loop and the paper's equations).
 

@@ -1,7 +1,7 @@
 """FLOP accounting of the angular innovation: the paper's analytic model and a counter of what
 our kernels actually execute.
 
-Ryu, Lee & Lee (2001), section IV; see ``docs/papers/array-bearing.md``. Convention of
+Ryu, Lee & Lee (2001), section IV; see ``docs/papers/array.md``. Convention of
 the paper (Matlab's ``flops``): a real addition, subtraction, multiplication or division is one
 FLOP, a complex multiplication 6, a complex addition 2; only multiplications/divisions and
 additions/subtractions are counted (no exponentials, square roots or data movement).

@@ -1,7 +1,7 @@
 """Uniform linear array: steering vectors and their angle derivative.
 
 Ryu, Lee & Lee (2001), signal model eqs. (1)–(5) and the Taylor term of eq. (10); see
-``docs/papers/array-bearing.md``. Sensor 1 (the left end) is the reference; angles are measured
+``docs/papers/array.md``. Sensor 1 (the left end) is the reference; angles are measured
 from broadside, in radians. The electrical spacing enters only through
 ``κ = ω d / c = 2π d/λ`` (``spacing_wavelengths = d/λ``; d = λ/2 gives κ = π).
 

@@ -1,7 +1,7 @@
 """MUSIC start-up: sample covariance, source count (MDL / AIC), spectrum and peak picking.
 
 Start-up of Ryu, Lee & Lee (2001), section III.2 step 1 (the number of targets and their angles
-from MUSIC at k = −1 and k = 0; ``docs/papers/array-bearing.md``), after Schmidt 1986 (the
+from MUSIC at k = −1 and k = 0; ``docs/papers/array.md``), after Schmidt 1986 (the
 paper's ref. [2]) and the information-theoretic source count of Wax & Kailath 1985.
 
 Everything is batched over leading axes (scans × runs in one call):
@@ -175,16 +175,6 @@ def _polynomial_table(n_sensors: int, spacing_wavelengths: float, shape: tuple, 
     g = np.frombuffer(grid_bytes, dtype=float).reshape(shape)
     table = np.concatenate([np.ones((1, g.shape[-1])), lag_exponentials(g, n_sensors, spacing_wavelengths)])
     table.flags.writeable = False
-    return table
-    table = np.concatenate([np.ones((1, g.shape[-1])), lag_exponentials(g, n_sensors, spacing_wavelengths)])
-    table.flags.writeable = False
-    with _TABLES_LOCK:
-        entries = _TABLES.setdefault(key, [])
-        _TABLES.move_to_end(key)
-        entries.append((raw, table))
-        del entries[:-_TABLES_PER_KEY]
-        while len(_TABLES) > _TABLES_KEYS:
-            _TABLES.popitem(last=False)
     return table
 
 

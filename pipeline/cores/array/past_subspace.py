@@ -1,7 +1,7 @@
 """Signal-subspace tracking by PAST (Yang 1995), with the batch EVD as its reference.
 
 Yang (1995), "Projection approximation subspace tracking", the ref. [9] of Ryu, Lee & Lee (2001);
-see ``docs/papers/array-bearing.md``.
+see ``docs/papers/array.md``.
 Per snapshot x, with forgetting factor 0 < β ≤ 1::
 
     y = Wᴴ x;   h = P y;   g = h / (β + yᴴ h)
@@ -217,7 +217,7 @@ def subspace_instant_offset(subspace: str, forgetting: float, scan_period_s: flo
     ``(Ns − 1)/2`` snapshots before its last, so PAST describes the scene
     ``(T / Ns) · (m − (Ns − 1)/2)`` before the time stamp (0.59 T at β = 0.97, Ns = 30, once
     the start is forgotten). A source moving at θ̇ is trailed by θ̇ times that, unless the
-    filters measure θ at that instant (``docs/papers/array-bearing.md``, "PAST lags"). Scans 0
+    filters measure θ at that instant (``docs/papers/array.md``, "PAST lags"). Scans 0
     and 1 are the start-up's per-scan EVDs (offset 0). Without forgetting (β = 1) the memory
     has no fixed age: 0 throughout.
 

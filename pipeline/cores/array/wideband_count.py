@@ -1,6 +1,6 @@
 """Number of wideband sources seen by a uniform linear array, counted over a band of frequencies.
 
-The array trackers take one narrowband STFT bin (``recorders/wav_array.py``). For a source whose
+The array trackers take one narrowband STFT bin (``recorders/array_wav.py``). For a source whose
 spectrum is flat across that bin, the bin's covariance is not rank one: the bin passes the
 frequencies of the window's spectral main lobe, and over them the phase across the array changes.
 With the window's power spectrum |W(ν)|² normalised to unit area, a source at θ contributes
@@ -53,7 +53,7 @@ dimensions:
    (:func:`distinct_directions`).
 
 The count recorded is the one most segments of the first few seconds give
-(:func:`count_sources_in_band`). See ``docs/papers/array-bearing.md`` (Recordings: wideband
+(:func:`count_sources_in_band`). See ``docs/papers/array.md`` (Recordings: wideband
 sources) and the WAV section of ``docs/importers.md``.
 """
 
@@ -289,7 +289,7 @@ def distinct_directions(null_spectrum: np.ndarray, grid: np.ndarray, dimension: 
     below half of ``(M − k)/M`` form runs, and each run is one source, at its deepest point.
     What this is for: the signal subspace of wideband or moving sources has more dimensions than
     there are sources (each spreads into the derivatives of its steering vector,
-    ``docs/papers/array-bearing.md``), but those dimensions lie along the steering vectors near
+    ``docs/papers/array.md``), but those dimensions lie along the steering vectors near
     the source, so they widen and flatten its dip instead of adding one (a flat bottom may ripple
     into several local minima: they are one run); a dimension of noise taken for a signal points
     elsewhere in every bin and averages out over the band. Two sources whose dips merge (closer

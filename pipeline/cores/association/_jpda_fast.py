@@ -3,7 +3,7 @@ numbers as the plain form it stands for, for fewer array operations.
 
 :mod:`~trackreplay.cores.association.jpda` keeps the forms a reader holds against the papers
 (Fortmann, Bar-Shalom & Scheffe 1983; Park, Ryu & Lee 1994, eqs. A.1–A.7;
-``docs/papers/bearing-peaks.md``): the exact marginals of eq. A.6 by the recursion over track
+``docs/papers/xcorr.md``): the exact marginals of eq. A.6 by the recursion over track
 sets (:func:`~trackreplay.cores.association.jpda.association_marginals`), the β of every run
 (:func:`~trackreplay.cores.association.jpda.joint_association_probabilities`), the PDA update of
 eq. A.7 and the filter's scan loop. Here, each with the test that holds it to its plain form:
@@ -85,7 +85,7 @@ def pair_marginals(weights: np.ndarray) -> np.ndarray:
     sums come from one product with a 0/1 matrix rather than from ``Σ − r``, so a dominant
     peak shared by both tracks costs no precision. One track's event weights are its own row.
     The result equals :func:`~trackreplay.cores.association.jpda.association_marginals` for a few array operations, whatever the
-    number of peaks (Fortmann, Bar-Shalom & Scheffe 1983; ``docs/papers/bearing-peaks.md``).
+    number of peaks (Fortmann, Bar-Shalom & Scheffe 1983; ``docs/papers/xcorr.md``).
 
     Parameters
     ----------

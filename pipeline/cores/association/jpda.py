@@ -1,8 +1,8 @@
 """JPDA and amplitude-aided JPDA_A for bearing tracks of cross-correlation peaks.
 
 Park, Ryu & Lee (1994), appendix eqs. A.1–A.7, with the JPDA of Fortmann, Bar-Shalom & Scheffe
-(1983); see ``docs/papers/bearing-peaks.md``. The trackers that call this core are in
-:mod:`trackreplay.trackers.bearing_peaks`. One core, batched over a leading Monte Carlo run axis:
+(1983); see ``docs/papers/xcorr.md``. The trackers that call this core are in
+:mod:`trackreplay.trackers.xcorr`. One core, batched over a leading Monte Carlo run axis:
 
 * motion: state ``[θ, θ̇]`` (rad, rad/s), continuous white-noise acceleration
   ``Q' = q [[T³/3, T²/2], [T²/2, T]]`` (eq. 8b), two-point start ``P(0|0) = [[σ², σ²/T],

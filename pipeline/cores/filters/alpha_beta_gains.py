@@ -1,6 +1,6 @@
 """Kalata's optimal α-β gains and the approximate per-scan gain update (Kim & Lee 2006).
 
-Kim & Lee (2006) after Kalata (1984); see ``docs/papers/radar-tws.md``. All functions are pure and broadcast over arrays.
+Kim & Lee (2006) after Kalata (1984); see ``docs/papers/radar.md``. All functions are pure and broadcast over arrays.
 
 * :func:`tracking_index` — Kalata's λ = σ_v T² / σ_w.
 * :func:`kalata_gains` — α(λ), β(λ), the steady-state Kalman gains of the white-acceleration

@@ -1,7 +1,7 @@
 """AR(1) parameter estimation of coloured measurement noise (Wu & Chang 1996, as in Kwon 1997).
 
 Kwon (1997), ch. III.2, the AR parameter estimator in five steps (thesis eqs. 3.2.3, 3.2.7,
-3.2.15, 3.2.17–3.2.18, 3.2.43–3.2.51); see ``docs/papers/colored-noise-imm.md``. The measurement noise follows
+3.2.15, 3.2.17–3.2.18, 3.2.43–3.2.51); see ``docs/papers/colored.md``. The measurement noise follows
 ``ν_k = α ν_{k−1} + η_k`` with ``var(ν) = R`` and ``var(η) = σ_η² = (1 − α²) R``.
 
 1. ``ū_k = z_k − 2 z_{k−1} + z_{k−2}`` removes a constant-velocity state (eq. 3.2.3; the thesis

@@ -1,7 +1,7 @@
 """Decorrelation of AR(1) measurement noise by measurement differencing (Kwon 1997, ch. III.1).
 
 Kwon (1997), ch. III.1, the decorrelation process (thesis eqs. 3.1.1–3.1.6); see
-``docs/papers/colored-noise-imm.md``.
+``docs/papers/colored.md``.
 With an estimate ``ᾱ`` of the noise's AR coefficient (one per measured axis, ``Ā = diag(ᾱ)``)
 the pseudo-measurement
 

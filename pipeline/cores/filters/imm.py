@@ -3,7 +3,7 @@ state sizes (Blom & Bar-Shalom 1988; Kwon 1997 ch. IV.3).
 
 Kwon (1997), ch. IV.3 (thesis eqs. 4.3.1–4.3.4 mixing, 4.3.5–4.3.10 model-matched filtering,
 4.3.11–4.3.15 model probabilities, 4.3.16–4.3.17 combination); see
-``docs/papers/colored-noise-imm.md``. Every model of every Monte Carlo run advances in one pass
+``docs/papers/colored.md``. Every model of every Monte Carlo run advances in one pass
 per scan.
 
 Models are strategies over the same core:

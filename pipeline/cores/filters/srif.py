@@ -1,7 +1,7 @@
 """The square-root information filter (SRIF; Bierman 1977, as in Kwon 1997 ch. IV.2).
 
 Kwon (1997), ch. IV.2–IV.3, the square-root information filter (thesis eqs. 4.2.3–4.2.4,
-4.2.18–4.2.22, 4.3.5–4.3.13); see ``docs/papers/colored-noise-imm.md``. The filter carries ``(R, z)`` with
+4.2.18–4.2.22, 4.3.5–4.3.13); see ``docs/papers/colored.md``. The filter carries ``(R, z)`` with
 ``P⁻¹ = Rᵀ R`` and ``x = R⁻¹ z``. With ``Q⁻¹ = R_wᵀ R_w`` and ``R⁻¹ = R_νᵀ R_ν``:
 
 * time update (4.2.18 / 4.3.5): an orthogonal triangularisation (Householder QR) of

@@ -10,7 +10,7 @@ and solves for its unknowns (:func:`trackreplay.cores.localisation.tdoa_fdoa_mod
 * :func:`truth_geometry` — ``A`` and the CRLB at the true state of every (run, epoch) cell: what
   the evaluator's run classification (d² = ‖A e‖²) and efficiency need;
 * :func:`truth_bounds` — the same for every estimator kind, as the named arrays of the stage's
-  ``crlb`` extra output (read by :mod:`trackreplay.evaluators.emitter_localisation`);
+  ``crlb`` extra output (read by :mod:`trackreplay.evaluators.tdoa_fdoa`);
 * :func:`crlb_summary` — the bound of one geometry with its projections (eq. 19), slices
   (eq. 20), ellipses and CEPs (eqs. 21–22) as plain numbers (``replay crlb``).
 

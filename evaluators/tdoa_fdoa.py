@@ -25,7 +25,7 @@ d² is ‖A e‖² with A the whitened Jacobian at the truth, so no information 
 Kim et al. (2013) report RMSE against the CRLB (eqs. 18–22, Figs. 5–7) over all runs; see
 ``docs/papers/tdoa-fdoa.md``, "Every run is classified before anything is averaged". The bound
 at the truth is not computed here: the stage writes it beside the estimators' outputs as the
-entry :data:`CRLB_ENTRY` (``/tracks/emitter/crlb``), per estimator kind k
+entry :data:`CRLB_ENTRY` (``/tracks/tdoa-fdoa/crlb``), per estimator kind k
 (``joint``, ``tdoa``, ``fdoa``): ``whitened_jacobian_<k>`` (R, E, m, q) = Ψ^{-1/2} H at the truth
 over the kind's m measurement rows and q unknowns (the first q state components),
 ``crlb_covariance_<k>`` (R, E, q, q) and ``crlb_singular_<k>`` (R, E). A tracker whose name is

@@ -5,7 +5,7 @@ any parameter with ``--set name=value``), so a bound and a simulated data set al
 the same configuration. Kim et al. (2013), eqs. 18–22 and Figs. 5–6; see
 ``docs/papers/tdoa-fdoa.md``. The face holds no numerics: the numbers come from
 :mod:`trackreplay.cores.localisation.tdoa_fdoa_crlb` and :mod:`trackreplay.cores.localisation.cep_plane`,
-the pictures from :mod:`trackreplay.face.cep_plane_views`.
+the pictures from :mod:`trackreplay.face.rerun_tdoa_fdoa_cep_plane`.
 """
 
 from __future__ import annotations
@@ -151,7 +151,7 @@ def cep_plane_cmd(sets, scenario, estimator, emitter, geometry, extent_km, step_
       replay cep-plane --geometry line --cep paper -o line.png --no-rrd
     """
     from trackreplay.cores.localisation.cep_plane import cep_plane, cep_plane_areas, grid_axis
-    from trackreplay.face.cep_plane_views import log_cep_plane, write_cep_png
+    from trackreplay.face.rerun_tdoa_fdoa_cep_plane import log_cep_plane, write_cep_png
 
     if not (extent_km > 0 and step_m > 0 and math.isfinite(extent_km) and math.isfinite(step_m)):
         raise InputError("--extent-km and --step-m must be positive")

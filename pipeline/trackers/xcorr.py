@@ -1,5 +1,5 @@
 """Park, Ryu & Lee (1994): JPDA and amplitude-aided JPDA_A for bearing tracks of
-cross-correlation peaks (see ``docs/papers/bearing-peaks.md``).
+cross-correlation peaks (see ``docs/papers/xcorr.md``).
 
 Each scan a correlator lists peaks ``(z_p, z_a)``: bearing and amplitude. Every track is a
 ``[θ, θ̇]`` filter (rad, rad/s) with the continuous white-noise acceleration model of eq. 8b;
@@ -35,7 +35,7 @@ track ends when it leaves the field by more than half a gate or coasts ``max_coa
 scans in a row (:mod:`trackreplay.cores.association.track_management`).
 
 Any number of tracks T (the targets of the data); their strength roles are the design's
-``roles`` pattern (or ``pair``'s) cycled over them (:mod:`trackreplay.trackers.peak_roles`).
+``roles`` pattern (or ``pair``'s) cycled over them (:mod:`trackreplay.trackers.xcorr_peak_roles`).
 
 Outputs (:data:`trackreplay.vocabulary.OUTPUTS`): ``state`` (R, K, T, 2), ``covariance``,
 ``track_id`` (R, K, T: slot j is track j wherever it holds one, −1 elsewhere; a slot is never
@@ -59,7 +59,7 @@ from trackreplay.cores.association.track_management import ConfirmationRule, End
 from trackreplay.cores.filters.kalman import two_point_start
 from trackreplay.errors import InputError, check_all
 from trackreplay.trackers.interface import BearingPeaks, Param, Tracker
-from trackreplay.trackers.peak_roles import roles_for, track_roles
+from trackreplay.trackers.xcorr_peak_roles import roles_for, track_roles
 
 PEAKS = vocab.CHANNELS["xcorr_peaks"]
 TRUTH = vocab.CHANNELS["xcorr_truth"]
@@ -215,7 +215,7 @@ def one_point_start(z0: np.ndarray, sigma_p_rad, rate_sigma_radps: float):
     The rate is unknown, and the prior ``σ_θ̇`` (the design's largest plausible bearing rate)
     lets the next scans' peaks, weighted by JPDA, estimate it. A two-point difference instead
     gives the rate an error of √2 σ_p / T, about 1.8°/s with σ_p = 1.3° and T = 1 s: far more
-    than the targets' own rates, and the window gate then loses them (docs/papers/bearing-peaks.md).
+    than the targets' own rates, and the window gate then loses them (docs/papers/xcorr.md).
     """
     x0 = np.stack([z0, np.zeros_like(z0)], axis=-1)
     P0 = np.zeros(z0.shape + (2, 2))
@@ -267,7 +267,7 @@ def start_tracks(m: BearingPeaks, track_start: str, d: BearingTrackerDesign, rat
 class _JpdaTracker(Tracker):
     """One variant of :data:`trackreplay.cores.association.jpda.STRATEGIES` (see the module docstring)."""
 
-    family = "bearing-peaks"
+    family = "xcorr"
     form = "batch"
     params = PARAMS
 

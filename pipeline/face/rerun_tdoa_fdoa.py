@@ -7,7 +7,7 @@ per iteration over the runs at the truth | the CEP planes of the geometry (Figs.
 Exposes ``blueprint(stage, trackers, dataset=None, run=0)`` and
 ``log_rerun(stage, rec, dataset, result, per_scan, run=0)`` (see :mod:`trackreplay.face.rerun_views`).
 Drawing only: the estimates and the bound come from the replay's outputs (the stage's ``crlb``
-extra), the run classes from :mod:`trackreplay.evaluators.emitter_localisation`, ellipses and CEP planes from
+extra), the run classes from :mod:`trackreplay.evaluators.tdoa_fdoa`, ellipses and CEP planes from
 :mod:`trackreplay.cores.localisation`.
 """
 
@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from trackreplay.evaluators import emitter_localisation as emitter_eval
+from trackreplay.evaluators import tdoa_fdoa as emitter_eval
 from trackreplay.evaluators.tracking_metrics import rmse_per_scan
 from trackreplay.face.timeline import color, north_up, north_up_bounds, rr, rrb
 from trackreplay.vocabulary import UNDERDETERMINED
@@ -64,7 +64,7 @@ def log_rerun(stage, rec, dataset, result: dict, per_scan, run: int = 0) -> None
     from trackreplay import design_values
     from trackreplay.cores.localisation.cep_plane import cep_plane, grid_axis
     from trackreplay.cores.localisation.crlb import ellipse_points
-    from trackreplay.face.cep_plane_views import log_cep_plane
+    from trackreplay.face.rerun_tdoa_fdoa_cep_plane import log_cep_plane
 
     obs = stage.observations(dataset)
     R, E = obs["measured"].shape[:2]

@@ -5,13 +5,13 @@ Input channels: ``/colored/measurements`` (``position_m`` per axis) and, optiona
 the true state (Kwon 1997, ch. V); a file without truth (a recording) starts them from the
 measurements instead (``track_start="auto"``, the default), and ``--set track_start=truth``
 insists on the truth. Outputs on ``/tracks/colored/<tracker>``: see
-:mod:`trackreplay.trackers.colored_noise`; ``/tracks/colored/ar_estimator`` (:meth:`extras`) holds
+:mod:`trackreplay.trackers.colored`; ``/tracks/colored/ar_estimator`` (:meth:`extras`) holds
 ``alpha``, ``alpha_biased``, ``noise_variance``, ``flags`` per axis and ``warm``.
 
 Only decoding and bookkeeping live here: the trackers are in
-:mod:`trackreplay.trackers.colored_noise`, the metrics in :mod:`trackreplay.evaluators.colored_noise_imm`,
-the Rerun views in :mod:`trackreplay.face.rerun_colored_noise`. See
-``docs/papers/colored-noise-imm.md``.
+:mod:`trackreplay.trackers.colored`, the metrics in :mod:`trackreplay.evaluators.colored`,
+the Rerun views in :mod:`trackreplay.face.rerun_colored`. See
+``docs/papers/colored.md``.
 """
 
 from __future__ import annotations
@@ -19,23 +19,23 @@ from __future__ import annotations
 
 import numpy as np
 
-from trackreplay.evaluators import colored_noise_imm as colored_eval
+from trackreplay.evaluators import colored as colored_eval
 from trackreplay import vocabulary as vocab
 from trackreplay.errors import InputError, require_finite
 from trackreplay.stage_scoring import model_recorded
 from trackreplay.stages.base import Stage
 from trackreplay.stages.evaluation_gates import gates_from_spread
 from trackreplay.evaluators.standard import position_space
-from trackreplay.trackers.colored_noise import MODEL_NAMES, ar1_outputs, colored_noise_pcrb
+from trackreplay.trackers.colored import MODEL_NAMES, ar1_outputs, colored_noise_pcrb
 from trackreplay.trackers.interface import ColoredPositions
 
 MEASUREMENTS = vocab.CHANNELS["colored_measurements"]
 TRUTH = vocab.CHANNELS["colored_truth"]
 
 
-class ColoredNoiseImmStage(Stage):
-    name = "colored-noise-imm"
-    family = "colored-position"
+class ColoredStage(Stage):
+    name = "colored"
+    family = "colored"
     # what the stage itself uses: the AR estimator's output (extras) and the evaluator
     design_keys = ("measurement_variance_m2", "ar_forgetting_factor", "ar_zero_pole")
 

@@ -1,8 +1,8 @@
 """Strength roles of the tracks in a peak scenario: strong and weak tracks, after the fitted
-parameters of Park, Ryu & Lee (1994) (see ``docs/papers/bearing-peaks.md``).
+parameters of Park, Ryu & Lee (1994) (see ``docs/papers/xcorr.md``).
 
 One home for reading the ``roles`` and ``pair`` parameters, shared by the peak recorders (which
-simulate each target with its role's model), the bearing-peaks trackers (which give each track
+simulate each target with its role's model), the xcorr trackers (which give each track
 its role's amplitude prior) and the stage (which names the evaluator's per-track scopes), so
 neither the trackers nor the stage depend on a recorder.
 

@@ -1,11 +1,11 @@
-"""Stage: cross-correlation peaks (bearing, amplitude) → the bearing-peaks trackers (JPDA, JPDA_A).
+"""Stage: cross-correlation peaks (bearing, amplitude) → the xcorr trackers (JPDA, JPDA_A).
 
 Input channels: ``/xcorr/peaks`` (ragged ``bearing_rad``, ``amplitude``, ``origin``: target
 index of a true peak, −1 for clutter), optionally ``/xcorr/truth`` (``bearing_rad`` and
 ``bearing_rate_radps`` per target). Output: ``/tracks/xcorr/<tracker>``. Only decoding and
-bookkeeping live here: the trackers are in :mod:`trackreplay.trackers.bearing_peaks` (Park, Ryu &
-Lee 1994; see ``docs/papers/bearing-peaks.md``), the scores in
-:mod:`trackreplay.evaluators.track_association`, the Rerun views in :mod:`trackreplay.face.rerun_bearing_peaks`.
+bookkeeping live here: the trackers are in :mod:`trackreplay.trackers.xcorr` (Park, Ryu &
+Lee 1994; see ``docs/papers/xcorr.md``), the scores in
+:mod:`trackreplay.evaluators.xcorr`, the Rerun views in :mod:`trackreplay.face.rerun_xcorr`.
 """
 
 from __future__ import annotations
@@ -13,14 +13,14 @@ from __future__ import annotations
 import numpy as np
 import polars as pl
 
-from trackreplay.evaluators import track_association as assoc_eval
+from trackreplay.evaluators import xcorr as assoc_eval
 from trackreplay import vocabulary as vocab
 from trackreplay.errors import InputError, require_finite
 from trackreplay.stages.base import Stage
 from trackreplay.stages.evaluation_gates import gates_from_spread
 from trackreplay.evaluators.standard import bearing_space
 from trackreplay.trackers.interface import BearingPeaks
-from trackreplay.trackers.peak_roles import roles_for
+from trackreplay.trackers.xcorr_peak_roles import roles_for
 
 PEAKS = vocab.CHANNELS["xcorr_peaks"]
 TRUTH = vocab.CHANNELS["xcorr_truth"]
@@ -158,10 +158,10 @@ def n_targets(peaks: dict, truth: np.ndarray | None, path, design: dict | None =
     return int(wanted)
 
 
-class BearingPeaksStage(Stage):
-    name = "xcorr-peaks"
+class XcorrStage(Stage):
+    name = "xcorr"
     listing = (0, "deg")  # without truth, replay lists run 0's bearings per scan
-    family = "bearing-peaks"
+    family = "xcorr"
     # what the evaluator needs: the gate (judge of "on target") and the targets' roles; the
     # tracks to start on data without truth or labels
     design_keys = ("gate_deg", "pair", "roles", "n_targets")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from trackreplay.evaluators import radar_tws as radar_eval
+from trackreplay.evaluators import radar as radar_eval
 from trackreplay import vocabulary as vocab
 from trackreplay.cores.filters.converted_measurements import polar_to_cartesian
 from trackreplay.face.timeline import (color, log_identified, log_metric_series, log_path, log_points, log_series,

@@ -1,8 +1,8 @@
 """Ryu, Lee & Lee (2001): multi-target bearing tracking from array snapshots with the angular
 innovation; Ryu et al. (1999) for the least-squares innovation it replaces.
 
-The paper's section III.2, steps 1–5, eqs. (14)–(22); see ``docs/papers/array-bearing.md``.
-Two trackers of the family ``array-snapshots`` share one pipeline and differ only in how the
+The paper's section III.2, steps 1–5, eqs. (14)–(22); see ``docs/papers/array.md``.
+Two trackers of the family ``array`` share one pipeline and differ only in how the
 angular innovation is computed (:mod:`trackreplay.cores.array.angular_innovation`):
 
 ``proposed``  the paper's closed form (eqs. (7), (11)–(13));
@@ -118,7 +118,7 @@ class SubspaceTrackerDesign:
         (:func:`trackreplay.cores.array.past_subspace.subspace_instant_offset`: PAST's memory reaches
         back 0.59 T before the scan's time stamp at β = 0.97), not at the time stamp. False (the
         default) is the paper as printed, whose tracks trail a moving source by θ̇ times that
-        offset; a converted WAV recording records True (``recorders/wav_array.py``).
+        offset; a converted WAV recording records True (``recorders/array_wav.py``).
     """
 
     spacing_wavelengths: float = 0.5
@@ -533,7 +533,7 @@ class _AngularInnovationTracker(Tracker):
     """MUSIC start-up → PAST → per-target Kalman filters with one angular-innovation strategy
     (the class's ``name``, a key of :data:`trackreplay.cores.array.angular_innovation.INNOVATIONS`)."""
 
-    family = "array-snapshots"
+    family = "array"
     form = "batch"
     params = PARAMS
 

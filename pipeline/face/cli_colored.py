@@ -30,13 +30,13 @@ def colored_report_cmd(data, outputs, out_dir):
     """
     import polars as pl
 
-    from trackreplay.evaluators.colored_noise_imm import write_figures
+    from trackreplay.evaluators.colored import write_figures
     from trackreplay import vocabulary as vocab
     from trackreplay.contract import atomic_output
     from trackreplay.replay import evaluate_files
-    from trackreplay.stages.colored_noise_imm import ColoredNoiseImmStage
+    from trackreplay.stages.colored import ColoredStage
 
-    stage = ColoredNoiseImmStage()
+    stage = ColoredStage()
     res = evaluate_files(data, outputs)
     per_scan = res.per_scan.filter(pl.col("stage") == stage.name) if "stage" in res.per_scan.columns else res.per_scan
     if per_scan.height == 0:

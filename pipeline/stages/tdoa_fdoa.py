@@ -6,9 +6,9 @@ Input channels: ``/emitter/measurements`` (``tdoa_s``, ``fdoa_hz``, ``sigma_tdoa
 (``state``: the initial guess) and ``/emitter/truth`` (``state``). They are decoded once into a
 :class:`~trackreplay.trackers.interface.TdoaFdoa` (with the truth beside it, for the bound).
 
-Outputs on ``/tracks/emitter/<estimator>``: see :mod:`trackreplay.trackers.emitter` (the
+Outputs on ``/tracks/tdoa-fdoa/<estimator>``: see :mod:`trackreplay.trackers.tdoa_fdoa` (the
 ``joint``, ``tdoa`` and ``fdoa`` estimators, or any plugged tracker of the ``tdoa-fdoa``
-family). Beside them (:meth:`EmitterLocalisationStage.extras`), ``/tracks/emitter/crlb``
+family). Beside them (:meth:`TdoaFdoaStage.extras`), ``/tracks/tdoa-fdoa/crlb``
 holds the CRLB at the true state for every estimator kind (eq. 18; ``crlb_covariance_<kind>``,
 ``whitened_jacobian_<kind>``, ``crlb_singular_<kind>``, from
 :func:`trackreplay.cores.localisation.tdoa_fdoa_crlb.truth_bounds`), which the evaluator's run
@@ -16,8 +16,8 @@ classification and efficiency need.
 
 A file on which no estimator can run (fewer independent equations than unknowns for every
 kind) is refused with the reason. Only decoding and bookkeeping live here: the estimators are
-in :mod:`trackreplay.trackers.emitter`, the metrics in :mod:`trackreplay.evaluators.emitter_localisation`, the
-Rerun views in :mod:`trackreplay.face.rerun_emitter`. See ``docs/papers/tdoa-fdoa.md``.
+in :mod:`trackreplay.trackers.tdoa_fdoa`, the metrics in :mod:`trackreplay.evaluators.tdoa_fdoa`, the
+Rerun views in :mod:`trackreplay.face.rerun_tdoa_fdoa`. See ``docs/papers/tdoa-fdoa.md``.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 import numpy as np
 
-from trackreplay.evaluators import emitter_localisation as emitter_eval
+from trackreplay.evaluators import tdoa_fdoa as emitter_eval
 from trackreplay import vocabulary as vocab
 from trackreplay.cores.localisation.tdoa_fdoa_crlb import truth_bounds
 from trackreplay.cores.localisation.tdoa_fdoa_model import MEASUREMENT_KINDS, equivalent_sigmas, underdetermined_reason
@@ -120,7 +120,7 @@ def _state_channel(dataset, topic: str, shape) -> np.ndarray:
     return state
 
 
-class EmitterLocalisationStage(Stage):
+class TdoaFdoaStage(Stage):
     name = "tdoa-fdoa"
     family = "tdoa-fdoa"
     # what the stage itself uses: the start the decoder checks for, and the unknowns of the bound

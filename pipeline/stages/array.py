@@ -1,19 +1,19 @@
-"""Stage: ULA snapshots → multi-target bearing tracks (Ryu, Lee & Lee 2001; ``docs/papers/array-bearing.md``).
+"""Stage: ULA snapshots → multi-target bearing tracks (Ryu, Lee & Lee 2001; ``docs/papers/array.md``).
 
 Input channels: ``/array/snapshots`` (``snapshots``: complex M × Ns per run and scan),
 optionally ``/array/truth`` (``angle_rad`` (N,), ``snr_db``). Output: ``/tracks/array/<tracker>``
 with the family's outputs (``state`` [θ, θ̇] per track slot, ``covariance``, ``innovation``,
-``gain``, ``flags``, …; see :mod:`trackreplay.trackers.array_bearing`). Only decoding, validation and
+``gain``, ``flags``, …; see :mod:`trackreplay.trackers.array`). Only decoding, validation and
 bookkeeping live here: the trackers (``proposed``, ``ryu``) are in
-:mod:`trackreplay.trackers.array_bearing`, the scores and the Table 1 text in
-:mod:`trackreplay.evaluators.array_bearing`, the Rerun views in :mod:`trackreplay.face.rerun_array_bearing`.
+:mod:`trackreplay.trackers.array`, the scores and the Table 1 text in
+:mod:`trackreplay.evaluators.array`, the Rerun views in :mod:`trackreplay.face.rerun_array`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from trackreplay.evaluators import array_bearing as array_eval
+from trackreplay.evaluators import array as array_eval
 from trackreplay import vocabulary as vocab
 from trackreplay.errors import InputError, require_finite
 from trackreplay.stages.base import Stage
@@ -24,15 +24,15 @@ SNAPSHOTS = vocab.CHANNELS["array_snapshots"]
 TRUTH = vocab.CHANNELS["array_truth"]
 
 
-class ArrayBearingStage(Stage):
-    name = "array-bearing"
+class ArrayStage(Stage):
+    name = "array"
     listing = (0, "deg")  # without truth, replay lists run 0's bearings per scan
-    family = "array-snapshots"
+    family = "array"
     # decoding (the array's d/λ) and evaluation (the swap/loss gate)
     design_keys = ("spacing_wavelengths", "track_gate_deg")
     params = (Param("spacing_wavelengths", None, "", "d/λ, element spacing in wavelengths", low=0.0, high=1e6),
               Param("track_gate_deg", None, "deg", "a track within this of a target follows it (swap/loss "
-                    "accounting; docs/papers/array-bearing.md)", low=0.0, high=180.0))
+                    "accounting; docs/papers/array.md)", low=0.0, high=180.0))
 
     # ------------------------------------------------------------------ input
 

@@ -4,7 +4,7 @@ One narrowband frequency bin of a short-time Fourier transform gives one complex
 channel and frame; consecutive frames are grouped into scans of ``snapshots_per_scan`` frames
 (the interval [(k−1)T, kT] of Ryu, Lee & Lee 2001, T = Ns · hop / fs). The result is written to
 ``/array/snapshots`` exactly as the simulator writes it (one run, no truth), so a recording goes
-through the same trackers (``replay out.mcap``; see ``docs/papers/array-bearing.md``).
+through the same trackers (``replay out.mcap``; see ``docs/papers/array.md``).
 
 Conventions:
 

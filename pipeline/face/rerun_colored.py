@@ -1,4 +1,4 @@
-"""Rerun views of the coloured-noise replay (Kwon 1997; ``docs/papers/colored-noise-imm.md``):
+"""Rerun views of the coloured-noise replay (Kwon 1997; ``docs/papers/colored.md``):
 RMSE over runs, each IMM's model probabilities, and for one run the AR(1) estimates, PIMM's SRIF
 residual and the position error.
 
@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from trackreplay.evaluators.colored_noise_imm import AR_TRACKER
+from trackreplay.evaluators.colored import AR_TRACKER
 from trackreplay.face.timeline import color, log_metric_series, log_series, rrb
-from trackreplay.trackers.colored_noise import MODEL_NAMES
+from trackreplay.trackers.colored import MODEL_NAMES
 
 COLORS = {"kf": (31, 119, 180), "kf_dp": (255, 127, 14), "imm": (44, 160, 44), "mimm_k": (214, 39, 40),
           "pimm": (148, 103, 189), "cv": (227, 119, 194), "ca_transition": (188, 189, 34), "ca_steady": (23, 190, 207)}

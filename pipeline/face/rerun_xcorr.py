@@ -1,4 +1,4 @@
-"""Rerun views of the bearing-peaks replay (Park, Ryu & Lee 1994; ``docs/papers/bearing-peaks.md``):
+"""Rerun views of the xcorr replay (Park, Ryu & Lee 1994; ``docs/papers/xcorr.md``):
 a bearing–time record of one run (peaks coloured by amplitude, truth, every tracker's tracks and
 gates), the association weights and amplitude estimates of the trackers that report them, and the
 error series.

@@ -1,7 +1,7 @@
 """Kwon (1997): tracking with AR(1) coloured measurement noise — AR(1) estimation,
 decorrelation, the square-root information filter and IMMs built on them.
 
-The thesis (ch. III–V; see ``docs/papers/colored-noise-imm.md``) models the position
+The thesis (ch. III–V; see ``docs/papers/colored.md``) models the position
 measurement noise as ``ν_k = α ν_{k−1} + η_k``, estimates α and ``σ_η²`` online (Wu & Chang
 1996, eqs. 3.2.3–3.2.51: :mod:`trackreplay.cores.filters.ar1_estimation`), whitens the measurements
 by differencing, ``y_k = z_k − ᾱ z_{k−1}`` with ``Ĥ = H − ᾱ H Φ⁻¹`` (eqs. 3.1.1–3.1.6:
@@ -16,7 +16,7 @@ or square-root information (:mod:`trackreplay.cores.filters.srif`, eqs. 4.2.18�
 ``mimm_k``  the same models, Kalman filters, decorrelation + AR estimator;
 ``pimm``    the same models, square-root information filters, decorrelation + AR estimator.
 
-State ``[p, v, a]`` per axis, axes concatenated (family ``colored-position``). The filters
+State ``[p, v, a]`` per axis, axes concatenated (family ``colored``). The filters
 update from scan 1 (a decorrelated measurement needs ``z_{k−1}``); scan 0 holds the start.
 
 Start (``track_start``): ``"truth"`` starts every filter at the true state of scan 0 with
@@ -136,7 +136,7 @@ P_IMM = (Param("cv_process_noise", None, "m²/s⁴", "CV model's white-accelerat
 class _ColoredNoiseTracker(Tracker):
     """One of the thesis's five filters on the IMM core (see the module docstring)."""
 
-    family = "colored-position"
+    family = "colored"
     form = "batch"
     decorrelate = False
     filter_kind = "kf"

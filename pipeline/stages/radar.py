@@ -4,15 +4,15 @@ Input channels: ``/radar/plots`` (``range_m``, ``bearing_rad`` per run and scan)
 ``/radar/truth`` (``state``). Output: ``/tracks/radar/<tracker>`` with ``state``,
 ``covariance``, ``alpha``, ``beta`` (along-range, cross-range), ``lambda_cross``,
 ``innovation`` and ``flags`` per run and scan. Only decoding and bookkeeping live here; the numbers
-come from :mod:`trackreplay.trackers.radar_tws` and :mod:`trackreplay.evaluators.radar_tws`, the Rerun views from
-:mod:`trackreplay.face.rerun_radar_tws`.
+come from :mod:`trackreplay.trackers.radar_tws` and :mod:`trackreplay.evaluators.radar`, the Rerun views from
+:mod:`trackreplay.face.rerun_radar`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from trackreplay.evaluators import radar_tws as radar_eval
+from trackreplay.evaluators import radar as radar_eval
 from trackreplay.cores.filters.converted_measurements import polar_to_cartesian
 from trackreplay import vocabulary as vocab
 from trackreplay.trackers.interface import RadarPlots
@@ -35,9 +35,9 @@ TRUTH = vocab.CHANNELS["radar_truth"]
 XY = "/xy/world"  # under the x/y view's origin, flipped north-up (see timeline.north_up)
 
 
-class RadarTwsStage(Stage):
-    name = "radar-tws"
-    family = "radar-plots"
+class RadarStage(Stage):
+    name = "radar"
+    family = "radar"
     # what the evaluator needs: the bearing noise (cross-range error) and the fixed gains' design point
     design_keys = ("sigma_bearing_deg", "nominal_cross_range_m")
 

@@ -1,4 +1,4 @@
-"""Rerun views of the array bearing replay (Ryu, Lee & Lee 2001; ``docs/papers/array-bearing.md``):
+"""Rerun views of the array bearing replay (Ryu, Lee & Lee 2001; ``docs/papers/array.md``):
 for one run the MUSIC bearing–time waterfall with the truth and every tracker's tracks over it,
 the angular innovation δθ, the angle gain and PAST's subspace error; the angle MSE over runs.
 
@@ -12,7 +12,7 @@ import numpy as np
 
 from trackreplay import vocabulary as vocab
 from trackreplay.face.timeline import color, log_metric_series, log_series, rr, rrb
-from trackreplay.trackers.array_bearing import STARTUP_SCANS, music_waterfall
+from trackreplay.trackers.array import STARTUP_SCANS, music_waterfall
 
 # both trackers give the same tracks to rounding: Ryu drawn wide underneath, proposed thin on top
 STYLE = {"ryu": ((214, 39, 40), -3.5, 10.0), "proposed": ((255, 80, 255), -1.5, 20.0)}

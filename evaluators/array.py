@@ -1,4 +1,4 @@
-"""Metrics of the array bearing trackers (Ryu, Lee & Lee 2001; ``docs/papers/array-bearing.md``):
+"""Metrics of the array bearing trackers (Ryu, Lee & Lee 2001; ``docs/papers/array.md``):
 angle MSE per SNR, track swaps and losses, the innovation's FLOPs, and the paper's Table 1 text.
 
 Outputs are read through the data contract's vocabulary only: the angle of track slot n is
@@ -289,7 +289,7 @@ def table1(summary: pl.DataFrame, per_scan: pl.DataFrame | None = None, flop_ste
             counted = _value(s, t, "innovation_flops_counted", f"n_targets={n}")
             row += f"{model:>16,.0f} / {counted:>9,.0f}" if np.isfinite(model) else f"{'–':>28}"
         lines.append(row)
-    # The paper's own Table 1 is quoted in docs/papers/array-bearing.md for comparison; the code
+    # The paper's own Table 1 is quoted in docs/papers/array.md for comparison; the code
     # reports only what it computes, so no printed number of the paper can turn into an expected output.
     ratios = []
     for n in FLOP_TABLE_N:
