@@ -28,11 +28,11 @@ def test_a_param_refuses_a_value_outside_its_bounds_or_not_finite():
 
 
 @pytest.mark.parametrize(("stage", "key", "value", "message"), [
-    ("radar-tws", "ospa_cutoff_m", -1.0, "design value ospa_cutoff_m = -1 must be in (0, inf)"),
-    ("radar-tws", "ospa_order", 0.5, "design value ospa_order = 0.5 must be in (0.999999, 100)"),
+    ("radar", "ospa_cutoff_m", -1.0, "design value ospa_cutoff_m = -1 must be in (0, inf)"),
+    ("radar", "ospa_order", 0.5, "design value ospa_order = 0.5 must be in (0.999999, 100)"),
     ("array", "track_gate_deg", 180.0, "design value track_gate_deg = 180 must be in (0, 180)"),
     ("array", "spacing_wavelengths", 0.0, "design value spacing_wavelengths = 0 must be in (0, 1e+06)"),
-    ("radar-tws", "sigma_range_m", math.inf, "design value sigma_range_m = inf must be finite"),
+    ("radar", "sigma_range_m", math.inf, "design value sigma_range_m = inf must be finite"),
 ])
 def test_a_stage_refuses_its_own_design_values_by_their_params(stage, key, value, message):
     with pytest.raises(InputError) as caught:
@@ -46,7 +46,7 @@ def test_an_unknown_value_is_left_to_the_tracker_that_needs_it():
 
 
 def test_every_stage_declares_its_checked_values_as_params():
-    for name in ("radar-tws", "xcorr", "array", "tdoa-fdoa", "colored"):
+    for name in ("radar", "xcorr", "array", "tdoa-fdoa", "colored"):
         stage = stage_named(name)
         params = design_values.stage_params(stage)
         assert set(stage.evaluation_defaults) <= set(params), name

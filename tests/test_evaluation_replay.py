@@ -191,7 +191,7 @@ def test_a_tracker_without_covariance_is_reported_as_such_not_as_zero(demo_resul
     result = demo_result.results["radar"]
     bare = {"bare": {"state": result["tracks"]["kalman"]["state"], "flags": result["tracks"]["kalman"]["flags"]}}
     stage = next(s for s in __import__("trackreplay.stages", fromlist=["STAGES"]).STAGES if s.name == "radar")
-    design = demo_result.dataset.cache[("design", "radar-tws")]
+    design = demo_result.dataset.cache[("design", "radar")]
     reference = stage.reference(demo_result.dataset, design)
     _, summary = evaluate_standard(result["times"], bare, stage.standard_truth(reference), stage.standard_space(design))
     rows = {(r["metric"], r["scope"]): r["value"] for r in summary.iter_rows(named=True)}

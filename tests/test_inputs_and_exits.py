@@ -224,3 +224,20 @@ def test_a_design_value_refused_by_a_tracker_names_the_file(runner, radar_small,
     assert res.exit_code == 2, res.output
     errors = [line for line in res.stderr.splitlines() if line.startswith("replay: error: ")]
     assert errors and all(f"{data.name}:" in e and setting.split("=")[0] in e for e in errors), res.output
+
+
+def test_a_reader_that_goes_away_is_no_error():
+    """`replay trackers | head -1`: the pipe's reader closed before the output ends, so replay
+    stops as a Unix tool does (exit 141, 128 + SIGPIPE) and prints nothing on stderr."""
+    import os
+    import subprocess
+    import sys
+
+    read_end, write_end = os.pipe()
+    os.close(read_end)  # a reader that has already gone: the first write finds no one
+    try:
+        done = subprocess.run([sys.executable, "-m", "trackreplay.face.cli", "trackers"], stdout=write_end,
+                              stderr=subprocess.PIPE, text=True, timeout=120)
+    finally:
+        os.close(write_end)
+    assert done.returncode == 141 and done.stderr == ""

@@ -160,12 +160,12 @@ def test_mean_nis_bounds_are_the_chi2_interval_of_n_times_m_dof():
 # --------------------------------------------------------------------------- replay without truth
 
 
-SCENARIOS = {"radar-tws": ("radar-tws", ["--set", "n_scans=20"]),
+SCENARIOS = {"radar-tws": ("radar", ["--set", "n_scans=20"]),
              "xcorr-crossing": ("xcorr", ["--set", "crossing_angle_deg=20"]),
              "array-crossing": ("array", ["--set", "n_scans=12"]),
              "tdoa-fdoa": ("tdoa-fdoa", []),
              "colored-imm": ("colored", ["--set", "n_samples=200", "--set", "manoeuvre_first_sample=60",
-                                                   "--set", "manoeuvre_last_sample=120"])}
+                                         "--set", "manoeuvre_last_sample=120"])}
 ERROR_METRICS = ("rmse", "ospa", "gospa", "nees", "mota", "idf1", "crlb", "pcrb", "efficiency", "success_rate")
 
 
@@ -205,7 +205,7 @@ def test_with_truth_the_summary_rows_are_standard_measures_and_eval_prints_the_b
     assert runner.invoke(main, [str(bare), "--out", str(out), "--no-rrd", "-q"]).exit_code == 0
     res = runner.invoke(main, ["eval", str(bare), str(out)])
     assert res.exit_code == 0, res.output
-    assert "track summary of radar-tws (no truth: no error can be computed)" in res.output
+    assert "track summary of radar (no truth: no error can be computed)" in res.output
     res = runner.invoke(main, ["eval", str(bare), str(out), "--json"])
     import json
 

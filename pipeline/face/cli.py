@@ -79,6 +79,12 @@ class ReplayGroup(click.Group):
             return super().invoke(ctx)
         except InputError as exc:
             raise UserError(str(exc)) from None
+        except BrokenPipeError:
+            # the reader of our output went away (`replay trackers | head`): nothing is wrong and
+            # nothing is left to say, as with any Unix tool; stdout goes to /dev/null so that the
+            # interpreter's final flush does not complain either
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            sys.exit(141)  # 128 + SIGPIPE, what a shell reports for a tool stopped by its pipe
         except OSError as exc:
             # the file system's answer (a folder that is a file, no permission, disk full)
             where = f"{exc.filename}: " if exc.filename else ""

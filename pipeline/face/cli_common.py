@@ -173,12 +173,12 @@ EVALUATION_VALUES_EPILOG = """Evaluation design values (--set NAME=VALUE) with e
 scenario record, or the data set itself, may give others (docs/evaluation.md, "Evaluation design values"):
 
 \b
-  radar-tws          ospa_cutoff_m=1000, ospa_order=2, assignment_gate_m=500,
-                     hota_distance_m=1000, gospa_switch_penalty_m=1000, siap_gate_m=500
-  xcorr        ospa_cutoff_deg=10, ospa_order=2, assignment_gate_deg=5
+  radar      ospa_cutoff_m=1000, ospa_order=2, assignment_gate_m=500,
+             hota_distance_m=1000, gospa_switch_penalty_m=1000, siap_gate_m=500
+  xcorr      ospa_cutoff_deg=10, ospa_order=2, assignment_gate_deg=5
   array      ospa_cutoff_deg=10, ospa_order=2, assignment_gate_deg=3
-  tdoa-fdoa          ospa_cutoff_m=5000, ospa_order=2, assignment_gate_m=2000
-  colored  ospa_cutoff_m=100, ospa_order=2, assignment_gate_m=50"""
+  tdoa-fdoa  ospa_cutoff_m=5000, ospa_order=2, assignment_gate_m=2000
+  colored    ospa_cutoff_m=100, ospa_order=2, assignment_gate_m=50"""
 
 
 EVALUATION_SET_HELP = ("Score with this evaluation design value (the matching gate, the GOSPA cut-off and order, "
