@@ -114,7 +114,7 @@ class FilterPyKF(Tracker):
         s_out = np.full((n_scans, 2, 2), np.nan)
         k_out = np.full((n_scans, 4, 2), np.nan)
         used = np.full((n_scans, 2), np.nan)
-        flags = np.zeros(n_scans, np.uint16)
+        flags = np.zeros(n_scans, np.uint32)
 
         kf = KalmanFilter(dim_x=4, dim_z=2)
         kf.H = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]])

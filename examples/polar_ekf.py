@@ -187,7 +187,7 @@ class PolarEKF(Tracker):
         innov = np.full((n_runs, n_scans, 2), np.nan)
         s_out = np.full((n_runs, n_scans, 2, 2), np.nan)
         k_out = np.full((n_runs, n_scans, 4, 2), np.nan)
-        flags = np.zeros((n_runs, n_scans), np.uint16)
+        flags = np.zeros((n_runs, n_scans), np.uint32)
 
         x = np.zeros((n_runs, 4))
         P = np.zeros((n_runs, 4, 4))

@@ -162,7 +162,7 @@ class StoneSoupTracker(Tracker):
 
         state = np.full((n_scans, 4), np.nan)
         cov = np.full((n_scans, 4, 4), np.nan)
-        flags = np.zeros(n_scans, np.uint16)
+        flags = np.zeros(n_scans, np.uint32)
         slot = None
         for k, (_, tracks) in enumerate(tracker):
             if slot is not None and slot not in tracks:
