@@ -90,7 +90,7 @@ def package_view(tree: str, into: Path) -> str:
     A tree without ``pipeline/`` is returned as it is (already a folder of packages).
     """
     source = Path(tree)
-    if not (source / "pipeline" / "__init__.py").exists():
+    if not (source / "pipeline" / "__init__.py").exists() or _named_pipeline(tree):
         return tree
     view = into / "package-view"
     package = view / "trackreplay"
@@ -103,6 +103,18 @@ def package_view(tree: str, into: Path) -> str:
             (package / sub).symlink_to(source / sub)
     (view / "replay_data").symlink_to(source / "data")
     return str(view)
+
+
+def _named_pipeline(tree: str | None) -> bool:
+    """Whether ``tree`` is a checkout from before the package was named ``trackreplay`` (its code
+    imports ``pipeline``): it runs from ``PYTHONPATH=tree`` as ``python -m pipeline.face.cli``."""
+    cli = Path(tree) / "pipeline" / "face" / "cli.py" if tree is not None else None
+    return cli is not None and cli.exists() and "from pipeline" in cli.read_text()
+
+
+def cli_module(tree: str | None) -> str:
+    """The module that is ``replay`` in ``tree``."""
+    return "pipeline.face.cli" if _named_pipeline(tree) else "trackreplay.face.cli"
 
 
 def compile_bytecode(tree: str | None) -> None:
@@ -119,7 +131,8 @@ def compile_bytecode(tree: str | None) -> None:
 
     if tree is not None:
         # compile_dir skips linked folders: every file by the path the interpreter will see
-        for folder, _, files in os.walk(Path(tree) / "trackreplay", followlinks=True):
+        roots = ("pipeline", "recorders", "evaluators") if _named_pipeline(tree) else ("trackreplay",)
+        for folder, _, files in (w for root in roots for w in os.walk(Path(tree) / root, followlinks=True)):
             for name in files:
                 if name.endswith(".py"):
                     compileall.compile_file(os.path.join(folder, name), quiet=1)
@@ -136,7 +149,7 @@ def simulate(scenario: str, runs: int, out: Path) -> None:
 
 def replay_once(data: Path, out: Path, tree: str | None, recording: bool) -> tuple[float, float]:
     """(wall seconds, peak resident MB) of one ``replay`` in a fresh process."""
-    args = [sys.executable, "-m", "trackreplay.face.cli", "-q", str(data), "--out", str(out / "tracks.mcap"), "--force",
+    args = [sys.executable, "-m", cli_module(tree), "-q", str(data), "--out", str(out / "tracks.mcap"), "--force",
             "--figures", "none"]
     if not recording:
         args.append("--no-rrd")
@@ -160,7 +173,7 @@ def help_once(tree: str | None, cwd: str) -> float:
     """Wall seconds of ``replay --help`` in a fresh process."""
     env = dict(os.environ, PYTHONPATH=tree) if tree else None
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "trackreplay.face.cli", "--help"], env=env, cwd=cwd, check=True,
+    subprocess.run([sys.executable, "-m", cli_module(tree), "--help"], env=env, cwd=cwd, check=True,
                    stdout=subprocess.DEVNULL)
     return time.perf_counter() - t0
 
