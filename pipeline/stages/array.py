@@ -16,15 +16,14 @@ import numpy as np
 from trackreplay.evaluators import array as array_eval
 from trackreplay import vocabulary as vocab
 from trackreplay.errors import InputError, require_finite
-from trackreplay.stages.base import Stage
-from trackreplay.evaluators.standard import bearing_space
+from trackreplay.stages.base import BearingStage
 from trackreplay.trackers.interface import ArraySnapshots, Param
 
 SNAPSHOTS = vocab.CHANNELS["array_snapshots"]
 TRUTH = vocab.CHANNELS["array_truth"]
 
 
-class ArrayStage(Stage):
+class ArrayStage(BearingStage):
     name = "array"
     listing = (0, "deg")  # without truth, replay lists run 0's bearings per scan
     family = "array"
@@ -137,13 +136,6 @@ class ArrayStage(Stage):
         return array_eval.evaluate(result["times"], result["tracks"], runs["truth"], runs["snr_db"],
                                    np.deg2rad(float(design["track_gate_deg"])), M,
                                    flop_table=self.flop_table(result["tracks"], M))
-
-    def standard_space(self, design: dict, reference: dict | None = None):
-        return bearing_space(design)
-
-    def standard_truth(self, reference: dict):
-        truth = reference["runs"]["truth"]
-        return None if truth is None else truth[..., None]
 
     def figures(self, per_scan, out_dir, title: str = "", result: dict | None = None, dataset=None) -> list:
         """``report.png``: the bearing–time record of run 0 (tracks and truth; no field edges: the

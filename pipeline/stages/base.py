@@ -187,3 +187,17 @@ class Stage:
     def report(self, summary, per_scan) -> str:
         """Optional text in a paper's own layout (e.g. its table), for reports written to files."""
         return ""
+
+
+class BearingStage(Stage):
+    """A stage whose standard measures compare bearings: its reference holds the true bearing of
+    each slot, ``(R, K, T)`` in radians (the cross-correlation and array families)."""
+
+    def standard_space(self, design: dict, reference: dict | None = None):
+        from trackreplay.evaluators.standard import bearing_space
+
+        return bearing_space(design)
+
+    def standard_truth(self, reference: dict):
+        truth = reference["runs"]["truth"]
+        return None if truth is None else truth[..., None]

@@ -16,9 +16,8 @@ import polars as pl
 from trackreplay.evaluators import xcorr as assoc_eval
 from trackreplay import vocabulary as vocab
 from trackreplay.errors import InputError, require_finite
-from trackreplay.stages.base import Stage
+from trackreplay.stages.base import BearingStage
 from trackreplay.stages.evaluation_gates import gates_from_spread
-from trackreplay.evaluators.standard import bearing_space
 from trackreplay.trackers.interface import BearingPeaks
 from trackreplay.trackers.xcorr_peak_roles import roles_for
 
@@ -158,7 +157,7 @@ def n_targets(peaks: dict, truth: np.ndarray | None, path, design: dict | None =
     return int(wanted)
 
 
-class XcorrStage(Stage):
+class XcorrStage(BearingStage):
     name = "xcorr"
     listing = (0, "deg")  # without truth, replay lists run 0's bearings per scan
     family = "xcorr"
@@ -207,13 +206,6 @@ class XcorrStage(Stage):
         T = next(iter(tracks.values()))["state"].shape[2]
         return assoc_eval.evaluate(result["times"], tracks, reference["runs"]["truth"],
                                    float(np.deg2rad(design["gate_deg"])), roles_for(design, T))
-
-    def standard_space(self, design: dict, reference: dict | None = None):
-        return bearing_space(design)
-
-    def standard_truth(self, reference: dict):
-        truth = reference["runs"]["truth"]
-        return None if truth is None else truth[..., None]
 
     def figures(self, per_scan, out_dir, title: str = "", result: dict | None = None, dataset=None) -> list:
         """``report.png``: the bearing–time record of run 0 (peaks, truth, tracks); ``errors.png``:
