@@ -35,7 +35,8 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from trackreplay.cores.association.jpda import STRATEGIES, scans_from_padded, track_bearing_peaks  # noqa: E402
+from trackreplay.cores.association.jpda import STRATEGIES  # noqa: E402
+from trackreplay.cores.association.jpda_tracking import scans_from_padded, track_bearing_peaks  # noqa: E402
 from trackreplay.cores.filters.kalman import two_point_start  # noqa: E402
 from trackreplay.trackers.xcorr import core_design, design_from  # noqa: E402
 from trackreplay.recorders.scenarios import load_scenario  # noqa: E402

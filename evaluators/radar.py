@@ -17,14 +17,14 @@ import polars as pl
 
 from trackreplay.evaluators.confidence import group_totals
 from trackreplay.evaluators.tracking_metrics import long_form, nanmean, npe_from_sums, root, squared_error
-from trackreplay.vocabulary import CLAMPED as FLAG_CLAMPED, COASTED as FLAG_COASTED, INITIALISING as FLAG_INITIALISING, NO_TRACK as FLAG_NO_TRACK
+from trackreplay import vocabulary as vocab
 
 SCOPES = ("overall", "cross_range_above_nominal", "cross_range_below_nominal")
 
 
 def filtered_mask(flags: np.ndarray) -> np.ndarray:
     """Scans that carry a filtered estimate (track started and updated or coasted)."""
-    return (flags & (FLAG_NO_TRACK | FLAG_INITIALISING)) == 0
+    return (flags & (vocab.NO_TRACK | vocab.INITIALISING)) == 0
 
 
 def evaluate(times, tracks: dict, measured_xy, truth_state=None, cross_range_std=None,
@@ -86,8 +86,8 @@ def evaluate(times, tracks: dict, measured_xy, truth_state=None, cross_range_std
     for name, out in tracks.items():
         flags = out["flags"]
         ok = filtered_mask(flags)
-        clamped = (flags & FLAG_CLAMPED) > 0
-        sums = {"ok": sums_of(ok), "clamped": sums_of(clamped), "coasted": sums_of((flags & FLAG_COASTED) > 0)}
+        clamped = (flags & vocab.CLAMPED) > 0
+        sums = {"ok": sums_of(ok), "clamped": sums_of(clamped), "coasted": sums_of((flags & vocab.COASTED) > 0)}
         if "innovation" in out and "measurement" in out:
             # innovation of the converted plot (x, y) in metres: trackers that report the plot they used
             sums["innovation"] = _masked_sums(squared_error(out["innovation"], 0.0), ok, sums_of)

@@ -10,10 +10,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from trackreplay.cores.association.jpda import (FLAG_CLUSTER_SPLIT, STRATEGIES, BearingTrackerDesign, ScanPeaks, amplitude_likelihood_ratio,
-                           association_marginals, cluster_tracks, joint_association_probabilities,
-                           position_likelihood_ratio, track_bearing_peaks, update_strength,
+from trackreplay import vocabulary as vocab
+from trackreplay.cores.association._jpda_fast import association_marginals_fast, joint_association_probabilities
+from trackreplay.cores.association.jpda import (STRATEGIES, BearingTrackerDesign, amplitude_likelihood_ratio,
+                           association_marginals, cluster_tracks, position_likelihood_ratio, update_strength,
                            window_gate_probability)
+from trackreplay.cores.association.jpda_tracking import ScanPeaks, track_bearing_peaks
 from trackreplay.cores.filters.kalman import two_point_start
 
 
@@ -74,15 +76,17 @@ def test_beta_sums_to_one_and_vanishes_outside_the_gate(case):
 
 
 def test_both_recursion_forms_agree_for_larger_clusters():
-    """The transfer-matrix form (≤ 6 tracks) and the state-by-state form (> 6) are one recursion."""
+    """The transfer-matrix form (≤ 6 tracks, the fast form) and the state-by-state form (the plain
+    one) are one recursion."""
     rng = np.random.default_rng(1)
     ratio = rng.exponential(1.0, (3, 8, 10))
     miss = rng.uniform(0.05, 1, (3, 8))
     ref_beta, ref_beta0 = association_marginals(ratio, miss)  # 8 tracks: loop form
     for r in range(3):
         bf_beta, bf_beta0 = brute_force(ratio[r, :5, :6], miss[r, :5], np.ones((5, 6), bool))
-        b, b0 = association_marginals(ratio[r:r + 1, :5, :6], miss[r:r + 1, :5])  # matrix form
-        assert np.max(np.abs(b[0] - bf_beta)) < 1e-12 and np.max(np.abs(b0[0] - bf_beta0)) < 1e-12
+        for form in (association_marginals, association_marginals_fast):  # track by track, matrix form
+            b, b0 = form(ratio[r:r + 1, :5, :6], miss[r:r + 1, :5])
+            assert np.max(np.abs(b[0] - bf_beta)) < 1e-12 and np.max(np.abs(b0[0] - bf_beta0)) < 1e-12
     assert np.allclose(ref_beta0 + ref_beta.sum(-1), 1.0, atol=1e-12)
 
 
@@ -282,5 +286,5 @@ def test_past_the_exact_cluster_limit_the_filter_flags_and_continues():
     x0 = np.stack([base, np.zeros(T)], -1)[None]
     _, P0 = two_point_start(base[None], base[None], 1.0, d.sigma_p_rad)
     out = track_bearing_peaks(_scans(z), x0, P0, d, STRATEGIES["jpda"], 0)
-    assert np.all(out["flags"][0, 1:] & FLAG_CLUSTER_SPLIT)
+    assert np.all(out["flags"][0, 1:] & vocab.CLUSTER_SPLIT)
     assert np.all(np.isfinite(out["state"][0, 1:]))

@@ -32,17 +32,12 @@ def _close(a, b, atol=1e-12):
 
 
 @settings(max_examples=80, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), B=st.integers(1, 5), s=st.integers(1, plain.MATRIX_FORM_TRACKS),
+@given(seed=st.integers(0, 2**32 - 1), B=st.integers(1, 5), s=st.integers(1, fast.MATRIX_FORM_TRACKS),
        m=st.integers(0, 9), span=st.sampled_from([1.0, 4.0, 40.0]))
 def test_transfer_matrix_form_equals_the_track_by_track_recursion(seed, B, s, m, span):
     ratio, miss, _ = _inputs(np.random.default_rng(seed), B, s, m, span)
-    beta, beta0 = plain.association_marginals(ratio, miss)  # s ≤ MATRIX_FORM_TRACKS: the matrix form
-    saved = plain.MATRIX_FORM_TRACKS
-    try:
-        plain.MATRIX_FORM_TRACKS = 0  # every size takes the track-by-track form
-        ref, ref0 = plain.association_marginals(ratio, miss)
-    finally:
-        plain.MATRIX_FORM_TRACKS = saved
+    beta, beta0 = fast.association_marginals_fast(ratio, miss)  # s ≤ MATRIX_FORM_TRACKS: the matrix form
+    ref, ref0 = plain.association_marginals(ratio, miss)  # the track-by-track form
     _close(beta, ref)
     _close(beta0, ref0)
 
@@ -125,15 +120,15 @@ def test_top_weights_in_blocks_equal_a_sort_of_each_scan(budget, monkeypatch):
     assert np.array_equal(got[1], want[1])
 
 
-@pytest.mark.parametrize("first", ["jpda", "_jpda_fast"])
+@pytest.mark.parametrize("first", ["jpda", "_jpda_fast", "jpda_tracking"])
 def test_either_module_may_be_imported_first(first):
-    """The plain module imports the fast forms' names at its top and the fast module reaches the
-    plain one at call time: importing either first works."""
-    code = (f"import trackreplay.cores.association.{first}; "
+    """The imports run one way (the loop imports the fast forms, the fast forms the plain ones,
+    the plain ones neither): importing any of them first works, and the plain module alone
+    loads none of the others."""
+    code = (f"import sys, trackreplay.cores.association.{first}; "
+            f"assert ('{first}' != 'jpda' or not any(n.endswith(('_jpda_fast', 'jpda_tracking')) for n in sys.modules)); "
             "from trackreplay.cores.association import jpda, _jpda_fast; "
             "import numpy as np; "
-            "w = np.array([[[2.0, 1.0, 0.5]]]); "
-            "assert jpda.pair_marginals is _jpda_fast.pair_marginals; "
             "b, b0 = _jpda_fast._cluster_marginals_on_own_peaks(np.ones((1, 2, 3)), np.ones((1, 2))); "
             "assert abs(b0.sum() + b.sum() - 2) < 1e-12")
     subprocess.run([sys.executable, "-c", code], check=True)

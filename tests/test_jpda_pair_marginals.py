@@ -9,8 +9,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from trackreplay.cores.association.jpda import (STRATEGIES, BearingTrackerDesign, ScanPeaks, association_marginals,
-                                             pair_marginals, track_bearing_peaks)
+from trackreplay.cores.association._jpda_fast import pair_marginals
+from trackreplay.cores.association.jpda import STRATEGIES, BearingTrackerDesign, association_marginals
+from trackreplay.cores.association.jpda_tracking import ScanPeaks, track_bearing_peaks
 from trackreplay.cores.association.track_management import ConfirmationRule, EndingRule, TrackLife
 from trackreplay.cores.filters.kalman import two_point_start
 
@@ -100,14 +101,17 @@ def test_the_two_track_fast_path_equals_the_general_association(strategy, life, 
     x0[0, 1] = np.nan  # one slot never starts
     _, P0 = two_point_start(x0[..., 0], x0[..., 0], 1.0, d.sigma_p_rad)
     fast = track_bearing_peaks(scans, x0, P0, d, STRATEGIES[strategy], 0)
-    import trackreplay.cores.association.jpda as core
+    import trackreplay.cores.association._jpda_fast as fast_forms
+    import trackreplay.cores.association.jpda_tracking as loop
 
-    monkeypatch.setattr(core, "CLOSED_FORM_TRACKS", 0)
-    general = core.joint_association_probabilities
+    monkeypatch.setattr(loop, "CLOSED_FORM_TRACKS", 0)
+    general = fast_forms.joint_association_probabilities
     for clustering in (True, False):
-        # (the general function calls itself by name: the forced choice reaches that call too)
-        monkeypatch.setattr(core, "joint_association_probabilities",
-                            lambda r, mi, g, c, limit=12, _=None, forced=clustering: general(r, mi, g, c, limit, forced))
+        # (the general function calls itself by name in its own module: the forced choice reaches
+        # that call too)
+        forced = lambda r, mi, g, c, limit=12, _=None, forced=clustering: general(r, mi, g, c, limit, forced)
+        monkeypatch.setattr(loop, "joint_association_probabilities", forced)
+        monkeypatch.setattr(fast_forms, "joint_association_probabilities", forced)
         _same(fast, track_bearing_peaks(scans, x0, P0, d, STRATEGIES[strategy], 0))
 
 

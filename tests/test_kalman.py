@@ -136,11 +136,11 @@ def test_floor_on_matrix_entries_equals_floor_on_components():
 @pytest.mark.parametrize("shape", [(), (1,), (7,), (500,), (3, 9)])
 @pytest.mark.parametrize("scalar_r", [False, True])
 def test_cv_position_update_on_stacked_rows_equals_the_row_by_row_form_to_the_bit(monkeypatch, shape, scalar_r):
-    """cv_position_update_components takes batches up to ROWS_STACKED_RUNS on stacked rows
-    (_kalman_fast._cv_position_update_rows): the same operations in the same order, so the same
+    """cv_position_update_components_fast takes batches up to ROWS_STACKED_RUNS on stacked rows
+    (_kalman_fast.cv_position_update_components_fast, by _cv_position_update_rows): the same operations in the same order, so the same
     gain and posterior to the bit as the written-out form, for any batch shape and for R given
     per run or once; and that posterior is the textbook P − K H P to rounding."""
-    from trackreplay.cores.filters import kalman
+    from trackreplay.cores.filters import _kalman_fast, kalman
 
     rng = np.random.default_rng(11)
     M = rng.normal(size=shape + (4, 4))
@@ -152,9 +152,9 @@ def test_cv_position_update_on_stacked_rows_equals_the_row_by_row_form_to_the_bi
         L = rng.normal(size=shape + (2, 2))
         Rm = L @ np.swapaxes(L, -1, -2) * 10 + np.eye(2)
         r = (Rm[..., 0, 0], Rm[..., 0, 1], Rm[..., 1, 1])
-    stacked = kalman.cv_position_update_components(c, *r)
-    monkeypatch.setattr(kalman, "ROWS_STACKED_RUNS", 0)
-    written = kalman.cv_position_update_components(c, *r)
+    stacked = _kalman_fast.cv_position_update_components_fast(c, *r)
+    monkeypatch.setattr(_kalman_fast, "ROWS_STACKED_RUNS", 0)
+    written = _kalman_fast.cv_position_update_components_fast(c, *r)
     for a, b in zip(stacked, written):
         assert a.shape == b.shape
         np.testing.assert_array_equal(a, b)

@@ -10,6 +10,7 @@ next to the radar, one run (Python floats) and many (arrays).
 import numpy as np
 import pytest
 
+from trackreplay import vocabulary as vocab
 from trackreplay.cores.filters import _kalman_fast, kalman
 from trackreplay.trackers import radar_tws as rt
 
@@ -64,12 +65,12 @@ def test_scan_blocks_with_clamps_floors_and_other_designs(strategy):
     fast, plain = _both(plots, strategy)
     _assert_same(fast, plain)
     if strategy == "approximate":
-        assert (plain["flags"] & rt.FLAG_CLAMPED).any()
-    assert (plain["flags"] & rt.FLAG_FLOORED).any()
+        assert (plain["flags"] & vocab.CLAMPED).any()
+    assert (plain["flags"] & vocab.FLOORED).any()
     # no start-up gains, immediate confirmation, deletion after two coasted scans
     plots = _plots(1, 200, seed=8, detection=0.7)
     _assert_same(*_both(plots, strategy, startup_gains=False, confirm_hits=0, max_coasted_scans=2))
-    assert (_both(plots, strategy, max_coasted_scans=2)[1]["flags"] & rt.FLAG_DELETED).any()
+    assert (_both(plots, strategy, max_coasted_scans=2)[1]["flags"] & vocab.DELETED).any()
 
 
 def test_blocks_of_many_runs_are_cut_to_bound_memory(monkeypatch):

@@ -12,11 +12,11 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from trackreplay.cores.association.gnn import gnn_assignment
+from trackreplay.cores.association._jpda_fast import joint_association_probabilities
 from trackreplay.cores.association.jpda import (
     association_marginals,
     cluster_tracks,
     gaussian_likelihood_ratio,
-    joint_association_probabilities,
     pda_update,
     pda_update_gaussian,
 )
@@ -288,7 +288,7 @@ def test_gating_through_windows_gives_every_pair_the_definition_gives(seed, runs
 def test_jpda_from_pairs_equals_the_dense_layout(seed, runs, tracks, peaks, density, max_cluster):
     """The pair-driven JPDA (sparse components, each group on its own peaks) gives the β, β₀ and
     cut flags of the dense ``(R, T, m)`` clustered path, clusters cut or whole."""
-    from trackreplay.cores.association.jpda import pair_association_probabilities
+    from trackreplay.cores.association._jpda_fast import pair_association_probabilities
 
     rng = np.random.default_rng(seed)
     ratio = rng.exponential(1.0, (runs, tracks, peaks))

@@ -12,10 +12,11 @@ Findings these tests pin down (see docs/papers/radar.md):
 import numpy as np
 import pytest
 
+from trackreplay import vocabulary as vocab
 from trackreplay.evaluators.radar import evaluate, filtered_mask
 from trackreplay.cores.filters.alpha_beta_gains import kalata_gains
 from trackreplay.cores.filters.converted_measurements import polar_to_cartesian
-from trackreplay.trackers.radar_tws import FLAG_CLAMPED, STRATEGIES, TrackerDesign, track_plots
+from trackreplay.trackers.radar_tws import STRATEGIES, TrackerDesign, track_plots
 from trackreplay.recorders import radar_tws
 from trackreplay.recorders.scenarios import load_scenario
 
@@ -98,7 +99,7 @@ def test_near_radar_passes_are_clamped_and_flagged_not_divergent():
     tracks, per_scan, summary, truth, _ = run_all(50, 7, start_x_m=-800.0, start_y_m=400.0,
                                                    velocity_x_mps=10.0, velocity_y_mps=-2.0)
     flags = tracks["approximate"]["flags"]
-    assert np.any(flags & FLAG_CLAMPED)
+    assert np.any(flags & vocab.CLAMPED)
     a = tracks["approximate"]["alpha"]
     b = tracks["approximate"]["beta"]
     ok = np.isfinite(a)

@@ -12,7 +12,8 @@ import pytest
 
 from trackreplay import design_values, vocabulary as vocab
 from trackreplay.contract import read_dataset
-from trackreplay.cores.association.jpda import STRATEGIES, BearingTrackerDesign, ScanPeaks, track_bearing_peaks
+from trackreplay.cores.association.jpda import STRATEGIES, BearingTrackerDesign
+from trackreplay.cores.association.jpda_tracking import ScanPeaks, track_bearing_peaks
 from trackreplay.cores.association.track_management import EndingRule, coasting_run, ended
 
 DEG = np.pi / 180

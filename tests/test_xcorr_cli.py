@@ -8,10 +8,10 @@ import polars as pl
 import pytest
 from click.testing import CliRunner
 
+from trackreplay import vocabulary as vocab
 from trackreplay.evaluators.baselines import compare, read_baseline
 from trackreplay.face.cli import main
 from trackreplay.contract import read_dataset, scenario_metadata
-from trackreplay.cores.association.jpda import FLAG_COASTED
 from trackreplay.replay import replay
 from trackreplay.recorders import xcorr_peaks
 from trackreplay.recorders.scenarios import load_scenario
@@ -139,7 +139,7 @@ def test_empty_scans_coast_and_stay_finite(base_data, tmp_path):
     path = _write(tmp_path / "gap.mcap", data, p)
     res = replay(path)
     out = res.results["xcorr"]["tracks"]["jpda_a"]
-    assert np.all(out["flags"][:, 10:20] & FLAG_COASTED)
+    assert np.all(out["flags"][:, 10:20] & vocab.COASTED)
     assert np.all(out["beta0"][:, 10:20] == 1.0)
     var = out["covariance"][:, 9:20, :, 0, 0]
     assert np.all(np.diff(var, axis=1) > 0)  # coasting: uncertainty grows every empty scan

@@ -8,8 +8,6 @@ two equal, clamps, floors, deletions and cut blocks included). The block sizes
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
 from trackreplay import vocabulary as vocab
@@ -25,13 +23,8 @@ from trackreplay.cores.filters._kalman_fast import (
     _cv_states_with_gains,
 )
 from trackreplay.cores.filters.kalman import MATRIX_FROM_COMPONENTS
+from trackreplay.trackers.radar_tws_design import MAX_TRACKING_INDEX, TrackerDesign
 from trackreplay.trackers.radar_tws_strategies import KalmanGains
-
-if TYPE_CHECKING:
-    from trackreplay.trackers.radar_tws import TrackerDesign
-
-FLAG_CLAMPED = vocab.CLAMPED
-FLAG_FLOORED = vocab.FLOORED
 
 
 def _steady_stretches(counts):
@@ -49,7 +42,7 @@ def _block_plot_variances(z_r, dt, design: TrackerDesign):
     Returns ``(var_along, var_cross, floored, sigma_along, sigma_cross)``; ``floored`` is None when
     no scan of the block was floored.
     """
-    least = (design.sigma_v * dt * dt / _plain.MAX_TRACKING_INDEX) ** 2
+    least = (design.sigma_v * dt * dt / MAX_TRACKING_INDEX) ** 2
     var_r = design.sigma_range_m**2
     var_cross = (z_r * design.sigma_bearing_rad) ** 2
     lo, hi = np.maximum(RELATIVE_VARIANCE_FLOOR * var_r, least), var_r / RELATIVE_VARIANCE_FLOOR
@@ -121,14 +114,9 @@ def _steady_block(first, stop, x, c, n_plots, plot_range, plot_bearing, times, d
     out["gains"][scans] = gain.transpose(1, 2, 0)
     flags = out["flags"][scans]
     if floored is not None:
-        flags |= np.where(floored, FLAG_FLOORED, 0).astype(np.uint16)
+        flags |= np.where(floored, vocab.FLOORED, 0).astype(np.uint16)
     if diag["clamped"].any():
-        flags |= np.where(diag["clamped"], FLAG_CLAMPED, 0).astype(np.uint16)
+        flags |= np.where(diag["clamped"], vocab.CLAMPED, 0).astype(np.uint16)
     if diag["floored"].any():
-        flags |= np.where(diag["floored"], FLAG_FLOORED, 0).astype(np.uint16)
+        flags |= np.where(diag["floored"], vocab.FLOORED, 0).astype(np.uint16)
     return states[:, -1].copy(), c_post[:, -1].copy(), n_plots + L
-
-
-# The loop's module, reached when called (its MAX_TRACKING_INDEX). Imported last: that module
-# imports this one's names at its top, so either may be imported first.
-from trackreplay.trackers import radar_tws as _plain  # noqa: E402

@@ -9,7 +9,7 @@ loop (:func:`track_multi_target`) serves both; what differs is a small **associa
              assigned plot.
 ``jpda_mt``  joint probabilistic data association (Fortmann, Bar-Shalom & Scheffe 1983): the
              marginal association probabilities of every confirmed track and gated plot from the
-             project's one JPDA core (:func:`trackreplay.cores.association.jpda.pair_association_probabilities`:
+             project's one JPDA core (:func:`trackreplay.cores.association._jpda_fast.pair_association_probabilities`:
              exact per cluster of tracks sharing plots, from the gated pairs), then the PDA update
              (:func:`trackreplay.cores.association.jpda.pda_update_gaussian`); tentative tracks take,
              by nearest neighbour, only plots outside every confirmed gate (a separate initiator).
@@ -44,11 +44,8 @@ import numpy as np
 from trackreplay import vocabulary as vocab
 from trackreplay.cores.association.gating import GatedPairs, gate_pairs
 from trackreplay.cores.association.gnn import pair_assignment
-from trackreplay.cores.association.jpda import (
-    gaussian_likelihood_ratio,
-    pair_association_probabilities,
-    pda_update_gaussian,
-)
+from trackreplay.cores.association._jpda_fast import pair_association_probabilities
+from trackreplay.cores.association.jpda import gaussian_likelihood_ratio, pda_update_gaussian
 from trackreplay.cores.association.track_management import ConfirmationRule, EndingRule, TrackLife
 from trackreplay.cores.filters.kalman import kalman_gain
 from trackreplay.cores.filters.track_filter import (

@@ -56,11 +56,8 @@ None of them acts on the paper's scenario or the bundled data sets.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-from trackreplay.cores.filters.alpha_beta_gains import tracking_index
 from trackreplay.cores.filters.converted_measurements import (
     RELATIVE_VARIANCE_FLOOR,
     floored_polar_variances,
@@ -77,77 +74,12 @@ from trackreplay.cores.association.track_management import ConfirmationRule, End
 from trackreplay import vocabulary as vocab
 from trackreplay.errors import InputError
 from trackreplay.trackers.interface import Param, Tracker
-# the update strategies, and the scan loop's fast path (steady stretches as blocks, tested equal
-# to the loop scan by scan)
+# the design values, the update strategies, and the scan loop's fast path (steady stretches as
+# blocks, tested equal to the loop scan by scan); each imports the design module, none this one
+from trackreplay.trackers.radar_tws_design import DESIGN_RANGE, MAX_TRACKING_INDEX, TrackerDesign  # noqa: F401
 from trackreplay.trackers.radar_tws_strategies import STRATEGIES, AlphaBetaGains, KalmanGains  # noqa: F401
 from trackreplay.trackers._radar_tws_blocks import _steady_block, _steady_stretches
 
-FLAG_CLAMPED = vocab.CLAMPED
-FLAG_COASTED = vocab.COASTED
-FLAG_NO_TRACK = vocab.NO_TRACK
-FLAG_INITIALISING = vocab.INITIALISING
-FLAG_FLOORED = vocab.FLOORED
-FLAG_DELETED = vocab.DELETED
-
-#: Largest tracking index λ = σ_v T²/σ of a plot's along- or cross-range error; a smaller σ is
-#: floored (flagged ``FLOORED``), and a design whose range index σ_v T²/σ_r or nominal index λ̄
-#: exceeds it is refused.
-#: The process noise of one scan is rank one per axis and λ²/4 times the measurement variance,
-#: so a covariance predicted over a scan has a relative smallest eigenvalue of about 8/λ²: at
-#: 10⁵ that is ~10⁶ above rounding. (The α-β gains are α = 1 − 4/λ², β = 2 − 4/λ there already.)
-MAX_TRACKING_INDEX = 1e5
-
-#: Range of every design value that must be > 0 (scan period in s, σ_v in m/s², σ_r and the
-#: nominal cross-range error in m, σ_θ in degrees): wider than any radar needs, narrow enough
-#: that variances, tracking indices and their products stay far from overflow and underflow.
-DESIGN_RANGE = (1e-9, 1e9)
-
-
-@dataclass(frozen=True)
-class TrackerDesign:
-    """Filter design values (SI units, radians).
-
-    Attributes
-    ----------
-    scan_period_s : float
-        Nominal scan period T used in the gains.
-    sigma_v : float
-        Design acceleration noise σ_v (m/s²).
-    sigma_range_m, sigma_bearing_rad : float
-        Plot noise the filters assume.
-    nominal_cross_range_m : float
-        Cross-range error std at which the fixed gains are designed (λ̄ = σ_v T² / this).
-    startup : bool
-        α-β strategies use the expanding-memory start-up gains while they exceed the
-        steady-state ones (textbook track start; without it a two-point start followed by
-        small steady-state gains is worse than the raw plots for several scans).
-    gate_chi2 : float
-        A started track uses the plot nearest its prediction only when the plot's squared
-        Mahalanobis distance ``νᵀ S⁻¹ ν`` is at most this (2 degrees of freedom); otherwise it
-        coasts. ``inf``: no gate (the paper's clutter-free scenario).
-    confirmation, ending : ConfirmationRule, EndingRule
-        Track management (:mod:`trackreplay.cores.association.track_management`): M-of-N
-        confirmation counting the two start plots, and the end after coasted scans. A deleted
-        track's run starts a new track from its next two plots.
-    """
-
-    scan_period_s: float
-    sigma_v: float
-    sigma_range_m: float
-    sigma_bearing_rad: float
-    nominal_cross_range_m: float
-    startup: bool = True
-    gate_chi2: float = np.inf
-    confirmation: ConfirmationRule = ConfirmationRule()
-    ending: EndingRule = EndingRule()
-
-    @property
-    def lam_along(self) -> float:
-        return float(tracking_index(self.sigma_v, self.scan_period_s, self.sigma_range_m))
-
-    @property
-    def lam_nominal(self) -> float:
-        return float(tracking_index(self.sigma_v, self.scan_period_s, self.nominal_cross_range_m))
 
 
 def _plot_variances(z_range, dt: float, design: TrackerDesign):
@@ -306,7 +238,7 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
         var_along, var_cross, floored = _plot_variances(z_r, dt, design)
         r_cov = rotated_diagonal(cos_b, sin_b, var_along, var_cross)
         if floored is not None:
-            flags[k] |= np.where(floored & has, FLAG_FLOORED, 0).astype(np.uint16)
+            flags[k] |= np.where(floored & has, vocab.FLOORED, 0).astype(np.uint16)
 
         if gated:  # a started track takes the nearest plot only inside its χ² gate
             s00, s01, s11 = cp[0] + r_cov[0], cp[1] + r_cov[1], cp[2] + r_cov[2]
@@ -344,14 +276,14 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
             s_k[sel, 3] = cp[2, sel] + r_cov[2][sel]
             gains[k][sel] = gain.T
             if diag["clamped"].any():
-                flags[k][sel] |= np.where(diag["clamped"], FLAG_CLAMPED, 0).astype(np.uint16)
+                flags[k][sel] |= np.where(diag["clamped"], vocab.CLAMPED, 0).astype(np.uint16)
             if diag["floored"].any():
-                flags[k][sel] |= np.where(diag["floored"], FLAG_FLOORED, 0).astype(np.uint16)
+                flags[k][sel] |= np.where(diag["floored"], vocab.FLOORED, 0).astype(np.uint16)
         tentative, ending = life.step(upd, x_new[0], c_new[0] + c_new[2])
         if tentative.any():
-            flags[k][tentative] |= FLAG_INITIALISING
+            flags[k][tentative] |= vocab.INITIALISING
         if ending.any():  # the track ends here (no state); its run starts afresh from its next plots
-            flags[k][ending] |= FLAG_NO_TRACK | FLAG_DELETED
+            flags[k][ending] |= vocab.NO_TRACK | vocab.DELETED
             started = started & ~ending
             have_prev = have_prev & ~ending
             upd = upd & ~ending
@@ -372,16 +304,16 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
                 c_new[:, i] = np.stack([r00, r01, r11, r00 / gap, r01 / gap, r01 / gap, r11 / gap,
                                         (r00 + prev[2, i]) / gap**2, (r01 + prev[3, i]) / gap**2,
                                         (r11 + prev[4, i]) / gap**2])
-                flags[k][i] |= FLAG_INITIALISING
+                flags[k][i] |= vocab.INITIALISING
                 n_plots[i] = 2
                 life.start(init, hits=2, scans=2)  # the two start plots count towards M-of-N
             f = np.flatnonzero(first & ~ending)
             prev[:, f] = np.stack([zx[f], zy[f], r_cov[0][f], r_cov[1][f], r_cov[2][f]])
             prev_t[f] = times[k]
             have_prev |= first & ~ending
-            flags[k][started & ~has] |= FLAG_COASTED
+            flags[k][started & ~has] |= vocab.COASTED
             started = started | init
-            flags[k][~started] |= FLAG_NO_TRACK
+            flags[k][~started] |= vocab.NO_TRACK
             # runs without a track keep their (unused) state; tracks that coast keep the prediction
             x = np.where(started, x_new, x)
             c = np.where(started, c_new, c)
@@ -398,10 +330,10 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
     checked, repaired = cv_floor_components(cov.transpose(1, 0, 2), live)
     if repaired.any():
         cov = checked.transpose(1, 0, 2)
-        flags |= np.where(repaired, FLAG_FLOORED, 0).astype(np.uint16)
+        flags |= np.where(repaired, vocab.FLOORED, 0).astype(np.uint16)
     s_cov, repaired = _floor_innovation_covariance(s_cov)
     if repaired is not None:
-        flags |= np.where(repaired, FLAG_FLOORED, 0).astype(np.uint16)
+        flags |= np.where(repaired, vocab.FLOORED, 0).astype(np.uint16)
     s = s_cov.transpose(1, 0, 2)
     g = gains.transpose(1, 0, 2)
     return {

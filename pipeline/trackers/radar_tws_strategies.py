@@ -14,8 +14,6 @@ A polar EKF or a UKF is one more strategy here; the loop does not change.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
 from trackreplay.cores.filters.alpha_beta_gains import (
@@ -29,10 +27,9 @@ from trackreplay.cores.filters.alpha_beta_gains import (
     with_startup,
 )
 from trackreplay.cores.filters.converted_measurements import rotated_diagonal
-from trackreplay.cores.filters.kalman import cv_apply_gain_components, cv_position_update_components
-
-if TYPE_CHECKING:
-    from trackreplay.trackers.radar_tws import TrackerDesign
+from trackreplay.cores.filters._kalman_fast import cv_position_update_components_fast
+from trackreplay.cores.filters.kalman import cv_apply_gain_components
+from trackreplay.trackers.radar_tws_design import TrackerDesign
 
 
 # Strategies work on runs-last arrays: covariance components (10, n) as in trackreplay.cores.filters.kalman,
@@ -114,7 +111,7 @@ class KalmanGains:
     name = "kalman"
 
     def update(self, x_pred, c_pred, z_range, cos_b, sin_b, r_cov, sigmas, n_plots, design: TrackerDesign, dt: float):
-        gain, c_post = cv_position_update_components(c_pred, *r_cov)
+        gain, c_post = cv_position_update_components_fast(c_pred, *r_cov)
         x_post, innovation = _linear_update(x_pred, gain, z_range, cos_b, sin_b)
         return x_post, c_post, innovation, gain, self.diagnostics(gain, cos_b, sin_b, sigmas, design, dt)
 

@@ -54,7 +54,8 @@ from dataclasses import replace
 import numpy as np
 
 from trackreplay import vocabulary as vocab
-from trackreplay.cores.association.jpda import STRATEGIES, BearingTrackerDesign, scans_from_padded, track_bearing_peaks
+from trackreplay.cores.association.jpda import STRATEGIES, BearingTrackerDesign
+from trackreplay.cores.association.jpda_tracking import scans_from_padded, track_bearing_peaks
 from trackreplay.cores.association.track_management import ConfirmationRule, EndingRule
 from trackreplay.cores.filters.kalman import two_point_start
 from trackreplay.errors import InputError, check_all

@@ -4,12 +4,19 @@ numbers as the plain form it stands for, for fewer array operations.
 :mod:`~trackreplay.cores.association.jpda` keeps the forms a reader holds against the papers
 (Fortmann, Bar-Shalom & Scheffe 1983; Park, Ryu & Lee 1994, eqs. A.1–A.7;
 ``docs/papers/xcorr.md``): the exact marginals of eq. A.6 by the recursion over track
-sets (:func:`~trackreplay.cores.association.jpda.association_marginals`), the β of every run
-(:func:`~trackreplay.cores.association.jpda.joint_association_probabilities`), the PDA update of
-eq. A.7 and the filter's scan loop. Here, each with the test that holds it to its plain form:
+sets (:func:`~trackreplay.cores.association.jpda.association_marginals`), the clusters
+(:func:`~trackreplay.cores.association.jpda.cluster_tracks`) and the PDA update of eq. A.7. This
+module imports that one, never the other way; the filter's scan loop
+(:func:`trackreplay.cores.association.jpda_tracking.track_bearing_peaks`) calls the forms here.
+Each with the test that holds it to its plain form:
 
-* :func:`_transfer_matrix_recursion`: association_marginals' recursion as one matrix product
-  per peak, for clusters of up to ``MATRIX_FORM_TRACKS`` tracks (tests/test_jpda_fast_forms.py);
+* :func:`association_marginals_fast`, :func:`_transfer_matrix_recursion`: association_marginals'
+  recursion as one matrix product per peak, for clusters of up to ``MATRIX_FORM_TRACKS`` tracks
+  (tests/test_jpda_fast_forms.py);
+* :func:`joint_association_probabilities`: the β of every run, per cluster of tracks sharing
+  peaks or in one recursion over all tracks, whichever costs less, clusters larger than
+  ``max_cluster_tracks`` cut (tests/test_multitarget_trackers.py against association_marginals,
+  tests/test_jpda_association.py against enumeration);
 * :func:`pair_marginals`: association_marginals of one or two tracks in closed form
   (tests/test_jpda_pair_marginals.py);
 * :func:`_lone_track_marginals`: association_marginals of one track (tests/test_jpda_fast_forms.py);
@@ -27,6 +34,33 @@ from __future__ import annotations
 from functools import lru_cache
 
 import numpy as np
+
+# the plain forms these stand for (this module imports that one, never the other way)
+from trackreplay.cores.association import jpda as _plain
+
+MATRIX_FORM_TRACKS = 6  # clusters up to this size use the transfer-matrix form (≤ 64×64)
+JOINT_WITHOUT_CLUSTERING = 4  # up to this many tracks the joint recursion beats clustering bookkeeping
+COMPRESS_PEAKS = 8  # with more peaks per scan, drop the ones outside every gate first
+
+
+def association_marginals_fast(ratio: np.ndarray, miss: np.ndarray):
+    """:func:`~trackreplay.cores.association.jpda.association_marginals`, clusters of up to
+    ``MATRIX_FORM_TRACKS`` tracks by :func:`_transfer_matrix_recursion` (one batched matrix
+    product per peak, the same β to rounding, tests/test_jpda_fast_forms.py), larger ones by the
+    plain function itself."""
+    B, s, m = ratio.shape
+    if B == 0 or s == 0 or s > MATRIX_FORM_TRACKS:
+        return _plain.association_marginals(ratio, miss)
+    n_states = 1 << s
+    chunk = max(1, _plain.MEMORY_BUDGET_FLOATS // ((m + 1) * n_states * n_states))
+    if B > chunk:
+        beta, beta0 = np.zeros((B, s, m)), np.ones((B, s))
+        for lo in range(0, B, chunk):
+            beta[lo:lo + chunk], beta0[lo:lo + chunk] = association_marginals_fast(ratio[lo:lo + chunk],
+                                                                                   miss[lo:lo + chunk])
+        return beta, beta0
+    r, F, back, end, bits = _plain._recursion_tables(ratio, miss)
+    return _plain._normalised(_transfer_matrix_recursion(r, F, back), F, back, end, bits)
 
 
 def _transfer_matrix_recursion(r, F, back):
@@ -184,12 +218,78 @@ def _cluster_marginals_on_own_peaks(r, miss):
     own = (r > 0).any(axis=1)                                               # (B, m)
     width = int(own.sum(axis=1).max(initial=0))
     if width == r.shape[2]:
-        return _plain.association_marginals(r, miss)
+        return association_marginals_fast(r, miss)
     cols = np.argsort(~own, axis=1, kind="stable")[:, :width]              # each cluster's peaks first
-    b, b0 = _plain.association_marginals(np.take_along_axis(r, cols[:, None, :], axis=2), miss)
+    b, b0 = association_marginals_fast(np.take_along_axis(r, cols[:, None, :], axis=2), miss)
     beta = np.zeros(r.shape)
     np.put_along_axis(beta, np.broadcast_to(cols[:, None, :], b.shape), b, axis=2)
     return beta, b0
+
+
+def joint_association_probabilities(ratio: np.ndarray, miss: np.ndarray, gated: np.ndarray,
+                                    predicted_bearing: np.ndarray, max_cluster_tracks: int = 12,
+                                    clustering: bool | None = None):
+    """β for every run: cluster, batch clusters by size, run the exact recursion.
+
+    The joint-event sum factorises over clusters, so solving each cluster alone is exact.
+    With few tracks (≤ ``JOINT_WITHOUT_CLUSTERING``) one recursion over all of them costs less
+    than the clustering bookkeeping and gives the same β (``clustering=None`` picks that
+    automatically; tests compare both paths).
+
+    Parameters
+    ----------
+    ratio : ndarray (R, T, m)
+        Likelihood ratios (any value where not gated; masked here).
+    miss : ndarray (R, T)
+    gated : ndarray of bool (R, T, m)
+    predicted_bearing : ndarray (R, T)
+        Orders the tracks of a cluster that has to be cut.
+    max_cluster_tracks : int
+        Largest cluster solved exactly as a whole.
+    clustering : bool, optional
+        Force (True) or skip (False) clustering; default: automatic.
+
+    Returns
+    -------
+    beta : ndarray (R, T, m)
+    beta0 : ndarray (R, T)
+    split : ndarray of bool (R, T)
+        Tracks whose cluster was cut (their β are approximate).
+    """
+    R, T, m = ratio.shape
+    split = np.zeros((R, T), bool)
+    if R == 0 or T == 0:
+        return np.zeros((R, T, m)), np.ones((R, T)), split
+    r = np.where(gated, ratio, 0.0)
+    cols = None
+    somewhere = gated.any(axis=(0, 1))
+    if not somewhere.all():  # peaks outside every gate of every run are clutter for sure
+        full = np.zeros((R, T, m))
+        b, b0, split = joint_association_probabilities(ratio[..., somewhere], miss, gated[..., somewhere],
+                                                       predicted_bearing, max_cluster_tracks, clustering)
+        full[..., somewhere] = b
+        return full, b0, split
+    g = gated
+    if m > COMPRESS_PEAKS:
+        # Only peaks inside some gate matter: move them to the front and drop the rest, so
+        # hundreds of peaks in a scan cost what the few gated ones cost.
+        any_gate = gated.any(axis=1)
+        width = int(any_gate.sum(axis=1).max())
+        if width < m:  # (with every peak in some gate of every run there is nothing to drop)
+            cols = np.argsort(~any_gate, axis=1, kind="stable")[:, :width]
+            g = np.take_along_axis(gated, cols[:, None, :], axis=2)
+            r = np.take_along_axis(r, cols[:, None, :], axis=2)
+    if clustering is None:
+        clustering = T > min(JOINT_WITHOUT_CLUSTERING, max_cluster_tracks)
+    if not clustering and T <= max_cluster_tracks:
+        b_c, beta0 = association_marginals_fast(r, miss)
+    else:
+        b_c, beta0 = _clustered_marginals(r, miss, g, predicted_bearing, max_cluster_tracks, split)
+    if cols is None:
+        return b_c, beta0, split
+    beta = np.zeros((R, T, m))
+    np.put_along_axis(beta, np.broadcast_to(cols[:, None, :], b_c.shape), b_c, axis=2)
+    return beta, beta0, split
 
 
 def pair_association_probabilities(ratio, track, peak, miss, predicted_bearing, max_cluster_tracks: int = 12):
@@ -268,7 +368,7 @@ def pair_association_probabilities(ratio, track, peak, miss, predicted_bearing, 
         r[index[g[mine]], slot_in_group[track[mine]], column[mine]] = ratio[mine]
         members = order[group_start[groups][:, None] + np.arange(s)]      # (batch, s) tracks
         mm = miss[members]
-        bb, b0 = _lone_track_marginals(r, mm) if s == 1 else _plain.association_marginals(r, mm)
+        bb, b0 = _lone_track_marginals(r, mm) if s == 1 else association_marginals_fast(r, mm)
         beta[mine] = bb[index[g[mine]], slot_in_group[track[mine]], column[mine]]
         beta0[members] = b0
     return beta, beta0, split
@@ -316,7 +416,3 @@ class _TopWeights:
             index[:, lo:hi, :, :w.shape[3]] = ix.swapaxes(0, 1)
             lo = hi
 
-
-# The plain forms these stand for, reached through the module when called. Imported last: the
-# plain module imports this one's names at its top, so either may be imported first.
-from trackreplay.cores.association import jpda as _plain  # noqa: E402

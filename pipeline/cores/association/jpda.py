@@ -26,7 +26,7 @@ Park, Ryu & Lee (1994), appendix eqs. A.1–A.7, with the JPDA of Fortmann, Bar-
   clusters of the same size across runs go through one batched recursion; with at most
   ``JOINT_WITHOUT_CLUSTERING`` tracks one recursion over all of them gives the same β for less
   bookkeeping, and peaks outside every gate are dropped first; one or two tracks need neither
-  (:func:`pair_marginals`: the same marginals in closed form, a few array operations per scan);
+  (:func:`~trackreplay.cores.association._jpda_fast.pair_marginals`: the same marginals in closed form, a few array operations per scan);
 * clusters of more than ``max_cluster_tracks`` tracks (default 12, i.e. 4096 states per peak)
   are cut, in bearing order, into groups of at most that many tracks, each solved exactly but
   blind to the others (a peak may then be shared across a cut): approximate, and flagged with
@@ -36,13 +36,12 @@ Park, Ryu & Lee (1994), appendix eqs. A.1–A.7, with the JPDA of Fortmann, Bar-
 * optional amplitude tracking (eq. 9): ``ẑ_a(k) = 0.7 ẑ_a(k−1) + 0.3 max_j z_a`` over the
   peaks in the track's gate (unchanged when the gate is empty).
 
-This module holds the plain forms, the ones to hold against the papers; the fast forms they
-choose between (the closed form of one or two tracks, the clustering, the transfer-matrix
-recursion, the pair-driven JPDA of many tracks, the outputs' top weights) live in
-:mod:`trackreplay.cores.association._jpda_fast`, each tested equal to the plain one. Its
-length (about 640 lines) is the filter's scan loop, :func:`track_bearing_peaks`, written out
-for the two-state bearing filter in one function, so that a reader follows a scan from
-prediction to output without leaving it.
+This module holds the plain forms, the ones to hold against the papers, and imports nothing of
+the fast ones. The fast forms (the transfer-matrix recursion, the closed form of one or two
+tracks, the β of every run by clusters, the pair-driven JPDA of many tracks, the outputs' top
+weights) live in :mod:`trackreplay.cores.association._jpda_fast`, which imports this module and
+is tested equal to it; the filter's scan loop, which calls them,
+is :func:`trackreplay.cores.association.jpda_tracking.track_bearing_peaks`.
 """
 
 from __future__ import annotations
@@ -53,31 +52,11 @@ from functools import lru_cache
 import numpy as np
 from scipy.special import erf, ndtr
 
-from trackreplay import vocabulary as vocab
 from trackreplay.cores.filters.kalman import continuous_white_noise_model
-from trackreplay.cores.association.track_management import ConfirmationRule, EndingRule, TrackLife
-# the fast forms, each tested equal to the plain one it stands for (see the module docstring);
-# pair_marginals and pair_association_probabilities are public names of this module as well
-from trackreplay.cores.association._jpda_fast import (  # noqa: F401
-    _clustered_marginals,
-    _TopWeights,
-    _transfer_matrix_recursion,
-    pair_association_probabilities,
-    pair_marginals,
-)
+from trackreplay.cores.association.track_management import ConfirmationRule, EndingRule
 
-# Flag bits of the one table (trackreplay.vocabulary.FLAGS), as this core uses them:
-FLAG_NO_TRACK = vocab.NO_TRACK            # before the track start scan: no state yet
-FLAG_INITIALISING = vocab.INITIALISING    # up to and including the start scan: start values, not filtered
-FLAG_COASTED = vocab.COASTED              # no peak in the gate: the state is the prediction
-FLAG_DELETED = vocab.DELETED              # the track ended at this scan (track_management); NO_TRACK after
-FLAG_CLUSTER_SPLIT = vocab.CLUSTER_SPLIT  # the track's cluster exceeded max_cluster_tracks (approximate β)
 MEMORY_BUDGET_FLOATS = 1 << 22  # forward table of one recursion batch (32 MB)
-TOP_WEIGHTS = 3
-MATRIX_FORM_TRACKS = 6  # clusters up to this size use the transfer-matrix form (≤ 64×64)
-JOINT_WITHOUT_CLUSTERING = 4  # up to this many tracks the joint recursion beats clustering bookkeeping
-COMPRESS_PEAKS = 8  # with more peaks per scan, drop the ones outside every gate first
-CLOSED_FORM_TRACKS = 2  # up to this many tracks the scan loop uses pair_marginals (0: never)
+TOP_WEIGHTS = 3  # the largest β of each track and scan kept in the outputs
 
 
 # --------------------------------------------------------------------------- design
@@ -183,8 +162,10 @@ def association_marginals(ratio: np.ndarray, miss: np.ndarray):
     track set A, ``B_j(A)`` the weight of all completions with peaks j+1…m given A, so
     ``β[t, j] = ratio[t, j] Σ_{A ∌ t} F_{j−1}(A) B_j(A ∪ {t}) / Z``. In matrix form peak j is a
     transfer matrix ``M_j = I + Σ_t ratio[t, j] E_t`` over the 2^s track sets (``E_t`` adds
-    track t), ``F_j = F_{j−1} M_j`` and ``B_{j−1} = M_j B_j``; small clusters use that form
-    (one batched product per peak), larger ones update the 2^s states track by track.
+    track t), ``F_j = F_{j−1} M_j`` and ``B_{j−1} = M_j B_j``. Here the 2^s states are updated
+    track by track; the matrix form, one batched product per peak, is the fast form
+    (:func:`~trackreplay.cores.association._jpda_fast.association_marginals_fast`, the same β to
+    rounding, tests/test_jpda_fast_forms.py).
 
     Parameters
     ----------
@@ -203,13 +184,36 @@ def association_marginals(ratio: np.ndarray, miss: np.ndarray):
     B, s, m = ratio.shape
     if B == 0 or s == 0:
         return np.zeros((B, s, m)), np.ones((B, s))
-    n_states = 1 << s
-    chunk = max(1, MEMORY_BUDGET_FLOATS // ((m + 1) * n_states * (n_states if s <= MATRIX_FORM_TRACKS else 1)))
+    chunk = max(1, MEMORY_BUDGET_FLOATS // ((m + 1) * (1 << s)))
     if B > chunk:
         beta, beta0 = np.zeros((B, s, m)), np.ones((B, s))
         for lo in range(0, B, chunk):
             beta[lo:lo + chunk], beta0[lo:lo + chunk] = association_marginals(ratio[lo:lo + chunk], miss[lo:lo + chunk])
         return beta, beta0
+    r, F, back, end, bits = _recursion_tables(ratio, miss)
+    # the recursion as written above, track by track over the 2^s states
+    with_t = [np.flatnonzero(bits[:, t]) for t in range(s)]
+    without_t = [w ^ (1 << t) for t, w in enumerate(with_t)]
+    for j in range(m):
+        F[j + 1] = F[j]
+        for t in range(s):
+            F[j + 1][:, with_t[t]] += F[j][:, without_t[t]] * r[:, t, j, None]
+    beta = np.empty((B, s, m))
+    for j in range(m - 1, -1, -1):
+        back[j] = back[j + 1]
+        for t in range(s):
+            beta[:, t, j] = r[:, t, j] * np.einsum("bi,bi->b", F[j][:, without_t[t]], back[j + 1][:, with_t[t]])
+            back[j][:, without_t[t]] += r[:, t, j, None] * back[j + 1][:, with_t[t]]
+    return _normalised(beta, F, back, end, bits)
+
+
+def _recursion_tables(ratio, miss):
+    """The start of :func:`association_marginals`' recursion (shared with its matrix form in
+    :mod:`trackreplay.cores.association._jpda_fast`): the scaled ratios ``r``, the forward and
+    backward tables with ``F[0]`` and ``back[m]`` set, the weight ``end`` of the tracks left
+    unassigned missing, and the track-set bits."""
+    B, s, m = ratio.shape
+    n_states = 1 << s
     # Scaling a track's row (its ratios and its miss weight) by one constant scales every
     # event by the same factor, so β is unchanged; with all factors ≤ 1 nothing overflows.
     scale = np.maximum(miss, ratio.max(axis=2, initial=0.0))
@@ -223,21 +227,13 @@ def association_marginals(ratio: np.ndarray, miss: np.ndarray):
     F[0] = 0.0
     F[0, :, 0] = 1.0
     back[m] = end
-    if s <= MATRIX_FORM_TRACKS:  # the same recursion, one batched matrix product per peak
-        beta = _transfer_matrix_recursion(r, F, back)
-    else:  # the recursion as written above, track by track over the 2^s states
-        with_t = [np.flatnonzero(bits[:, t]) for t in range(s)]
-        without_t = [w ^ (1 << t) for t, w in enumerate(with_t)]
-        for j in range(m):
-            F[j + 1] = F[j]
-            for t in range(s):
-                F[j + 1][:, with_t[t]] += F[j][:, without_t[t]] * r[:, t, j, None]
-        beta = np.empty((B, s, m))
-        for j in range(m - 1, -1, -1):
-            back[j] = back[j + 1]
-            for t in range(s):
-                beta[:, t, j] = r[:, t, j] * np.einsum("bi,bi->b", F[j][:, without_t[t]], back[j + 1][:, with_t[t]])
-                back[j][:, without_t[t]] += r[:, t, j, None] * back[j + 1][:, with_t[t]]
+    return r, F, back, end, bits
+
+
+def _normalised(beta, F, back, end, bits):
+    """β and β₀ of the filled tables, divided by the total weight ``Z`` (β = 0, β₀ = 1 where no
+    event has weight)."""
+    m = F.shape[0] - 1
     Z = back[0][:, 0]
     beta0 = np.einsum("bi,is->bs", F[m] * end, ~bits)
     ok = Z > 0
@@ -282,72 +278,6 @@ def cluster_tracks(gated: np.ndarray) -> np.ndarray:
         if np.array_equal(spread, labels):
             return labels
         labels = spread
-
-
-def joint_association_probabilities(ratio: np.ndarray, miss: np.ndarray, gated: np.ndarray,
-                                    predicted_bearing: np.ndarray, max_cluster_tracks: int = 12,
-                                    clustering: bool | None = None):
-    """β for every run: cluster, batch clusters by size, run the exact recursion.
-
-    The joint-event sum factorises over clusters, so solving each cluster alone is exact.
-    With few tracks (≤ ``JOINT_WITHOUT_CLUSTERING``) one recursion over all of them costs less
-    than the clustering bookkeeping and gives the same β (``clustering=None`` picks that
-    automatically; tests compare both paths).
-
-    Parameters
-    ----------
-    ratio : ndarray (R, T, m)
-        Likelihood ratios (any value where not gated; masked here).
-    miss : ndarray (R, T)
-    gated : ndarray of bool (R, T, m)
-    predicted_bearing : ndarray (R, T)
-        Orders the tracks of a cluster that has to be cut.
-    max_cluster_tracks : int
-        Largest cluster solved exactly as a whole.
-    clustering : bool, optional
-        Force (True) or skip (False) clustering; default: automatic.
-
-    Returns
-    -------
-    beta : ndarray (R, T, m)
-    beta0 : ndarray (R, T)
-    split : ndarray of bool (R, T)
-        Tracks whose cluster was cut (their β are approximate).
-    """
-    R, T, m = ratio.shape
-    split = np.zeros((R, T), bool)
-    if R == 0 or T == 0:
-        return np.zeros((R, T, m)), np.ones((R, T)), split
-    r = np.where(gated, ratio, 0.0)
-    cols = None
-    somewhere = gated.any(axis=(0, 1))
-    if not somewhere.all():  # peaks outside every gate of every run are clutter for sure
-        full = np.zeros((R, T, m))
-        b, b0, split = joint_association_probabilities(ratio[..., somewhere], miss, gated[..., somewhere],
-                                                       predicted_bearing, max_cluster_tracks, clustering)
-        full[..., somewhere] = b
-        return full, b0, split
-    g = gated
-    if m > COMPRESS_PEAKS:
-        # Only peaks inside some gate matter: move them to the front and drop the rest, so
-        # hundreds of peaks in a scan cost what the few gated ones cost.
-        any_gate = gated.any(axis=1)
-        width = int(any_gate.sum(axis=1).max())
-        if width < m:  # (with every peak in some gate of every run there is nothing to drop)
-            cols = np.argsort(~any_gate, axis=1, kind="stable")[:, :width]
-            g = np.take_along_axis(gated, cols[:, None, :], axis=2)
-            r = np.take_along_axis(r, cols[:, None, :], axis=2)
-    if clustering is None:
-        clustering = T > min(JOINT_WITHOUT_CLUSTERING, max_cluster_tracks)
-    if not clustering and T <= max_cluster_tracks:
-        b_c, beta0 = association_marginals(r, miss)
-    else:
-        b_c, beta0 = _clustered_marginals(r, miss, g, predicted_bearing, max_cluster_tracks, split)
-    if cols is None:
-        return b_c, beta0, split
-    beta = np.zeros((R, T, m))
-    np.put_along_axis(beta, np.broadcast_to(cols[:, None, :], b_c.shape), b_c, axis=2)
-    return beta, beta0, split
 
 
 # --------------------------------------------------------------------------- state update
@@ -437,201 +367,3 @@ def update_strength(strength: np.ndarray, amplitude: np.ndarray, gated: np.ndarr
     """Eq. 9: ``0.7 ẑ_a(k−1) + 0.3 max_j z_a`` over gated peaks; unchanged with an empty gate."""
     peak = np.max(np.where(gated, amplitude[..., None, :], -np.inf), axis=-1)
     return np.where(np.isfinite(peak), 0.7 * strength + 0.3 * peak, strength)
-
-
-# --------------------------------------------------------------------------- the filter
-
-
-@dataclass
-class ScanPeaks:
-    """The peaks of one scan for every run, padded: ``(R, m)`` arrays, ``valid`` marks real ones."""
-
-    bearing: np.ndarray
-    amplitude: np.ndarray
-    valid: np.ndarray
-
-
-def scans_from_padded(bearing: np.ndarray, amplitude: np.ndarray, counts: np.ndarray) -> list[ScanPeaks]:
-    """``(R, K, W)`` padded arrays + counts → one :class:`ScanPeaks` per scan, trimmed per scan."""
-    out = []
-    W = bearing.shape[2]
-    for k in range(bearing.shape[1]):
-        w = int(counts[:, k].max()) if counts.size else 0
-        valid = np.arange(min(w, W))[None, :] < counts[:, k, None]
-        out.append(ScanPeaks(np.where(valid, bearing[:, k, :w], 0.0), np.where(valid, amplitude[:, k, :w], 0.0), valid))
-    return out
-
-
-def track_bearing_peaks(scans: list[ScanPeaks], x0: np.ndarray, P0: np.ndarray, design: BearingTrackerDesign,
-                        strategy: AssociationStrategy, start_scan: int = 1) -> dict:
-    """Run JPDA / JPDA_A over all scans for all runs at once.
-
-    Parameters
-    ----------
-    scans : list of ScanPeaks
-        One entry per scan, ``(R, m_k)`` arrays (bearing in rad).
-    x0, P0 : ndarray (R, T, 2), (R, T, 2, 2)
-        Track states at ``start_scan``; filtering starts at the next scan.
-    design : BearingTrackerDesign
-    strategy : AssociationStrategy
-
-    Returns
-    -------
-    dict of ndarray with a leading ``(R, K, T)``, in the output vocabulary
-    (:data:`trackreplay.vocabulary.OUTPUTS`):
-        ``state`` (…, 2) and ``covariance`` (…, 2, 2): NaN before ``start_scan``, the start
-        values at ``start_scan``, the PDA posterior after; ``flags`` (uint16):
-        ``NO_TRACK | INITIALISING`` before ``start_scan``, ``INITIALISING`` at it and while
-        the track is tentative (``design.confirmation``), then ``COASTED`` where no peak fell in
-        the gate and ``CLUSTER_SPLIT`` where the track's cluster was cut; ``NO_TRACK | DELETED``
-        (state NaN) at the scan a track ends (``design.ending`` or a failed confirmation), and
-        ``NO_TRACK`` after it (:mod:`trackreplay.cores.association.track_management`); ``innovation`` (…, 1): the combined innovation ν̄ = Σ β_j ν_j of
-        eq. A.7 (NaN where coasted, before and at the start); ``innovation_covariance``
-        (…, 1, 1): S = H P⁻ Hᵀ + σ_p²; ``gain`` (…, 2, 1): the Kalman gain applied to ν̄.
-        Paper-specific extras: ``beta0``, ``beta_top`` / ``beta_index`` (…, 3: the largest
-        peak weights and their index in the scan's peak list, −1 for none), ``strength``
-        (ẑ_a used), ``n_gated``, ``gate_center`` (predicted bearing).
-    """
-    K = len(scans)
-    R, T, _ = x0.shape
-    F, Q = continuous_white_noise_model(design.scan_period_s, design.q_rad2, 2)  # eq. 8b
-    # F, Q, H = [1, 0] and σ_p² never change, and the state has two components, so the filter is
-    # written out for that case (the same algebra as trackreplay.cores.filters.kalman, fewer array
-    # operations per scan, which is what one run costs): P is kept as its row-major 4-vector,
-    # F P Fᵀ is one product with F ⊗ F, S = p₀₀ + σ_p² and the gain is [p₀₀, p₀₁] / S.
-    FF = np.kron(F, F).T
-    Ft = F.T
-    Q4 = Q.ravel()
-    r_meas = np.broadcast_to(np.asarray(design.sigma_p_rad, float) ** 2, (R, T))
-    out = {
-        "state": np.full((R, K, T, 2), np.nan), "covariance": np.full((R, K, T, 2, 2), np.nan),
-        "beta0": np.full((R, K, T), np.nan), "beta_top": np.full((R, K, T, TOP_WEIGHTS), np.nan),
-        "beta_index": np.full((R, K, T, TOP_WEIGHTS), -1, np.int32), "strength": np.full((R, K, T), np.nan),
-        "n_gated": np.zeros((R, K, T), np.int32), "gate_center": np.full((R, K, T), np.nan),
-        "flags": np.zeros((R, K, T), np.uint16), "innovation": np.full((R, K, T, 1), np.nan),
-        "innovation_covariance": np.full((R, K, T, 1, 1), np.nan), "gain": np.full((R, K, T, 2, 1), np.nan),
-    }
-    out["flags"][:, :start_scan] = FLAG_NO_TRACK | FLAG_INITIALISING
-    x, P = np.array(x0, float), np.array(P0, float)
-    # a slot without a start (NaN: no peak to start it from) stays empty the whole run; it
-    # carries a finite placeholder so the arithmetic stays finite, and takes no peak
-    started = np.isfinite(x).all(axis=-1) & np.isfinite(P).all(axis=(-2, -1))
-    if not started.all():
-        x = np.where(started[..., None], x, 0.0)
-        P = np.where(started[..., None, None], P, np.eye(2))
-    out["flags"][:, start_scan] = np.where(started, FLAG_INITIALISING, FLAG_NO_TRACK)
-    out["state"][:, start_scan] = np.where(started[..., None], x, np.nan)
-    out["covariance"][:, start_scan] = np.where(started[..., None, None], P, np.nan)
-    P4 = (0.5 * (P + np.swapaxes(P, -1, -2))).reshape(R, T, 4)
-    if design.amplitude_tracking:
-        strength = np.full((R, T), float(design.initial_strength))
-        sigma_a = np.full((R, T), float(design.tracked_sigma_a))
-    else:
-        strength = np.broadcast_to(np.asarray(design.strength, float), (R, T)).copy()
-        sigma_a = np.broadcast_to(np.asarray(design.sigma_a, float), (R, T)).copy()
-    out["strength"][:, start_scan] = strength
-    half_gate = design.gate_rad / 2
-    threshold = design.amplitude_threshold
-    pd = design.detection_probability
-    # the start's own measurements count towards M-of-N: scans 0 … start_scan
-    life = TrackLife((R, T), design.confirmation, design.ending)
-    life.start(started, hits=start_scan + 1, scans=start_scan + 1)
-    # no track starts inside the loop, so a life that cannot change now never will: skip its step
-    settled = life.settled
-    slots_started = None if started.all() else started[..., None]
-    # two tracks (or one) need no clustering and no recursion: closed-form marginals
-    pair = T <= min(CLOSED_FORM_TRACKS, 2) and (T == 1 or design.max_cluster_tracks >= 2)
-    n = max(K - start_scan - 1, 0)
-    # per-scan results, scan first so each store is one contiguous write; laid out after the loop
-    xs, Ps, gains = np.empty((n, R, T, 2)), np.empty((n, R, T, 4)), np.empty((n, R, T, 2))
-    centers, beta0s, nu_bars, Ss = (np.empty((n, R, T)) for _ in range(4))
-    n_gated_k = np.empty((n, R, T), np.int32)
-    strengths = np.empty((n, R, T)) if design.amplitude_tracking else None
-    splits = None if pair else np.zeros((n, R, T), bool)
-    if not settled:
-        alives, endings, tentatives = (np.empty((n, R, T), bool) for _ in range(3))
-    top = _TopWeights(R, T)
-    for i, k in enumerate(range(start_scan + 1, K)):
-        sp = scans[k]
-        m = sp.bearing.shape[1]
-        x = x @ Ft
-        P4 = P4 @ FF
-        P4 += Q4
-        S = P4[..., 0] + r_meas
-        gain = P4[..., :2] / S[..., None]
-        center = x[..., 0]
-        nu = sp.bearing[:, None, :] - center[..., None]  # (R, T, m)
-        gated = np.abs(nu) <= half_gate
-        gated &= (sp.valid & (sp.amplitude >= threshold))[:, None, :]
-        # an ended track keeps predicting (finite, harmless) but takes no peak and is not output
-        if not settled:
-            gated &= life.alive[..., None]
-        elif slots_started is not None:
-            gated &= slots_started
-        # likelihood ratios of the m peaks and, last, the miss weight 1 − P_D P_G of each track
-        pd_k = pd
-        if strategy.amplitude:
-            amp_ratio, survive = amplitude_likelihood_ratio(sp.amplitude, strength, sigma_a, design.clutter_alpha,
-                                                            threshold)
-            pd_k = pd * survive
-        weights = np.empty((R, T, m + 1))
-        ratio = weights[..., :m]
-        ratio[...] = position_likelihood_ratio(nu, S, pd_k, design.clutter_density)
-        if strategy.amplitude:
-            ratio *= amp_ratio
-        np.copyto(ratio, 0.0, where=~gated)
-        miss = 1.0 - pd_k * window_gate_probability(S, design.gate_rad)
-        if pair:
-            weights[..., m] = miss
-            marginals = pair_marginals(weights)
-            beta, beta0 = marginals[..., :m], marginals[..., m]
-        else:
-            beta, beta0, splits[i] = joint_association_probabilities(ratio, miss, gated, center,
-                                                                     design.max_cluster_tracks)
-        x, P4, nu_bar = pda_update(x, P4, gain, S, nu, gated, beta, beta0)  # eq. A.7
-        if design.amplitude_tracking:
-            strength = update_strength(strength, sp.amplitude, gated)
-            strengths[i] = strength
-        n_gated = gated.sum(axis=2)
-        if not settled:
-            tentatives[i], endings[i] = life.step(n_gated > 0, x[..., 0])
-            alives[i] = life.alive
-        xs[i], Ps[i], gains[i] = x, P4, gain
-        centers[i], beta0s[i], nu_bars[i], Ss[i], n_gated_k[i] = center, beta0, nu_bar, S, n_gated
-        top.add(beta)
-    if n == 0:
-        return out
-    after = slice(start_scan + 1, K)
-    coasted = n_gated_k == 0
-    flags = coasted * np.uint16(FLAG_COASTED)
-    if splits is not None:
-        flags |= splits * np.uint16(FLAG_CLUSTER_SPLIT)
-    if settled:
-        gone = np.broadcast_to(~life.alive, (n, R, T))
-    else:
-        flags |= tentatives * np.uint16(FLAG_INITIALISING)
-        gone = ~alives
-    # ended at this scan (DELETED), before, or never started: no state, nothing associated
-    if gone.any():
-        flags = np.where(gone, np.uint16(FLAG_NO_TRACK), flags)
-        if not settled:
-            flags = np.where(endings, np.uint16(FLAG_NO_TRACK | FLAG_DELETED), flags)
-        for a in (xs, Ps, gains, Ss):
-            a[gone] = np.nan
-        nu_bars[gone] = np.nan
-    nu_bars[coasted] = np.nan
-    # symmetric to rounding already; exactly so, as the general filter returns it
-    Ps = Ps.reshape(n, R, T, 2, 2)
-    Ps = 0.5 * (Ps + np.swapaxes(Ps, -1, -2))
-    out["flags"][:, after] = flags.swapaxes(0, 1)
-    out["state"][:, after] = xs.swapaxes(0, 1)
-    out["covariance"][:, after] = Ps.swapaxes(0, 1)
-    out["gain"][:, after, :, :, 0] = gains.swapaxes(0, 1)
-    out["innovation_covariance"][:, after, :, 0, 0] = Ss.swapaxes(0, 1)
-    out["innovation"][:, after, :, 0] = nu_bars.swapaxes(0, 1)
-    out["beta0"][:, after] = beta0s.swapaxes(0, 1)
-    out["gate_center"][:, after] = centers.swapaxes(0, 1)
-    out["n_gated"][:, after] = n_gated_k.swapaxes(0, 1)
-    out["strength"][:, after] = strength[:, None] if strengths is None else strengths.swapaxes(0, 1)
-    top.store(out["beta_top"][:, after], out["beta_index"][:, after])
-    return out

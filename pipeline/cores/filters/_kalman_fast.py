@@ -1,8 +1,10 @@
 """Fast forms of the one Kalman filter, private to it: each computes what a plain function of
 :mod:`trackreplay.cores.filters.kalman` computes, for one shape of work, and a test holds it to
 that function (tests/test_kalman.py, tests/test_long_recording.py,
-tests/test_multitarget_trackers.py). Callers go through the plain functions, which choose a fast
-form where it pays; the scan-axis forms are called by the radar TWS tracker's steady blocks.
+tests/test_multitarget_trackers.py). This module imports the plain one, never the other way:
+callers that want speed call the forms here (:func:`joseph_covariance_fast` and
+:func:`cv_position_update_components_fast` choose the fast form where it pays and the plain
+function elsewhere); the scan-axis forms are called by the radar TWS tracker's steady blocks.
 
 * :func:`_joseph_terms_contracted`: :func:`~trackreplay.cores.filters.kalman.joseph_covariance`'s
   products for a stack of thousands of matrices.
@@ -26,9 +28,25 @@ from trackreplay.cores.filters.kalman import (
     cv_apply_gain_components,
     cv_position_update_components,
     cv_predict_components,
+    joseph_covariance,
 )
 
 # --------------------------------------------------------------------------- Joseph products
+
+#: stacks of at least this many matrices take the Joseph products as two contractions
+#: (:func:`_joseph_terms_contracted`)
+_CONTRACTION_BATCH = 512
+
+
+def joseph_covariance_fast(P, K, H, R):
+    """:func:`~trackreplay.cores.filters.kalman.joseph_covariance`, a stack of at least
+    ``_CONTRACTION_BATCH`` matrices through :func:`_joseph_terms_contracted`, the same to rounding
+    (tests/test_multitarget_trackers.py); anything else through the plain function itself."""
+    if not (P.ndim == 3 and P.shape[0] >= _CONTRACTION_BATCH):
+        return joseph_covariance(P, K, H, R)
+    A = np.eye(P.shape[-1]) - K @ H
+    P_post = _joseph_terms_contracted(A, P, K, R)
+    return 0.5 * (P_post + np.swapaxes(P_post, -1, -2))
 
 
 def _joseph_terms_contracted(A, P, K, R):
@@ -56,6 +74,20 @@ _MB_RIGHT = np.array([A01, A11, A11, B10, B11, B10, B11])
 _M_LEFT, _M_RIGHT = np.array([0, 0, 2, 0, 0, 2, 2]), np.array([1, 1, 3, 1, 1, 3, 3])
 _C_ROWS, _KB_LEFT, _KB_RIGHT = np.array([C00, C01, C11]), np.array([B00, B01, B01]), np.array([B10, B11, B11])
 _K_LEFT, _K_RIGHT = np.array([4, 4, 6]), np.array([5, 5, 7])
+
+
+#: Widest batch :func:`cv_position_update_components_fast` takes on stacked rows: beyond, the
+#: stacked temporaries outgrow the cache and the row-by-row form costs less.
+ROWS_STACKED_RUNS = 2048
+
+
+def cv_position_update_components_fast(c, r00, r01, r11):
+    """:func:`~trackreplay.cores.filters.kalman.cv_position_update_components`, batches of up to
+    :data:`ROWS_STACKED_RUNS` runs on stacked rows (:func:`_cv_position_update_rows`, the same
+    numbers to the bit, tests/test_kalman.py), wider ones through the plain function itself."""
+    if 0 < c[0].size <= ROWS_STACKED_RUNS:
+        return _cv_position_update_rows(c, r00, r01, r11)
+    return cv_position_update_components(c, r00, r01, r11)
 
 
 def _cv_position_update_rows(c, r00, r01, r11):
@@ -147,7 +179,7 @@ def _cv_position_filter_covariances(c, r_cov, dt, sigma_v: float, scalar_runs: i
         x = np.zeros((4, n_runs))
         for j in range(L):
             _, cp = cv_predict_components(x, c, float(dt[j]), sigma_v)
-            gains[:, j], c = cv_position_update_components(cp, r00[j], r01[j], r11[j])
+            gains[:, j], c = cv_position_update_components_fast(cp, r00[j], r01[j], r11[j])
             posts[:, j] = c
         return gains, posts
     q = sigma_v * sigma_v

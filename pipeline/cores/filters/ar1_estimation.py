@@ -56,10 +56,6 @@ import numpy as np
 from trackreplay import vocabulary as vocab
 from trackreplay.errors import InputError, require_finite
 
-FLAG_DISCRIMINANT_CLAMPED = vocab.CLAMPED
-FLAG_ALPHA_LIMITED = vocab.LIMITED
-FLAG_VARIANCE_FLOORED = vocab.FLOORED
-FLAG_NOT_WARM = vocab.NOT_WARM
 FLAG_DTYPE = np.dtype(vocab.FLAG_DTYPE)
 
 ALPHA_LIMIT = 0.99
@@ -80,9 +76,9 @@ class Ar1Estimates:
         ``σ_η²`` (eq. 3.2.43), floored at ``VARIANCE_FLOOR · r̂₀``.
     discriminant : ndarray
         The discriminant of eq. 3.2.51 before clamping.
-    flags : ndarray of uint16
-        Bit-or of ``FLAG_DISCRIMINANT_CLAMPED`` (``CLAMPED``), ``FLAG_ALPHA_LIMITED``
-        (``LIMITED``) and ``FLAG_VARIANCE_FLOORED`` (``FLOORED``).
+    flags : ndarray of uint32
+        Bit-or of ``vocab.CLAMPED`` (negative discriminant clamped), ``vocab.LIMITED`` (``|α̂|``
+        limited) and ``vocab.FLOORED`` (noise variance floored).
     warm : ndarray of bool (scans,)
         Scans whose sums hold at least ``1/(1 − β)`` products.
     """
@@ -238,13 +234,13 @@ def estimate_ar1(z, beta: float = 0.99, rho: float = 0.9, normalised: bool = Tru
         alpha_b = r1 / r0
     alpha_raw, disc = bias_corrected_alpha(alpha_b, rho)
     flags = np.zeros(u.shape, dtype=FLAG_DTYPE)
-    flags |= np.where(disc < 0, FLAG_DISCRIMINANT_CLAMPED, 0).astype(FLAG_DTYPE)
+    flags |= np.where(disc < 0, vocab.CLAMPED, 0).astype(FLAG_DTYPE)
     limited = np.abs(alpha_raw) > ALPHA_LIMIT
-    flags |= np.where(limited, FLAG_ALPHA_LIMITED, 0).astype(FLAG_DTYPE)
+    flags |= np.where(limited, vocab.LIMITED, 0).astype(FLAG_DTYPE)
     alpha = np.clip(alpha_raw, -ALPHA_LIMIT, ALPHA_LIMIT)
     var = white_noise_variance(alpha, r0, r1, rho)
     floored = var <= 0
-    flags |= np.where(floored, FLAG_VARIANCE_FLOORED, 0).astype(FLAG_DTYPE)
+    flags |= np.where(floored, vocab.FLOORED, 0).astype(FLAG_DTYPE)
     var = np.where(floored, VARIANCE_FLOOR * r0, var)
     warm = k >= first + np.ceil(1.0 / (1.0 - beta))
     return Ar1Estimates(alpha_b, alpha, var, disc, flags, warm)
@@ -266,4 +262,4 @@ def scan_flags(est: Ar1Estimates) -> np.ndarray:
     ndarray of uint16, shape (runs, scans)
     """
     per_scan = np.bitwise_or.reduce(est.flags, axis=-1).astype(FLAG_DTYPE)
-    return per_scan | np.where(est.warm, 0, FLAG_NOT_WARM).astype(FLAG_DTYPE)[None, :]
+    return per_scan | np.where(est.warm, 0, vocab.NOT_WARM).astype(FLAG_DTYPE)[None, :]

@@ -69,18 +69,13 @@ def apply_gain(x: np.ndarray, P: np.ndarray, K: np.ndarray, innovation: np.ndarr
 
 def joseph_covariance(P: np.ndarray, K: np.ndarray, H: np.ndarray, R: np.ndarray):
     """Posterior covariance ``(I − KH) P (I − KH)ᵀ + K R Kᵀ`` of an update with gain ``K``
-    (symmetric positive semi-definite for any gain, and for a singular or zero ``R``)."""
+    (symmetric positive semi-definite for any gain, and for a singular or zero ``R``).
+
+    Stacks of thousands of matrices cost less through its fast form,
+    :func:`~trackreplay.cores.filters._kalman_fast.joseph_covariance_fast` (two contractions)."""
     A = np.eye(P.shape[-1]) - K @ H
-    if P.ndim == 3 and P.shape[0] >= _CONTRACTION_BATCH:
-        P_post = _fast._joseph_terms_contracted(A, P, K, R)
-    else:
-        P_post = A @ P @ np.swapaxes(A, -1, -2) + K @ R @ np.swapaxes(K, -1, -2)
+    P_post = A @ P @ np.swapaxes(A, -1, -2) + K @ R @ np.swapaxes(K, -1, -2)
     return 0.5 * (P_post + np.swapaxes(P_post, -1, -2))
-
-
-#: stacks of at least this many matrices take the Joseph products as two contractions
-#: (:func:`~trackreplay.cores.filters._kalman_fast._joseph_terms_contracted`)
-_CONTRACTION_BATCH = 512
 
 
 def gaussian_log_likelihood(innovation: np.ndarray, S: np.ndarray, return_parts: bool = False):
@@ -386,11 +381,6 @@ def cv_posterior_components(c, gain):
     return n
 
 
-#: Widest batch :func:`cv_position_update_components` takes on stacked rows: beyond, the stacked
-#: temporaries outgrow the cache and the row-by-row form costs less.
-ROWS_STACKED_RUNS = 2048
-
-
 def cv_position_update_components(c, r00, r01, r11):
     """Optimal gain and posterior covariance of a position measurement, in one pass.
 
@@ -412,12 +402,10 @@ def cv_position_update_components(c, r00, r01, r11):
     c_post : ndarray (10, runs)
         Posterior covariance components.
 
-    Up to :data:`ROWS_STACKED_RUNS` runs the same operations go as a dozen calls on stacked rows
-    (:func:`~trackreplay.cores.filters._kalman_fast._cv_position_update_rows`, the same numbers to
-    the bit, tests/test_kalman.py) instead of ninety on single rows.
+    Its fast form, :func:`~trackreplay.cores.filters._kalman_fast.cv_position_update_components_fast`,
+    takes batches of up to a few thousand runs as a dozen calls on stacked rows instead of ninety on
+    single rows: the same numbers to the bit (tests/test_kalman.py).
     """
-    if 0 < c[0].size <= ROWS_STACKED_RUNS:
-        return _fast._cv_position_update_rows(c, r00, r01, r11)
     g = cv_position_gain_components(c, r00, r01, r11)
     a00, a01, a11 = c[A00], c[A01], c[A11]
     b00, b01, b10, b11 = c[B00], c[B01], c[B10], c[B11]
@@ -591,7 +579,3 @@ def stacked_kf_step(F, Q, fill_mean, x, P, y, H, R_meas):
     ll = -0.5 * (nis + log_det + m * LOG_2PI)
     return x_post, P_post, ll, nis, nu, S
 
-
-# last, as it imports this module's kernel (either module may be imported first: the other's
-# names are looked up when called)
-from trackreplay.cores.filters import _kalman_fast as _fast  # noqa: E402

@@ -23,7 +23,8 @@ import math
 
 import numpy as np
 
-from trackreplay.cores.filters.kalman import MATRIX_FROM_COMPONENTS
+from trackreplay.cores.filters._kalman_fast import joseph_covariance_fast
+from trackreplay.cores.filters.kalman import MATRIX_FROM_COMPONENTS, kalman_gain
 
 
 def pcrb_recursion(P0, F, Q, information) -> np.ndarray:
@@ -156,8 +157,6 @@ def linear_gaussian_bound(P0, F, Q, H, R) -> np.ndarray:
     ndarray (K, ..., n, n)
         The bound after each scan's measurement.
     """
-    from trackreplay.cores.filters.kalman import joseph_covariance, kalman_gain
-
     F, Q = np.asarray(F, float), np.asarray(Q, float)
     H, R = np.asarray(H, float), np.asarray(R, float)
     P = np.asarray(P0, float)
@@ -166,7 +165,7 @@ def linear_gaussian_bound(P0, F, Q, H, R) -> np.ndarray:
         if k:
             P = F[k] @ out[k - 1] @ np.swapaxes(F[k], -1, -2) + Q[k]
         K, _ = kalman_gain(P, H, R)
-        out[k] = joseph_covariance(P, K, H, R)
+        out[k] = joseph_covariance_fast(P, K, H, R)
     return out
 
 

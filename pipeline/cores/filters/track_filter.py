@@ -30,7 +30,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from trackreplay.cores.filters.kalman import continuous_white_noise_model, joseph_covariance, kalman_gain
+from trackreplay.cores.filters._kalman_fast import joseph_covariance_fast
+from trackreplay.cores.filters.kalman import continuous_white_noise_model, kalman_gain
 
 
 def wrap_angle(angle):
@@ -77,7 +78,7 @@ class TrackFilter:
         R = self.measurement_covariance(x)
         K, _ = kalman_gain(P, H, R, S)
         x_post = x + np.einsum("...ij,...j->...i", K, innovation)
-        return x_post, joseph_covariance(P, K, H, R), K
+        return x_post, joseph_covariance_fast(P, K, H, R), K
 
     def start(self, z):  # pragma: no cover - interface
         """``(x₀, P₀)`` of tracks started from single plots ``z`` ``(..., m)``."""
