@@ -43,8 +43,8 @@ from __future__ import annotations
 import numpy as np
 
 from trackreplay.evaluators.set_distances import (BRUTE_FORCE_MAX, absent_as_nan, assign_edges, close_pairs, global_identities,
-                                      identity_pairs, optimal_assignment, pairwise_distance, single_pair_distance,
-                                      stable_order)
+                                      identity_pairs, optimal_assignment, pairwise_distance, stable_order)
+from trackreplay.evaluators.set_distances_shared import single_pair_distance
 from trackreplay.batched_linalg import all_finite
 
 MOSTLY_TRACKED = 0.8

@@ -34,7 +34,8 @@ from __future__ import annotations
 import numpy as np
 
 from trackreplay.evaluators.set_distances import (absent_as_nan, assign_edges, close_pairs, global_identities, identity_pairs,
-                                      optimal_assignment, pairs_within, pairwise_distance, single_pair_distance)
+                                      optimal_assignment, pairs_within, pairwise_distance)
+from trackreplay.evaluators.set_distances_shared import single_pair_distance
 from trackreplay.batched_linalg import all_finite
 
 #: the localisation thresholds α, built as TrackEval builds them (so every bit of α agrees)

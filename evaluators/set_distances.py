@@ -27,9 +27,9 @@ from __future__ import annotations
 import numpy as np
 
 from trackreplay.batched_linalg import all_finite
-
-BRUTE_FORCE_MAX = 6  # 6! = 720 permutations per scan, evaluated together
-
+# the fast forms the plain ones turn to; they import the small shared pieces, never this module
+from trackreplay.evaluators import set_distances_fast as _fast
+from trackreplay.evaluators.set_distances_shared import BRUTE_FORCE_MAX, _close_pairs_dense, _compact
 
 def pairwise_distance(tracks, truths, angular: bool = False) -> np.ndarray:
     """Euclidean distances ``(..., m, n)`` between padded sets ``(..., m, d)`` and ``(..., n, d)``.
@@ -157,6 +157,29 @@ def _gospa_and_assignment(tracks, truths, cutoff, order, angular):
 
 
 #: values of the largest (problems, m, n) distance block :func:`gospa_switching` holds at once
+def _gospa_sparse(X, Y, cutoff, order, angular):
+    """:func:`gospa`'s parts and assignment of every problem (P, m, d), (P, n, d) from the pairs
+    closer than c alone (:func:`close_pairs`, :func:`assign_edges`): GOSPA^p is
+    ``max(|X|, |Y|)·c^p − Σ (c^p − d^p)`` over the assigned pairs, less ``(c^p/2)·||X| − |Y||``."""
+    P, m = X.shape[:2]
+    cp = cutoff ** order
+    p, i, j, d = close_pairs(X, Y, cutoff, angular)
+    dp = d ** order
+    chosen = assign_edges(p, i, j, cp - dp, m, Y.shape[1])
+    pc = p[chosen]
+    m_count, n_count = all_finite(X).sum(axis=-1), all_finite(Y).sum(axis=-1)
+    assigned = np.bincount(pc, minlength=P)
+    loc = np.bincount(pc, weights=dp[chosen], minlength=P)
+    big = np.maximum(m_count, n_count)
+    total = big * cp - np.bincount(pc, weights=cp - dp[chosen], minlength=P)
+    g = np.maximum(total - cp / 2 * np.abs(m_count - n_count), 0.0) ** (1 / order)
+    ospa = np.where(big > 0, (np.maximum(total, 0.0) / np.maximum(big, 1)) ** (1 / order), 0.0)
+    match = np.full((P, m), -1, np.intp)
+    match[pc, i[chosen]] = j[chosen]
+    return {"gospa": g, "localisation": loc ** (1 / order), "missed": n_count - assigned,
+            "false": m_count - assigned, "ospa": ospa, "assigned": assigned}, match
+
+
 SWITCHING_BLOCK = 1 << 20
 
 
@@ -224,7 +247,7 @@ def gospa_switching(tracks, truths, cutoff: float, order: float = 2.0, switch_pe
     flat = lambda a: a.reshape((R * K,) + a.shape[2:])
     Xf, Yf = flat(X), flat(Y)
     if max(m, n) > BRUTE_FORCE_MAX:
-        parts, match = _fast._gospa_sparse(Xf, Yf, cutoff, order, angular)
+        parts, match = _gospa_sparse(Xf, Yf, cutoff, order, angular)
     else:
         # small sets: :func:`gospa`'s own assignment (bit for bit its values), in blocks of
         # (run, scan) problems (each is its own problem)
@@ -258,22 +281,6 @@ def gospa_switching(tracks, truths, cutoff: float, order: float = 2.0, switch_pe
     parts["switching"] = term ** (1 / order)
     parts["gospa_switching"] = (parts["gospa"] ** order + term) ** (1 / order)
     return parts
-
-
-def single_pair_distance(rows, columns, angular: bool = False):
-    """Distance (R, K) between the one element of ``rows`` and the one of ``columns`` (sets
-    ``(R, K, 1, d)``) of every (run, scan), NaN where either is absent: :func:`pairwise_distance`'s
-    sum of squares of ``rows − columns``, a component at a time in the same order (bit for bit
-    its value and :func:`close_pairs`'s with the same rows; with angles the wrapped difference
-    depends on the order by rounding)."""
-    X, Y = np.asarray(rows, float), np.asarray(columns, float)
-    total = np.zeros(X.shape[:2])
-    for i in range(min(X.shape[-1], Y.shape[-1])):
-        diff = X[:, :, 0, i] - Y[:, :, 0, i]
-        if angular:
-            diff = (diff + np.pi) % (2 * np.pi) - np.pi
-        total += diff * diff
-    return np.sqrt(total, out=total)
 
 
 def one_identity_per_run(ids, present) -> bool:
@@ -378,22 +385,6 @@ def _half_switches(own, partner, present) -> np.ndarray:
     return np.bincount(r * K + k, weights=halves, minlength=R * K).reshape(R, K).astype(np.int64)
 
 
-def _add_square(total, difference, angular: bool) -> None:
-    """``total += difference²`` in place, the difference wrapped into [−π, π) first for an angle
-    (``difference`` is overwritten): one component of a squared distance, summed the same way by
-    both forms of :func:`close_pairs` so that their distances agree bit for bit."""
-    if angular:
-        difference += np.pi
-        np.mod(difference, 2 * np.pi, out=difference)
-        difference -= np.pi
-    np.multiply(difference, difference, out=difference)
-    total += difference
-
-
-#: pairs per block of :func:`_close_pairs_dense`: its squared distances stay in the cache
-PAIR_BLOCK = 1 << 16
-
-
 def close_pairs(X, Y, radius: float, angular: bool = False):
     """Every pair of present rows of ``X`` (P, m, d) and ``Y`` (P, n, d) of the same problem closer
     than ``radius``; a row with a NaN is absent.
@@ -419,41 +410,6 @@ def close_pairs(X, Y, radius: float, angular: bool = False):
     windowed = (WINDOW_RADIUS_MIN <= radius < np.inf and d > 0
                 and (not angular or radius < WINDOW_ANGULAR_MAX))
     return (_fast._close_pairs_windowed if windowed else _close_pairs_dense)(X, Y, radius, angular)
-
-
-def _close_pairs_dense(X, Y, radius: float, angular: bool = False):
-    """:func:`close_pairs` by trying every pair of every problem: the plain form.
-
-    The squared distances are summed a component at a time in buffers of :data:`PAIR_BLOCK`
-    pairs that stay in the cache, and only the close pairs get a square root.
-    """
-    X, Y = np.asarray(X, float), np.asarray(Y, float)
-    P, m, n = X.shape[0], X.shape[1], Y.shape[1]
-    step = max(1, PAIR_BLOCK // max(m * n, 1))
-    # a little above radius²: the exact test is on the distance itself below
-    wide = radius * radius * (1 + 8 * np.finfo(float).eps)
-    Xc = [np.ascontiguousarray(X[..., c]) for c in range(X.shape[-1])]
-    Yc = [np.ascontiguousarray(Y[..., c]) for c in range(Y.shape[-1])]
-    total, part = np.empty((step, m, n)), np.empty((step, m, n))
-    found, squares = [], []
-    for a in range(0, P, step):
-        b = min(step, P - a)
-        t, u = total[:b], part[:b]
-        t.fill(0.0)
-        for xc, yc in zip(Xc, Yc):
-            _add_square(t, np.subtract(xc[a:a + b, :, None], yc[a:a + b, None, :], out=u), angular)
-        flat = np.flatnonzero(t.reshape(-1) < wide)   # NaN (an absent row) is never closer
-        found.append(flat + a * m * n)
-        squares.append(t.reshape(-1)[flat])
-    flat = np.concatenate(found) if found else np.zeros(0, np.intp)
-    d = np.sqrt(np.concatenate(squares)) if squares else np.zeros(0)
-    keep = d < radius
-    flat, d = flat[keep], d[keep]
-    p, ij = np.divmod(flat, m * n)
-    i, j = np.divmod(ij, n)
-    return p, i, j, d
-
-
 
 
 #: the largest radius (radians) :func:`_close_pairs_windowed` takes on a circle: its window
@@ -592,14 +548,6 @@ def assign_edges(problem, row, col, weight, n_rows: int, n_cols: int) -> np.ndar
     return chosen
 
 
-def _compact(keys, n: int):
-    """The distinct ``keys`` (< n) numbered 0… in increasing order, and how many there are."""
-    mark = np.zeros(n, bool)
-    mark[keys] = True
-    number = np.cumsum(mark) - 1
-    return number[keys], int(mark.sum())
-
-
 def _rank_within(group, n_groups: int):
     """Each element's place (0…) among the elements of its group, and the size of every group."""
     order = np.argsort(group, kind="stable")
@@ -609,7 +557,3 @@ def _rank_within(group, n_groups: int):
     rank[order] = np.arange(group.size) - first[group[order]]
     return rank, count
 
-
-# the fast forms, imported after every plain form they call is defined (the two modules refer
-# to each other; the functions look each other up when called)
-from trackreplay.evaluators import set_distances_fast as _fast  # noqa: E402

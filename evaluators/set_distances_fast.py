@@ -1,16 +1,19 @@
 """The fast forms of :mod:`trackreplay.evaluators.set_distances`: private, each the same values as
-the plain form it stands for, and tested against it.
+the plain form it stands for, and tested against it. The plain module imports this one; this one
+imports only the pieces both share (:mod:`trackreplay.evaluators.set_distances_shared`).
 
 * :func:`_every_permutation`: the brute-force assignment of small sets, every permutation of
   many problems at once along a prefix tree (:func:`~trackreplay.evaluators.set_distances.optimal_assignment`);
-* :func:`_sparse_assignment` and :func:`_gospa_sparse`: the assignment and GOSPA from the pairs
-  closer than the cut-off alone, for sets larger than ``BRUTE_FORCE_MAX``;
+* :func:`_sparse_assignment`: the assignment from the pairs closer than the cut-off alone, for
+  sets larger than ``BRUTE_FORCE_MAX`` (GOSPA from those pairs,
+  :func:`~trackreplay.evaluators.set_distances._gospa_sparse`, is built on the plain
+  ``close_pairs`` and ``assign_edges`` and lives beside them);
 * :func:`_gospa_switching_single`: :func:`~trackreplay.evaluators.set_distances.gospa_switching` of
   one track and one target a run (Rahmathullah, García-Fernández & Svensson 2017), from the one
   distance per scan;
 * :func:`_close_pairs_windowed`: :func:`~trackreplay.evaluators.set_distances.close_pairs` from a
   window along one component (the plain form, every pair, is
-  :func:`~trackreplay.evaluators.set_distances._close_pairs_dense`);
+  :func:`~trackreplay.evaluators.set_distances_shared._close_pairs_dense`);
 * :func:`_identity_pairs_dense`, :func:`_global_identities_sorted` and
   :func:`_bipartite_components`: the bookkeeping of identities and of the assignment's graph.
 
@@ -25,8 +28,9 @@ from itertools import permutations
 import numpy as np
 
 from trackreplay.batched_linalg import all_finite
-from trackreplay.evaluators.set_distances import (BRUTE_FORCE_MAX, _add_square, _close_pairs_dense, _compact,
-                                                  assign_edges, close_pairs, single_pair_distance)
+# the pieces the plain forms share with these (this module imports nothing of the plain one)
+from trackreplay.evaluators.set_distances_shared import (BRUTE_FORCE_MAX, _add_square, _close_pairs_dense, _compact,
+                                                         single_pair_distance)
 
 BRUTE_FORCE_BLOCK_SUMS = 1 << 17  # permutation sums per block of problems: 1 MiB, in the cache
 
@@ -198,29 +202,6 @@ def _single_half_switches(present, assigned) -> np.ndarray:
     before[:, 1:] = np.logical_or.accumulate(assigned, axis=1)[:, :-1]
     prev_state = np.take_along_axis(assigned, np.maximum(previous, 0), axis=1)
     return (present & (previous >= 0) & before & (assigned != prev_state)).astype(np.int64)
-
-
-def _gospa_sparse(X, Y, cutoff, order, angular):
-    """:func:`gospa`'s parts and assignment of every problem (P, m, d), (P, n, d) from the pairs
-    closer than c alone (:func:`close_pairs`, :func:`assign_edges`): GOSPA^p is
-    ``max(|X|, |Y|)·c^p − Σ (c^p − d^p)`` over the assigned pairs, less ``(c^p/2)·||X| − |Y||``."""
-    P, m = X.shape[:2]
-    cp = cutoff ** order
-    p, i, j, d = close_pairs(X, Y, cutoff, angular)
-    dp = d ** order
-    chosen = assign_edges(p, i, j, cp - dp, m, Y.shape[1])
-    pc = p[chosen]
-    m_count, n_count = all_finite(X).sum(axis=-1), all_finite(Y).sum(axis=-1)
-    assigned = np.bincount(pc, minlength=P)
-    loc = np.bincount(pc, weights=dp[chosen], minlength=P)
-    big = np.maximum(m_count, n_count)
-    total = big * cp - np.bincount(pc, weights=cp - dp[chosen], minlength=P)
-    g = np.maximum(total - cp / 2 * np.abs(m_count - n_count), 0.0) ** (1 / order)
-    ospa = np.where(big > 0, (np.maximum(total, 0.0) / np.maximum(big, 1)) ** (1 / order), 0.0)
-    match = np.full((P, m), -1, np.intp)
-    match[pc, i[chosen]] = j[chosen]
-    return {"gospa": g, "localisation": loc ** (1 / order), "missed": n_count - assigned,
-            "false": m_count - assigned, "ospa": ospa, "assigned": assigned}, match
 
 
 def _global_identities_sorted(value, present, low, span):

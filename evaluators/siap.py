@@ -42,7 +42,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from trackreplay.evaluators.set_distances import close_pairs, global_identities, single_pair_distance, stable_order
+from trackreplay.evaluators.set_distances import close_pairs, global_identities, stable_order
+from trackreplay.evaluators.set_distances_shared import single_pair_distance
 from trackreplay.batched_linalg import all_finite
 
 SUM_KEYS = ("truths", "tracked_truths", "tracks", "associated_tracks", "position_error_sum",

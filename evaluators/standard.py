@@ -30,7 +30,8 @@ from trackreplay.evaluators.confidence import group_totals, jackknife, mean_inte
 from trackreplay.evaluators.consistency import (consistency_summary, innovation_whiteness, normalised_squared,
                                    whitened_innovations)
 from trackreplay.evaluators.hota import SUM_KEYS as HOTA_SUMS, hota_sums, pooled_hota
-from trackreplay.evaluators.set_distances import gospa_switching, one_identity_per_run, pairs_within, single_pair_distance
+from trackreplay.evaluators.set_distances import gospa_switching, one_identity_per_run, pairs_within
+from trackreplay.evaluators.set_distances_shared import single_pair_distance
 from trackreplay.evaluators.set_distances_fast import _gospa_switching_single
 from trackreplay.evaluators.siap import SUM_KEYS as SIAP_SUMS, pooled_siap, siap_sums
 from trackreplay.evaluators.tracking_metrics import nanmean

@@ -1,0 +1,87 @@
+"""The small pieces :mod:`trackreplay.evaluators.set_distances` (the plain forms) and
+:mod:`trackreplay.evaluators.set_distances_fast` (the fast forms) share: the size up to which an
+assignment tries every permutation, the distance of a single pair, the squared distance summed a
+component at a time (so that both forms of a close-pair search give the same distances, bit for
+bit), the dense close-pair search (the plain form, which the windowed one falls back to) and the
+numbering of distinct keys. Both modules import this one, and the plain module imports the fast
+one, so the imports run one way. See ``docs/evaluation.md``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+BRUTE_FORCE_MAX = 6  # 6! = 720 permutations per scan, evaluated together
+
+
+def single_pair_distance(rows, columns, angular: bool = False):
+    """Distance (R, K) between the one element of ``rows`` and the one of ``columns`` (sets
+    ``(R, K, 1, d)``) of every (run, scan), NaN where either is absent: :func:`~trackreplay.evaluators.set_distances.pairwise_distance`'s
+    sum of squares of ``rows − columns``, a component at a time in the same order (bit for bit
+    its value and :func:`~trackreplay.evaluators.set_distances.close_pairs`'s with the same rows; with angles the wrapped difference
+    depends on the order by rounding)."""
+    X, Y = np.asarray(rows, float), np.asarray(columns, float)
+    total = np.zeros(X.shape[:2])
+    for i in range(min(X.shape[-1], Y.shape[-1])):
+        diff = X[:, :, 0, i] - Y[:, :, 0, i]
+        if angular:
+            diff = (diff + np.pi) % (2 * np.pi) - np.pi
+        total += diff * diff
+    return np.sqrt(total, out=total)
+
+
+def _add_square(total, difference, angular: bool) -> None:
+    """``total += difference²`` in place, the difference wrapped into [−π, π) first for an angle
+    (``difference`` is overwritten): one component of a squared distance, summed the same way by
+    both forms of :func:`~trackreplay.evaluators.set_distances.close_pairs` so that their distances agree bit for bit."""
+    if angular:
+        difference += np.pi
+        np.mod(difference, 2 * np.pi, out=difference)
+        difference -= np.pi
+    np.multiply(difference, difference, out=difference)
+    total += difference
+
+
+#: pairs per block of :func:`_close_pairs_dense`: its squared distances stay in the cache
+PAIR_BLOCK = 1 << 16
+
+
+def _close_pairs_dense(X, Y, radius: float, angular: bool = False):
+    """:func:`~trackreplay.evaluators.set_distances.close_pairs` by trying every pair of every problem: the plain form.
+
+    The squared distances are summed a component at a time in buffers of :data:`PAIR_BLOCK`
+    pairs that stay in the cache, and only the close pairs get a square root.
+    """
+    X, Y = np.asarray(X, float), np.asarray(Y, float)
+    P, m, n = X.shape[0], X.shape[1], Y.shape[1]
+    step = max(1, PAIR_BLOCK // max(m * n, 1))
+    # a little above radius²: the exact test is on the distance itself below
+    wide = radius * radius * (1 + 8 * np.finfo(float).eps)
+    Xc = [np.ascontiguousarray(X[..., c]) for c in range(X.shape[-1])]
+    Yc = [np.ascontiguousarray(Y[..., c]) for c in range(Y.shape[-1])]
+    total, part = np.empty((step, m, n)), np.empty((step, m, n))
+    found, squares = [], []
+    for a in range(0, P, step):
+        b = min(step, P - a)
+        t, u = total[:b], part[:b]
+        t.fill(0.0)
+        for xc, yc in zip(Xc, Yc):
+            _add_square(t, np.subtract(xc[a:a + b, :, None], yc[a:a + b, None, :], out=u), angular)
+        flat = np.flatnonzero(t.reshape(-1) < wide)   # NaN (an absent row) is never closer
+        found.append(flat + a * m * n)
+        squares.append(t.reshape(-1)[flat])
+    flat = np.concatenate(found) if found else np.zeros(0, np.intp)
+    d = np.sqrt(np.concatenate(squares)) if squares else np.zeros(0)
+    keep = d < radius
+    flat, d = flat[keep], d[keep]
+    p, ij = np.divmod(flat, m * n)
+    i, j = np.divmod(ij, n)
+    return p, i, j, d
+
+
+def _compact(keys, n: int):
+    """The distinct ``keys`` (< n) numbered 0… in increasing order, and how many there are."""
+    mark = np.zeros(n, bool)
+    mark[keys] = True
+    number = np.cumsum(mark) - 1
+    return number[keys], int(mark.sum())
