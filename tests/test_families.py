@@ -13,6 +13,7 @@ new family costs four files (its entry in the declaration, its stage, its view, 
 from __future__ import annotations
 
 import ast
+import functools
 import importlib
 import importlib.util
 from pathlib import Path
@@ -37,11 +38,17 @@ def _own_files(family) -> set[Path]:
     return own
 
 
+@functools.lru_cache(maxsize=None)
+def _strings_in(path: Path) -> tuple[tuple[int, str], ...]:
+    """(line, value) of every string constant in ``path`` (each file parsed once)."""
+    tree = ast.parse(path.read_text(), filename=str(path))
+    return tuple((node.lineno, node.value) for node in ast.walk(tree)
+                 if isinstance(node, ast.Constant) and isinstance(node.value, str))
+
+
 def _names_in(path: Path, names: set[str]) -> list[tuple[int, str]]:
     """(line, name) of every string constant in ``path`` that is exactly one of ``names``."""
-    tree = ast.parse(path.read_text(), filename=str(path))
-    return [(node.lineno, node.value) for node in ast.walk(tree)
-            if isinstance(node, ast.Constant) and isinstance(node.value, str) and node.value in names]
+    return [(line, value) for line, value in _strings_in(path) if value in names]
 
 
 @pytest.mark.parametrize("family", FAMILIES, ids=lambda f: f.name)
