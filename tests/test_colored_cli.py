@@ -101,7 +101,7 @@ def test_bad_scenario_parameters_exit_2(tmp_path, sets, message):
     (["imm_transition=0.9 0.2 0; 0.33 0.34 0.33; 0 0.01 0.99"], "row 1 sums to 1.1"),
     (["imm_transition=0.5 0.5; 0.5 0.5"], "3×3"),
     (["ar_forgetting_factor=1.0"], "beta"),
-    (["measurement_variance_m2=-1"], "positive definite"),
+    (["measurement_variance_m2=-1"], "measurement_variance_m2 = -1 must be in (0, inf)"),
 ])
 def test_bad_design_values_exit_2(short_imm, tmp_path, sets, message):
     args = [short_imm, "--no-rrd", "--out", tmp_path / "t.mcap"]

@@ -488,14 +488,22 @@ def music_waterfall(snapshots: np.ndarray, n_sources, spacing_wavelengths: float
 
 # --------------------------------------------------------------------------- the trackers
 
+#: the finest MUSIC start-up grid (0.001°: 180,001 angles; the start-up's bearing then stands far
+#: below any array's resolution)
+MIN_MUSIC_GRID_STEP_DEG = 1e-3
+
+
 PARAMS = (
-    Param("scan_period_s", None, "s", "scan period T of the constant-angular-velocity model"),
-    Param("process_noise_q_deg2", None, "deg²/s³", "q of Q = q [[T³/3, T²/2], [T²/2, T]] (paper: \"q = 1°\")"),
-    Param("innovation_variance_deg2", None, "deg²", "σ_z², variance of the angular innovation (paper: \"4°\")"),
+    Param("scan_period_s", None, "s", "scan period T of the constant-angular-velocity model", low=0.0),
+    Param("process_noise_q_deg2", None, "deg²/s³", "q of Q = q [[T³/3, T²/2], [T²/2, T]] (paper: \"q = 1°\")",
+          low=0.0),
+    Param("innovation_variance_deg2", None, "deg²", "σ_z², variance of the angular innovation (paper: \"4°\")",
+          low=0.0),
     Param("past_forgetting", None, "", "PAST forgetting factor β per snapshot, 0 < β ≤ 1"),
     Param("source_count_criterion", None, "", "source count at start-up: mdl | aic"),
-    Param("n_sources", None, "", "number of targets; 0 estimates it at start-up (≤ M − 1)"),
-    Param("music_grid_step_deg", None, "deg", "MUSIC angle grid step at start-up"),
+    Param("n_sources", None, "", "number of targets; 0 estimates it at start-up (≤ M − 1)", low=0, closed=True),
+    Param("music_grid_step_deg", None, "deg", "MUSIC angle grid step at start-up (≥ 0.001°: a finer grid holds "
+          "more than 180,000 angles a scan, memory without a finer start)", low=MIN_MUSIC_GRID_STEP_DEG, closed=True),
     Param("subspace_tracker", None, "", "past (the paper) | batch (per-scan EVD, reference)"),
     Param("max_coasted_scans", 3, "scans", "a track without a usable innovation this many scans in a row is deleted "
           "(0: never; a track whose bearing leaves the field is always deleted)", low=-1),
@@ -505,13 +513,10 @@ PARAMS = (
 )
 
 
-#: the finest MUSIC start-up grid (0.001°: 180,001 angles; the start-up's bearing then stands far
-#: below any array's resolution)
-MIN_MUSIC_GRID_STEP_DEG = 1e-3
-
-
 def check_design(design: dict) -> None:
-    """Refuse design values the tracker cannot run with (:class:`InputError`, one line)."""
+    """Refuse choices the tracker does not know, and a forgetting factor outside (0, 1] (open at one
+    end only, which a :class:`Param`'s bounds do not say) (:class:`InputError`, one line); the other
+    numbers' ranges are their Params', checked when the tracker is built."""
     crit = str(design["source_count_criterion"]).lower()
     if crit not in CRITERIA:
         raise InputError(f"source_count_criterion must be mdl or aic, got {crit!r}")
@@ -519,14 +524,6 @@ def check_design(design: dict) -> None:
         raise InputError(f"subspace_tracker must be one of {', '.join(SUBSPACES)}, got {design['subspace_tracker']!r}")
     if not 0 < design["past_forgetting"] <= 1:
         raise InputError("past_forgetting must be in (0, 1]")
-    for key in ("process_noise_q_deg2", "innovation_variance_deg2", "scan_period_s", "music_grid_step_deg"):
-        if not design[key] > 0:
-            raise InputError(f"{key} must be > 0")
-    if design["music_grid_step_deg"] < MIN_MUSIC_GRID_STEP_DEG:
-        raise InputError(f"music_grid_step_deg must be ≥ {MIN_MUSIC_GRID_STEP_DEG:g} (a finer grid holds more than "
-                         f"{int(180 / MIN_MUSIC_GRID_STEP_DEG):,} angles a scan, memory without a finer start)")
-    if int(design["n_sources"]) < 0:
-        raise InputError("n_sources must be ≥ 0 (0 estimates it)")
 
 
 class _AngularInnovationTracker(Tracker):

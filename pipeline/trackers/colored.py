@@ -80,16 +80,6 @@ def sample_period(times_s) -> float:
     return float(dt[0])
 
 
-def _positive(design: dict, key: str, why: str = "") -> float:
-    try:
-        value = float(design[key])
-    except (TypeError, ValueError):
-        raise InputError(f"{key} must be a number, got {design[key]!r}") from None
-    if not (np.isfinite(value) and value > 0):
-        raise InputError(f"{key} must be > 0{why}, got {design[key]!r}")
-    return value
-
-
 def ar1_outputs(measurements: ColoredPositions, beta: float, rho: float) -> dict:
     """The AR(1) estimator's arrays (``alpha``, ``alpha_biased``, ``noise_variance``, ``flags``
     per axis, ``warm`` per scan) for the stage's ``ar_estimator`` output.
@@ -114,8 +104,9 @@ def ar1_outputs(measurements: ColoredPositions, beta: float, rho: float) -> dict
 
 # --------------------------------------------------------------------------- the trackers
 
-P_MEASUREMENT = Param("measurement_variance_m2", None, "m²", "measurement noise variance R per axis")
-P_INITIAL = Param("initial_variance", None, "", "P₀ = initial_variance · I at the true start state")
+P_MEASUREMENT = Param("measurement_variance_m2", None, "m²", "measurement noise variance R per axis (R positive "
+                      "definite)", low=0.0)
+P_INITIAL = Param("initial_variance", None, "", "P₀ = initial_variance · I at the true start state", low=0.0)
 P_START = Param("track_start", "auto", "",
                 "'truth': start at the true state of scan 0 (thesis); 'measurements': position from z₀, "
                 "zero velocity/acceleration with a large variance; 'auto': truth when the file has it, "
@@ -126,10 +117,11 @@ P_CONFIRM = (Param("confirm_hits", 3, "scans", "M of M-of-N confirmation of a tr
              Param("confirm_window", 4, "scans", "N of M-of-N confirmation", low=-1))
 P_AR = (Param("ar_forgetting_factor", None, "", "AR estimator forgetting factor β, 0 < β < 1"),
         Param("ar_zero_pole", None, "", "AR estimator zero-cancelling pole ρ, 0 ≤ ρ < 1"))
-P_KF = (Param("kf_process_noise", None, "m²/s⁴", "CA model's acceleration-increment variance per sample"),)
-P_IMM = (Param("cv_process_noise", None, "m²/s⁴", "CV model's white-acceleration variance"),
-         Param("ca_transition_process_noise", None, "m²/s⁶", "transition CA model's white-jerk variance"),
-         Param("ca_steady_process_noise", None, "m²/s⁶", "steady CA model's white-jerk variance"),
+# the process noises are positive: the square-root information filter needs Q⁻¹
+P_KF = (Param("kf_process_noise", None, "m²/s⁴", "CA model's acceleration-increment variance per sample", low=0.0),)
+P_IMM = (Param("cv_process_noise", None, "m²/s⁴", "CV model's white-acceleration variance", low=0.0),
+         Param("ca_transition_process_noise", None, "m²/s⁶", "transition CA model's white-jerk variance", low=0.0),
+         Param("ca_steady_process_noise", None, "m²/s⁶", "steady CA model's white-jerk variance", low=0.0),
          Param("imm_transition", None, "", "Markov transition matrix p_ij, rows 'a b c; ...' (CV, CA tr., CA st.)"))
 
 
@@ -143,8 +135,8 @@ class _ColoredNoiseTracker(Tracker):
 
     def __init__(self, **design):
         super().__init__(**design)
-        self.R = _positive(self.design, "measurement_variance_m2", " (R positive definite)")
-        self.P0_scale = _positive(self.design, "initial_variance")
+        self.R = float(self.measurement_variance_m2)  # each number's range is its Param's
+        self.P0_scale = float(self.initial_variance)
         if self.track_start not in TRACK_STARTS:
             raise InputError(f"track_start must be one of {', '.join(TRACK_STARTS)}, got {self.track_start!r}")
         if self.decorrelate:
@@ -215,7 +207,7 @@ class _SingleModel(_ColoredNoiseTracker):
 
     def __init__(self, **design):
         super().__init__(**design)
-        self.q = _positive(self.design, "kf_process_noise", " (the square-root information filter needs Q⁻¹)")
+        self.q = float(self.kf_process_noise)
 
     def run_filter(self, stream, x0, P0, T, axes):
         model = kinematic_model("ca", 3, T, self.q, axes, noise="increment")
@@ -229,8 +221,7 @@ class _ThreeModelImm(_ColoredNoiseTracker):
 
     def __init__(self, **design):
         super().__init__(**design)
-        why = " (the square-root information filter needs Q⁻¹)"
-        self.q = [_positive(self.design, key, why)
+        self.q = [float(self.design[key])
                   for key in ("cv_process_noise", "ca_transition_process_noise", "ca_steady_process_noise")]
         self.transition = check_transition(parse_matrix(self.imm_transition, "imm_transition"), len(MODEL_NAMES))
 

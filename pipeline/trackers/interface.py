@@ -53,8 +53,11 @@ class Param:
     doc : str
         One-line meaning.
     low, high : float, optional
-        Open bounds of a numeric value; the base class refuses a value outside them (or not
-        finite) when the tracker is constructed, so a tracker need not check its own ranges.
+        Bounds of a numeric value, open unless ``closed``; the base class refuses a value outside
+        them (or not finite, or not a number) when the tracker is constructed, so a tracker need
+        not check its own ranges (only relations between its values, which no one Param holds).
+    closed : bool
+        Whether ``low`` and ``high`` themselves are accepted.
     """
 
     name: str
@@ -63,6 +66,7 @@ class Param:
     doc: str = ""
     low: float | None = None
     high: float | None = None
+    closed: bool = False
 
     def check(self, value) -> None:
         """Raise :class:`~trackreplay.errors.DesignValueError` (an input error that is also a
@@ -81,12 +85,19 @@ class Param:
             return
         if value is None:
             raise DesignValueError(f"{self.name} has no value: pass it, or replay a data set whose scenario records it")
-        number = float(value)
-        if not (np.isfinite(number) and (self.low is None or number > self.low)
-                and (self.high is None or number < self.high)):
+        try:
+            number = float(value)
+        except (TypeError, ValueError):
+            raise DesignValueError(f"{self.name} = {value!r} must be a number") from None
+        above = self.low is None or (number >= self.low if self.closed else number > self.low)
+        below = self.high is None or (number <= self.high if self.closed else number < self.high)
+        if not (np.isfinite(number) and above and below):
             low = "-inf" if self.low is None else f"{self.low:g}"
             high = "inf" if self.high is None else f"{self.high:g}"
-            raise DesignValueError(f"{self.name} = {number:g} must be in ({low}, {high})")
+            if self.closed and self.high is None:
+                raise DesignValueError(f"{self.name} = {number:g} must be ≥ {low}")
+            left, right = ("[", "]") if self.closed else ("(", ")")
+            raise DesignValueError(f"{self.name} = {number:g} must be in {left}{low}, {high}{right}")
 
 
 class Tracker:

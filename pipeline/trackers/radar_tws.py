@@ -353,11 +353,13 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
 # --------------------------------------------------------------------------- the trackers
 
 PARAMS = (
-    Param("scan_period_s", None, "s", "nominal scan period T of the gains"),
-    Param("design_sigma_v_mps2", None, "m/s²", "design acceleration noise σ_v"),
-    Param("sigma_range_m", None, "m", "plot range noise the filter assumes"),
-    Param("sigma_bearing_deg", None, "deg", "plot bearing noise the filter assumes"),
-    Param("nominal_cross_range_m", None, "m", "cross-range error std at which the fixed gains are designed"),
+    # the positive design values within the range the filters represent (DESIGN_RANGE)
+    Param("scan_period_s", None, "s", "nominal scan period T of the gains", *DESIGN_RANGE, closed=True),
+    Param("design_sigma_v_mps2", None, "m/s²", "design acceleration noise σ_v", *DESIGN_RANGE, closed=True),
+    Param("sigma_range_m", None, "m", "plot range noise the filter assumes", *DESIGN_RANGE, closed=True),
+    Param("sigma_bearing_deg", None, "deg", "plot bearing noise the filter assumes", *DESIGN_RANGE, closed=True),
+    Param("nominal_cross_range_m", None, "m", "cross-range error std at which the fixed gains are designed",
+          *DESIGN_RANGE, closed=True),
     Param("startup_gains", None, "", "least-squares start-up gains while they exceed the steady-state ones"),
     Param("gate_probability", 0.0, "", "χ² gate of a started track: the nearest plot is used only inside the gate "
           "that holds the true plot with this probability (0: no gate, the paper's clutter-free scenario; e.g. "
@@ -372,22 +374,16 @@ PARAMS = (
 
 
 def check_design(design: dict) -> None:
-    """Refuse design values outside the range the filters represent (:class:`InputError`, one line).
+    """Refuse design values whose relations the filters cannot represent (:class:`InputError`,
+    one line); each value's own range is its :class:`Param`'s (checked first, when the tracker is
+    built).
 
-    Each positive value must lie in :data:`DESIGN_RANGE`, and the tracking indices σ_v T²/σ_r and
-    λ̄ = σ_v T²/σ_nominal must not exceed :data:`MAX_TRACKING_INDEX` (every plot's range error
-    would be floored otherwise; fixed gains at a larger λ̄ are α = 1, β = 2 to 10⁻¹⁰, and the
-    covariance they imply is not representable beside the range axis).
+    M of M-of-N must not exceed N, and the tracking indices σ_v T²/σ_r and λ̄ = σ_v T²/σ_nominal
+    must not exceed :data:`MAX_TRACKING_INDEX` (every plot's range error would be floored
+    otherwise; fixed gains at a larger λ̄ are α = 1, β = 2 to 10⁻¹⁰, and the covariance they imply
+    is not representable beside the range axis).
     """
     lo, hi = DESIGN_RANGE
-    for key in ("scan_period_s", "design_sigma_v_mps2", "sigma_range_m", "sigma_bearing_deg",
-                "nominal_cross_range_m"):
-        try:
-            value = float(design[key])
-        except (TypeError, ValueError):
-            raise InputError(f"{key} must be a number in [{lo:g}, {hi:g}] (got {design[key]!r})") from None
-        if not lo <= value <= hi:
-            raise InputError(f"{key} must be in [{lo:g}, {hi:g}] (got {design[key]!r})")
     hits, window = int(design.get("confirm_hits", 0)), int(design.get("confirm_window", 0))
     if hits > 0 and window < hits:
         raise InputError(f"confirm_hits (M = {hits}) must be ≤ confirm_window (N = {window})")
