@@ -160,3 +160,20 @@ def test_cv_position_update_on_stacked_rows_equals_the_row_by_row_form_to_the_bi
         np.testing.assert_array_equal(a, b)
     textbook = kalman.cv_posterior_components(c, written[0])
     np.testing.assert_allclose(stacked[1], textbook, rtol=1e-9, atol=1e-9 * np.abs(c).max())
+
+
+@pytest.mark.parametrize("n_stack", [3, 5000])
+def test_joseph_covariance_fast_equals_the_plain_form(n_stack):
+    """The fast form (two contractions for a large stack, the plain function otherwise) against
+    the textbook (I − KH) P (I − KH)ᵀ + K R Kᵀ."""
+    from trackreplay.cores.filters import kalman
+    from trackreplay.cores.filters._kalman_fast import joseph_covariance_fast
+
+    rng = np.random.default_rng(3)
+    root = rng.normal(size=(n_stack, 4, 4))
+    P = root @ np.swapaxes(root, -1, -2) + 0.1 * np.eye(4)
+    K = rng.normal(size=(n_stack, 4, 2))
+    H = np.array([[1.0, 0, 0, 0], [0, 1.0, 0, 0]])
+    R = np.array([[4.0, 0.5], [0.5, 9.0]])
+    plain = kalman.joseph_covariance(P, K, H, R)
+    np.testing.assert_allclose(joseph_covariance_fast(P, K, H, R), plain, rtol=1e-12, atol=1e-12 * np.abs(plain).max())
