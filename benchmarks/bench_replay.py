@@ -28,6 +28,12 @@ issue's targets (docs/benchmarks.md). A 10-run replay's target is issue 27's: wi
 :data:`FLOOR_FACTOR` × the import floor below (its own dependencies, measured in the same run),
 not a fixed time.
 
+A third table splits each replay's time into the phases ``replay --verbose`` prints (filter,
+evaluate, and write, which runs on a thread beside the evaluation) and gives, for the 10,000-run
+radar set, the targets of the evaluation issues: evaluation at most the filters' time (issue 26)
+and evaluation plus writing at most the filters' time (issue 27), as ratios of each repeat's own
+times.
+
 Before them, ``replay --help`` is timed in fresh processes (target < 0.15 s). A second table,
 the **import floor**, times fresh processes that only import what every replay
 needs before it can print a table (numpy, polars, scipy.special for the χ² and t quantiles,
@@ -47,6 +53,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import shutil
 import statistics
 import subprocess
@@ -147,10 +154,17 @@ def simulate(scenario: str, runs: int, out: Path) -> None:
                     "7", "-o", str(out)], check=True, capture_output=True)
 
 
-def replay_once(data: Path, out: Path, tree: str | None, recording: bool) -> tuple[float, float]:
-    """(wall seconds, peak resident MB) of one ``replay`` in a fresh process."""
-    args = [sys.executable, "-m", cli_module(tree), "-q", str(data), "--out", str(out / "tracks.mcap"), "--force",
-            "--figures", "none"]
+#: the phases ``replay --verbose`` times on stderr (``timing: filter 1.32 s``), read by replay_once
+PHASES = ("filter", "evaluate", "write")
+_TIMING = re.compile(r"^timing: (\w+) ([0-9.]+) s", re.MULTILINE)
+
+
+def replay_once(data: Path, out: Path, tree: str | None, recording: bool) -> tuple[float, float, dict]:
+    """(wall seconds, peak resident MB, seconds of each of :data:`PHASES`) of one ``replay`` in a
+    fresh process (``--verbose`` prints the phases' times; a tree that does not print one leaves
+    it out)."""
+    args = [sys.executable, "-m", cli_module(tree), "-q", "--verbose", str(data), "--out", str(out / "tracks.mcap"),
+            "--force", "--figures", "none"]
     if not recording:
         args.append("--no-rrd")
     env = dict(os.environ, PYTHONPATH=tree) if tree else None
@@ -161,9 +175,11 @@ def replay_once(data: Path, out: Path, tree: str | None, recording: bool) -> tup
     _, status, usage = os.wait4(child.pid, 0)
     wall = time.perf_counter() - t0
     child.returncode = os.waitstatus_to_exitcode(status)
+    err = child.stderr.read().decode()
     if child.returncode:
-        raise SystemExit(f"replay {data.name} failed: {child.stderr.read().decode()[-400:]}")
-    return wall, usage.ru_maxrss * KIB / MB
+        raise SystemExit(f"replay {data.name} failed: {err[-400:]}")
+    phases = {name: float(value) for name, value in _TIMING.findall(err) if name in PHASES}
+    return wall, usage.ru_maxrss * KIB / MB, phases
 
 
 HELP_TARGET_S = 0.15
@@ -205,6 +221,27 @@ def import_floor(repeats: int) -> tuple[list[list[str]], dict]:
     return [[label, spread(walls[label], 1.0, 2, "s"), spread(peaks[label], 1.0, 0, "MB")] for label in FLOOR_IMPORTS], walls
 
 
+#: data sets whose phases have a target: the evaluation at most the filters' time (issue 26), and
+#: evaluation and writing together at most the filters' time (issue 27)
+PHASE_TARGETS = {"radar-10000"}
+
+
+def phase_row(name: str, label: str, phases: dict) -> list[str]:
+    """One row of the phase table: each phase's median [min–max] and the two ratios to the
+    filters' time (of each repeat's own times), with PASS/MISS where the set has a target."""
+    if not all(phases[p] for p in PHASES):
+        return [name, label, *["(not printed)"] * 5, ""]
+    filt, ev, wr = (phases[p] for p in PHASES)
+    eval_ratio = [e / f for e, f in zip(ev, filt)]
+    both_ratio = [(e + w) / f for e, w, f in zip(ev, wr, filt)]
+    verdict = ""
+    if name in PHASE_TARGETS:
+        verdict = ("evaluate ≤ filter: " + ("PASS" if statistics.median(eval_ratio) <= 1 else "MISS")
+                   + "; evaluate + write ≤ filter: " + ("PASS" if statistics.median(both_ratio) <= 1 else "MISS"))
+    return [name, label, spread(filt, 1.0, 2, "s"), spread(ev, 1.0, 2, "s"), spread(wr, 1.0, 2, "s"),
+            spread(eval_ratio, 1.0, 2, "×"), spread(both_ratio, 1.0, 2, "×"), verdict]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--repeats", type=int, default=5)
@@ -244,7 +281,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(args.keep or tmp)
         work.mkdir(parents=True, exist_ok=True)
-        rows = []
+        rows, phase_rows = [], []
         for name in chosen:
             if name in BUNDLED:  # a copy in the work folder: the replay's default outputs go beside it
                 data = work / BUNDLED[name]
@@ -261,11 +298,16 @@ def main() -> None:
                 recording = runs < 100
             walls = {k: [] for k in trees}
             peaks = {k: [] for k in trees}
+            phases = {k: {p: [] for p in PHASES} for k in trees}
             for _ in range(args.repeats):
                 for label, tree in trees.items():
-                    wall, peak = replay_once(data, work / f"out-{label}-{name}", tree, recording)
+                    wall, peak, times = replay_once(data, work / f"out-{label}-{name}", tree, recording)
                     walls[label].append(wall)
                     peaks[label].append(peak)
+                    for phase, seconds in times.items():
+                        phases[label][phase].append(seconds)
+            for label in trees:
+                phase_rows.append(phase_row(name, label, phases[label]))
             for label in trees:
                 if target_s is None:
                     target, verdict = "", ""
@@ -279,6 +321,11 @@ def main() -> None:
                              spread(walls[label], 1.0, 2, "s"), spread(peaks[label], 1.0, 0, "MB"), target, verdict])
         print(f"replay wall time and peak memory, median [min–max] of {args.repeats}, fresh process each")
         print_table(["data set", "tree", "wall", "peak memory", "target", ""], rows)
+        print()
+        print(f"where the time goes (the phases --verbose prints; writing runs on a thread beside the evaluation), "
+              f"median [min–max] of {args.repeats}")
+        print_table(["data set", "tree", "filter", "evaluate", "write", "evaluate / filter", "(evaluate + write) / filter",
+                     "target"], phase_rows)
     views.cleanup()
 
 
