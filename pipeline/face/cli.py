@@ -75,6 +75,12 @@ class ReplayGroup(click.Group):
         return {n for n in names if n.startswith("-")} - {"-h", "--help", "-q", "--quiet", "-v", "--verbose"}
 
     def invoke(self, ctx):
+        from trackreplay.machine import keep_freed_memory
+
+        # this process runs one command and ends: its large arrays reuse the memory freed by the
+        # ones before them rather than being faulted in afresh (not under --help, which never
+        # gets here)
+        keep_freed_memory()
         try:
             return super().invoke(ctx)
         except InputError as exc:
