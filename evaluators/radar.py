@@ -90,16 +90,21 @@ def evaluate(times, tracks: dict, measured_xy, truth_state=None, cross_range_std
         sums = {"ok": sums_of(ok), "clamped": sums_of(clamped), "coasted": sums_of((flags & vocab.COASTED) > 0)}
         if "innovation" in out and "measurement" in out:
             # innovation of the converted plot (x, y) in metres: trackers that report the plot they used
-            sums["innovation"] = _masked_sums(squared_error(out["innovation"], 0.0), ok, sums_of)
+            sums["innovation"] = _masked_sums(squared_error(out["innovation"], 0.0), ok, sums_of, own=True)[0]
         if truth_state is not None:
             # squared errors once per tracker; every RMSE is a ratio of sums of these
             se_pos = squared_error(out["state"][..., :2], truth_state[..., :2])
-            sums["position"] = _masked_sums(se_pos, ok, sums_of)
-            sums["velocity"] = _masked_sums(squared_error(out["state"][..., 2:], truth_state[..., 2:]), ok, sums_of)
+            # (se_pos is zeroed where not valid: the NPE's sums below keep a subset of the valid scans)
+            sums["position"], valid_pos = _masked_sums(se_pos, ok, sums_of, own=True)
+            sums["velocity"] = _masked_sums(squared_error(out["state"][..., 2:], truth_state[..., 2:]), ok, sums_of,
+                                            own=True)[0]
             sm = squared_error(out.get("measurement", measured_xy), truth_state[..., :2])
             # NPE compares like with like: the runs where both the estimate and the plot exist
-            both = ok & np.isfinite(se_pos) & np.isfinite(sm)
-            sums["npe"] = (sums_of(np.where(both, se_pos, 0.0)), sums_of(np.where(both, sm, 0.0)), sums_of(both))
+            both = valid_pos & np.isfinite(sm)
+            np.logical_not(both, out=valid_pos)                   # (valid_pos is not needed again)
+            np.copyto(se_pos, 0.0, where=valid_pos)
+            np.copyto(sm, 0.0, where=valid_pos)
+            sums["npe"] = (sums_of(se_pos), sums_of(sm), sums_of(both))
         stats[name] = sums
     rows_of = lambda pick: _summary_rows(stats, pick, cross, nominal_cross_range_m,  # noqa: E731
                                          pcrb_position_var, truth_state is not None)
@@ -121,10 +126,16 @@ def _selection(group: int | None = None, left_out: bool = False):
     return lambda sums: sums[group]
 
 
-def _masked_sums(values, keep, sums_of):
-    """Sums of the finite ``values`` (runs, scans) where ``keep``, and their counts."""
-    valid = keep & np.isfinite(values)
-    return sums_of(np.where(valid, values, 0.0)), sums_of(valid)
+def _masked_sums(values, keep, sums_of, own: bool = False):
+    """Sums of the finite ``values`` (runs, scans) where ``keep``, and their counts; with
+    ``own`` (``values`` a temporary of the caller's) the values left out are zeroed in place
+    instead of in a copy, and the mask of the values kept is returned beside the sums."""
+    valid = np.isfinite(values)
+    valid &= keep
+    if not own:
+        return sums_of(np.where(valid, values, 0.0)), sums_of(valid)
+    np.copyto(values, 0.0, where=~valid)
+    return (sums_of(values), sums_of(valid)), valid
 
 
 def _ratio(total, count):

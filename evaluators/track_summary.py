@@ -48,6 +48,20 @@ def _slots(a):
     return a[:, :, None] if a.ndim == 2 else a
 
 
+def _flag_bits(flags):
+    """``flags`` (R, K, T) in an integer type the bits can be tested in: their own where they
+    are integers (a copy of (R, K, T) as int64 would cost more than every test of a bit)."""
+    f = _slots(flags)
+    return f if f.dtype.kind in "iu" else f.astype(np.int64)
+
+
+def _nonzero(mask):
+    """``np.nonzero`` of an (R, K, T) mask, from its flat (C-order) indices: the same index
+    arrays in the same order, without numpy's slow multi-index walk over a 3-d array."""
+    flat = np.flatnonzero(mask)
+    return np.unravel_index(flat, mask.shape)
+
+
 def track_life(flags, track_id=None) -> dict:
     """Where tracks start, are confirmed and end, per run, scan and slot.
 
@@ -67,36 +81,51 @@ def track_life(flags, track_id=None) -> dict:
         ``first`` (R, K, T) int, the scan at which the track held at each scan started (−1
         where the slot is empty).
     """
-    f = _slots(flags).astype(np.int64)
+    f = _flag_bits(flags)
     R, K, T = f.shape
     held = (f & NO_TRACK) == 0
     deleted_flag = (f & DELETED) > 0
-    before = np.zeros((R, 1, T), bool)
+    # shifts by one scan are slices written into arrays made once (no concatenated copies)
     # a new track where the slot was empty, the previous track was deleted, or the identity changed
-    fresh = np.concatenate([~before, ~held[:, :-1] | deleted_flag[:, :-1]], axis=1)
+    fresh = np.empty((R, K, T), bool)
+    fresh[:, 0] = True
+    np.logical_or(~held[:, :-1], deleted_flag[:, :-1], out=fresh[:, 1:])
     if track_id is not None:
         ids = _slots(track_id)
         fresh[:, 1:] |= ids[:, 1:] != ids[:, :-1]
     start = held & fresh
-    after = np.concatenate([start[:, 1:] | ~held[:, 1:], ~before], axis=1)   # the next scan is not this track's
+    after = fresh                                                  # (fresh is not needed again)
+    np.logical_or(start[:, 1:], ~held[:, 1:], out=after[:, :-1])   # the next scan is not this track's
+    after[:, -1] = True
     last = held & after
     # deleted at its last scan, or at the empty scan right after it (a tracker may flag the
     # deletion where the slot is already empty)
-    next_deleted = np.concatenate([deleted_flag[:, 1:] & ~held[:, 1:], before], axis=1)
-    deleted = last & (deleted_flag | next_deleted)
-    at_end = np.zeros((R, K, T), bool)
-    at_end[:, -1] = True
-    open_ = last & at_end & ~deleted
-    unflagged = last & ~deleted & ~open_
-    scans = np.arange(K)[None, :, None]
-    first = np.maximum.accumulate(np.where(start, scans, -1), axis=1)
-    first = np.where(held, first, -1)
+    next_deleted = np.empty((R, K, T), bool)
+    np.logical_and(deleted_flag[:, 1:], ~held[:, 1:], out=next_deleted[:, :-1])
+    next_deleted[:, -1] = False
+    next_deleted |= deleted_flag
+    deleted = last & next_deleted
+    not_deleted = last & ~deleted
+    # open: held at the last scan and not deleted there; unflagged: every other end
+    open_ = np.zeros((R, K, T), bool)
+    open_[:, -1] = not_deleted[:, -1]
+    unflagged = not_deleted
+    unflagged[:, -1] = False
+    # scan numbers in the smallest integer type that holds them and −1 (the maxima are the same)
+    index = np.int16 if K < 2**15 else np.int64
+    scans = np.arange(K, dtype=index)[None, :, None]
+    minus_one = index(-1)
+    first = np.maximum.accumulate(np.where(start, scans, minus_one), axis=1)
+    first[~held] = -1
     # confirmed at the first scan of the track without INITIALISING: the latest such scan
     # before this one must lie before the track's start
     confirmed_scan = held & ((f & INITIALISING) == 0)
-    latest = np.maximum.accumulate(np.where(confirmed_scan, scans, -1), axis=1)
-    latest_before = np.concatenate([np.full((R, 1, T), -1), latest[:, :-1]], axis=1)
-    confirm = confirmed_scan & (latest_before < first)
+    latest = np.maximum.accumulate(np.where(confirmed_scan, scans, minus_one), axis=1)
+    confirm = np.empty((R, K, T), bool)
+    confirm[:, 0] = True                                           # nothing before the first scan (−1 < first)
+    np.less(latest[:, :-1], first[:, 1:], out=confirm[:, 1:])
+    confirm &= confirmed_scan
+    first = first.astype(np.int64)                                 # the int the callers index with
     return {"held": held, "start": start, "confirm": confirm, "last": last, "deleted": deleted, "open": open_,
             "unflagged": unflagged, "first": first}
 
@@ -163,11 +192,11 @@ def tracker_summary(name: str, times, out: dict, prob: float = 0.95, groups: int
         per_run = life[event].sum(axis=(1, 2)).astype(float)
         rows.append(_row(name, f"{count}_per_run", *mean_interval(per_run, prob=prob)))
     # one entry per track (at its last scan) and per confirmation, with its run for the jackknife
-    r_end, k_end, s_end = np.nonzero(life["last"])
+    r_end, k_end, s_end = _nonzero(life["last"])
     k_first = life["first"][r_end, k_end, s_end]
     scans = (k_end - k_first + 1).astype(float)
     seconds = times[k_end] - times[k_first]
-    r_conf, k_conf, s_conf = np.nonzero(life["confirm"])
+    r_conf, k_conf, s_conf = _nonzero(life["confirm"])
     to_confirm = (k_conf - life["first"][r_conf, k_conf, s_conf]).astype(float)
 
     def over_runs(statistic, run_of, values):
@@ -193,7 +222,7 @@ def tracker_summary(name: str, times, out: dict, prob: float = 0.95, groups: int
     if innovations is not None:
         w, nis = innovations                                              # (R, K, T, m), (R, K, T)
         m = w.shape[-1]
-        flags = _slots(out["flags"]).astype(np.int64)
+        flags = _flag_bits(out["flags"])
         # an update is a scan with a track that used a measurement
         nis = np.where(life["held"] & ((flags & COASTED) == 0), nis, np.nan)
         mean, low, high, n = mean_nis_bounds(nis, m, prob)
