@@ -44,7 +44,7 @@ import numpy as np
 
 from trackreplay.evaluators.set_distances import (BRUTE_FORCE_MAX, absent_as_nan, assign_edges, close_pairs, global_identities,
                                       identity_pairs, optimal_assignment, pairwise_distance, stable_order)
-from trackreplay.evaluators.set_distances_shared import single_pair_distance
+from trackreplay.evaluators.set_distances_shared import SinglePair, single_pair_view
 from trackreplay.batched_linalg import all_finite
 
 MOSTLY_TRACKED = 0.8
@@ -302,39 +302,42 @@ def _with_ratios(out: dict) -> dict:
 
 
 def _single_target_matches(tracks, truths, gate: float, angular: bool = False, track_ids=None, truth_ids=None,
-                           distance=None):
+                           view: SinglePair | None = None):
     """:func:`scan_matches` (either convention) of sets of one track and one target slot
     ``(R, K, 1, d)`` whose identities are one per run
     (:func:`trackreplay.evaluators.set_distances.one_identity_per_run`): the one pair is the match when
     both are present and closer than the gate, so keeping previous matches changes nothing.
-    ``distance`` (R, K): :func:`trackreplay.evaluators.set_distances.single_pair_distance`, when found."""
-    X, Y = np.asarray(truths, float), np.asarray(tracks, float)
-    vx, _ = _truth_identities(X, truth_ids)
-    vy = all_finite(Y)
-    if track_ids is not None:
-        vy = vy & (np.asarray(track_ids) >= 0)
-    d = single_pair_distance(X, Y, angular) if distance is None else distance
-    ok = vx[:, :, 0] & vy[:, :, 0] & (d < gate)
-    return np.where(ok, 0, -1)[:, :, None].astype(np.intp), np.where(ok, d, np.nan)[:, :, None]
+    ``view``: :func:`trackreplay.evaluators.set_distances_shared.single_pair_view` of the same sets, when
+    found."""
+    if view is None:
+        view = single_pair_view(tracks, truths, track_ids, truth_ids, angular)
+    d = view.distance
+    ok = view.truth_present & view.track_present & (d < gate)
+    # slot 0 where matched, −1 where not
+    match = ok.astype(np.intp)
+    match -= 1
+    return match[:, :, None], np.where(ok, d, np.nan)[:, :, None]
 
 
 def _single_target_metrics(tracks, truths, gate: float, track_ids=None, angular: bool = False, matches=None,
-                           truth_ids=None, convention: str | None = None) -> dict:
+                           truth_ids=None, convention: str | None = None, view: SinglePair | None = None) -> dict:
     """:func:`assignment_metrics` of sets of one track and one target slot ``(R, K, 1, d)`` whose
     identities are one per run (one target and one track identity a run), from per-scan
     arrays alone: no identity switch can happen, IDTP is the number of matches (the one
     pairing), a break is a match after a scan without one once the target was matched, and a
-    track never matched is a false track."""
+    track never matched is a false track. ``view``:
+    :func:`trackreplay.evaluators.set_distances_shared.single_pair_view` of the same sets, when found."""
     convention = default_convention(truth_ids) if convention is None else convention
     if convention not in CONVENTIONS:
         raise ValueError(f"convention must be one of {CONVENTIONS}, not {convention!r}")
-    tracks, truths = np.asarray(tracks, float), np.asarray(truths, float)
+    if view is None:
+        view = single_pair_view(tracks, truths, track_ids, truth_ids, angular)
     if matches is None:
-        matches = _single_target_matches(tracks, truths, gate, angular, track_ids, truth_ids)
+        matches = _single_target_matches(tracks, truths, gate, angular, track_ids, truth_ids, view=view)
     match, dist = matches[0][:, :, 0], matches[1][:, :, 0]
-    present, _ = _truth_identities(truths, truth_ids)
-    present = present[:, :, 0]
-    track_present = (slot_identities(tracks) if track_ids is None else np.asarray(track_ids))[:, :, 0] >= 0
+    present = view.truth_present
+    # a reported track is a slot with an identity; without identities, a finite one (the slot's)
+    track_present = view.track_finite if view.track_listed is None else view.track_listed
     matched = (match >= 0) & present
     R, K = present.shape
     # a break: matched now, not at the scan before, matched at some earlier scan

@@ -35,7 +35,7 @@ import numpy as np
 
 from trackreplay.evaluators.set_distances import (absent_as_nan, assign_edges, close_pairs, global_identities, identity_pairs,
                                       optimal_assignment, pairs_within, pairwise_distance)
-from trackreplay.evaluators.set_distances_shared import single_pair_distance
+from trackreplay.evaluators.set_distances_shared import SinglePair, single_pair_view
 from trackreplay.batched_linalg import all_finite
 
 #: the localisation thresholds α, built as TrackEval builds them (so every bit of α agrees)
@@ -218,10 +218,12 @@ def _sums_sparse(tracks, truths, d0, track_ids, truth_ids, angular, alphas, pair
 
 
 def _sums_single(tracks, truths, d0, track_ids=None, truth_ids=None, angular=False, alphas=HOTA_ALPHAS,
-                 distance=None) -> dict:
+                 view: SinglePair | None = None) -> dict:
     """:func:`hota_sums` of sets of one track and one target slot ``(R, K, 1, d)`` whose
     identities are one per run (:func:`trackreplay.evaluators.set_distances.one_identity_per_run`), from
-    the distance of the one pair per (run, scan) (``distance``, when already found).
+    the distance of the one pair per (run, scan) (``view``,
+    :func:`trackreplay.evaluators.set_distances_shared.single_pair_view` of the same sets, when already
+    found).
 
     With one pair a scan, a scan's normalised similarity is 1 wherever S > ε (S / (S + S − S)),
     so the alignment of a run's one identity pair is its count of such scans over
@@ -230,14 +232,10 @@ def _sums_single(tracks, truths, d0, track_ids=None, truth_ids=None, angular=Fal
     are the same.
     """
     alphas, d0 = np.asarray(alphas, float), float(d0)
-    tracks, truths = np.asarray(tracks, float), np.asarray(truths, float)
-    R, K = truths.shape[:2]
-    vx, vy = all_finite(truths)[:, :, 0], all_finite(tracks)[:, :, 0]
-    if truth_ids is not None:
-        vx = vx & (np.asarray(truth_ids)[:, :, 0] >= 0)
-    if track_ids is not None:
-        vy = vy & (np.asarray(track_ids)[:, :, 0] >= 0)
-    d = single_pair_distance(truths, tracks, angular) if distance is None else distance
+    if view is None:
+        view = single_pair_view(tracks, truths, track_ids, truth_ids, angular)
+    vx, vy, d = view.truth_present, view.track_present, view.distance
+    R, K = vx.shape
     close = vx & vy & (d < d0)
     sim = np.where(close, point_similarity(np.where(close, d, 0.0), d0), 0.0)
     n_truth, n_track = vx.sum(axis=1), vy.sum(axis=1)
@@ -245,14 +243,15 @@ def _sums_single(tracks, truths, d0, track_ids=None, truth_ids=None, angular=Fal
     alignment = potential / np.maximum(n_truth + n_track - potential, 1.0)
     # the pair's weight A·S in the scan's assignment: taken when positive
     chosen = close & (alignment[:, None] * sim > 0)
-    flat = np.flatnonzero(chosen)
-    sim_c, run_c = sim.reshape(-1)[flat], flat // K
-    level = np.searchsorted(alphas - _EPS, sim_c, side="right")
+    run_c, k_c = np.nonzero(chosen)
+    sim_c = sim[run_c, k_c]
     A = alphas.size
+    # each TP's bin (run, the number of α it passes), found once for the counts and the sums
+    key = run_c * (A + 1) + _alpha_levels(alphas, sim_c)
 
     def over_alphas(weights=None):
         """Σ over each run's TPs at each α (R, A)."""
-        h = np.bincount(run_c * (A + 1) + level, weights, minlength=R * (A + 1)).reshape(R, A + 1)
+        h = np.bincount(key, weights, minlength=R * (A + 1)).reshape(R, A + 1)
         return np.cumsum(h[:, ::-1], axis=1)[:, ::-1][:, 1:]
 
     n_tp = over_alphas()
@@ -263,6 +262,34 @@ def _sums_single(tracks, truths, d0, track_ids=None, truth_ids=None, angular=Fal
             "ass_sum": tpa * (tpa / np.maximum(1.0, g_count + h_count - tpa)),
             "ass_re_sum": tpa * (tpa / np.maximum(1.0, g_count)),
             "ass_pr_sum": tpa * (tpa / np.maximum(1.0, h_count)), "alphas": alphas}
+
+
+def _alpha_levels(alphas, similarity):
+    """``np.searchsorted(alphas − ε, similarity, side="right")``, the number of thresholds each
+    similarity passes, for thresholds about evenly spaced (HOTA's α): a first guess from the
+    spacing, then moved up or down by the exact comparisons, one step at a time while any is
+    off (one or two rounds for :data:`HOTA_ALPHAS`; a binary search of 19 values per
+    similarity costs several times as much)."""
+    edges = np.asarray(alphas, float) - _EPS
+    A = edges.size
+    if A < 2 or similarity.size == 0 or not np.all(np.diff(edges) > 0) or not np.all(np.isfinite(edges)):
+        return np.searchsorted(edges, similarity, side="right")
+    step = (edges[-1] - edges[0]) / (A - 1)
+    with np.errstate(invalid="ignore"):
+        guess = np.floor((similarity - edges[0]) / step) + 1
+    # NaN similarities: searchsorted puts them past every threshold
+    level = np.clip(np.nan_to_num(guess, nan=A), 0, A).astype(np.intp)
+    # below every edge a similarity passes; at or above the next it passes one more
+    padded_low = np.r_[-np.inf, edges]        # the edge a level passes last (none: −∞)
+    padded_high = np.r_[edges, np.inf]        # the next edge a level would pass
+    for _ in range(A + 1):
+        down = ~(similarity >= padded_low[level]) & (level > 0) & ~np.isnan(similarity)
+        up = similarity >= padded_high[level]
+        if not (down.any() or up.any()):
+            break
+        level -= down
+        level += up
+    return level
 
 
 def pooled_hota(sums: dict, runs=None) -> dict:

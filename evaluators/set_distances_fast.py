@@ -29,8 +29,8 @@ import numpy as np
 
 from trackreplay.batched_linalg import all_finite
 # the pieces the plain forms share with these (this module imports nothing of the plain one)
-from trackreplay.evaluators.set_distances_shared import (BRUTE_FORCE_MAX, _add_square, _close_pairs_dense, _compact,
-                                                         single_pair_distance)
+from trackreplay.evaluators.set_distances_shared import (BRUTE_FORCE_MAX, SinglePair, _add_square, _close_pairs_dense,
+                                                         _compact, single_pair_distance, single_pair_view)
 
 BRUTE_FORCE_BLOCK_SUMS = 1 << 17  # permutation sums per block of problems: 1 MiB, in the cache
 
@@ -149,37 +149,41 @@ def _sparse_assignment(cost, pair, n_rows, n_cols, unmatched):
 
 def _gospa_switching_single(tracks, truths, cutoff: float, order: float = 2.0, switch_penalty: float | None = None,
                             track_ids=None, truth_ids=None, angular: bool = False, per: str = "track",
-                            distance=None) -> dict:
+                            view: SinglePair | None = None) -> dict:
     """:func:`gospa_switching` of sets of one track and one target slot ``(R, K, 1, d)`` whose
     identities are one per run (:func:`one_identity_per_run`, both sides), from the distance
-    of the one pair per (run, scan) (``distance``, :func:`single_pair_distance`, when already
-    found): the assignment is the pair when both are present and closer than c, and an
+    of the one pair per (run, scan) (``view``, :func:`single_pair_view` of the same sets, when
+    already found): the assignment is the pair when both are present and closer than c, and an
     identity's state changes between assigned and unassigned only, one half switch each
     time. The same arithmetic as the one-element assignment, so the same values."""
     if per not in ("track", "truth"):
         raise ValueError(f"per must be 'track' or 'truth', not {per!r}")
     gamma = float(cutoff if switch_penalty is None else switch_penalty)
     X, Y = np.asarray(tracks, float), np.asarray(truths, float)
-    d = single_pair_distance(X, Y, angular) if distance is None else distance
-    vx, vy = all_finite(X)[:, :, 0], all_finite(Y)[:, :, 0]
+    if view is None:
+        view = single_pair_view(X, Y, track_ids, truth_ids, angular)
+    # GOSPA takes track − target: the view's distance (target − track) is the same number, but a
+    # wrapped angle may round apart
+    d = single_pair_distance(X, Y, angular) if angular else view.distance
+    # GOSPA counts every finite element, whatever its identity
+    vx, vy = view.track_finite, view.truth_finite
     both = vx & vy
+    either = vx | vy
     cp = cutoff ** order
     # the one-element assignment's total: the pair's capped cost, c^p with one element, 0 with none
-    total = np.where(both, np.minimum(np.where(both, d, 0.0), cutoff) ** order, np.where(vx | vy, cp, 0.0))
+    total = np.where(both, np.minimum(np.where(both, d, 0.0), cutoff) ** order, np.where(either, cp, 0.0))
     close = both & (d < cutoff)
     m_count, n_count = vx.astype(np.int64), vy.astype(np.int64)
     assigned = close.astype(np.int64)
     loc = np.where(close, d ** order, 0.0)
-    g = np.maximum(total - cp / 2 * np.abs(m_count - n_count), 0.0) ** (1 / order)
-    big = np.maximum(m_count, n_count)
-    ospa = np.where(big > 0, (total / np.maximum(big, 1)) ** (1 / order), 0.0)
+    # |m − n| is 1 where one element is alone, else 0 (a bool times a float: the same numbers)
+    g = np.maximum(total - cp / 2 * (vx != vy), 0.0) ** (1 / order)
+    # max(m, n) is 1 wherever either is present, and total / 1 is total
+    ospa = np.where(either, total ** (1 / order), 0.0)
     parts = {"gospa": g, "localisation": loc ** (1 / order), "missed": n_count - assigned,
              "false": m_count - assigned, "ospa": ospa, "assigned": assigned}
     # the followed identity's presences; its state is assigned or not (one partner per run)
-    own_ids = track_ids if per == "track" else truth_ids
-    present = vx if per == "track" else vy
-    if own_ids is not None:
-        present = present & (np.asarray(own_ids)[:, :, 0] >= 0)
+    present = view.track_present if per == "track" else view.truth_present
     half = _single_half_switches(present, close & present)
     term = gamma ** order / 2 * half
     parts["half_switches"] = half
@@ -188,20 +192,30 @@ def _gospa_switching_single(tracks, truths, cutoff: float, order: float = 2.0, s
     return parts
 
 
+def scan_index_type(K: int):
+    """The smallest signed integer type that holds a scan index −1…K (a quarter or less of
+    int64's bytes for the scan accumulations of the single-target forms)."""
+    return next(t for t in (np.int8, np.int16, np.int32, np.int64) if K < np.iinfo(t).max)
+
+
 def _single_half_switches(present, assigned) -> np.ndarray:
     """Half switches (R, K) of one identity per run present at ``present`` (R, K) and assigned
     at ``assigned``: a change of state between consecutive presences, from its first
     assignment on, charged at the later one (:func:`gospa_switching`)."""
     R, K = present.shape
-    scans = np.arange(K)
-    # the latest presence before each scan, and whether any assignment came before it
+    scans = np.arange(K, dtype=scan_index_type(K))
+    # the latest presence at or before each scan, and the latest assigned one: the state at the
+    # latest presence is "assigned" when the two are the same scan
     latest = np.maximum.accumulate(np.where(present, scans, -1), axis=1)
-    previous = np.full((R, K), -1, np.int64)
-    previous[:, 1:] = latest[:, :-1]
-    before = np.zeros((R, K), bool)
-    before[:, 1:] = np.logical_or.accumulate(assigned, axis=1)[:, :-1]
-    prev_state = np.take_along_axis(assigned, np.maximum(previous, 0), axis=1)
-    return (present & (previous >= 0) & before & (assigned != prev_state)).astype(np.int64)
+    latest_assigned = np.maximum.accumulate(np.where(present & assigned, scans, -1), axis=1)
+    out = np.zeros((R, K), np.int64)
+    # from the second scan on, against the latest presence before it (k − 1's latest at or before)
+    now, before = (slice(None), slice(1, None)), (slice(None), slice(None, -1))
+    change = present[now] & (latest[before] >= 0) & (assigned[now] != (latest_assigned[before] == latest[before]))
+    # … from the identity's first assignment on (any assignment before the scan)
+    change &= np.logical_or.accumulate(assigned, axis=1)[before]
+    out[now] = change
+    return out
 
 
 def _global_identities_sorted(value, present, low, span):

@@ -9,7 +9,11 @@ one, so the imports run one way. See ``docs/evaluation.md``.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
+
+from trackreplay.batched_linalg import all_finite
 
 BRUTE_FORCE_MAX = 6  # 6! = 720 permutations per scan, evaluated together
 
@@ -28,6 +32,49 @@ def single_pair_distance(rows, columns, angular: bool = False):
             diff = (diff + np.pi) % (2 * np.pi) - np.pi
         total += diff * diff
     return np.sqrt(total, out=total)
+
+
+class SinglePair(NamedTuple):
+    """What every single-target form reads of sets of one track and one target slot
+    ``(R, K, 1, d)`` (:func:`single_pair_view`): arrays (R, K), C-ordered as the forms' own were
+    (the layout decides the order in which numpy adds along the scans, so the sums keep their
+    bits).
+
+    Attributes
+    ----------
+    track_finite, truth_finite : ndarray of bool
+        Every component of the track (target) finite.
+    track_listed, truth_listed : ndarray of bool or None
+        Its identity ≥ 0; None where no identities are given (every slot its own).
+    track_present, truth_present : ndarray of bool
+        Finite and listed: a reported track, a present target.
+    distance : ndarray
+        :func:`single_pair_distance` of target − track (NaN where either is absent).
+    """
+
+    track_finite: np.ndarray
+    truth_finite: np.ndarray
+    track_listed: np.ndarray | None
+    truth_listed: np.ndarray | None
+    track_present: np.ndarray
+    truth_present: np.ndarray
+    distance: np.ndarray
+
+
+def single_pair_view(tracks, truths, track_ids=None, truth_ids=None, angular: bool = False) -> SinglePair:
+    """The presences and the one distance per (run, scan) of sets of one track and one target
+    slot ``(R, K, 1, d)``, found once for every single-target form (GOSPA, the matching, CLEAR
+    and identity measures, HOTA, SIAP) instead of once in each."""
+    X, Y = np.asarray(tracks, float), np.asarray(truths, float)
+    track_finite, truth_finite = all_finite(X[:, :, 0]), all_finite(Y[:, :, 0])
+    # written C-ordered whatever the identities' layout (a tracker's buffers hold the runs fastest)
+    listed = lambda ids: None if ids is None else np.greater_equal(np.asarray(ids)[:, :, 0], 0,  # noqa: E731
+                                                                   out=np.empty(X.shape[:2], bool))
+    track_listed, truth_listed = listed(track_ids), listed(truth_ids)
+    return SinglePair(track_finite, truth_finite, track_listed, truth_listed,
+                      track_finite if track_listed is None else track_finite & track_listed,
+                      truth_finite if truth_listed is None else truth_finite & truth_listed,
+                      single_pair_distance(Y, X, angular))
 
 
 def _add_square(total, difference, angular: bool) -> None:

@@ -31,7 +31,7 @@ from trackreplay.evaluators.consistency import (consistency_summary, innovation_
                                    whitened_innovations)
 from trackreplay.evaluators.hota import SUM_KEYS as HOTA_SUMS, hota_sums, pooled_hota
 from trackreplay.evaluators.set_distances import gospa_switching, one_identity_per_run, pairs_within
-from trackreplay.evaluators.set_distances_shared import single_pair_distance
+from trackreplay.evaluators.set_distances_shared import single_pair_view
 from trackreplay.evaluators.set_distances_fast import _gospa_switching_single
 from trackreplay.evaluators.siap import SUM_KEYS as SIAP_SUMS, pooled_siap, siap_sums
 from trackreplay.evaluators.tracking_metrics import nanmean
@@ -427,16 +427,16 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
             """:func:`sets_and_matches` where every run holds one target and one track identity
             in one slot each: the single-target forms beside each measure, on the one distance
             per (run, scan) (the same values as the general forms, tested)."""
-            d = single_pair_distance(Y, X, space.angular)             # target − track, as the pairs are
-            # GOSPA takes track − target: the same distance, but a wrapped angle may round apart
+            # the presences and the one distance (target − track, as the pairs are), found once
+            view = single_pair_view(X, Y, part_ids, part_truth_ids, space.angular)
             g = _gospa_switching_single(X, Y, space.cutoff, space.order, space.gospa_switch_penalty, part_ids,
-                                        part_truth_ids, space.angular, distance=None if space.angular else d)
-            match, dist = _single_target_matches(X, Y, space.gate, space.angular, part_ids, part_truth_ids, distance=d)
+                                        part_truth_ids, space.angular, view=view)
+            match, dist = _single_target_matches(X, Y, space.gate, space.angular, part_ids, part_truth_ids, view=view)
             a = _single_target_metrics(X, Y, space.gate, part_ids, space.angular, matches=(match, dist),
-                                       truth_ids=part_truth_ids)
-            h = hota_module._sums_single(X, Y, d0, part_ids, part_truth_ids, space.angular, distance=d)
+                                       truth_ids=part_truth_ids, view=view)
+            h = hota_module._sums_single(X, Y, d0, part_ids, part_truth_ids, space.angular, view=view)
             si = siap_module._sums_single(X, Y, siap_gate, times, part_ids, part_truth_ids, space.angular, *vel,
-                                          distance=d)
+                                          view=view)
             return (reduce_sets(g), _small_slots(match, S), a, {key: h[key] for key in HOTA_SUMS},
                     {key: si[key] for key in SIAP_SUMS})
 
