@@ -266,25 +266,26 @@ def _sums_single(tracks, truths, d0, track_ids=None, truth_ids=None, angular=Fal
 
 def _alpha_levels(alphas, similarity):
     """``np.searchsorted(alphas − ε, similarity, side="right")``, the number of thresholds each
-    similarity passes, for thresholds about evenly spaced (HOTA's α): a first guess from the
-    spacing, then moved up or down by the exact comparisons, one step at a time while any is
-    off (one or two rounds for :data:`HOTA_ALPHAS`; a binary search of 19 values per
-    similarity costs several times as much)."""
+    similarity passes, for increasing thresholds about evenly spaced (HOTA's α): a first guess
+    from the spacing, then moved a step down or up by the exact comparisons while any is off
+    (one round for :data:`HOTA_ALPHAS`, where a binary search of 19 values per similarity
+    costs several times as much). Anything else goes to ``searchsorted`` itself."""
     edges = np.asarray(alphas, float) - _EPS
     A = edges.size
-    if A < 2 or similarity.size == 0 or not np.all(np.diff(edges) > 0) or not np.all(np.isfinite(edges)):
+    if (A < 2 or not np.all(np.isfinite(edges)) or not np.all(np.diff(edges) > 0)
+            or not np.all(np.isfinite(similarity))):
         return np.searchsorted(edges, similarity, side="right")
-    step = (edges[-1] - edges[0]) / (A - 1)
-    with np.errstate(invalid="ignore"):
-        guess = np.floor((similarity - edges[0]) / step) + 1
-    # NaN similarities: searchsorted puts them past every threshold
-    level = np.clip(np.nan_to_num(guess, nan=A), 0, A).astype(np.intp)
-    # below every edge a similarity passes; at or above the next it passes one more
-    padded_low = np.r_[-np.inf, edges]        # the edge a level passes last (none: −∞)
-    padded_high = np.r_[edges, np.inf]        # the next edge a level would pass
+    guess = (similarity - edges[0]) * ((A - 1) / (edges[-1] - edges[0]))
+    guess += 1.0
+    np.floor(guess, out=guess)
+    np.clip(guess, 0, A, out=guess)
+    level = guess.astype(np.intp)
+    # the level passes edges[level − 1] and not edges[level] (−∞ and +∞ beyond the ends)
+    passed = np.r_[-np.inf, edges]
+    next_edge = np.r_[edges, np.inf]
     for _ in range(A + 1):
-        down = ~(similarity >= padded_low[level]) & (level > 0) & ~np.isnan(similarity)
-        up = similarity >= padded_high[level]
+        down = similarity < passed[level]
+        up = similarity >= next_edge[level]
         if not (down.any() or up.any()):
             break
         level -= down

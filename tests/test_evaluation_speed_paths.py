@@ -344,6 +344,40 @@ def test_the_single_target_forms_from_a_shared_view_are_those_without(seed):
                         siap._sums_single(X, Y, 2.0, times, track_ids, truth_ids, angular, track_v, truth_v))
 
 
+@pytest.mark.parametrize("alphas", ["hota", "uneven", "one", "descending"])
+def test_alpha_levels_are_the_binary_search(alphas):
+    """HOTA's levels (thresholds passed) from the spacing are searchsorted's, at and around every
+    threshold to the last bit, outside [0, 1] and with infinities and NaN."""
+    from trackreplay.evaluators.hota import _EPS, HOTA_ALPHAS, _alpha_levels
+
+    alphas = {"hota": HOTA_ALPHAS, "uneven": np.array([0.1, 0.15, 0.5, 0.51, 0.9]), "one": np.array([0.5]),
+              "descending": np.array([0.5, 0.2])}[alphas]
+    rng = np.random.default_rng(3)
+    edges = alphas - _EPS
+    near = np.concatenate([edges, np.nextafter(edges, -1.0), np.nextafter(edges, 2.0), alphas])
+    sims = np.concatenate([rng.random(5000), near, [0.0, 1.0, -0.3, 1.7]])
+    expected = np.searchsorted(edges, sims, side="right") if np.all(np.diff(edges) > 0) else None
+    if expected is not None:
+        np.testing.assert_array_equal(_alpha_levels(alphas, sims), expected)
+    with_odd = np.concatenate([sims, [np.nan, np.inf, -np.inf]])
+    np.testing.assert_array_equal(_alpha_levels(alphas, with_odd), np.searchsorted(edges, with_odd, side="right"))
+
+
+def test_sums_added_scan_by_scan_are_the_bincount():
+    """SIAP's per-run sums over the picked scans, added scan after scan over a dense array, are
+    the bincount over the picked (run, scan) pairs to the bit, with NaN, infinities and
+    negative values among them."""
+    from trackreplay.evaluators.siap import _add_over_scans
+
+    rng = np.random.default_rng(8)
+    values = rng.normal(scale=10.0, size=(50, 37)) ** 3
+    values[rng.random(values.shape) < 0.02] = np.nan
+    values[0, 3], values[1, 4] = np.inf, -np.inf
+    where = rng.random(values.shape) < 0.6
+    r, k = np.nonzero(where)
+    np.testing.assert_array_equal(_add_over_scans(values, where), np.bincount(r, values[r, k], minlength=50))
+
+
 def test_one_identity_per_run_tells_the_single_target_case():
     from trackreplay.evaluators.set_distances import one_identity_per_run
 
