@@ -264,17 +264,27 @@ def effective_scans(nx, max_block: int = 1 << 20) -> float:
     # (FFT_ROWS): the same sums as of the block's transforms at once (each run's transform is
     # its own), with a few MB of transforms held instead of 30 MB at 10,000 runs
     rows = max(1, FFT_ROWS // size)
+    # every run missing the same scans (the start-up scans of every track): each run's sums of
+    # pairs are the same transform's, taken once and added run after run as below
+    same_pairs = None
+    if not whole and _same_rows(usable):
+        same_pairs = _autocorrelation_sums(usable[:1].astype(float), size, n_scans)[0]
     for start in range(0, n_runs, step):
         block_products = block_pairs = None
-        for first in range(start, min(start + step, n_runs), rows):
-            part = slice(first, min(first + rows, start + step))
+        stop = min(start + step, n_runs)
+        for first in range(start, stop, rows):
+            part = slice(first, min(first + rows, stop))
             u = usable[part]
             z = dev[part] / scale if whole else np.where(u, dev[part] / scale, 0.0)
             block_products = _add_runs(block_products, _autocorrelation_sums(z, size, n_scans))
-            if not whole:
+            if not whole and same_pairs is None:
                 block_pairs = _add_runs(block_pairs, _autocorrelation_sums(u.astype(float), size, n_scans))
         products += block_products
-        if not whole:
+        if same_pairs is not None:
+            # a sum over the block's runs of one row: numpy adds the rows of a broadcast one
+            # after another as it adds the rows of the block's transforms
+            pairs += np.add.reduce(np.broadcast_to(same_pairs, (stop - start, n_scans)), axis=0)
+        elif not whole:
             pairs += block_pairs
     with np.errstate(invalid="ignore", divide="ignore"):
         rho = products[1:] / products[0] * pairs[0] / pairs[1:]   # pooled correlation at lags 1..K−1
@@ -294,7 +304,14 @@ def _autocorrelation_sums(z, size: int, n_scans: int):
     """Each run's (row's) autocorrelation sums ``Σ_k z_k z_{k+j}``, lags 0..n_scans−1, by FFT
     of length ``size`` (≥ 2·n_scans: no wrap-around)."""
     fz = np.fft.rfft(z, size, axis=1)
-    return np.fft.irfft(fz.real**2 + fz.imag**2, size, axis=1)[:, :n_scans]
+    power = fz.real * fz.real          # as fz.real**2 + fz.imag**2 computes, with one temporary less
+    power += fz.imag * fz.imag
+    return np.fft.irfft(power, size, axis=1)[:, :n_scans]
+
+
+def _same_rows(mask) -> bool:
+    """Whether every row (run) of ``mask`` is the first one."""
+    return bool((mask == mask[0]).all())
 
 
 def _add_runs(total, rows):
@@ -304,7 +321,10 @@ def _add_runs(total, rows):
     a few at a time gives the sums of the whole block to the bit."""
     if total is None:
         return rows.sum(axis=0)
-    return np.add.reduce(np.concatenate([total[None], rows]), axis=0)
+    # ``total`` added to the first row in place (``rows`` are the caller's temporaries): the same
+    # additions in the same order as over the rows of [total, *rows], without copying the rows
+    rows[0] += total
+    return rows.sum(axis=0)
 
 
 def consistency_summary(nx, dim: int, prob: float = 0.95, white: bool = False) -> dict:

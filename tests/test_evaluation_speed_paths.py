@@ -474,6 +474,24 @@ def test_effective_scans_a_few_runs_transforms_at_a_time_are_those_of_the_block(
     assert [consistency.effective_scans(v, max_block=1 << 12) for v in (nx, np.nan_to_num(nx, nan=1.0))] == whole
 
 
+@pytest.mark.parametrize("max_block", [1 << 12, 1 << 20])
+def test_effective_scans_one_transform_of_the_pairs_when_every_run_misses_the_same_scans(monkeypatch, max_block):
+    # every run misses the same (start-up) scans: the pairs come from one run's transform,
+    # added once per run; the value must be the one of a transform per run, to the bit
+    rng = np.random.default_rng(max_block)
+    nx = rng.chisquare(4, size=(700, 40)) + np.cumsum(rng.normal(size=(700, 40)), axis=1) ** 2
+    nx[:, :2] = np.nan
+    taken = []
+    monkeypatch.setattr(consistency, "FFT_ROWS", 5 * 128)          # FFT length 128: 5 runs at a time
+    same_rows = consistency._same_rows
+    monkeypatch.setattr(consistency, "_same_rows", lambda m: taken.append(same_rows(m)) or taken[-1])
+    shortcut = consistency.effective_scans(nx, max_block=max_block)   # blocks of 32 runs, or all of them
+    assert taken == [True]
+    monkeypatch.setattr(consistency, "_same_rows", lambda m: False)
+    assert consistency.effective_scans(nx, max_block=max_block) == shortcut
+    assert 1 < shortcut < 38
+
+
 @pytest.mark.parametrize("block", [1, 4, 7, 50])
 def test_scan_means_added_a_block_of_runs_at_a_time_are_nanmeans(block):
     from trackreplay.evaluators.tracking_metrics import nanmean
