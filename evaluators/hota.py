@@ -243,11 +243,14 @@ def _sums_single(tracks, truths, d0, track_ids=None, truth_ids=None, angular=Fal
     alignment = potential / np.maximum(n_truth + n_track - potential, 1.0)
     # the pair's weight A·S in the scan's assignment: taken when positive
     chosen = close & (alignment[:, None] * sim > 0)
-    run_c, k_c = np.nonzero(chosen)
-    sim_c = sim[run_c, k_c]
     A = alphas.size
-    # each TP's bin (run, the number of α it passes), found once for the counts and the sums
-    key = run_c * (A + 1) + _alpha_levels(alphas, sim_c)
+    # each scan's bin (run, the number of α its TP passes), found once for the counts and the
+    # sums; a scan without a TP goes to its run's bin 0, which counts no α and is dropped, so
+    # the TPs' bins get the very additions, in the same order, as from the TPs alone
+    key = np.where(chosen, _alpha_levels(alphas, sim), 0)
+    key += (np.arange(R) * (A + 1))[:, None]
+    key = key.reshape(-1)
+    sim_c = np.where(chosen, sim, 0.0).reshape(-1)
 
     def over_alphas(weights=None):
         """Σ over each run's TPs at each α (R, A)."""

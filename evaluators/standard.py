@@ -208,15 +208,26 @@ class _ScanMeans:
         self.total = self.count = None
 
     def add(self, block) -> None:
-        values = np.asarray(block, float)
-        missing = np.isnan(values)
-        if missing.any():
-            values = np.where(missing, 0.0, values)      # as np.nanmean leaves them out
-        count = np.sum(~missing, axis=0, dtype=np.intp)
+        block = np.asarray(block)
+        R = block.shape[0]
+        # the total so far above the block's runs, the values written once as floats (in place
+        # of a converted copy and then a joined one); made per block, not kept: a buffer held
+        # across blocks leaves the other temporaries fresh pages to fault in
+        rows = np.empty((R + 1,) + block.shape[1:])
+        values = rows[1:]
+        values[...] = block
+        if block.dtype.kind == "f":
+            missing = np.isnan(values)
+            count = R - np.sum(missing, axis=0, dtype=np.intp)
+            if missing.any():
+                values[missing] = 0.0                         # as np.nanmean leaves them out
+        else:
+            count = np.full(block.shape[1:], R, np.intp)      # counts and flags are never NaN
         if self.total is None:
             self.total, self.count = np.add.reduce(values, axis=0), count
         else:
-            self.total = np.add.reduce(np.concatenate([self.total[None], values]), axis=0)
+            rows[0] = self.total
+            self.total = np.add.reduce(rows, axis=0)
             self.count = self.count + count
 
     def mean(self):
@@ -286,9 +297,14 @@ def _matched_nees(estimate, truth, covariance, match, pos, angular: bool):
     R, K = shape[:2]
     nees, sq = np.empty(shape[:-1]), np.empty(shape[:-1])
     step = max(1, NEES_BLOCK // max(R * int(np.prod(shape[2:], dtype=np.int64)), 1))   # scans a block
+    # one buffer for every block's errors, laid out as the estimates are (a tracker's buffer holds
+    # the runs fastest, as its covariances do: the whitening then reads both along the runs)
+    first = estimate[:, :step]
+    block_shape = (R, first.shape[1]) + shape[2:]
+    buffer = np.empty_like(first) if first.shape == block_shape else np.empty(block_shape)
     for start in range(0, K, step):
         scans = slice(start, start + step)
-        err = estimate[:, scans] - truth[:, scans]
+        err = np.subtract(estimate[:, scans], truth[:, scans], out=buffer[:, :min(step, K - start)])
         if angular:
             err[..., pos] = (err[..., pos] + np.pi) % (2 * np.pi) - np.pi
         err[match[:, scans] < 0] = np.nan                       # in place: no second copy of the errors
