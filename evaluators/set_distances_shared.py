@@ -64,17 +64,44 @@ class SinglePair(NamedTuple):
 def single_pair_view(tracks, truths, track_ids=None, truth_ids=None, angular: bool = False) -> SinglePair:
     """The presences and the one distance per (run, scan) of sets of one track and one target
     slot ``(R, K, 1, d)``, found once for every single-target form (GOSPA, the matching, CLEAR
-    and identity measures, HOTA, SIAP) instead of once in each."""
+    and identity measures, HOTA, SIAP) instead of once in each.
+
+    The distance is :func:`single_pair_distance`'s (target − track), with the same operations
+    in the same order. Each of the target's components is read once, into a C-ordered buffer
+    that its finiteness and its difference then read: the recorded truth holds the runs
+    fastest, and read scan-major straight into the C-ordered sums every element would be a
+    page apart (it is staged through a buffer laid out as the truth is).
+    """
     X, Y = np.asarray(tracks, float), np.asarray(truths, float)
-    track_finite, truth_finite = all_finite(X[:, :, 0]), all_finite(Y[:, :, 0])
+    R, K = X.shape[:2]
+    track_finite = all_finite(X[:, :, 0])
+    truth_finite = np.ones((R, K), bool)
+    total, diff, column, finite = np.zeros((R, K)), np.empty((R, K)), np.empty((R, K)), np.empty((R, K), bool)
+    staged = np.empty((K, R)).T if abs(Y.strides[0]) < abs(Y.strides[1]) else None
+    for i in range(Y.shape[-1]):
+        if staged is None:
+            np.copyto(column, Y[:, :, 0, i])
+        else:
+            np.copyto(staged, Y[:, :, 0, i])     # along the runs, as the truth lies
+            np.copyto(column, staged)
+        truth_finite &= np.isfinite(column, out=finite)
+        if i < X.shape[-1]:
+            np.subtract(column, X[:, :, 0, i], out=diff)
+            if angular:
+                diff += np.pi
+                np.remainder(diff, 2 * np.pi, out=diff)
+                diff -= np.pi
+            np.multiply(diff, diff, out=diff)
+            total += diff
+    distance = np.sqrt(total, out=total)
     # written C-ordered whatever the identities' layout (a tracker's buffers hold the runs fastest)
     listed = lambda ids: None if ids is None else np.greater_equal(np.asarray(ids)[:, :, 0], 0,  # noqa: E731
-                                                                   out=np.empty(X.shape[:2], bool))
+                                                                   out=np.empty((R, K), bool))
     track_listed, truth_listed = listed(track_ids), listed(truth_ids)
     return SinglePair(track_finite, truth_finite, track_listed, truth_listed,
                       track_finite if track_listed is None else track_finite & track_listed,
                       truth_finite if truth_listed is None else truth_finite & truth_listed,
-                      single_pair_distance(Y, X, angular))
+                      distance)
 
 
 def _add_square(total, difference, angular: bool) -> None:

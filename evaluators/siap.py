@@ -255,7 +255,11 @@ def _sums_single(tracks, truths, gate: float, times=None, track_ids=None, truth_
         # the speed error at every scan, a component at a time (0 + a² + b², the bits of the
         # sum over the components), then added where associated
         tv, gv = np.asarray(track_velocities, float)[:, :, 0], np.asarray(truth_velocities, float)[:, :, 0]
-        speed_error, part = np.zeros((R, K)), np.empty((R, K))
+        # laid out as the velocities are (a tracker's buffer and the recorded truth hold the runs
+        # fastest): the differences then read both along the runs
+        runs_fastest = abs(tv.strides[0]) < abs(tv.strides[1])
+        speed_error, part = ((np.zeros((K, R)).T, np.empty((K, R)).T) if runs_fastest
+                             else (np.zeros((R, K)), np.empty((R, K))))
         with np.errstate(invalid="ignore", over="ignore"):
             if tv.shape[-1] >= 8:           # numpy sums 8 or more components pairwise: as siap_sums does
                 np.sum((tv - gv) ** 2, axis=-1, out=speed_error)
@@ -316,11 +320,10 @@ def _add_over_scans(values, where):
     from 0: the bits of ``np.bincount(run, values[where])`` over the (run, scan) pairs in order,
     without gathering them (adding +0.0 where ``where`` is false leaves every sum as it is: a
     sum started at +0.0 is never −0.0)."""
-    R, K = where.shape
-    # runs contiguous for each scan: every step adds one contiguous column
-    picked = np.empty((K, R))
-    np.copyto(picked.T, np.where(where, values, 0.0))
-    total = np.zeros(R)
+    # a scan's values (R,) at a time: the transposed selection, which numpy lays out with the runs
+    # contiguous (whatever the layout, the additions are the loop's, in scan order)
+    picked = np.where(where.T, values.T, 0.0)
+    total = np.zeros(where.shape[0])
     for column in picked:
         total += column
     return total

@@ -309,39 +309,45 @@ def test_the_single_target_forms_are_the_general_measures(seed):
 @pytest.mark.parametrize("seed", range(12))
 def test_the_single_target_forms_from_a_shared_view_are_those_without(seed):
     """The presences and the one distance found once (single_pair_view) and handed to every
-    single-target form give the values each form finds on its own, bit for bit, and the view's
-    arrays are C-ordered (the layout decides how numpy adds along the scans) whatever the
-    layout of the sets and identities (a tracker's buffers hold the runs fastest)."""
+    single-target form give the values each form finds on its own, bit for bit, also where the
+    sets, identities and velocities hold the runs fastest in memory (as a tracker's buffers and
+    the recorded truth do) against the same values in C order; the view's arrays are C-ordered
+    whatever the inputs' layout (the layout decides how numpy adds along the scans)."""
     from trackreplay.evaluators import assignment_metrics as am, hota, siap
     from trackreplay.evaluators import set_distances_fast as sd_fast
     from trackreplay.evaluators.set_distances_shared import single_pair_distance, single_pair_view
 
     angular = seed % 4 == 0
-    X, Y, track_ids, truth_ids, times, track_v, truth_v = _one_pair_sets(seed, angular=angular, with_ids=seed % 3 > 0)
-    if seed % 2:   # runs fastest in memory, as the trackers' buffers and the recorded truth are
-        X, Y = (np.asfortranarray(a.transpose(3, 2, 1, 0)).transpose(3, 2, 1, 0) for a in (X, Y))
+    plain = _one_pair_sets(seed, angular=angular, with_ids=seed % 3 > 0)
+    X, Y, track_ids, truth_ids, times, track_v, truth_v = plain
+    if seed % 4 < 2:   # runs fastest in memory, as the trackers' buffers and the recorded truth are
+        X, track_v = (np.ascontiguousarray(a.transpose(3, 2, 1, 0)).transpose(3, 2, 1, 0) for a in (X, track_v))
+        Y, truth_v = (np.ascontiguousarray(a.transpose(1, 0, 2, 3)).transpose(1, 0, 2, 3) for a in (Y, truth_v))
+        assert X.strides[0] == Y.strides[3] == 8 and Y.strides[0] < Y.strides[1]
         track_ids, truth_ids = (None if a is None else np.asfortranarray(a) for a in (track_ids, truth_ids))
+    cX, cY, c_track_ids, c_truth_ids, _, c_track_v, c_truth_v = plain        # C-ordered
     view = single_pair_view(X, Y, track_ids, truth_ids, angular)
     for part in view:
         if part is not None:
             assert part.flags.c_contiguous and part.shape == X.shape[:2]
-    np.testing.assert_array_equal(view.distance, single_pair_distance(Y, X, angular))
-    np.testing.assert_array_equal(view.track_present, all_finite(X)[:, :, 0] & (True if track_ids is None
-                                                                               else track_ids[:, :, 0] >= 0))
+    np.testing.assert_array_equal(view.distance, single_pair_distance(cY, cX, angular))
+    np.testing.assert_array_equal(view.track_present, all_finite(cX)[:, :, 0] & (True if track_ids is None
+                                                                                 else c_track_ids[:, :, 0] >= 0))
     for per in ("track", "truth"):
         _assert_same_values(sd_fast._gospa_switching_single(X, Y, 2.0, 2.0, 1.5, track_ids, truth_ids, angular, per=per,
                                                             view=view),
-                            sd_fast._gospa_switching_single(X, Y, 2.0, 2.0, 1.5, track_ids, truth_ids, angular, per=per))
+                            sd_fast._gospa_switching_single(cX, cY, 2.0, 2.0, 1.5, c_track_ids, c_truth_ids, angular,
+                                                            per=per))
     matches = am._single_target_matches(X, Y, 2.0, angular, track_ids, truth_ids, view=view)
-    for shared, own in zip(matches, am._single_target_matches(X, Y, 2.0, angular, track_ids, truth_ids)):
+    for shared, own in zip(matches, am._single_target_matches(cX, cY, 2.0, angular, c_track_ids, c_truth_ids)):
         np.testing.assert_array_equal(shared, own)
     _assert_same_values(am._single_target_metrics(X, Y, 2.0, track_ids, angular, matches=matches, truth_ids=truth_ids,
                                                   view=view),
-                        am._single_target_metrics(X, Y, 2.0, track_ids, angular, truth_ids=truth_ids))
+                        am._single_target_metrics(cX, cY, 2.0, c_track_ids, angular, truth_ids=c_truth_ids))
     _assert_same_values(hota._sums_single(X, Y, 2.5, track_ids, truth_ids, angular, view=view),
-                        hota._sums_single(X, Y, 2.5, track_ids, truth_ids, angular))
+                        hota._sums_single(cX, cY, 2.5, c_track_ids, c_truth_ids, angular))
     _assert_same_values(siap._sums_single(X, Y, 2.0, times, track_ids, truth_ids, angular, track_v, truth_v, view=view),
-                        siap._sums_single(X, Y, 2.0, times, track_ids, truth_ids, angular, track_v, truth_v))
+                        siap._sums_single(cX, cY, 2.0, times, c_track_ids, c_truth_ids, angular, c_track_v, c_truth_v))
 
 
 @pytest.mark.parametrize("alphas", ["hota", "uneven", "one", "descending"])
