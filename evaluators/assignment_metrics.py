@@ -44,6 +44,7 @@ import numpy as np
 
 from trackreplay.evaluators.set_distances import (BRUTE_FORCE_MAX, absent_as_nan, assign_edges, close_pairs, global_identities,
                                       identity_pairs, optimal_assignment, pairwise_distance, stable_order)
+from trackreplay.evaluators.set_distances_fast import or_accumulate
 from trackreplay.evaluators.set_distances_shared import SinglePair, single_pair_view
 from trackreplay.batched_linalg import all_finite
 
@@ -342,7 +343,7 @@ def _single_target_metrics(tracks, truths, gate: float, track_ids=None, angular:
     R, K = present.shape
     # a break: matched now, not at the scan before, matched at some earlier scan
     earlier = np.zeros((R, K), bool)
-    earlier[:, 1:] = np.logical_or.accumulate(matched, axis=1)[:, :-1]
+    earlier[:, 1:] = or_accumulate(matched)[:, :-1]
     previous = np.zeros((R, K), bool)
     previous[:, 1:] = matched[:, :-1]
     presences = present.sum(axis=1)

@@ -247,7 +247,7 @@ def _sums_single(tracks, truths, d0, track_ids=None, truth_ids=None, angular=Fal
     # each scan's bin (run, the number of α its TP passes), found once for the counts and the
     # sums; a scan without a TP goes to its run's bin 0, which counts no α and is dropped, so
     # the TPs' bins get the very additions, in the same order, as from the TPs alone
-    key = np.where(chosen, _alpha_levels(alphas, sim), 0)
+    key = _alpha_levels(alphas, sim) * chosen                     # 0 where no TP
     key += (np.arange(R) * (A + 1))[:, None]
     key = key.reshape(-1)
     sim_c = np.where(chosen, sim, 0.0).reshape(-1)

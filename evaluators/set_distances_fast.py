@@ -198,22 +198,45 @@ def scan_index_type(K: int):
     return next(t for t in (np.int8, np.int16, np.int32, np.int64) if K < np.iinfo(t).max)
 
 
+def scans_where(mask, fill: int):
+    """``np.where(mask, scans, fill)`` for a mask (R, K) over scans 0…K−1 and ``fill`` −1 or K,
+    in :func:`scan_index_type`: by arithmetic (``mask · (scan + 1) − 1``, ``K − mask · (K −
+    scan)``), as a broadcast ``np.where`` of small integers costs some twenty times as much."""
+    K = mask.shape[-1]
+    kind = scan_index_type(K)
+    scans = np.arange(K, dtype=kind)
+    if fill == -1:
+        out = np.multiply(mask, scans + kind(1), dtype=kind)
+        out -= kind(1)
+    elif fill == K:
+        out = np.multiply(mask, kind(K) - scans, dtype=kind)
+        np.subtract(kind(K), out, out=out)
+    else:
+        raise ValueError(f"fill must be -1 or K = {K}, not {fill}")
+    return out
+
+
+def or_accumulate(mask, axis: int = 1):
+    """``np.logical_or.accumulate(mask, axis)`` of a bool array, as the running maximum of its
+    bytes (0 or 1), which numpy computes at a fraction of the cost."""
+    return np.maximum.accumulate(np.asarray(mask, bool).view(np.uint8), axis=axis).view(bool)
+
+
 def _single_half_switches(present, assigned) -> np.ndarray:
     """Half switches (R, K) of one identity per run present at ``present`` (R, K) and assigned
     at ``assigned``: a change of state between consecutive presences, from its first
     assignment on, charged at the later one (:func:`gospa_switching`)."""
     R, K = present.shape
-    scans = np.arange(K, dtype=scan_index_type(K))
     # the latest presence at or before each scan, and the latest assigned one: the state at the
     # latest presence is "assigned" when the two are the same scan
-    latest = np.maximum.accumulate(np.where(present, scans, -1), axis=1)
-    latest_assigned = np.maximum.accumulate(np.where(present & assigned, scans, -1), axis=1)
+    latest = np.maximum.accumulate(scans_where(present, -1), axis=1)
+    latest_assigned = np.maximum.accumulate(scans_where(present & assigned, -1), axis=1)
     out = np.zeros((R, K), np.int64)
     # from the second scan on, against the latest presence before it (k − 1's latest at or before)
     now, before = (slice(None), slice(1, None)), (slice(None), slice(None, -1))
     change = present[now] & (latest[before] >= 0) & (assigned[now] != (latest_assigned[before] == latest[before]))
     # … from the identity's first assignment on (any assignment before the scan)
-    change &= np.logical_or.accumulate(assigned, axis=1)[before]
+    change &= or_accumulate(assigned)[before]
     out[now] = change
     return out
 

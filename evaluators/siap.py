@@ -43,7 +43,7 @@ from __future__ import annotations
 import numpy as np
 
 from trackreplay.evaluators.set_distances import close_pairs, global_identities, stable_order
-from trackreplay.evaluators.set_distances_fast import scan_index_type
+from trackreplay.evaluators.set_distances_fast import scan_index_type, scans_where
 from trackreplay.evaluators.set_distances_shared import SinglePair, single_pair_view
 from trackreplay.batched_linalg import all_finite
 
@@ -270,16 +270,15 @@ def _sums_single(tracks, truths, gate: float, times=None, track_ids=None, truth_
             np.sqrt(speed_error, out=speed_error)
         out["velocity_error_sum"] = _add_over_scans(speed_error, associated)
     small = scan_index_type(K)
-    scans = np.arange(K, dtype=small)
     last = (slice(None), slice(-1, None))
     now, before = (slice(None), slice(1, None)), (slice(None), slice(None, -1))   # a scan and the one before
     # whether the track's latest report at or before each scan (its earliest at or after) is
     # associated: the latest associated report is the latest report
-    latest = np.maximum.accumulate(np.where(vy, scans, -1), axis=1)
-    latest_associated = np.maximum.accumulate(np.where(associated, scans, -1), axis=1) == latest
+    latest = np.maximum.accumulate(scans_where(vy, -1), axis=1)
+    latest_associated = np.maximum.accumulate(scans_where(associated, -1), axis=1) == latest
     latest_associated &= latest >= 0
-    earliest = np.minimum.accumulate(np.where(vy, scans, K)[:, ::-1], axis=1)[:, ::-1]
-    earliest_associated = np.minimum.accumulate(np.where(associated, scans, K)[:, ::-1], axis=1)[:, ::-1] == earliest
+    earliest = np.minimum.accumulate(scans_where(vy, K)[:, ::-1], axis=1)[:, ::-1]
+    earliest_associated = np.minimum.accumulate(scans_where(associated, K)[:, ::-1], axis=1)[:, ::-1] == earliest
     earliest_associated &= earliest < K
     # a segment starts at an associated report whose previous report is not associated (or none),
     # and ends at one whose next report is not
@@ -291,7 +290,7 @@ def _sums_single(tracks, truths, gate: float, times=None, track_ids=None, truth_
     # report up to the first and the earliest report after it are associated and no report falls
     # between the two presences (one there would be unassociated: the target is absent); the
     # last scan has no next presence
-    presence_after = np.minimum.accumulate(np.where(vx, scans, K)[:, ::-1], axis=1)[:, ::-1]
+    presence_after = np.minimum.accumulate(scans_where(vx, K)[:, ::-1], axis=1)[:, ::-1]
     next_presence = np.empty((R, K), small)
     next_presence[before] = presence_after[now]
     next_presence[last] = K
@@ -306,7 +305,7 @@ def _sums_single(tracks, truths, gate: float, times=None, track_ids=None, truth_
     final = K - 1 - np.argmax(vx[:, ::-1], axis=1)
     out["truth_lifetime"] = np.where(exists, times[final] - times[first], 0.0)
     re, ke = np.nonzero(ends)
-    start_scan = np.maximum.accumulate(np.where(starts, scans, -1), axis=1)
+    start_scan = np.maximum.accumulate(scans_where(starts, -1), axis=1)
     longest = np.zeros(R)
     np.maximum.at(longest, re, times[ke] - times[start_scan[re, ke]])
     out["longest_segment_time"] = longest

@@ -384,6 +384,26 @@ def test_sums_added_scan_by_scan_are_the_bincount():
     np.testing.assert_array_equal(_add_over_scans(values, where), np.bincount(r, values[r, k], minlength=50))
 
 
+@pytest.mark.parametrize("K", [1, 2, 64, 126, 127, 300])
+def test_scan_indices_by_arithmetic_are_the_where(K):
+    """The scan indices where a mask holds (−1 or K elsewhere) by arithmetic in the smallest
+    integer type are np.where's, and the running "or" of a mask by its bytes is numpy's, at the
+    edges of the int8 range and beyond it."""
+    from trackreplay.evaluators.set_distances_fast import or_accumulate, scan_index_type, scans_where
+
+    mask = np.random.default_rng(K).random((9, K)) < 0.4
+    mask[0], mask[1] = False, True
+    scans = np.arange(K)
+    for fill in (-1, K):
+        got = scans_where(mask, fill)
+        assert got.dtype == scan_index_type(K) and np.iinfo(got.dtype).max > K
+        np.testing.assert_array_equal(got, np.where(mask, scans, fill))
+    with pytest.raises(ValueError):
+        scans_where(mask, 0)
+    np.testing.assert_array_equal(or_accumulate(mask), np.logical_or.accumulate(mask, axis=1))
+    np.testing.assert_array_equal(or_accumulate(mask[:, ::-1]), np.logical_or.accumulate(mask[:, ::-1], axis=1))
+
+
 def test_one_identity_per_run_tells_the_single_target_case():
     from trackreplay.evaluators.set_distances import one_identity_per_run
 
