@@ -406,8 +406,16 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
         def sets_and_matches(part):
             """OSPA/GOSPA per run and scan, the matches of every scan and the assignment metrics
             over whole runs (from those matches, which the NEES pairs use too) of some runs."""
-            # the track positions, NaN where a slot holds no track
-            X = np.where(absent[part][..., None], np.nan, _components(compared[part], pos))
+            # the track positions, NaN where a slot holds no track; for the single-target forms
+            # laid out as the tracker's buffer (runs fastest), which they read through
+            # single_pair_view whatever the layout: copied without a transpose
+            if single:
+                positions = _components(compared[part], pos)
+                X = np.empty_like(positions)
+                np.copyto(X, positions)
+                np.copyto(X, np.nan, where=absent[part][..., None])
+            else:
+                X = np.where(absent[part][..., None], np.nan, _components(compared[part], pos))
             Y = true_positions[part]
             part_ids = None if ids is None else ids[part]
             part_truth_ids = None if truth_ids is None else truth_slot_ids[part]
