@@ -86,13 +86,7 @@ def single_pair_view(tracks, truths, track_ids=None, truth_ids=None, angular: bo
             np.copyto(column, staged)
         truth_finite &= np.isfinite(column, out=finite)
         if i < X.shape[-1]:
-            np.subtract(column, X[:, :, 0, i], out=diff)
-            if angular:
-                diff += np.pi
-                np.remainder(diff, 2 * np.pi, out=diff)
-                diff -= np.pi
-            np.multiply(diff, diff, out=diff)
-            total += diff
+            _add_square(total, np.subtract(column, X[:, :, 0, i], out=diff), angular)
     distance = np.sqrt(total, out=total)
     # written C-ordered whatever the identities' layout (a tracker's buffers hold the runs fastest)
     listed = lambda ids: None if ids is None else np.greater_equal(np.asarray(ids)[:, :, 0], 0,  # noqa: E731
