@@ -138,8 +138,9 @@ def colored_frames():
 # --------------------------------------------------------------------------- the valid sets replay
 
 
-def test_the_hand_written_sets_replay_cleanly(tmp_path, emitter_frames, colored_frames):
+def test_the_hand_written_sets_replay_cleanly(tmp_path, monkeypatch, emitter_frames, colored_frames):
     """Controls: every breakage below starts from a set the replay accepts."""
+    monkeypatch.chdir(tmp_path)  # the default replay-out/<name>/ lands here, not in the checkout
     frames, params = colored_frames
     # the radar and xcorr sets record the sensor values they were made with (a file that says
     # nothing about its sensor stops: tests/test_sensor_values.py, a file without a record)

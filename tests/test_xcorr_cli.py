@@ -146,7 +146,8 @@ def test_empty_scans_coast_and_stay_finite(base_data, tmp_path):
     assert np.all(np.isfinite(out["state"][:, 1:]))
 
 
-def test_missing_labels_for_two_point_start_and_missing_truth(base_data, tmp_path):
+def test_missing_labels_for_two_point_start_and_missing_truth(base_data, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # the default replay-out/<name>/ lands here, not in the checkout
     def unlabel(a, c):
         a["origin"][0, 1] = -1
     p, data = _modified(base_data, unlabel)
