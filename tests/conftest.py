@@ -17,6 +17,20 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 REPO = Path(__file__).resolve().parents[1]
 
+# The files that take longest (10-80 s each on a 2-core machine), longest first. The two workers
+# take whole files in collection order (`--dist loadfile --no-loadscope-reorder` in pyproject.toml),
+# so these start first and the many short files fill in after them; one left to the end would keep
+# one worker busy while the other has nothing left. Only the order changes: every test still runs.
+LONGEST_FIRST = ("test_sweep_robust.py", "test_readme_commands.py", "test_plugged_trackers.py",
+                 "test_output_paths_walk.py", "test_many_targets.py", "test_recording_process.py",
+                 "test_loopback.py", "test_ux.py", "test_figures.py", "test_jpda_success.py", "test_fuzz.py",
+                 "test_output_sets.py", "test_inputs_and_exits.py", "test_replay_streaming.py", "test_full_disk.py")
+
+
+def pytest_collection_modifyitems(items):
+    rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: the rest keep their order
+
 
 @pytest.fixture(autouse=True, scope="session")
 def _isolated_rerun_home(tmp_path_factory):
