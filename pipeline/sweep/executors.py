@@ -99,8 +99,13 @@ def _pool_worker_init(client_pid: int) -> None:
     # print tracebacks of their own.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, _worker_stop)
-    sys.unraisablehook = _quiet_when_stopped
-    _watch_client(client_pid)
+    try:
+        sys.unraisablehook = _quiet_when_stopped
+        _watch_client(client_pid)
+    except _WorkerStop as stop:
+        # stopped while starting (the pool is being stopped): concurrent.futures would log an
+        # "Exception in initializer" traceback on the sweep's stderr; leave quietly instead
+        os._exit(stop.code)
 
 
 def _quiet_when_stopped(unraisable) -> None:
@@ -153,6 +158,7 @@ def _iter_process(tasks, workers):
     several are computed again one at a time, each in a pool of its own, so that only the point
     that kills its worker again fails and no other point is blamed or lost.
     """
+    import itertools
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
     from concurrent.futures.process import BrokenProcessPool
 
@@ -167,13 +173,18 @@ def _iter_process(tasks, workers):
         pool = ProcessPoolExecutor(max_workers=size, mp_context=ctx, initializer=_pool_worker_init,
                                    initargs=(os.getpid(),))
         held, processes, lost = {}, {}, []
-        finished = False
+        finished = broken = False
         try:
             while True:
-                while len(held) < size and (task := next(queue, None)) is not None:
-                    with _signals_held():  # a submit may start a worker
-                        held[pool.submit(_pool_run_point, task)] = task
-                        processes.update(getattr(pool, "_processes", None) or {})
+                while len(held) < size and not broken and (task := next(queue, None)) is not None:
+                    try:
+                        with _signals_held():  # a submit may start a worker
+                            held[pool.submit(_pool_run_point, task)] = task
+                            processes.update(getattr(pool, "_processes", None) or {})
+                    except BrokenProcessPool:
+                        # a worker died since the last wait (its point's future tells which):
+                        # this task was not handed out, so it goes on in the next pool
+                        queue, broken = itertools.chain([task], queue), True
                 if not held:
                     break
                 done, _ = wait(held, return_when=FIRST_COMPLETED)
@@ -210,7 +221,9 @@ def _how_workers_ended(processes) -> str:
     for p in processes:
         p.join(5.0)
         codes.append(p.exitcode)
-    own = [c for c in codes if c is not None and c != -signal.SIGTERM] or [c for c in codes if c is not None]
+    # a worker the pool stopped ends by SIGTERM, or through its own SIGTERM handler (128 + 15)
+    stopped = (-signal.SIGTERM, 128 + signal.SIGTERM)
+    own = [c for c in codes if c is not None and c not in stopped] or [c for c in codes if c is not None]
     if not own:
         return "unknown how"
     code = own[0]
