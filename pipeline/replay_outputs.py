@@ -66,8 +66,8 @@ class OutputWriter:
         def job():
             t = time.perf_counter()
             stage_running.write_outputs(stage, self._writer, unit)
-            if beside:  # its bytes reach the disk now, beside the scoring, not in the final fsync
-                self._writer.sync()
+            if beside:  # its bytes start for the disk now, beside the scoring, not in the final fsync
+                self._writer.start_writeback()
             self.seconds += time.perf_counter() - t
             if beside:
                 self.seconds_beside += time.perf_counter() - t
