@@ -398,9 +398,19 @@ def main():
                     help="time by this process's CPU time instead of the wall clock: on a machine shared with "
                          "other work, both sides then count their own computing alone (every measured call runs "
                          "on one thread)")
+    ap.add_argument("--system-allocator", action="store_true",
+                    help="leave glibc's allocator as it is; by default this process keeps the memory it frees, "
+                         "as the replay, eval and compare commands do (trackreplay.machine.keep_freed_memory)")
     args = ap.parse_args()
     global TIMER
     TIMER = time.process_time if args.cpu_time else time.perf_counter
+    if not args.system_allocator:
+        # the evaluation runs inside `replay`/`replay eval`, whose process keeps its freed memory:
+        # measured as it runs there (on 2026-12-08 without it the 100-run figures took twice as
+        # long, most of it the kernel faulting the same pages in again)
+        from trackreplay.machine import keep_freed_memory
+
+        print(f"   allocator: freed memory kept for reuse: {keep_freed_memory()} (--system-allocator: not)")
     q = args.quick
     R = args.runs or (5 if q else 100)
     K = args.scans or (100 if q else 1000)
