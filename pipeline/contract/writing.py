@@ -375,8 +375,9 @@ class McapFrameWriter:
         if group > 1:
             step = max(group, step // group * group)  # a packing block holds whole groups
         for first in range(0, n_scans, step):
-            # each packing column's scans first … first + step − 1 as upper triangles, or None
-            packed = {i: upper_triangles(columns[i][3][:, first:first + step]) for i in packing}
+            # each packing column's scans first … first + step − 1 as upper triangles, or None,
+            # scan by scan ((step, runs, …): a scan's triangles are then one contiguous piece)
+            packed = {i: upper_triangles(columns[i][3][:, first:first + step].swapaxes(0, 1)) for i in packing}
             if group > 1:
                 self._write_grid_groups(topic, times, columns, packed, first, min(first + step, n_scans), group,
                                         n_runs)
@@ -389,7 +390,7 @@ class McapFrameWriter:
                         col = msg.columns.add(name=name, dtype=dtype, layout=FIXED, values=a[:, k].tobytes())
                     else:
                         col = msg.columns.add(name=name, dtype=dtype, layout=SYMMETRIC,
-                                              values=triangles[:, k - first].tobytes())
+                                              values=triangles[k - first].tobytes())
                     col.shape.extend(inner)
                 self._add_message(topic, float(times[k]), msg.SerializeToString())
         lay = self._layout[topic]
@@ -413,7 +414,7 @@ class McapFrameWriter:
                     values = np.ascontiguousarray(a[:, k:end].swapaxes(0, 1)).tobytes()
                     col = msg.columns.add(name=name, dtype=dtype, layout=FIXED, values=values)
                 else:
-                    values = np.ascontiguousarray(triangles[:, k - start:end - start].swapaxes(0, 1)).tobytes()
+                    values = triangles[k - start:end - start].tobytes()  # scan-major already
                     col = msg.columns.add(name=name, dtype=dtype, layout=SYMMETRIC, values=values)
                 col.shape.extend(inner)
             self._add_message(topic, float(times[k]), msg.SerializeToString())
