@@ -249,6 +249,11 @@ def main() -> None:
     warnings.filterwarnings("ignore", category=RuntimeWarning)  # as the command line does
     try:
         _record(sys.argv[1], sys.argv[2] == "1")
+        # the recording is written and published, its writer disconnected: the interpreter's
+        # own teardown (Rerun's, polars', 0.1 s) would only keep the replay waiting for the exit
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(0)
     except InputError as exc:
         print(f"{_MESSAGE}{exc}", file=sys.stderr)
         sys.exit(1)

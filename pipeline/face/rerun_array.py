@@ -9,6 +9,9 @@ Exposes ``blueprint(stage, trackers, dataset=None, run=0)`` and
 from __future__ import annotations
 
 import numpy as np
+# imported with the module (0.1 s), not when the waterfall is drawn: the recording process
+# imports these views while the replay runs on the other core (face/recording_process.py)
+from matplotlib import colormaps
 
 from trackreplay import vocabulary as vocab
 from trackreplay.face.timeline import color, log_metric_series, log_series, rr, rrb
@@ -19,14 +22,10 @@ STYLE = {"ryu": ((214, 39, 40), -3.5, 10.0), "proposed": ((255, 80, 255), -1.5, 
 
 
 def _target_color(n: int):
-    from matplotlib import colormaps
-
     return tuple(int(255 * c) for c in colormaps["tab10"](n % 10)[:3])
 
 
 def _viridis(values: np.ndarray) -> np.ndarray:
-    from matplotlib import colormaps
-
     return (colormaps["viridis"](values)[..., :3] * 255).astype(np.uint8)
 
 

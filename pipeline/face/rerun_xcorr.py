@@ -12,6 +12,9 @@ centre) are simply empty for it.
 from __future__ import annotations
 
 import numpy as np
+# imported with the module, not when the peaks are drawn: the recording process imports these
+# views while the replay runs on the other core (face/recording_process.py)
+from matplotlib import colormaps
 
 from trackreplay.face.timeline import color, log_metric_series, log_points, log_series, rr, rrb
 
@@ -64,8 +67,6 @@ def blueprint(stage, trackers, dataset=None, run: int = 0):
 
 
 def _log_peaks(rec, peaks, run: int, scans, times, ys) -> None:
-    from matplotlib import colormaps
-
     counts = peaks.counts[run]
     valid = np.arange(peaks.bearing_rad.shape[2])[None, :] < counts[:, None]
     scan_of = np.broadcast_to(scans[:, None], valid.shape)[valid]
