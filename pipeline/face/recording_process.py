@@ -195,14 +195,17 @@ def _record(data_path: str, recover: bool) -> None:
     import rerun.blueprint  # noqa: F401
 
     from trackreplay.contract import read_dataset
-    from trackreplay.face.rerun_views import views_for, write_recording
+    from trackreplay.face.rerun_views import prepare_views, write_recording
     from trackreplay.stages import applicable_stages
 
     stamp = file_stamp(data_path)
     ds = read_dataset(data_path, recover=recover)
     stages = {s.name: s for s in applicable_stages(ds.channels)}
-    for stage in stages.values():  # their views' imports (scipy for some), still while the replay runs
-        views_for(stage)
+    for stage in stages.values():  # their views' imports and data-only work, still while the replay runs
+        try:
+            prepare_views(stage, ds)
+        except Exception:  # noqa: BLE001 (work ahead only: the drawing does it again and reports its error)
+            pass
     try:
         payload = pickle.load(sys.stdin.buffer)
     except EOFError:  # the replay ended without a recording to write (it failed, or was stopped)

@@ -1,7 +1,10 @@
 """Which Rerun views draw which stage's results.
 
 Each module named here exposes ``blueprint(stage, trackers, dataset=None, run=0)`` and
-``log_rerun(stage, rec, dataset, result, per_scan, run=0)``. Stages hold no Rerun code.
+``log_rerun(stage, rec, dataset, result, per_scan, run=0)``, and may expose
+``prepare(stage, dataset)``: what its views compute from the data set alone, done ahead (the
+recording process calls it while the replay runs; :func:`prepare_views`). Stages hold no Rerun
+code.
 """
 
 from __future__ import annotations
@@ -21,6 +24,14 @@ def views_for(stage):
     if name is None:
         raise KeyError(f"no Rerun views registered for stage {stage.name!r} (a family's views live in face/rerun_<stem>.py)")
     return importlib.import_module(name)
+
+
+def prepare_views(stage, dataset) -> None:
+    """Let ``stage``'s views compute ahead what depends on the data set alone (their
+    ``prepare``, when they have one), so that drawing the results later waits only on them."""
+    prepare = getattr(views_for(stage), "prepare", None)
+    if prepare is not None:
+        prepare(stage, dataset)
 
 
 def write_recording(rrd_path, ds, stages, results, per_scan, rerun_run: int = 0) -> None:
