@@ -47,6 +47,16 @@ def test_the_child_draws_the_same_recording_as_the_replay_itself(demo, tmp_path)
     assert not same_recording(tmp_path / "there.rrd", other.rrd_path)
 
 
+def test_what_the_child_computed_ahead_draws_the_same_recording(tmp_path):
+    """The TDOA/FDOA views compute run 0's CEP plane in the child before the results arrive
+    (their ``prepare``): the recording of run 0 drawn from it is the one drawn without it."""
+    data = REPO / "data" / "tdoa_fdoa_demo.mcap"
+    here = replay(data, rrd_path=tmp_path / "here.rrd", rerun_run=0)
+    with RecordingProcess(data) as recorder:
+        replay(data, rrd_path=tmp_path / "there.rrd", rerun_run=0, recorder=recorder)
+    assert same_recording(here.rrd_path, tmp_path / "there.rrd")
+
+
 def test_the_child_draws_with_the_designs_the_replay_used(tmp_path):
     data = REPO / "data" / "radar_tws_demo.mcap"
     override = {"nominal_cross_range_m": "120"}
