@@ -26,8 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from trackreplay.evaluators.tracking_metrics import nanmean
-from trackreplay.batched_linalg import (all_finite, cholesky_lower, forward_substitute, positive_definite,
-                                       sum_squares, whiten)
+from trackreplay.batched_linalg import _whitened_entries, all_finite, sum_squares, whiten
 
 NORMAL_95 = 1.959963984540054  # the two-sided 95 % quantile of the standard normal
 
@@ -71,34 +70,39 @@ def whitened(error, covariance):
     return _whitened(error, covariance, squared=False)
 
 
-def _whitened(error, covariance, squared: bool):
+def _whitened(error, covariance, squared: bool, both: bool = False):
     """:func:`whitened`, or with ``squared`` its ``‖w‖²`` (...), summed block by block so that
-    the whitened errors are never held whole."""
+    the whitened errors are never held whole; with ``both``, ``(w, ‖w‖²)``."""
     e = np.asarray(error, float)
     P = np.asarray(covariance, float)
     lead = np.broadcast_shapes(e.shape[:-1], P.shape[:-2])
     n = e.shape[-1]
     if not lead:
         w = whiten(e.reshape(1, n), P.reshape(1, n, n))[0]
-        return np.sum(w * w) if squared else w
+        return (w, sum_squares(w)) if both else np.sum(w * w) if squared else w
     e, P = np.broadcast_to(e, lead + (n,)), np.broadcast_to(P, lead + (n, n))
-    out = np.empty(lead if squared else lead + (n,))
+    w_out = None if squared and not both else np.empty(lead + (n,))
+    total_out = np.empty(lead) if squared or both else None
     # the leading axes in the order the covariances lie in memory (a tracker's buffer often
-    # holds the runs fastest): a block of the first of them then flattens without a copy,
-    # where cutting blocks of runs from such a buffer copies every block twice; every matrix
-    # is whitened alone, so the order changes no value
+    # holds the runs fastest): a block of the first of them then reads a few whole stretches
+    # of the buffer; every matrix is whitened alone, so the order changes no value
     order = sorted(range(len(lead)), key=lambda i: -abs(P.strides[i]) if lead[i] > 1 else 0)
-    e, P, o = (a.transpose(*order, *range(len(lead), a.ndim)) for a in (e, P, out))
-    finish = sum_squares if squared else (lambda w: w)
-    # in blocks along that axis: the factors and temporaries stay a few MB at any number of
-    # runs, and an output that is a strided view is copied a block at a time, never whole
-    per_row = int(np.prod(o.shape[1:len(lead)], dtype=np.int64))
+    e, P = (a.transpose(*order, *range(len(lead), a.ndim)) for a in (e, P))
+    w_o = None if w_out is None else w_out.transpose(*order, len(lead))
+    t_o = None if total_out is None else total_out.transpose(*order)
+    # in blocks along that axis: the factor's entries and temporaries stay a few MB at any
+    # number of runs; each block is whitened entry by entry where the matrices lie
+    # (trackreplay.batched_linalg._whitened_entries: whiten's values, without its copies)
+    per_row = int(np.prod(P.shape[1:len(lead)], dtype=np.int64))
     rows = max(1, WHITEN_BLOCK // max(per_row, 1))
-    for start in range(0, o.shape[0], rows):
+    for start in range(0, P.shape[0], rows):
         part = slice(start, start + rows)
-        block = o[part]
-        block[...] = finish(whiten(e[part].reshape(-1, n), P[part].reshape(-1, n, n))).reshape(block.shape)
-    return out
+        total = _whitened_entries(e[part], P[part], None if w_o is None else w_o[part])
+        if t_o is not None:
+            t_o[part] = total
+    if both:
+        return w_out, total_out
+    return total_out if squared else w_out
 
 
 WHITEN_BLOCK = 32768
@@ -115,8 +119,8 @@ def whitened_innovations(out: dict):
     S = np.asarray(out["innovation_covariance"], float)
     if nu.ndim == 3:  # no track axis
         nu, S = nu[:, :, None], S[:, :, None]
-    w = whitened(nu, S)
-    return w, sum_squares(w)
+    # w and its squared norm from one pass (sum_squares(w), to the bit)
+    return _whitened(nu, S, squared=False, both=True)
 
 
 def normalised_squared(error, covariance):
@@ -161,18 +165,10 @@ def _normalised_squared_stack_last(e, P, lead, axis: int):
         Pv, ev, ov, others = Pv[None], ev[None], ov[None], (1,)
     per_row = int(np.prod(others[1:], dtype=np.int64)) * ov.shape[-1]
     rows = max(1, WHITEN_BLOCK // max(per_row, 1))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        for start in range(0, others[0], rows):
-            part = slice(start, start + rows)
-            L = cholesky_lower(Pv[part])
-            w = forward_substitute(L, ev[part][..., None, :])[..., 0, :]       # (..., n, N)
-            total = np.zeros(w.shape[:-2] + w.shape[-1:])
-            bad = ~positive_definite(L)
-            for i in range(n):  # as sum_squares and all_finite add and test, a component at a time
-                total += w[..., i, :] * w[..., i, :]
-                bad |= ~np.isfinite(w[..., i, :])
-            total[bad] = np.nan
-            ov[part] = total
+    for start in range(0, others[0], rows):
+        part = slice(start, start + rows)
+        # the matrix axes last again, as views: each entry a contiguous vector of the stack
+        ov[part] = _whitened_entries(np.moveaxis(ev[part], -1, -2), np.moveaxis(Pv[part], -1, -3))
     return out
 
 

@@ -118,6 +118,85 @@ def whiten(e, P):
     return w
 
 
+def _whitened_entries(e, P, w_out=None):
+    """``‖w‖²`` of ``w = L⁻¹ e`` (``P = L Lᵀ``) for stacks ``e`` (..., n) and ``P`` (..., n, n) of
+    any layout, and ``w`` itself into ``w_out`` (..., n) when given; NaN (in every component of
+    ``w``) where :func:`whiten` gives NaN. The values of :func:`whiten` and then
+    :func:`sum_squares`, to the bit (tests/test_evaluation_speed_paths.py).
+
+    Every entry of the factor, of ``w`` and of the sum is one operation over the stack in the
+    order :func:`cholesky_lower`, :func:`forward_substitute` and :func:`sum_squares` take them
+    (the sums over ``k < j`` left to right, as their reductions over a short outer axis add),
+    but on the entries of ``P`` and ``e`` where they lie (no copy into the stack-last layout),
+    the factor's entries kept one by one (no zeroed upper triangle), and the checks of
+    :func:`whiten` (every pivot in (0, ∞), every component of ``w`` finite) read from the sum:
+    where no pivot and no sum is infinite, a row fails them exactly where its sum is NaN (a NaN
+    or zero pivot or a NaN component makes the sum NaN or infinite, an infinite component makes
+    it infinite), so only a stack holding an infinity pays for the checks one by one.
+    """
+    n = e.shape[-1]
+    lead = np.broadcast_shapes(e.shape[:-1], P.shape[:-2])
+    e, P = np.broadcast_to(e, lead + (n,)), np.broadcast_to(P, lead + (n, n))
+    tmp = np.empty(lead)
+
+    def dot(a, b, count):
+        """Σ_{k<count} a_k b_k, left to right, in a fresh array."""
+        acc = np.multiply(a[0], b[0])
+        for k in range(1, count):
+            acc += np.multiply(a[k], b[k], out=tmp)
+        return acc
+
+    L = [[None] * n for _ in range(n)]
+    w = [None] * n
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        for j in range(n):
+            if j == 0:
+                d = np.sqrt(P[..., 0, 0])
+            else:
+                acc = dot(L[j], L[j], j)
+                d = np.sqrt(np.subtract(P[..., j, j], acc, out=acc), out=acc)
+            L[j][j] = d
+            for i in range(j + 1, n):
+                if j == 0:
+                    L[i][0] = np.divide(P[..., i, 0], d)
+                else:
+                    acc = dot(L[i], L[j], j)
+                    L[i][j] = np.divide(np.subtract(P[..., i, j], acc, out=acc), d, out=acc)
+        for i in range(n):
+            if i == 0:
+                w[0] = np.divide(e[..., 0], L[0][0])
+            else:
+                acc = dot(L[i], w, i)
+                w[i] = np.divide(np.subtract(e[..., i], acc, out=acc), L[i][i], out=acc)
+        total = np.multiply(w[0], w[0])          # (0 + w₀², as sum_squares starts, is w₀²: a square is never −0)
+        for i in range(1, n):
+            total += np.multiply(w[i], w[i], out=tmp)
+        pivots = L[0][0].copy()
+        for i in range(1, n):
+            pivots += L[i][i]
+        if np.isinf(total).any() or np.isinf(pivots).any():
+            # an infinite pivot leaves w finite, and a sum may overflow: the checks one by one
+            bad = ~_positive_definite_entries([L[i][i] for i in range(n)])
+            for i in range(n):
+                bad |= ~np.isfinite(w[i])
+        else:
+            bad = np.isnan(total)
+    np.copyto(total, np.nan, where=bad)          # the NaN whiten writes, whatever NaN the row made
+    if w_out is not None:
+        for i in range(n):
+            np.copyto(w[i], np.nan, where=bad)
+            w_out[..., i] = w[i]
+    return total
+
+
+def _positive_definite_entries(pivots):
+    """:func:`positive_definite` of a factor's pivots given one array each."""
+    ok = np.ones(np.shape(pivots[0]), bool)
+    for d in pivots:
+        ok &= (d > 0) & (d < np.inf)
+    return ok
+
+
 def positive_definite(L):
     """Where a factor of :func:`cholesky_lower` (``(*lead, n, n, N)``) exists: every pivot finite
     and > 0 (a matrix that is not positive definite has a NaN or zero one)."""

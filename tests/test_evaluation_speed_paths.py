@@ -169,6 +169,60 @@ def test_whitening_in_blocks_is_whitening_matrix_by_matrix(monkeypatch, runs_fas
     assert np.isfinite(np.delete(nees.ravel(), [2 * 7 + 3, 4 * 7 + 1])).all()
 
 
+
+def _bits(a):
+    """The bytes of a float array (NaNs compared by their bits, not as equal by position)."""
+    return np.ascontiguousarray(a, float).view(np.int64)
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 4, 6])
+@pytest.mark.parametrize("runs_fastest", [True, False])
+def test_whitening_entry_by_entry_is_whiten_then_sum_squares(n, runs_fastest):
+    """_whitened_entries (the whitening the evaluators use) gives the bits of whiten and
+    sum_squares, NaN payloads included, on every layout and at the edges its checks read from
+    the sum: missing errors and covariances, matrices that are not positive definite, an
+    infinite pivot (w finite, yet NaN), an infinite error, and a sum that overflows (kept)."""
+    from trackreplay.batched_linalg import _whitened_entries
+
+    rng = np.random.default_rng(20 + n)
+    lead = (13, 9)
+    P = _covariances(lead, n, rng, runs_fastest)
+    e = rng.normal(size=lead + (n,))
+    e[2, 3] = np.nan
+    P[0, 0] = np.nan
+    P[4, 1] = -np.eye(n)
+    P[5, 2] = np.zeros((n, n))                                  # zero pivot: 0/0 and x/0
+    P[6, 3, n - 1, n - 1] = np.inf                              # infinite last pivot: w finite there
+    e[7, 4, 0] = np.inf
+    e[8, 5, 0] = 1e200                                          # its square overflows: the sum is inf
+    plain_w = whiten(e.reshape(-1, n), np.ascontiguousarray(P).reshape(-1, n, n))
+    plain = sum_squares(plain_w)
+    w = np.empty(lead + (n,))
+    fast = _whitened_entries(e, P, w)
+    np.testing.assert_array_equal(_bits(fast).ravel(), _bits(plain))
+    np.testing.assert_array_equal(_bits(w).reshape(-1, n), _bits(plain_w))
+    assert np.isinf(fast[8, 5]) and np.isnan(fast[[0, 2, 4, 5, 6, 7], [0, 3, 1, 2, 3, 4]]).all()
+    # without infinities the checks are read from the sum alone: the same bits
+    P[6, 3], e[7, 4, 0], e[8, 5, 0] = np.eye(n), 0.0, 0.0
+    expected = sum_squares(whiten(e.reshape(-1, n), np.ascontiguousarray(P).reshape(-1, n, n)))
+    np.testing.assert_array_equal(_bits(_whitened_entries(e, P)).ravel(), _bits(expected))
+    assert not np.isinf(expected).any() and np.isnan(expected).sum() >= 4
+
+
+def test_whitened_innovations_are_whitening_and_its_sum_of_squares():
+    """whitened_innovations gives w and its NIS from one pass: whitened's w, sum_squares(w)."""
+    rng = np.random.default_rng(31)
+    R, K, m = 11, 6, 2
+    S = _covariances((R, K), m, rng, runs_fastest=False)
+    nu = rng.normal(size=(R, K, m))
+    nu[3, 2] = np.nan
+    S[1, 4] = -np.eye(m)
+    w, nis = consistency.whitened_innovations({"innovation": nu, "innovation_covariance": S})
+    expected = whiten(nu.reshape(-1, m), S.reshape(-1, m, m)).reshape(R, K, 1, m)
+    np.testing.assert_array_equal(_bits(w), _bits(expected))
+    np.testing.assert_array_equal(_bits(nis), _bits(sum_squares(expected)))
+    assert w.flags.c_contiguous and nis.shape == (R, K, 1)
+
 def test_the_standard_measures_in_blocks_of_runs_are_those_of_one_block(monkeypatch):
     rng = np.random.default_rng(11)
     R, K = 37, 9
