@@ -7,6 +7,8 @@ restarts), tentative tracks, start-up gains, clamped approximate gains and floor
 next to the radar, one run (Python floats) and many (arrays).
 """
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -80,6 +82,41 @@ def test_blocks_of_many_runs_are_cut_to_bound_memory(monkeypatch):
     _assert_same(*_both(plots, "approximate"))
 
 
+@pytest.mark.parametrize("strategy", ["fixed", "approximate", "exact", "kalman"])
+def test_steady_scans_of_many_runs_equal_the_scan_loop_bit_for_bit(monkeypatch, strategy):
+    # beyond BLOCK_MAX_RUNS the Kalman strategy takes steady stretches scan by scan
+    # (_steady_kalman_scans), cut at SCANS_RUN_SCANS; the α-β ones keep the loop
+    monkeypatch.setattr(rt, "BLOCK_MAX_RUNS", 4)
+    monkeypatch.setattr(rt, "SCANS_RUN_SCANS", 70)  # stretches of max(4, 70 // runs) scans
+    taken = []
+    real = rt._steady_kalman_scans
+    monkeypatch.setattr(rt, "_steady_kalman_scans", lambda first, stop, *a: taken.append(stop - first) or real(first, stop, *a))
+    for plots in (_plots(7, 120, seed=5, detection=0.998), _plots(9, 80, seed=7, detection=1.0, pass_distance_m=2.0)):
+        _assert_same(*_both(plots, strategy))
+        _assert_same(*_both(plots, strategy, startup_gains=False, confirm_hits=0, max_coasted_scans=2))
+    if strategy == "kalman":
+        assert sum(taken) > 100 and max(taken) == 10
+    else:
+        assert not taken
+
+
+def test_steady_scans_of_a_few_hundred_runs_equal_the_scan_loop_bit_for_bit():
+    plots = _plots(rt.BLOCK_MAX_RUNS + 44, 40, seed=9, detection=1.0)
+    _assert_same(*_both(plots, "kalman"))
+
+
+@pytest.mark.parametrize("n_runs", [1, 6, 300])
+def test_every_output_entry_is_written(monkeypatch, n_runs):
+    """The outputs are allocated unfilled (the loop fills its scans with NaN, the blocks write all
+    of theirs): with allocations that start as garbage, the outputs do not change."""
+    plots = _plots(n_runs, 90, seed=n_runs, detection=0.97)
+    clean = _both(plots, "kalman", max_coasted_scans=2)
+    garbage = SimpleNamespace(**{**vars(np), "empty": lambda shape, dtype=float: np.full(shape, 7.25, dtype)})
+    monkeypatch.setattr(rt, "np", garbage)
+    for a, b in zip(_both(plots, "kalman", max_coasted_scans=2), clean):
+        _assert_same(a, b)
+
+
 def _random_components(rng, n_runs):
     A = rng.normal(size=(n_runs, 4, 4))
     P = A @ np.swapaxes(A, 1, 2) * 100.0 + np.eye(4) * 50.0
@@ -116,6 +153,36 @@ def test_kalman_scan_axis_forms_equal_the_kernel_scan_by_scan(scalar_runs):
         xp, cp = kalman.cv_predict_components(x_prev[:, j], c_prev[:, j], float(dt[j]), sigma_v)
         np.testing.assert_array_equal(xp_all[:, j], xp)
         np.testing.assert_array_equal(cp_all[:, j], cp)
+
+
+@pytest.mark.parametrize("n_runs", [1, 7, 500])
+def test_kalman_scan_of_many_runs_equals_the_kernel_to_the_bit(n_runs):
+    """_cv_position_scan_rows (one scan of many runs fused) against cv_predict_components, then
+    cv_position_update_components, then cv_apply_gain_components, scan after scan."""
+    rng = np.random.default_rng(n_runs)
+    L, sigma_v = 30, 0.9
+    dt = 5.0 + rng.uniform(-0.1, 0.1, L)
+    c0 = _random_components(rng, n_runs)
+    x0 = rng.normal(size=(4, n_runs)) * 1e3
+    along, cross = rng.uniform(1e2, 1e4, (L, n_runs)), rng.uniform(1e-2, 1e6, (L, n_runs))
+    theta = rng.uniform(-np.pi, np.pi, (L, n_runs))
+    r = np.stack([along * np.cos(theta) ** 2 + cross * np.sin(theta) ** 2,
+                  (along - cross) * np.cos(theta) * np.sin(theta),
+                  along * np.sin(theta) ** 2 + cross * np.cos(theta) ** 2], axis=1)
+    z = rng.normal(size=(L, 2, n_runs)) * 1e3
+    x, c, xf, cf = x0, c0, x0, c0
+    for j in range(L):
+        xp, cp = kalman.cv_predict_components(x, c, float(dt[j]), sigma_v)
+        g, c = kalman.cv_position_update_components(cp, *r[j])
+        nu = np.stack([z[j, 0] - xp[0], z[j, 1] - xp[1]])
+        x = kalman.cv_apply_gain_components(xp, g, nu)
+        outs = x_out, nu_out, s_out, g_out, c_out = (np.empty((4, n_runs)), np.empty((2, n_runs)),
+                                                     np.empty((3, n_runs)), np.empty((8, n_runs)),
+                                                     np.empty((10, n_runs)))
+        _kalman_fast._cv_position_scan_rows(xf, cf, float(dt[j]), sigma_v, z[j], r[j], *outs)
+        for got, want in ((x_out, x), (nu_out, nu), (s_out, cp[:3] + r[j]), (g_out, g), (c_out, c)):
+            np.testing.assert_array_equal(got, want)
+        xf, cf = x_out, c_out
 
 
 @pytest.mark.parametrize("sigma_v", [0.0, 2.0])

@@ -1,8 +1,10 @@
 """The fast path of the radar scan loop (:func:`trackreplay.trackers.radar_tws.track_plots`):
 stretches of steady scans taken as one block, the same outputs to the bit as the loop's scan by
 scan (``track_plots(scan_blocks=False)``, the plain form; tests/test_long_recording.py holds the
-two equal, clamps, floors, deletions and cut blocks included). The block sizes
-(``MIN_BLOCK_SCANS``, ``BLOCK_RUN_SCANS``, ``BLOCK_MAX_RUNS``) are the loop's, in
+two equal, clamps, floors, deletions and cut blocks included). For more runs than
+``BLOCK_MAX_RUNS`` the Kalman strategy's steady stretches go scan by scan instead
+(:func:`_steady_kalman_scans`), held to the loop alike. The sizes (``MIN_BLOCK_SCANS``,
+``BLOCK_RUN_SCANS``, ``BLOCK_MAX_RUNS``, ``SCANS_RUN_SCANS``) are the loop's, in
 :mod:`trackreplay.trackers.radar_tws`.
 """
 
@@ -19,6 +21,7 @@ from trackreplay.cores.filters.converted_measurements import (
 # the Kalman recursions of a block, in the filters' fast forms (tested against the plain ones there)
 from trackreplay.cores.filters._kalman_fast import (
     _cv_position_filter_covariances,
+    _cv_position_scan_rows,
     _cv_predict_components_scans,
     _cv_states_with_gains,
 )
@@ -60,10 +63,6 @@ def _block_plot_variances(z_r, dt, design: TrackerDesign):
     sigma_along = np.where(keep, design.sigma_range_m, np.sqrt(var_along))
     sigma_cross = np.where(keep, z_r * design.sigma_bearing_rad, np.sqrt(var_cross))
     return var_along, var_cross, floored, sigma_along, sigma_cross
-
-
-
-
 
 
 def _steady_block(first, stop, x, c, n_plots, plot_range, plot_bearing, times, design: TrackerDesign, strategy, out):
@@ -120,3 +119,60 @@ def _steady_block(first, stop, x, c, n_plots, plot_range, plot_bearing, times, d
     if diag["floored"].any():
         flags |= np.where(diag["floored"], vocab.FLOORED, 0).astype(np.uint16)
     return states[:, -1].copy(), c_post[:, -1].copy(), n_plots + L
+
+
+def _steady_kalman_scans(first, stop, x, c, n_plots, plot_range, plot_bearing, times, design: TrackerDesign, strategy,
+                         out):
+    """:func:`_steady_block` for many runs and the Kalman strategy: the same scans, preconditions and
+    outputs (to the bit), with the recursion scan by scan.
+
+    At a few hundred runs a scan of the loop costs its NumPy calls, not its arithmetic, and a block's
+    ``(scans, runs)`` temporaries outgrow the cache. Here what is a function of the plots alone (the
+    converted plots, their covariances, the floors) is taken for the stretch at once, as in the
+    block; the filter runs scan after scan
+    (:func:`~trackreplay.cores.filters._kalman_fast._cv_position_scan_rows`), writing the state and
+    the innovation where the outputs keep them; the gains' α, β and λ (functions of the gain and the
+    plot) and the outputs laid out otherwise are written once at the end.
+    """
+    L = stop - first
+    n_runs = x.shape[1]
+    scans = slice(first, stop)
+    dt = times[first:stop] - times[first - 1:stop - 1]
+    z_r = np.ascontiguousarray(plot_range[:, scans, 0].T)
+    z_b = np.ascontiguousarray(plot_bearing[:, scans, 0].T)
+    cos_b, sin_b = np.cos(z_b), np.sin(z_b)
+    used = out["used"][scans]
+    np.multiply(z_r, cos_b, out=used[:, 0])
+    np.multiply(z_r, sin_b, out=used[:, 1])
+    var_along, var_cross, floored, sigma_along, sigma_cross = _block_plot_variances(z_r, dt, design)
+    r_cov = np.empty((L, 3, n_runs))
+    r_cov[:, 0], r_cov[:, 1], r_cov[:, 2] = rotated_diagonal(cos_b, sin_b, var_along, var_cross)
+    s = np.empty((L, 3, n_runs))
+    gain = np.empty((L, 8, n_runs))
+    post = np.empty((L, 10, n_runs))
+    state, innov = out["state"], out["innov"]
+    for j, d in enumerate(dt.tolist()):
+        k = first + j
+        _cv_position_scan_rows(x, c, d, design.sigma_v, used[j], r_cov[j], state[k], innov[k], s[j], gain[j], post[j])
+        x, c = state[k], post[j]
+    # mode="clip" (the indices are in range): with the default, take writes into a buffer and
+    # copies it to out (numpy.take), a second pass over the largest output
+    np.take(post, MATRIX_FROM_COMPONENTS, axis=1, out=out["cov"][scans], mode="clip")
+    s_k = out["s_cov"][scans]
+    s_k[..., 0] = s[:, 0]
+    s_k[..., 1] = s_k[..., 2] = s[:, 1]
+    s_k[..., 3] = s[:, 2]
+    out["gains"][scans] = gain.transpose(0, 2, 1)
+    T = np.broadcast_to(dt[:, None], (L, n_runs))
+    diag = strategy.diagnostics(gain.transpose(1, 0, 2), cos_b, sin_b, (sigma_along, sigma_cross), design, T)
+    out["alpha"][scans] = diag["alpha"].transpose(1, 0, 2)
+    out["beta"][scans] = diag["beta"].transpose(1, 0, 2)
+    out["lam"][scans] = diag["lambda_cross"]
+    flags = out["flags"][scans]
+    if floored is not None:
+        flags |= np.where(floored, vocab.FLOORED, 0).astype(np.uint16)
+    if diag["clamped"].any():
+        flags |= np.where(diag["clamped"], vocab.CLAMPED, 0).astype(np.uint16)
+    if diag["floored"].any():
+        flags |= np.where(diag["floored"], vocab.FLOORED, 0).astype(np.uint16)
+    return x.copy(), c.copy(), n_plots + L

@@ -78,7 +78,7 @@ from trackreplay.trackers.interface import Param, Tracker
 # blocks, tested equal to the loop scan by scan); each imports the design module, none this one
 from trackreplay.trackers.radar_tws_design import DESIGN_RANGE, MAX_TRACKING_INDEX, TrackerDesign  # noqa: F401
 from trackreplay.trackers.radar_tws_strategies import STRATEGIES, AlphaBetaGains, KalmanGains  # noqa: F401
-from trackreplay.trackers._radar_tws_blocks import _steady_block, _steady_stretches
+from trackreplay.trackers._radar_tws_blocks import _steady_block, _steady_kalman_scans, _steady_stretches
 
 
 
@@ -143,8 +143,13 @@ MIN_BLOCK_SCANS = 4
 BLOCK_RUN_SCANS = 1 << 18
 #: Blocks are for few runs: beyond this many the scan loop's own calls are already over arrays long
 #: enough to pay for themselves, and at 500 runs a block measured a third slower than the loop
-#: (its temporaries no longer fit in the cache; docs/benchmarks.md).
+#: (its temporaries no longer fit in the cache; docs/benchmarks.md). Beyond it the Kalman strategy
+#: takes a steady stretch scan by scan instead (``_steady_kalman_scans``), at most
+#: :data:`SCANS_RUN_SCANS` run-scans at a time.
 BLOCK_MAX_RUNS = 256
+#: Run-scans per stretch of ``_steady_kalman_scans``: bounds its per-stretch arrays (a few dozen
+#: of this many values).
+SCANS_RUN_SCANS = 1 << 14
 
 
 def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, strategy,
@@ -165,8 +170,11 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
         Take stretches of steady scans (every run has a confirmed track and one plot a scan, no
         gate) as blocks (:func:`~trackreplay.trackers._radar_tws_blocks._steady_block`) when the runs are few (at most
         :data:`BLOCK_MAX_RUNS`): the same outputs, to the bit, with a few NumPy calls per block
-        instead of a few hundred per scan (``docs/benchmarks.md``). False: scan by scan throughout
-        (the reference form the tests hold the blocks to).
+        instead of a few hundred per scan (``docs/benchmarks.md``); with more runs, the Kalman
+        strategy's steady stretches go scan by scan, what depends on the plots alone taken for the
+        stretch at once (:func:`~trackreplay.trackers._radar_tws_blocks._steady_kalman_scans`), the
+        same outputs to the bit. False: the loop scan by scan throughout (the
+        reference form the tests hold both to).
 
     Returns
     -------
@@ -184,20 +192,23 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
         plot_range = plot_range.reshape(n_runs, n_scans, -1)
         plot_bearing = plot_bearing.reshape(n_runs, n_scans, -1)
     nan = np.nan
-    # outputs are filled scan by scan, runs last (contiguous), and transposed once at the end
-    state = np.full((n_scans, 4, n_runs), nan)
+    # outputs are filled scan by scan, runs last (contiguous), and transposed once at the end.
+    # They are allocated unfilled: the loop sets its scan's entries to NaN before it writes those
+    # it has, the blocks write every entry of theirs (filling them all first was one more pass over
+    # some 10 MB at 500 runs x 64 scans, which the blocks then overwrote)
+    state = np.empty((n_scans, 4, n_runs))
     # the covariance's 16 entries row by row, written once per scan from the ten components
     # the filter carries: the (runs, scans, 4, 4) output is a view of it, with no second pass
-    cov = np.full((n_scans, 16, n_runs), nan)
-    alpha = np.full((n_scans, 2, n_runs), nan)
-    beta = np.full((n_scans, 2, n_runs), nan)
-    lam = np.full((n_scans, n_runs), nan)
-    innov = np.full((n_scans, 2, n_runs), nan)
-    used = np.full((n_scans, 2, n_runs), nan)  # the plot each run used (for NPE against it)
+    cov = np.empty((n_scans, 16, n_runs))
+    alpha = np.empty((n_scans, 2, n_runs))
+    beta = np.empty((n_scans, 2, n_runs))
+    lam = np.empty((n_scans, n_runs))
+    innov = np.empty((n_scans, 2, n_runs))
+    used = np.empty((n_scans, 2, n_runs))  # the plot each run used (for NPE against it)
     # innovation covariance (s00, s01, s10, s11) and gain rows runs-first, so that the (runs,
     # scans, 2, 2) and (runs, scans, 4, 2) outputs are views, not copies
-    s_cov = np.full((n_scans, n_runs, 4), nan)
-    gains = np.full((n_scans, n_runs, 8), nan)
+    s_cov = np.empty((n_scans, n_runs, 4))
+    gains = np.empty((n_scans, n_runs, 8))
     flags = np.zeros((n_scans, n_runs), np.uint16)
 
     x = np.zeros((4, n_runs))
@@ -212,10 +223,15 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
     # stretches of scans where nothing decided depends on the states go as blocks (_steady_block):
     # no gate, one plot a scan at most (so none is chosen by distance), an ending rule that only
     # counts coasted scans
-    blocks = (scan_blocks and n_runs <= BLOCK_MAX_RUNS and not gated and plot_range.shape[2] == 1
+    steady = (scan_blocks and not gated and plot_range.shape[2] == 1
               and design.ending.field is None and not np.isfinite(design.ending.max_position_variance))
+    if n_runs <= BLOCK_MAX_RUNS:
+        blocks, take_block = steady, _steady_block
+        longest = max(MIN_BLOCK_SCANS, BLOCK_RUN_SCANS // max(n_runs, 1))
+    else:  # many runs: the Kalman strategy's steady stretches scan by scan (the α-β ones keep the loop)
+        blocks, take_block = steady and isinstance(strategy, KalmanGains), _steady_kalman_scans
+        longest = max(MIN_BLOCK_SCANS, SCANS_RUN_SCANS // n_runs)
     stretch = _steady_stretches(counts) if blocks else None
-    longest = max(MIN_BLOCK_SCANS, BLOCK_RUN_SCANS // max(n_runs, 1))
     out = dict(state=state, cov=cov, alpha=alpha, beta=beta, lam=lam, innov=innov, used=used, s_cov=s_cov,
                gains=gains, flags=flags)
     resume = 0
@@ -224,10 +240,12 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
             continue
         if blocks and k > 0 and stretch[k] >= MIN_BLOCK_SCANS and started.all() and not life.tentative.any():
             resume = k + min(int(stretch[k]), longest)
-            x, c, n_plots = _steady_block(k, resume, x, c, n_plots, plot_range, plot_bearing, times, design, strategy,
-                                          out)
+            x, c, n_plots = take_block(k, resume, x, c, n_plots, plot_range, plot_bearing, times, design, strategy,
+                                       out)
             life.coasting = np.zeros(n_runs, np.int64)  # every scan of the block had a plot
             continue
+        for a in (state, cov, alpha, beta, lam, innov, used, s_cov, gains):
+            a[k] = nan
         dt = float(times[k] - times[k - 1]) if k else design.scan_period_s
         xp, cp = cv_predict_components(x, c, dt, design.sigma_v)
         has = counts[:, k] > 0
@@ -322,7 +340,7 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
         else:
             x, c = x_new, c_new
             state[k] = x
-            np.take(c, MATRIX_FROM_COMPONENTS, axis=0, out=cov[k])
+            np.take(c, MATRIX_FROM_COMPONENTS, axis=0, out=cov[k], mode="clip")  # unbuffered (numpy.take)
     # last line of defence, over all scans at once: a reported covariance that is not safely
     # positive definite is repaired and flagged (the forms above keep the filters far from it
     # except at extreme designs; the filters' recursion does not see the repair)

@@ -11,6 +11,8 @@ function elsewhere); the scan-axis forms are called by the radar TWS tracker's s
 * :func:`_cv_position_update_rows`: :func:`~trackreplay.cores.filters.kalman.cv_position_update_components`
   with its rows stacked (a dozen NumPy calls on ``(8, runs)`` arrays instead of ninety on
   ``(runs,)`` ones), the same operations in the same order: the same numbers to the bit.
+* :func:`_cv_position_scan_rows`: one scan of predict, update and state for a few hundred runs
+  (the radar TWS tracker's steady stretches of many runs), row by row into the caller's arrays.
 * The CV kernel along the scan axis (many scans of few runs, a long recording): a scan loop over
   one-element arrays pays a NumPy call per operation, so what does not depend on the previous
   scan is taken for all scans at once and what does runs on Python floats.
@@ -112,6 +114,112 @@ def _cv_position_update_rows(c, r00, r01, r11):
     n[7:] = c.take(_C_ROWS, 0) - (gain.take(_K_LEFT, 0) * c.take(_KB_LEFT, 0)
                                   + gain.take(_K_RIGHT, 0) * c.take(_KB_RIGHT, 0))
     return gain, n
+
+
+# --------------------------------------------------------------------------- CV kernel, one scan fused
+
+
+def _cv_position_scan_rows(x, c, dt: float, sigma_v: float, z, r, x_out, nu_out, s_out, gain_out, c_out):
+    """One scan of the CV Kalman filter with a position measurement, written into the arrays
+    given: :func:`cv_predict_components` of state ``x`` ``(4, n)`` and components ``c`` ``(10, n)``,
+    the innovation ``ν = z − H x⁻`` (``nu_out`` ``(2, n)``; ``z`` ``(2, n)``), the entries
+    ``(s00, s01, s11)`` of ``S = H P⁻ Hᵀ + R`` (``s_out`` ``(3, n)``),
+    :func:`~trackreplay.cores.filters.kalman.cv_position_update_components`'s gain and posterior
+    (``gain_out`` ``(8, n)``, ``c_out`` ``(10, n)``; ``r`` ``(3, n)`` is R's ``r00, r01, r11``) and
+    :func:`cv_apply_gain_components`'s state (``x_out`` ``(4, n)``).
+
+    For a few hundred runs, where a scan costs its NumPy calls rather than its arithmetic: each
+    row is one positional ufunc call writing where its result is kept, products two rows share
+    are formed once (some 130 calls where those functions with their temporaries, index
+    arithmetic and copies take 170). Stacking the rows into 2-D calls does not pay at this size:
+    a call that broadcasts a row over others, or reads rows at a stride, costs more than the row
+    calls it replaces. The same operations in the same order as those functions, so the same
+    numbers to the bit (tests/test_long_recording.py).
+    """
+    mul, add, sub = np.multiply, np.add, np.subtract
+    q = sigma_v * sigma_v
+    q4, q3, q2 = q * dt**4 / 4, q * dt**3 / 2, q * dt * dt
+    dt2, dt_2 = dt * dt, 2 * dt
+    a00, a01, a11, b00, b01, b10, b11, c00, c01, c11 = c
+    # the prediction (_cv_predict_terms): A' = A + dt(B + Bᵀ) + dt² C + q₄ I, B' = B + dt C + q₃ I,
+    # C' = C + q₂ I, each sum in its order there
+    A00 = mul(b00, dt_2)
+    add(a00, A00, A00)
+    add(A00, mul(c00, dt2), A00)
+    add(A00, q4, A00)
+    A01 = add(b01, b10)
+    mul(A01, dt, A01)
+    add(a01, A01, A01)
+    add(A01, mul(c01, dt2), A01)
+    A11 = mul(b11, dt_2)
+    add(a11, A11, A11)
+    add(A11, mul(c11, dt2), A11)
+    add(A11, q4, A11)
+    B00 = mul(c00, dt)
+    add(b00, B00, B00)
+    add(B00, q3, B00)
+    dc01 = mul(c01, dt)
+    B01, B10 = add(b01, dc01), add(b10, dc01)
+    B11 = mul(c11, dt)
+    add(b11, B11, B11)
+    add(B11, q3, B11)
+    x0, x1, x2, x3 = x
+    xp0, xp1 = mul(x2, dt), mul(x3, dt)
+    add(x0, xp0, xp0)
+    add(x1, xp1, xp1)
+    # S = A⁻ + R and 1/|S|
+    r00, r01, r11 = r
+    s00, s01, s11 = s_out
+    add(A00, r00, s00)
+    add(A01, r01, s01)
+    add(A11, r11, s11)
+    inv_det = mul(s00, s11)
+    sub(inv_det, mul(s01, s01), inv_det)
+    np.divide(1.0, inv_det, inv_det)
+    # the gain (cv_position_gain_components): (first · S_alternate − second · s01) / |S|
+    g0, g1, g2, g3, g4, g5, g6, g7 = gain_out
+    a01_s01 = mul(A01, s01)
+    for g, first, alternate, second_s01 in ((g0, A00, s11, a01_s01), (g1, A01, s00, mul(A00, s01)),
+                                            (g2, A01, s11, mul(A11, s01)), (g3, A11, s00, a01_s01),
+                                            (g4, B00, s11, mul(B10, s01)), (g5, B10, s00, mul(B00, s01)),
+                                            (g6, B01, s11, mul(B11, s01)), (g7, B11, s00, mul(B01, s01))):
+        mul(first, alternate, g)
+        sub(g, second_s01, g)
+        mul(g, inv_det, g)
+    # M = R S⁻¹ (cv_position_update_components), alike
+    r01_s01 = mul(r01, s01)
+    ms = []
+    for first, alternate, second_s01 in ((r00, s11, r01_s01), (r01, s00, mul(r00, s01)), (r01, s11, mul(r11, s01)),
+                                         (r11, s00, r01_s01)):
+        m = mul(first, alternate)
+        sub(m, second_s01, m)
+        mul(m, inv_det, m)
+        ms.append(m)
+    m00, m01, m10, m11 = ms
+    # the posterior: A⁺ = M A, B⁺ = M B, C⁺ = C − K_vel B
+    n00, n01, n11, n_b00, n_b01, n_b10, n_b11, n_c00, n_c01, n_c11 = c_out
+    for n, m_left, left, m_right, right in ((n00, m00, A00, m01, A01), (n01, m00, A01, m01, A11),
+                                            (n11, m10, A01, m11, A11), (n_b00, m00, B00, m01, B10),
+                                            (n_b01, m00, B01, m01, B11), (n_b10, m10, B00, m11, B10),
+                                            (n_b11, m10, B01, m11, B11)):
+        mul(m_left, left, n)
+        add(n, mul(m_right, right), n)
+    for n, C, k_left, left, k_right, right in ((n_c00, c00, g4, B00, g5, B10), (n_c01, c01, g4, B01, g5, B11),
+                                               (n_c11, c11, g6, B01, g7, B11)):
+        t = mul(k_left, left)
+        add(t, mul(k_right, right), t)
+        if C is c00 or C is c11:
+            sub(add(C, q2), t, n)               # C⁻ = C + q₂ on the diagonal
+        else:
+            sub(C, t, n)
+    # the state (cv_apply_gain_components): x⁻ + K ν
+    nu0, nu1 = nu_out
+    sub(z[0], xp0, nu0)
+    sub(z[1], xp1, nu1)
+    for out, before, k0, k1 in zip(x_out, (xp0, xp1, x2, x3), (g0, g2, g4, g6), (g1, g3, g5, g7)):
+        mul(k0, nu0, out)
+        add(before, out, out)
+        add(out, mul(k1, nu1), out)
 
 
 # --------------------------------------------------------------------------- CV kernel, scan axis
