@@ -17,6 +17,12 @@ def nanmean(a, axis=None):
     """``np.nanmean`` that returns NaN for all-NaN slices without a warning (scans with no
     estimate yet are expected, not an error)."""
     a = np.asarray(a)
+    if a.dtype == np.float64 and a.size:
+        # the NaNs found once, for the test and for the mean that leaves them out
+        missing = np.isnan(a)
+        if not missing.any():
+            return np.mean(a, axis=axis, dtype=float)
+        return _nanmean_float(a, missing, axis)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         if a.dtype.kind in "iub" or not np.isnan(a).any():
@@ -24,6 +30,20 @@ def nanmean(a, axis=None):
             # np.nanmean's value, without its copy of the array)
             return np.mean(a, axis=axis, dtype=float)
         return np.nanmean(a, axis=axis)
+
+
+def _nanmean_float(a, missing, axis):
+    """``np.nanmean(a, axis)`` of a float64 ``a`` given its NaN mask ``missing`` (numpy would
+    find it again): numpy's steps, the copy with the NaNs zeroed laid out as ``a`` and summed
+    by the same reduction, and its counts, so the same bits (tests/test_evaluation_speed_paths.py)."""
+    values = np.array(a, copy=True)
+    np.copyto(values, 0.0, where=missing)
+    count = np.sum(~missing, axis=axis, dtype=np.intp)
+    total = np.sum(values, axis=axis)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        if isinstance(total, np.ndarray):
+            return np.divide(total, count, out=total, casting="unsafe")
+        return total.dtype.type(total / count)
 
 
 def root(mean_square):
@@ -36,11 +56,19 @@ def squared_error(estimate, truth):
     """``‖estimate − truth‖²`` over the last axis, ``(runs, scans)``."""
     e, t = np.broadcast_arrays(np.asarray(estimate, float), np.asarray(truth, float))
     # a component at a time, as trackreplay.batched_linalg.sum_squares sums: no full-size
-    # difference or square is held, and numpy's slow reduction over a short axis is avoided
-    total = np.zeros(e.shape[:-1])
-    for i in range(e.shape[-1]):
-        d = e[..., i] - t[..., i]
-        total += d * d
+    # difference or square is held, and numpy's slow reduction over a short axis is avoided;
+    # the first square is the total (0 + d², as the sum starts, is d²: a square is never −0)
+    # and each difference is squared where it was made. The result is C-ordered whatever the
+    # inputs' layout: the sums over runs that read it (group_totals) add in its memory order
+    total = np.zeros(e.shape[:-1]) if e.shape[-1] == 0 else np.empty(e.shape[:-1])
+    if e.shape[-1] == 0:
+        return total
+    np.subtract(e[..., 0], t[..., 0], out=total)
+    np.multiply(total, total, out=total)
+    d = np.empty_like(total) if e.shape[-1] > 1 else None
+    for i in range(1, e.shape[-1]):
+        np.subtract(e[..., i], t[..., i], out=d)
+        total += np.multiply(d, d, out=d)
     return total
 
 

@@ -587,3 +587,63 @@ def test_scan_means_added_a_block_of_runs_at_a_time_are_nanmeans(block):
         for start in range(0, 50, block):
             means.add(whole[start:start + block])
         np.testing.assert_array_equal(means.mean(), nanmean(whole.astype(float), axis=0))
+
+
+@pytest.mark.parametrize("axis", [0, 1, None, (1, 2)])
+@pytest.mark.parametrize("order", ["C", "F"])
+def test_nanmean_is_numpys_nanmean_to_the_bit(axis, order):
+    """tracking_metrics.nanmean finds the NaNs once and follows np.nanmean's steps: the same
+    bits on either layout, all-NaN slices NaN (without a warning)."""
+    import warnings
+
+    from trackreplay.evaluators.tracking_metrics import nanmean
+
+    rng = np.random.default_rng(5)
+    a = np.asarray(rng.normal(size=(40, 9, 3)), order=order)
+    a[a > 1.0] = np.nan
+    a[:, 2] = np.nan
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        expected = np.nanmean(a, axis=axis)
+    got = nanmean(a, axis=axis)
+    assert type(got) is type(expected)
+    np.testing.assert_array_equal(_bits(got), _bits(expected))
+    np.testing.assert_array_equal(_bits(nanmean(np.nan_to_num(a), axis=axis)), _bits(np.mean(np.nan_to_num(a), axis=axis)))
+
+
+def test_squared_error_is_the_sum_of_squares_component_by_component():
+    """squared_error squares each difference where it is made: the bits of the plain loop
+    ``total = 0; total += (e_i − t_i)²``, NaN passing through, broadcast truth included."""
+    from trackreplay.evaluators.tracking_metrics import squared_error
+
+    rng = np.random.default_rng(6)
+    e = np.moveaxis(rng.normal(size=(4, 30, 7)), 0, -1)          # a buffer's layout: components slowest
+    t = rng.normal(size=(30, 7, 4))
+    e[3, 2, 1] = np.nan
+    for a, b in ((e, t), (e[..., :2], t[..., :2]), (e[..., 2:], 0.0), (e[..., :1], t[..., :1])):
+        a, b = np.broadcast_arrays(a, np.asarray(b, float))
+        plain = np.zeros(a.shape[:-1])
+        for i in range(a.shape[-1]):
+            plain += (a[..., i] - b[..., i]) * (a[..., i] - b[..., i])
+        got = squared_error(a, b)
+        np.testing.assert_array_equal(_bits(got), _bits(plain))
+        assert got.flags.c_contiguous                           # the layout the sums over runs read
+    assert squared_error(np.zeros((3, 2, 0)), 0.0).shape == (3, 2)
+
+
+def test_whiteness_from_the_nis_is_the_whiteness_of_the_innovations():
+    """The standard measures' whiteness reads presence and ‖w‖² from the NIS whitening gave:
+    the bits of innovation_whiteness on the same innovations (missing and indefinite ones too)."""
+    rng = np.random.default_rng(32)
+    R, K, m = 17, 12, 2
+    S = _covariances((R, K), m, rng)
+    nu = rng.normal(size=(R, K, m)) + 0.3 * np.cumsum(rng.normal(size=(R, K, m)), axis=1)
+    nu[:, :2] = np.nan
+    nu[4, 7, 1] = np.nan
+    S[6, 5] = -np.eye(m)
+    w, nis = consistency.whitened_innovations({"innovation": nu, "innovation_covariance": S})
+    plain = consistency.innovation_whiteness(nu, S)
+    fast = consistency._whiteness_of_whitened(w[:, :, 0], nis[:, :, 0])
+    np.testing.assert_array_equal(_bits(fast["rho"]), _bits(plain["rho"]))
+    np.testing.assert_array_equal(fast["bound"], plain["bound"])
+    assert fast["outside"] == plain["outside"] and np.isfinite(fast["rho"]).all()
