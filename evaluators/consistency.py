@@ -402,14 +402,30 @@ def innovation_whiteness(innovation, covariance, max_lag: int = 5, whitened_inno
     """
     nu = np.asarray(innovation, float)
     w = whitened(nu, covariance) if whitened_innovation is None else np.asarray(whitened_innovation, float)
-    K = nu.shape[1]
-    lags = np.arange(1, max_lag + 1)
-    rho, bound = np.full(max_lag, np.nan), np.full(max_lag, np.nan)
     # missing innovations as zeros with a presence mask: each lag's sums are then plain products
     # over whole arrays (no copies of the present pairs)
     present = all_finite(w)
     w0 = np.where(present[..., None], w, 0.0)
-    power = sum_squares(w0)                                       # ‖w_k‖², 0 where missing
+    return _whiteness(w0, present, sum_squares(w0), max_lag)
+
+
+def _whiteness_of_whitened(w, nis, max_lag: int = 5) -> dict:
+    """:func:`innovation_whiteness` of the innovations :func:`whitened_innovations` gives, ``(w,
+    nis)`` (runs, scans, m) and (runs, scans): whitening leaves a row all finite or all NaN
+    and ``nis`` is ``sum_squares(w)``, so a row is present where its NIS is not NaN and its
+    ``‖w‖²`` with the missing rows zeroed is the NIS there (the same bits, tested), neither found
+    again."""
+    present = ~np.isnan(nis)
+    w0 = np.where(present[..., None], w, 0.0)
+    return _whiteness(w0, present, np.where(present, nis, 0.0), max_lag)
+
+
+def _whiteness(w0, present, power, max_lag: int) -> dict:
+    """The lags' correlations of :func:`innovation_whiteness` from the whitened innovations
+    ``w0`` (runs, scans, m), 0 where missing, their presence and ``power`` = ``‖w0‖²``."""
+    K = w0.shape[1]
+    lags = np.arange(1, max_lag + 1)
+    rho, bound = np.full(max_lag, np.nan), np.full(max_lag, np.nan)
     for i, j in enumerate(lags):
         if j >= K:
             break
@@ -420,5 +436,5 @@ def innovation_whiteness(innovation, covariance, max_lag: int = 5, whitened_inno
         num = np.sum(w0[:, :-j] * w0[:, j:])                     # a missing partner contributes 0
         den = np.sqrt(np.sum(power[:, :-j], where=both) * np.sum(power[:, j:], where=both))
         rho[i] = num / den if den > 0 else np.nan
-        bound[i] = NORMAL_95 / np.sqrt(count * nu.shape[-1])
+        bound[i] = NORMAL_95 / np.sqrt(count * w0.shape[-1])
     return {"lags": lags, "rho": rho, "bound": bound, "outside": int(np.sum(np.abs(rho) > bound))}

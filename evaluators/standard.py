@@ -27,7 +27,7 @@ from trackreplay.evaluators import hota as hota_module, siap as siap_module
 from trackreplay.evaluators.assignment_metrics import (_single_target_matches, _single_target_metrics, assignment_metrics,
                                            gated_pairs, scan_matches)
 from trackreplay.evaluators.confidence import group_totals, jackknife, mean_interval, ratio_jackknife, rms_interval, run_groups
-from trackreplay.evaluators.consistency import (consistency_summary, innovation_whiteness, normalised_squared,
+from trackreplay.evaluators.consistency import (_whiteness_of_whitened, consistency_summary, normalised_squared,
                                    whitened_innovations)
 from trackreplay.evaluators.hota import SUM_KEYS as HOTA_SUMS, hota_sums, pooled_hota
 from trackreplay.evaluators.set_distances import gospa_switching, one_identity_per_run, pairs_within
@@ -385,8 +385,8 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
             rows.append(_with_ci(name, "nis_time_average_low", c["time_low"], np.nan, np.nan, np.nan))
             rows.append(_with_ci(name, "nis_time_average_high", c["time_high"], np.nan, np.nan, np.nan))
             # slots are independent sequences: pool them as if they were more runs
-            w = innovation_whiteness(np.swapaxes(nu, 1, 2).reshape(R * S, K, m), None,
-                                     whitened_innovation=np.swapaxes(w_nu, 1, 2).reshape(R * S, K, m))
+            w = _whiteness_of_whitened(np.swapaxes(w_nu, 1, 2).reshape(R * S, K, m),
+                                       np.swapaxes(nis, 1, 2).reshape(R * S, K))
             rows.append(_with_ci(name, "whiteness_lags_outside", w["outside"], np.nan, np.nan, np.nan))
             rows.append(_with_ci(name, "whiteness_max_abs_rho", np.nanmax(np.abs(w["rho"])) if np.isfinite(w["rho"]).any()
                                  else np.nan, np.nan, np.nan, np.nan))
