@@ -340,7 +340,8 @@ def summary_intervals(score, runs_data: dict, n_runs: int, groups: int = 10, pro
     score_groups : callable, optional
         ``score_groups(runs_data, G, left_out) -> (per_scan, summary, group_summaries)`` or
         None: ``score``'s tables on all runs together with the G summaries it would give on
-        each group's runs alone (``left_out`` False) or on all runs but the group's (True), for
+        each group's runs alone (``left_out`` False) or on all runs but the group's (True), each
+        a table or its rows as records ``(tracker, metric, scope, value)``, for
         a scorer whose metrics are functions of sums over runs (:func:`group_totals`), so that
         the groups cost one pass over the data instead of G scorings. When it is not given or
         returns None, every group is scored by ``score``.
@@ -369,7 +370,8 @@ def summary_intervals(score, runs_data: dict, n_runs: int, groups: int = 10, pro
     index = {k: i for i, k in enumerate(summary.select(key).iter_rows())}
     estimates = np.full((len(parts), summary.height), np.nan)
     for g, s in enumerate(group_summaries):
-        for *k, v in s.select(*key, "value").iter_rows():
+        # a table, or its rows as records (tracker, metric, scope, value)
+        for *k, v in (s.select(*key, "value").iter_rows() if isinstance(s, pl.DataFrame) else s):
             i = index.get(tuple(k))
             if i is not None and v is not None:
                 estimates[g, i] = v

@@ -29,7 +29,7 @@ def filtered_mask(flags: np.ndarray) -> np.ndarray:
 
 def evaluate(times, tracks: dict, measured_xy, truth_state=None, cross_range_std=None,
              nominal_cross_range_m: float | None = None, pcrb_position_var=None, groups: int | None = None,
-             left_out: bool = False):
+             left_out: bool = False, records: bool = False):
     """Per-scan and summary tables.
 
     Parameters
@@ -57,6 +57,10 @@ def evaluate(times, tracks: dict, measured_xy, truth_state=None, cross_range_std
         group's runs alone, or with ``left_out`` on all runs but the group's
         (``score_groups`` of :func:`trackreplay.evaluators.confidence.summary_intervals`).
     left_out : bool
+    records : bool
+        Give each group's summary as records ``(tracker, metric, scope, value)`` (the rows of its
+        table, which :func:`trackreplay.evaluators.confidence.summary_intervals` reads alike)
+        instead of a table: the G tables cost more to make than their values.
 
     Returns
     -------
@@ -113,6 +117,10 @@ def evaluate(times, tracks: dict, measured_xy, truth_state=None, cross_range_std
     summary = rows_of(_selection())
     if groups is None:
         return per_scan, summary
+    if records:
+        return per_scan, summary, [_records(_summary_rows(stats, _selection(g, left_out), cross, nominal_cross_range_m,
+                                                         pcrb_position_var, truth_state is not None, table=False))
+                                   for g in range(G)]
     return per_scan, summary, [rows_of(_selection(g, left_out)) for g in range(G)]
 
 
@@ -167,8 +175,17 @@ def _per_scan(name: str, out: dict, sums: dict, times, pcrb_position_var) -> pl.
     return pl.DataFrame(cols)
 
 
-def _summary_rows(stats: dict, pick, cross, nominal_cross_range_m, pcrb_position_var, have_truth: bool):
-    """The summary of every tracker over the runs that ``pick`` (:func:`_selection`) sums."""
+def _records(rows: list) -> list:
+    """The rows of :func:`_summary_rows`'s table as records ``(tracker, metric, scope, value)``
+    (a metric a row lacks has none; the order is the table's no more, which nothing reads)."""
+    return [(row["tracker"], metric, row["scope"], value) for row in rows for metric, value in row.items()
+            if metric not in ("tracker", "scope") and value is not None]
+
+
+def _summary_rows(stats: dict, pick, cross, nominal_cross_range_m, pcrb_position_var, have_truth: bool,
+                  table: bool = True):
+    """The summary of every tracker over the runs that ``pick`` (:func:`_selection`) sums (its
+    rows as dicts without ``table``)."""
     if cross is not None:
         above_scan = _ratio(*map(pick, cross)) > nominal_cross_range_m   # a scan no run covers: not above
     else:
@@ -201,6 +218,8 @@ def _summary_rows(stats: dict, pick, cross, nominal_cross_range_m, pcrb_position
                          "rmse_position_m": float(root(_ratio(pos[0][sel].sum(), pos[1][sel].sum()))),
                          "rmse_velocity_mps": float(root(_ratio(vel[0][sel].sum(), vel[1][sel].sum()))),
                          "npe_mean": float(nanmean(npe[sel])), "scans": float(sel.sum())})
+    if not table:
+        return rows
     # one table for every tracker and scope: the metrics a row lacks are null and dropped, and
     # the metric order is that of first appearance, as the per-tracker tables had it
     summary = long_form(pl.DataFrame(rows, infer_schema_length=None), ["tracker", "scope"]).drop_nulls("value")

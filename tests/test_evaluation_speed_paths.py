@@ -647,3 +647,25 @@ def test_whiteness_from_the_nis_is_the_whiteness_of_the_innovations():
     np.testing.assert_array_equal(_bits(fast["rho"]), _bits(plain["rho"]))
     np.testing.assert_array_equal(fast["bound"], plain["bound"])
     assert fast["outside"] == plain["outside"] and np.isfinite(fast["rho"]).all()
+
+
+@pytest.mark.parametrize("left_out", [False, True], ids=["alone", "left-out"])
+def test_radar_group_records_are_the_rows_of_the_group_tables(left_out):
+    """The radar groups' summaries as records hold every row of their tables, value for value,
+    and summary_intervals gives the same table from either."""
+    times, tracks, measured, truth, cross, pcrb = _radar_outputs(43)
+    args = (times, tracks, measured, truth, cross, 1.0, pcrb)
+    _, summary, tables = radar.evaluate(*args, groups=10, left_out=left_out)
+    _, summary_r, records = radar.evaluate(*args, groups=10, left_out=left_out, records=True)
+    assert summary.equals(summary_r) and len(records) == len(tables) == 10
+    for table, rows in zip(tables, records):
+        expected = {(t, m, s): v for t, m, s, v in table.iter_rows()}
+        got = {(t, m, s): v for t, m, s, v in rows}
+        assert len(got) == len(rows) == table.height and got.keys() == expected.keys()
+        assert all(_bits(np.array([got[k]])) == _bits(np.array([expected[k]])) for k in got)
+    data = {"tracks": tracks}
+    score = lambda d, groups=None, left_out=False, records=False: radar.evaluate(  # noqa: E731
+        times, d["tracks"], measured, truth, cross, 1.0, pcrb, groups=groups, left_out=left_out, records=records)
+    _, from_tables = summary_intervals(score, data, 43, score_groups=score)
+    _, from_records = summary_intervals(score, data, 43, score_groups=lambda d, g, lo: score(d, g, lo, True))
+    assert from_tables.equals(from_records)

@@ -190,7 +190,7 @@ class RadarStage(Stage):
         return radar_eval.evaluate(result["times"], one_track, runs["measured"], runs.get("truth_state"),
                                    runs.get("cross_std"), design["nominal_cross_range_m"],
                                    None if pcrb is None else pcrb[:, 0, 0] + pcrb[:, 1, 1], groups=groups,
-                                   left_out=left_out)
+                                   left_out=left_out, records=groups is not None)
 
     def standard_space(self, design: dict, reference: dict | None = None):
         return position_space(design, truth_components=(0, 1, 2, 3), position_components=(0, 1))
