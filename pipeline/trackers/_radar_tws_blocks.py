@@ -148,12 +148,12 @@ def _steady_kalman_scans(first, stop, x, c, n_plots, plot_range, plot_bearing, t
     r_cov = np.empty((L, 3, n_runs))
     r_cov[:, 0], r_cov[:, 1], r_cov[:, 2] = rotated_diagonal(cos_b, sin_b, var_along, var_cross)
     s = np.empty((L, 3, n_runs))
-    gain = np.empty((L, 8, n_runs))
+    gain = np.empty((8, L, n_runs))  # rows first: the diagnostics below read them contiguous
     post = np.empty((L, 10, n_runs))
     state, innov = out["state"], out["innov"]
     for j, d in enumerate(dt.tolist()):
         k = first + j
-        _cv_position_scan_rows(x, c, d, design.sigma_v, used[j], r_cov[j], state[k], innov[k], s[j], gain[j], post[j])
+        _cv_position_scan_rows(x, c, d, design.sigma_v, used[j], r_cov[j], state[k], innov[k], s[j], gain[:, j], post[j])
         x, c = state[k], post[j]
     # mode="clip" (the indices are in range): with the default, take writes into a buffer and
     # copies it to out (numpy.take), a second pass over the largest output
@@ -162,9 +162,10 @@ def _steady_kalman_scans(first, stop, x, c, n_plots, plot_range, plot_bearing, t
     s_k[..., 0] = s[:, 0]
     s_k[..., 1] = s_k[..., 2] = s[:, 1]
     s_k[..., 3] = s[:, 2]
-    out["gains"][scans] = gain.transpose(0, 2, 1)
-    T = np.broadcast_to(dt[:, None], (L, n_runs))
-    diag = strategy.diagnostics(gain.transpose(1, 0, 2), cos_b, sin_b, (sigma_along, sigma_cross), design, T)
+    out["gains"][scans] = gain.transpose(1, 2, 0)
+    # the intervals as a column: the same products as with a (scans, runs) array of them, without
+    # its reads (a broadcast view costs more than a column)
+    diag = strategy.diagnostics(gain, cos_b, sin_b, (sigma_along, sigma_cross), design, dt[:, None])
     out["alpha"][scans] = diag["alpha"].transpose(1, 0, 2)
     out["beta"][scans] = diag["beta"].transpose(1, 0, 2)
     out["lam"][scans] = diag["lambda_cross"]

@@ -149,7 +149,7 @@ BLOCK_RUN_SCANS = 1 << 18
 BLOCK_MAX_RUNS = 256
 #: Run-scans per stretch of ``_steady_kalman_scans``: bounds its per-stretch arrays (a few dozen
 #: of this many values).
-SCANS_RUN_SCANS = 1 << 14
+SCANS_RUN_SCANS = 1 << 12
 
 
 def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, strategy,
