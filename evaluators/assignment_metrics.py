@@ -178,7 +178,115 @@ def _gated_pairs(truths, tracks, present, track_present, gate, angular):
     return close_pairs(X, Y, gate, angular)
 
 
-def _matches_keeping_previous(X, Y, vx, vy, tid, ids, gate, angular, pairs=None, contested_only: bool = True):
+def _matches_keeping_previous(X, Y, vx, vy, tid, ids, gate, angular, pairs=None):
+    """:func:`scan_matches` with ``keep_previous``: the matches and distances of
+    :func:`_matches_keeping_previous_scan_by_scan` (the plain form, tested against this one),
+    visiting at each scan only the pairs whose choice can depend on the scan before.
+
+    A pair whose target and track are in no other pair of its (run, scan) is matched whatever
+    came before (kept or not, it is its own optimal assignment): those are matched at once. Only
+    the other pairs (targets or tracks in two pairs or more, a fifth of them with 50 targets a
+    run) go through the scan loop, every run at once. Whether such a pair is kept reads the
+    match of its target at the scan before, found through the slot that target held there (a
+    row of the truth identities, looked up once for all scans)."""
+    R, K, T = vx.shape
+    S = vy.shape[-1]
+    match = np.full((R, K, T), -1, np.intp)
+    dist = np.full((R, K, T), np.nan)
+    p, t, s, d = _gated_pairs(X, Y, vx, vy, gate, angular) if pairs is None else pairs
+    E = p.size
+    if E == 0:
+        return match, dist
+    ids_flat = np.asarray(ids).reshape(-1)
+    match_flat, dist_flat = match.reshape(-1), dist.reshape(-1)
+    row_key, col_key = p * T + t, p * S + s
+    # the pairs are sorted by (run · K + scan, truth slot): a target's pairs are one stretch
+    new_row = np.empty(E, bool)
+    new_row[0] = True
+    np.not_equal(row_key[1:], row_key[:-1], out=new_row[1:])
+    in_two = ~new_row
+    in_two[:-1] |= in_two[1:]                           # a target in two pairs or more
+    in_two |= np.bincount(col_key, minlength=R * K * S)[col_key] > 1   # a track in two
+    alone = np.flatnonzero(~in_two)
+    match_flat[row_key[alone]] = s[alone]
+    dist_flat[row_key[alone]] = d[alone]
+    contested = np.flatnonzero(in_two)
+    if contested.size == 0:
+        return match, dist
+    # the contested pairs scan by scan (runs in order within a scan; a target's pairs together)
+    contested = contested[stable_order(p[contested] % K, K)]
+    pc, tc, sc = p[contested], t[contested], s[contested]
+    r, k = np.divmod(pc, K)
+    v = ids_flat[col_key[contested]]
+    weight = gate ** 2 - d[contested] ** 2     # the assignment minimises Σ min(d, gate)²
+    prev_at = _slot_before(tid, pc, tc, k)
+    # where the scan before's track slots start (at the first scan, any valid place: an index −1
+    # off an unmatched target's −1 stays within the array, and no unmatched one is kept)
+    prev_col = np.maximum(pc - 1, 0) * S
+    rt, rs = r * T + tc, r * S + sc
+    out_rows = pc * T + tc
+    dc = d[contested]
+    last = np.append(match_flat, -1)             # match as the loop fills it, with the −1 entry
+    row_used, col_used = np.zeros(R * T, bool), np.zeros(R * S, bool)
+    bounds = np.searchsorted(k, np.arange(K + 1))
+    for scan in np.flatnonzero(bounds[1:] > bounds[:-1]):
+        e = slice(bounds[scan], bounds[scan + 1])
+        # a pair matched at the previous scan and still within the gate stays matched
+        m = last[prev_at[e]]
+        kept = (m >= 0) & (ids_flat[prev_col[e] + m] == v[e])
+        if kept.any():
+            rk, ck = rt[e][kept], rs[e][kept]
+            row_used[rk] = True
+            col_used[ck] = True
+            free = np.flatnonzero(~kept & ~row_used[rt[e]] & ~col_used[rs[e]])
+            row_used[rk] = False
+            col_used[ck] = False
+        else:
+            free = np.arange(bounds[scan + 1] - bounds[scan])
+        lo = bounds[scan]
+        at = free + lo
+        chosen = np.concatenate([np.flatnonzero(kept) + lo,
+                                 at[assign_edges(r[at], tc[at], sc[at], weight[at], T, S)]])
+        last[out_rows[chosen]] = sc[chosen]
+    match_flat[:] = last[:-1]
+    chosen = match_flat[out_rows] == sc
+    dist_flat[out_rows[chosen]] = dc[chosen]
+    return match, dist
+
+
+def _slot_before(tid, problem, slot, scan):
+    """For elements (``problem`` = run · K + ``scan``, truth ``slot``) of the truth identities
+    ``tid`` (R, K, T; −1 absent), the flat index in (R, K, T) of the same target at the run's
+    scan before, or R · K · T where it was absent (or at the first scan).
+
+    Elements come in (scan, run, slot) order with repeats (one per pair): each distinct one is
+    looked up once, against the T slots of the scan before, in identities of the narrowest
+    integer type that holds them (the rows read are a fifth as many bytes as int64's)."""
+    R, K, T = tid.shape
+    flat = np.asarray(tid).reshape(-1, T)
+    top = int(flat.max(initial=-1))
+    narrow = next((kind for kind in (np.int16, np.int32) if top < np.iinfo(kind).max), None)
+    if narrow is not None:
+        flat = flat.astype(narrow)
+    key = problem * T + slot
+    new = np.empty(key.size, bool)
+    new[:1] = True
+    np.not_equal(key[1:], key[:-1], out=new[1:])
+    first = np.flatnonzero(new & (scan > 0))
+    where = np.full(key.size, R * K * T, np.int64)
+    step = max(1, (1 << 22) // max(T, 1))            # a block of (elements, T) comparisons at a time
+    for a in range(0, first.size, step):
+        at = first[a:a + step]
+        same = flat[problem[at] - 1] == flat[problem[at], slot[at]][:, None]
+        hit = np.argmax(same, axis=1)
+        found = same[np.arange(at.size), hit]
+        where[at[found]] = (problem[at[found]] - 1) * T + hit[found]
+    # every repeat of an element takes its first's answer
+    return where[np.flatnonzero(new)[np.cumsum(new) - 1]]
+
+
+def _matches_keeping_previous_scan_by_scan(X, Y, vx, vy, tid, ids, gate, angular, pairs=None,
+                                           contested_only: bool = True):
     """:func:`scan_matches` with ``keep_previous``: scan by scan, every run at once, on the pairs
     closer than the gate alone (:func:`_gated_pairs`, or ``pairs`` when already found).
 

@@ -509,6 +509,61 @@ def test_matching_that_keeps_previous_matches_skips_only_uncontested_scans(seed)
         present, tid = am._truth_identities(X, tid)
         usable = all_finite(Y) & (ids >= 0)
         gate = float(rng.uniform(0.5, 4.0))
-        fast = am._matches_keeping_previous(X, Y, present, usable, tid, ids, gate, False, contested_only=True)
-        plain = am._matches_keeping_previous(X, Y, present, usable, tid, ids, gate, False, contested_only=False)
+        plain = am._matches_keeping_previous_scan_by_scan(X, Y, present, usable, tid, ids, gate, False,
+                                                          contested_only=False)
+        for fast in (am._matches_keeping_previous_scan_by_scan(X, Y, present, usable, tid, ids, gate, False),
+                     am._matches_keeping_previous(X, Y, present, usable, tid, ids, gate, False)):
+            assert np.array_equal(fast[0], plain[0]) and np.array_equal(fast[1], plain[1], equal_nan=True), (seed, trial)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_matching_that_keeps_previous_matches_visits_contested_pairs_alone(seed):
+    # the form that matches uncontested pairs at once and loops over the contested ones, finding
+    # each target's slot at the scan before, against the loop over every scan: targets born and
+    # dying (new identities), identities moving between slots at every scan, tracks swapping
+    # identities and restarting, scans without any target or track, crowded scenes
+    from trackreplay.evaluators import assignment_metrics as am
+    from trackreplay.evaluators.set_distances import all_finite
+
+    rng = np.random.default_rng(100 + seed)
+    for trial in range(25):
+        R, K, T, S = (int(n) for n in (rng.integers(1, 4), rng.integers(1, 40), rng.integers(1, 7), rng.integers(1, 8)))
+        L = max(T, 1)
+        # lanes of targets moving slowly; a lane's target is replaced now and then (a new identity)
+        start = rng.uniform(0, 6, (R, 1, L, 2))
+        X = start + np.cumsum(rng.normal(0, 0.3, (R, K, L, 2)), axis=1)
+        born = np.cumsum(rng.random((R, K, L)) < 0.08, axis=1)
+        truth_id = np.arange(L)[None, None, :] + L * born
+        alive = rng.random((R, K, L)) > 0.15
+        alive[:, rng.random(K) < 0.1] = False                    # scans without any target
+        # tracks follow lanes (noisy), swap lanes and restart with new identities; some are false
+        lane = rng.integers(0, L, (R, 1, S)).repeat(K, 1)
+        swap = rng.random((R, K, S)) < 0.05
+        lane = np.where(swap, rng.integers(0, L, (R, K, S)), lane)
+        noise = rng.normal(0, 0.8 if trial % 2 else 0.3, (R, K, S, 2))
+        Y = np.take_along_axis(X, lane[..., None].repeat(2, -1), axis=2) + noise
+        false = rng.random((R, K, S)) < 0.1
+        Y[false] = rng.uniform(0, 6, (int(false.sum()), 2))
+        track_id = np.arange(S)[None, None, :] + S * np.cumsum(rng.random((R, K, S)) < 0.05, axis=1)
+        shown = rng.random((R, K, S)) > 0.2
+        shown[:, rng.random(K) < 0.1] = False                    # scans without any track
+        # every scan puts its elements in random slots
+        for name in ("truth", "track"):
+            A, I, on = (X, truth_id, alive) if name == "truth" else (Y, track_id, shown)
+            perm = np.argsort(rng.random(I.shape), axis=-1)
+            A = np.take_along_axis(A, perm[..., None].repeat(2, -1), axis=2)
+            I = np.take_along_axis(I, perm, axis=2)
+            on = np.take_along_axis(on, perm, axis=2)
+            A = np.where(on[..., None], A, np.nan)
+            I = np.where(on, I, -1)
+            if name == "truth":
+                X, truth_id = A, I
+            else:
+                Y, track_id = A, I
+        present, tid = am._truth_identities(X, truth_id)
+        usable = all_finite(Y) & (track_id >= 0)
+        gate = float(rng.uniform(0.5, 3.0))
+        plain = am._matches_keeping_previous_scan_by_scan(X, Y, present, usable, tid, track_id, gate, False,
+                                                          contested_only=False)
+        fast = am._matches_keeping_previous(X, Y, present, usable, tid, track_id, gate, False)
         assert np.array_equal(fast[0], plain[0]) and np.array_equal(fast[1], plain[1], equal_nan=True), (seed, trial)
