@@ -327,8 +327,22 @@ def _pooled_jackknife(pooled, sums: dict, keys, n_runs: int, groups: int = 10):
     return jackknife(lambda parts: pooled(totals, parts), G, G)
 
 
+def truth_one_identity_per_run(truth, space: EvaluationSpace, truth_ids=None) -> bool:
+    """Whether every run's truth is one target in one slot with one identity wherever its
+    positions are finite (:func:`trackreplay.evaluators.set_distances.one_identity_per_run`):
+    the truth's half of the single-target case of :func:`evaluate_standard`, the same for every
+    tracker scored against it (a replay finds it once, ``truth_single``)."""
+    tr = _as_slots(truth, 1)
+    if tr.shape[2] != 1:
+        return False
+    comps = list(space.truth_components)
+    true_positions = _components(tr, [comps.index(c) for c in space.position_components])
+    slot_ids = None if truth_ids is None else _as_slots(np.asarray(truth_ids)[..., None], 1)[..., 0]
+    return one_identity_per_run(slot_ids, all_finite(true_positions))
+
+
 def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: float = 0.95,
-                      innovations: dict | None = None, truth_ids=None):
+                      innovations: dict | None = None, truth_ids=None, truth_single: bool | None = None):
     """Standard measures of every tracker.
 
     Parameters
@@ -349,6 +363,8 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
         slots change hands; default: truth slot t is target t for the whole run. With it the
         CLEAR and identity measures follow TrackEval's convention
         (:mod:`trackreplay.evaluators.assignment_metrics`).
+    truth_single : bool, optional
+        :func:`truth_one_identity_per_run` of ``truth`` and ``truth_ids``, when already found.
 
     Returns
     -------
@@ -470,7 +486,8 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
         # measure follows from the one distance per scan
         single = (S == 1 and tr.shape[2] == 1 and K > 0
                   and one_identity_per_run(ids, ~absent & all_finite(_components(compared, pos)))
-                  and one_identity_per_run(truth_slot_ids, all_finite(true_positions)))
+                  and (one_identity_per_run(truth_slot_ids, all_finite(true_positions)) if truth_single is None
+                       else truth_single))
         velocity = None
         if space.velocity_components is not None and all(c in comps for c in space.velocity_components):
             velocity = [comps.index(c) for c in space.velocity_components]

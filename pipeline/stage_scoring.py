@@ -57,12 +57,17 @@ def has_truth(stage, dataset) -> bool:
 def cached_reference(stage, dataset, design: dict) -> dict:
     """``stage``'s :meth:`~trackreplay.stages.base.Stage.reference`, computed once per data set
     and design (a replay scores its trackers one at a time, each against the same reference)."""
+    return _cached(dataset, ("reference", stage.name), design, lambda: stage.reference(dataset, design))
+
+
+def _cached(dataset, what: tuple, design: dict, compute):
+    """``compute()``, kept in ``dataset.cache`` under ``what`` for as long as the design is the same."""
     import json
 
     key = json.dumps(design, sort_keys=True, default=str)
-    cached = dataset.cache.get(("reference", stage.name))
+    cached = dataset.cache.get(what)
     if cached is None or cached[0] != key:
-        cached = dataset.cache[("reference", stage.name)] = (key, stage.reference(dataset, design))
+        cached = dataset.cache[what] = (key, compute())
     return cached[1]
 
 
@@ -78,7 +83,7 @@ def measure(stage, dataset, result: dict, design: dict):
     from trackreplay.evaluators.confidence import summary_intervals
     from trackreplay.evaluators.consistency import whitened_innovations
     from trackreplay.evaluators.missing_reasons import explain_missing
-    from trackreplay.evaluators.standard import evaluate_standard
+    from trackreplay.evaluators.standard import evaluate_standard, truth_one_identity_per_run
     from trackreplay.evaluators.track_summary import track_summary
 
     reference = cached_reference(stage, dataset, design)
@@ -111,8 +116,12 @@ def measure(stage, dataset, result: dict, design: dict):
                                          innovations)
     truth = stage.standard_truth(reference)
     truth_ids = stage.standard_truth_ids(reference) if truth is not None else None
+    # whether the truth is one target a run: the same for every tracker, found once per data set
+    truth_single = None if truth is None else _cached(
+        dataset, ("standard_truth_single", stage.name), design,
+        lambda: truth_one_identity_per_run(truth, space, truth_ids))
     std_scan, std_summary = evaluate_standard(result["times"], tracks, truth, space, innovations=innovations,
-                                              truth_ids=truth_ids)
+                                              truth_ids=truth_ids, truth_single=truth_single)
     if std_scan.height and per_scan.height and "scan" in per_scan.columns:
         extra = [c for c in std_scan.columns if c not in per_scan.columns or c in ("tracker", "scan")]
         per_scan = per_scan.join(std_scan.select(extra), on=["tracker", "scan"], how="left")
