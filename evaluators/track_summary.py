@@ -115,12 +115,12 @@ def track_life(flags, track_id=None) -> dict:
     index = np.int16 if K < 2**15 else np.int64
     scans = np.arange(K, dtype=index)[None, :, None]
     minus_one = index(-1)
-    first = np.maximum.accumulate(np.where(start, scans, minus_one), axis=1)
+    first = _running_max_over_scans(np.where(start, scans, minus_one))
     first[~held] = -1
     # confirmed at the first scan of the track without INITIALISING: the latest such scan
     # before this one must lie before the track's start
     confirmed_scan = held & ((f & INITIALISING) == 0)
-    latest = np.maximum.accumulate(np.where(confirmed_scan, scans, minus_one), axis=1)
+    latest = _running_max_over_scans(np.where(confirmed_scan, scans, minus_one))
     confirm = np.empty((R, K, T), bool)
     confirm[:, 0] = True                                           # nothing before the first scan (−1 < first)
     np.less(latest[:, :-1], first[:, 1:], out=confirm[:, 1:])
@@ -128,6 +128,17 @@ def track_life(flags, track_id=None) -> dict:
     first = first.astype(np.int64)                                 # the int the callers index with
     return {"held": held, "start": start, "confirm": confirm, "last": last, "deleted": deleted, "open": open_,
             "unflagged": unflagged, "first": first}
+
+
+def _running_max_over_scans(a):
+    """``np.maximum.accumulate(a, axis=1)`` of integers (R, K, T), as a view of a scan-major
+    copy: each scan's running maximum is then one operation over a contiguous row of every run
+    and slot, where numpy's accumulation along the middle axis steps through the runs one by
+    one (the same integers either way)."""
+    rows = np.ascontiguousarray(a.transpose(1, 0, 2))
+    for k in range(1, rows.shape[0]):
+        np.maximum(rows[k - 1], rows[k], out=rows[k])
+    return rows.transpose(1, 0, 2)
 
 
 def mean_nis_bounds(nis, dim: int, prob: float = 0.95):
@@ -148,6 +159,22 @@ def mean_nis_bounds(nis, dim: int, prob: float = 0.95):
         return np.nan, np.nan, np.nan, 0
     lo, hi = average_bounds(dim, n, prob)   # the ANIS bounds over one pooled count
     return float(v[ok].mean()), float(lo), float(hi), n
+
+
+def _nis_of_updates(nis, dim: int, prob: float):
+    """:func:`mean_nis_bounds` of the NIS (R, K, T) with its sums (``np.nansum``) and counts of
+    finite values per run, the finite values found once and the NaNs zeroed in place (``nis``
+    is the caller's temporary) for the sums: the same values (tests/test_track_summary.py)."""
+    finite = np.isfinite(nis)
+    n = int(np.count_nonzero(finite))
+    per_run_n = np.sum(finite, axis=(1, 2))
+    if n == 0:
+        mean = low = high = np.nan
+    else:
+        lo, hi = average_bounds(dim, n, prob)
+        mean, low, high = float(nis[finite].mean()), float(lo), float(hi)
+    np.copyto(nis, 0.0, where=np.isnan(nis))               # as np.nansum's copy has them
+    return mean, low, high, n, np.sum(nis, axis=(1, 2)), per_run_n
 
 
 def _row(name: str, metric: str, value, se=np.nan, lo=np.nan, hi=np.nan) -> dict:
@@ -225,9 +252,7 @@ def tracker_summary(name: str, times, out: dict, prob: float = 0.95, groups: int
         flags = _flag_bits(out["flags"])
         # an update is a scan with a track that used a measurement
         nis = np.where(life["held"] & ((flags & COASTED) == 0), nis, np.nan)
-        mean, low, high, n = mean_nis_bounds(nis, m, prob)
-        per_run_sum = np.nansum(nis, axis=(1, 2))
-        per_run_n = np.sum(np.isfinite(nis), axis=(1, 2))
+        mean, low, high, n, per_run_sum, per_run_n = _nis_of_updates(nis, m, prob)
         _, se, lo, hi = jackknife(lambda idx: per_run_sum[idx].sum() / per_run_n[idx].sum()
                                   if per_run_n[idx].sum() else np.nan, R, groups=groups, prob=prob)
         rows.append(_row(name, "mean_nis", mean, se, lo, hi))

@@ -669,3 +669,46 @@ def test_radar_group_records_are_the_rows_of_the_group_tables(left_out):
     _, from_tables = summary_intervals(score, data, 43, score_groups=score)
     _, from_records = summary_intervals(score, data, 43, score_groups=lambda d, g, lo: score(d, g, lo, True))
     assert from_tables.equals(from_records)
+
+
+def test_the_truths_single_target_case_found_once_is_the_one_found_per_tracker():
+    """truth_one_identity_per_run tells the truth's half of the single-target case, and the
+    standard measures given it are those that find it themselves."""
+    rng = np.random.default_rng(13)
+    R, K = 9, 7
+    truth = rng.normal(scale=100.0, size=(R, K, 4))
+    out = {"state": truth + rng.normal(scale=20.0, size=(R, K, 4)), "flags": np.zeros((R, K), np.uint16),
+           "covariance": _covariances((R, K), 4, rng) * 400.0}
+    space = standard.EvaluationSpace(truth_components=(0, 1, 2, 3), position_components=(0, 1), angular=False,
+                                     cutoff=60.0, gate=40.0)
+    ids = np.zeros((R, K), np.int64)
+    assert standard.truth_one_identity_per_run(truth, space, ids)
+    two = ids.copy()
+    two[3, 4:] = 1                                              # a run whose target changes identity
+    assert not standard.truth_one_identity_per_run(truth, space, two)
+    assert not standard.truth_one_identity_per_run(np.stack([truth, truth], axis=2), space)
+    for truth_ids in (ids, two):
+        found = standard.evaluate_standard(np.arange(K, dtype=float), {"t": out}, truth, space, truth_ids=truth_ids)
+        given = standard.evaluate_standard(np.arange(K, dtype=float), {"t": out}, truth, space, truth_ids=truth_ids,
+                                           truth_single=standard.truth_one_identity_per_run(truth, space, truth_ids))
+        assert found[0].equals(given[0]) and found[1].equals(given[1])
+
+
+def test_polar_position_information_entry_by_entry_is_the_matrix_expression():
+    """The radar PCRB's information, written entry by entry, is u uᵀ/σ_r² + t tᵀ/(r² σ_θ²) as
+    whole matrices give it, to the bit (a target at the origin and a missing one too)."""
+    from trackreplay.cores.filters.pcrb import polar_position_information
+
+    rng = np.random.default_rng(14)
+    xy = rng.uniform(-5e4, 5e4, size=(40, 7, 2))
+    xy[0, 0], xy[1, 1, 0] = 0.0, np.nan
+    sigma_r, sigma_b = 30.0, np.deg2rad(0.8)
+    r = np.hypot(xy[..., 0], xy[..., 1])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u = xy / r[..., None]
+        t = np.stack([-u[..., 1], u[..., 0]], axis=-1)
+        plain = (u[..., :, None] * u[..., None, :]) / sigma_r**2 \
+            + (t[..., :, None] * t[..., None, :]) / (r[..., None, None] ** 2 * sigma_b**2)
+        fast = polar_position_information(xy, sigma_r, sigma_b)
+    np.testing.assert_array_equal(_bits(fast), _bits(plain))
+    assert np.isfinite(fast[2:]).all() and np.isnan(fast[0, 0]).all()

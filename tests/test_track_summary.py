@@ -211,3 +211,31 @@ def test_with_truth_the_summary_rows_are_standard_measures_and_eval_prints_the_b
 
     names = {r["metric"] for r in json.loads(res.output)}
     assert {"tracks_started_per_run", "track_lifetime_s", "mean_nis"} <= names
+
+
+def test_running_max_over_scans_is_numpys_accumulation():
+    from trackreplay.evaluators.track_summary import _running_max_over_scans
+
+    rng = np.random.default_rng(21)
+    a = np.where(rng.random((13, 9, 3)) < 0.3, np.arange(9, dtype=np.int16)[None, :, None], np.int16(-1))
+    got = _running_max_over_scans(a)
+    assert got.shape == a.shape and got.dtype == a.dtype
+    np.testing.assert_array_equal(got, np.maximum.accumulate(a, axis=1))
+
+
+def test_nis_of_updates_is_the_mean_nis_with_the_per_run_sums():
+    """The track summary's one pass over the updates' NIS gives mean_nis_bounds, np.nansum and
+    the finite counts per run, an infinite NIS counted and summed as they count and sum it."""
+    from trackreplay.evaluators.track_summary import _nis_of_updates
+
+    rng = np.random.default_rng(22)
+    nis = rng.chisquare(2, size=(40, 15, 2))
+    nis[rng.random(nis.shape) < 0.2] = np.nan
+    nis[3, 4, 1] = np.inf
+    expected = (*mean_nis_bounds(nis, 2), np.nansum(nis, axis=(1, 2)), np.sum(np.isfinite(nis), axis=(1, 2)))
+    got = _nis_of_updates(nis.copy(), 2, 0.95)
+    assert got[:4] == expected[:4]
+    np.testing.assert_array_equal(got[4], expected[4])
+    np.testing.assert_array_equal(got[5], expected[5])
+    empty = _nis_of_updates(np.full((3, 4, 1), np.nan), 2, 0.95)
+    assert np.isnan(empty[:3]).all() and empty[3] == 0 and (empty[4] == 0).all()
