@@ -63,13 +63,32 @@ def squared_error(estimate, truth):
     total = np.zeros(e.shape[:-1]) if e.shape[-1] == 0 else np.empty(e.shape[:-1])
     if e.shape[-1] == 0:
         return total
-    np.subtract(e[..., 0], t[..., 0], out=total)
-    np.multiply(total, total, out=total)
-    d = np.empty_like(total) if e.shape[-1] > 1 else None
-    for i in range(1, e.shape[-1]):
-        np.subtract(e[..., i], t[..., i], out=d)
-        total += np.multiply(d, d, out=d)
+    if total.ndim == 0:
+        _add_squared_differences(e, t, total)
+        return total
+    # a block of runs at a time: a tracker's buffer holds the runs fastest and the result the
+    # scans, so each operation reads and writes across both; a block's lines stay in cache
+    # from one scan to the next (each value is computed alone: the block changes none)
+    rows = max(1, SQUARED_ERROR_BLOCK // max(1, int(np.prod(total.shape[1:], dtype=np.int64))))
+    for start in range(0, total.shape[0], rows):
+        part = slice(start, start + rows)
+        _add_squared_differences(e[part], t[part], total[part])
     return total
+
+
+def _add_squared_differences(e, t, out):
+    """``out`` = Σ_i (e_i − t_i)² over the last axis (at least one component), left to right."""
+    np.subtract(e[..., 0], t[..., 0], out=out)
+    np.multiply(out, out, out=out)
+    if e.shape[-1] > 1:
+        d = np.empty_like(out)
+        for i in range(1, e.shape[-1]):
+            np.subtract(e[..., i], t[..., i], out=d)
+            out += np.multiply(d, d, out=d)
+
+
+#: values of a block of runs of :func:`squared_error`
+SQUARED_ERROR_BLOCK = 1 << 14
 
 
 def rms(values, axis=None):

@@ -611,10 +611,15 @@ def test_nanmean_is_numpys_nanmean_to_the_bit(axis, order):
     np.testing.assert_array_equal(_bits(nanmean(np.nan_to_num(a), axis=axis)), _bits(np.mean(np.nan_to_num(a), axis=axis)))
 
 
-def test_squared_error_is_the_sum_of_squares_component_by_component():
-    """squared_error squares each difference where it is made: the bits of the plain loop
-    ``total = 0; total += (e_i − t_i)²``, NaN passing through, broadcast truth included."""
+@pytest.mark.parametrize("block", [1 << 14, 7 * 3])
+def test_squared_error_is_the_sum_of_squares_component_by_component(monkeypatch, block):
+    """squared_error squares each difference where it is made, a block of runs at a time: the
+    bits of the plain loop ``total = 0; total += (e_i − t_i)²``, NaN passing through,
+    broadcast truth included."""
+    from trackreplay.evaluators import tracking_metrics
     from trackreplay.evaluators.tracking_metrics import squared_error
+
+    monkeypatch.setattr(tracking_metrics, "SQUARED_ERROR_BLOCK", block)    # or 3 runs a block
 
     rng = np.random.default_rng(6)
     e = np.moveaxis(rng.normal(size=(4, 30, 7)), 0, -1)          # a buffer's layout: components slowest
@@ -629,6 +634,7 @@ def test_squared_error_is_the_sum_of_squares_component_by_component():
         np.testing.assert_array_equal(_bits(got), _bits(plain))
         assert got.flags.c_contiguous                           # the layout the sums over runs read
     assert squared_error(np.zeros((3, 2, 0)), 0.0).shape == (3, 2)
+    assert squared_error(np.array([3.0, 4.0]), 0.0) == 25.0
 
 
 def test_whiteness_from_the_nis_is_the_whiteness_of_the_innovations():
