@@ -100,6 +100,33 @@ def test_steady_scans_of_many_runs_equal_the_scan_loop_bit_for_bit(monkeypatch, 
         assert not taken
 
 
+def test_covariances_a_stretch_found_safe_are_not_checked_again(monkeypatch):
+    """_steady_kalman_scans checks its covariances' pivots while they are in the cache and marks a
+    stretch that passes; track_plots' last check then takes the other scans only. With a floor
+    that some stretches pass and others do not (the relative pivots here are 0.39-0.64, most
+    above 0.57; 40 of the 120 scans are found safe), both forms repair and flag the same
+    covariances."""
+    from trackreplay.trackers import _radar_tws_blocks
+
+    floor = 0.57
+    monkeypatch.setattr(rt, "BLOCK_MAX_RUNS", 4)
+    monkeypatch.setattr(_radar_tws_blocks, "PIVOT_FLOOR", floor)
+    checked = []
+
+    def cv_floor_components(c, live):
+        fixed, repaired = kalman.cv_floor_components(c, live, floor=floor)
+        checked.append((c.shape[1], int(repaired.sum())))
+        return fixed, repaired
+
+    monkeypatch.setattr(rt, "cv_floor_components", cv_floor_components)
+    plots = _plots(7, 120, seed=5, detection=0.998)
+    fast, plain = _both(plots, "kalman")
+    _assert_same(fast, plain)
+    (fast_scans, fast_repaired), (plain_scans, plain_repaired) = checked
+    assert plain_scans == 120 and 0 < fast_scans < 100
+    assert fast_repaired == plain_repaired > 10
+
+
 def test_steady_scans_of_a_few_hundred_runs_equal_the_scan_loop_bit_for_bit():
     plots = _plots(rt.BLOCK_MAX_RUNS + 44, 40, seed=9, detection=1.0)
     _assert_same(*_both(plots, "kalman"))

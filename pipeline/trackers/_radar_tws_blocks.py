@@ -25,7 +25,7 @@ from trackreplay.cores.filters._kalman_fast import (
     _cv_predict_components_scans,
     _cv_states_with_gains,
 )
-from trackreplay.cores.filters.kalman import MATRIX_FROM_COMPONENTS
+from trackreplay.cores.filters.kalman import MATRIX_FROM_COMPONENTS, PIVOT_FLOOR, cv_relative_pivots
 from trackreplay.trackers.radar_tws_design import MAX_TRACKING_INDEX, TrackerDesign
 from trackreplay.trackers.radar_tws_strategies import KalmanGains
 
@@ -155,6 +155,10 @@ def _steady_kalman_scans(first, stop, x, c, n_plots, plot_range, plot_bearing, t
         k = first + j
         _cv_position_scan_rows(x, c, d, design.sigma_v, used[j], r_cov[j], state[k], innov[k], s[j], gain[:, j], post[j])
         x, c = state[k], post[j]
+    # track_plots' last check of the reported covariances (cv_floor_components), made here while
+    # they are in the cache: a stretch whose every covariance passes is not read again there
+    if (cv_relative_pivots(post.transpose(1, 0, 2)) >= PIVOT_FLOOR).all():
+        out["safe"][scans] = True
     # mode="clip" (the indices are in range): with the default, take writes into a buffer and
     # copies it to out (numpy.take), a second pass over the largest output
     np.take(post, MATRIX_FROM_COMPONENTS, axis=1, out=out["cov"][scans], mode="clip")

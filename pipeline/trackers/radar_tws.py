@@ -232,8 +232,11 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
         blocks, take_block = steady and isinstance(strategy, KalmanGains), _steady_kalman_scans
         longest = max(MIN_BLOCK_SCANS, SCANS_RUN_SCANS // n_runs)
     stretch = _steady_stretches(counts) if blocks else None
+    # scans whose reported covariances a stretch already found safely positive definite (the check
+    # below, made while they were in the cache)
+    safe = np.zeros(n_scans, bool)
     out = dict(state=state, cov=cov, alpha=alpha, beta=beta, lam=lam, innov=innov, used=used, s_cov=s_cov,
-               gains=gains, flags=flags)
+               gains=gains, flags=flags, safe=safe)
     resume = 0
     for k in range(n_scans):
         if k < resume:
@@ -343,12 +346,21 @@ def track_plots(plot_range, plot_bearing, counts, times, design: TrackerDesign, 
             np.take(c, MATRIX_FROM_COMPONENTS, axis=0, out=cov[k], mode="clip")  # unbuffered (numpy.take)
     # last line of defence, over all scans at once: a reported covariance that is not safely
     # positive definite is repaired and flagged (the forms above keep the filters far from it
-    # except at extreme designs; the filters' recursion does not see the repair)
-    live = ~np.isnan(state).any(axis=1)
-    checked, repaired = cv_floor_components(cov.transpose(1, 0, 2), live)
-    if repaired.any():
-        cov = checked.transpose(1, 0, 2)
-        flags |= np.where(repaired, vocab.FLOORED, 0).astype(np.uint16)
+    # except at extreme designs; the filters' recursion does not see the repair). Scans found
+    # safe already (``safe``) would neither be repaired nor flagged: they are left out
+    todo = np.flatnonzero(~safe)
+    if todo.size == n_scans:
+        live = ~np.isnan(state).any(axis=1)
+        checked, repaired = cv_floor_components(cov.transpose(1, 0, 2), live)
+        if repaired.any():
+            cov = checked.transpose(1, 0, 2)
+            flags |= np.where(repaired, vocab.FLOORED, 0).astype(np.uint16)
+    elif todo.size:
+        live = ~np.isnan(state[todo]).any(axis=1)
+        checked, repaired = cv_floor_components(cov[todo].transpose(1, 0, 2), live)
+        if repaired.any():
+            cov[todo] = checked.transpose(1, 0, 2)
+            flags[todo] |= np.where(repaired, vocab.FLOORED, 0).astype(np.uint16)
     s_cov, repaired = _floor_innovation_covariance(s_cov)
     if repaired is not None:
         flags |= np.where(repaired, vocab.FLOORED, 0).astype(np.uint16)
