@@ -295,8 +295,9 @@ def _window_block(X, Y, radius, angular):
     """
     P, m, n = X.shape[0], X.shape[1], Y.shape[1]
     d = X.shape[-1]
-    x_at_rows = np.flatnonzero(all_finite(X))
-    y_at_rows = np.flatnonzero(all_finite(Y))
+    x_present, y_present = all_finite(X), all_finite(Y)
+    x_at_rows = np.flatnonzero(x_present)
+    y_at_rows = np.flatnonzero(y_present)
     if x_at_rows.size == 0 or y_at_rows.size == 0:
         return _no_pairs()
     px, ix = np.divmod(x_at_rows, m)
@@ -327,10 +328,25 @@ def _window_block(X, Y, radius, angular):
     y_key = y_problem * spacing + (y_at - low)
     x_key = px * spacing + (x_at - low)
     copies = y_at.size // max(py.size, 1)
-    by_key = _order_within_problems(y_at, y_problem, np.concatenate([jy + c * n for c in range(copies)]), copies * n, P)
-    y_key = y_key[by_key]
-    start = np.searchsorted(y_key, x_key - width, side="left")
-    count = np.searchsorted(y_key, x_key + width, side="right") - start
+    if angular:
+        by_key = _order_within_problems(y_at, y_problem, np.concatenate([jy + c * n for c in range(copies)]),
+                                        copies * n, P)
+        start = np.searchsorted(y_key[by_key], x_key - width, side="left")
+        count = np.searchsorted(y_key[by_key], x_key + width, side="right") - start
+    else:
+        # both sides in (problem, position) order, each problem's rows sorted on their own; the
+        # window's ends are searched for in increasing order, which numpy's binary search walks
+        # about twice as fast as the rows' own order (each x row's window is the same whatever
+        # the order of the searches, and so is the set of rows in it whatever the order of equal
+        # keys)
+        by_key = _rows_by_position(Y[..., axis], y_present)
+        x_order = _rows_by_position(X[..., axis], x_present)
+        y_key = y_key[by_key]
+        queries = x_key[x_order]
+        start, count = np.empty(px.size, np.int64), np.empty(px.size, np.int64)
+        start[x_order] = np.searchsorted(y_key, queries - width, side="left")
+        count[x_order] = np.searchsorted(y_key, queries + width, side="right")
+        count -= start
     # the rows of X in pieces of about WINDOW_CANDIDATES candidates: the memory stays bounded
     # however wide the windows are against the spread of the rows
     ends = np.cumsum(count)
@@ -401,6 +417,19 @@ def _identity_pairs_dense(first, local, run, first_start, per_run):
         counts.append(count[at])
         found += at.size
     return np.concatenate(pair_first), np.concatenate(pair_local), inverse, np.concatenate(counts)
+
+
+def _rows_by_position(position, present) -> np.ndarray:
+    """The present rows of a block (``position`` (P, m) along the window's component, ``present``
+    (P, m)), numbered 0… in (problem, row) order, listed in the order of (problem, position):
+    :func:`_order_within_problems` of rows that each keep their own column, from one short sort
+    per problem straight on the block."""
+    P, m = present.shape
+    order = np.argsort(np.where(present, position, np.inf), axis=1)
+    order += (np.arange(P) * m)[:, None]
+    flat = order.reshape(-1)
+    number = np.cumsum(present.reshape(-1)) - 1                    # each present row's number
+    return number[flat[present.reshape(-1)[flat]]]
 
 
 def _order_within_problems(position, problem, column, columns: int, P: int) -> np.ndarray:
