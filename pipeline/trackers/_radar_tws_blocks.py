@@ -149,19 +149,19 @@ def _steady_kalman_scans(first, stop, x, c, n_plots, plot_range, plot_bearing, t
     r_cov[:, 0], r_cov[:, 1], r_cov[:, 2] = rotated_diagonal(cos_b, sin_b, var_along, var_cross)
     s = np.empty((L, 3, n_runs))
     gain = np.empty((8, L, n_runs))  # rows first: the diagnostics below read them contiguous
-    post = np.empty((L, 10, n_runs))
+    post = np.empty((10, L, n_runs))  # rows first, as the gains: the pivots below read them contiguous
     state, innov = out["state"], out["innov"]
     for j, d in enumerate(dt.tolist()):
         k = first + j
-        _cv_position_scan_rows(x, c, d, design.sigma_v, used[j], r_cov[j], state[k], innov[k], s[j], gain[:, j], post[j])
-        x, c = state[k], post[j]
+        _cv_position_scan_rows(x, c, d, design.sigma_v, used[j], r_cov[j], state[k], innov[k], s[j], gain[:, j], post[:, j])
+        x, c = state[k], post[:, j]
     # track_plots' last check of the reported covariances (cv_floor_components), made here while
     # they are in the cache: a stretch whose every covariance passes is not read again there
-    if (cv_relative_pivots(post.transpose(1, 0, 2)) >= PIVOT_FLOOR).all():
+    if (cv_relative_pivots(post) >= PIVOT_FLOOR).all():
         out["safe"][scans] = True
     # mode="clip" (the indices are in range): with the default, take writes into a buffer and
     # copies it to out (numpy.take), a second pass over the largest output
-    np.take(post, MATRIX_FROM_COMPONENTS, axis=1, out=out["cov"][scans], mode="clip")
+    np.take(post, MATRIX_FROM_COMPONENTS, axis=0, out=out["cov"][scans].transpose(1, 0, 2), mode="clip")
     s_k = out["s_cov"][scans]
     s_k[..., 0] = s[:, 0]
     s_k[..., 1] = s_k[..., 2] = s[:, 1]

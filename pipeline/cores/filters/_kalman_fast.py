@@ -142,16 +142,18 @@ def _cv_position_scan_rows(x, c, dt: float, sigma_v: float, z, r, x_out, nu_out,
     dt2, dt_2 = dt * dt, 2 * dt
     a00, a01, a11, b00, b01, b10, b11, c00, c01, c11 = c
     # the prediction (_cv_predict_terms): A' = A + dt(B + Bᵀ) + dt² C + q₄ I, B' = B + dt C + q₃ I,
-    # C' = C + q₂ I, each sum in its order there
-    A00 = mul(b00, dt_2)
+    # C' = C + q₂ I, each sum in its order there; A's entries in one block, for S = A + R in one call
+    A = np.empty((3,) + a00.shape)
+    A00, A01, A11 = A
+    mul(b00, dt_2, A00)
     add(a00, A00, A00)
     add(A00, mul(c00, dt2), A00)
     add(A00, q4, A00)
-    A01 = add(b01, b10)
+    add(b01, b10, A01)
     mul(A01, dt, A01)
     add(a01, A01, A01)
     add(A01, mul(c01, dt2), A01)
-    A11 = mul(b11, dt_2)
+    mul(b11, dt_2, A11)
     add(a11, A11, A11)
     add(A11, mul(c11, dt2), A11)
     add(A11, q4, A11)
@@ -163,16 +165,12 @@ def _cv_position_scan_rows(x, c, dt: float, sigma_v: float, z, r, x_out, nu_out,
     B11 = mul(c11, dt)
     add(b11, B11, B11)
     add(B11, q3, B11)
-    x0, x1, x2, x3 = x
-    xp0, xp1 = mul(x2, dt), mul(x3, dt)
-    add(x0, xp0, xp0)
-    add(x1, xp1, xp1)
+    xp = mul(x[2:], dt)                                   # the predicted position (x, y)
+    add(x[:2], xp, xp)
     # S = A⁻ + R and 1/|S|
     r00, r01, r11 = r
     s00, s01, s11 = s_out
-    add(A00, r00, s00)
-    add(A01, r01, s01)
-    add(A11, r11, s11)
+    add(A, r, s_out)
     inv_det = mul(s00, s11)
     sub(inv_det, mul(s01, s01), inv_det)
     np.divide(1.0, inv_det, inv_det)
@@ -213,10 +211,9 @@ def _cv_position_scan_rows(x, c, dt: float, sigma_v: float, z, r, x_out, nu_out,
         else:
             sub(C, t, n)
     # the state (cv_apply_gain_components): x⁻ + K ν
+    sub(z, xp, nu_out)
     nu0, nu1 = nu_out
-    sub(z[0], xp0, nu0)
-    sub(z[1], xp1, nu1)
-    for out, before, k0, k1 in zip(x_out, (xp0, xp1, x2, x3), (g0, g2, g4, g6), (g1, g3, g5, g7)):
+    for out, before, k0, k1 in zip(x_out, (xp[0], xp[1], x[2], x[3]), (g0, g2, g4, g6), (g1, g3, g5, g7)):
         mul(k0, nu0, out)
         add(before, out, out)
         add(out, mul(k1, nu1), out)
