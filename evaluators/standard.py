@@ -157,6 +157,15 @@ def as_slots_with_ids(out: dict, absent_flags: int, position_components):
     return positions, np.where(absent, -1, ids)
 
 
+def _any_flag(flags, bits: int):
+    """Where ``flags`` carry any of ``bits``, tested in the flags' own integer type where it
+    holds the bits (the bits of an integer are the same in a wider one: an int64 copy of a
+    tracker's flags, 5 MB at 10,000 radar runs, would change no answer)."""
+    if flags.dtype.kind in "iu" and bits <= np.iinfo(flags.dtype).max:
+        return (flags & flags.dtype.type(bits)) > 0
+    return (flags.astype(np.int64) & bits) > 0
+
+
 def _with_ci(name: str, metric: str, value, se, lo, hi, scope: str = "overall") -> dict:
     """A summary record; an interval that does not exist (a bound, a count with no spread over
     runs) is null rather than NaN, so that it reads as absent."""
@@ -383,7 +392,7 @@ def evaluate_standard(times, tracks: dict, truth, space: EvaluationSpace, prob: 
         state = _as_slots(out["state"], 1)
         R, K, S, n = state.shape
         # a slot holds a track only where its flags say it exists and was estimated
-        absent = (_as_slots(out["flags"], 0).astype(np.int64) & NOT_A_TRACK) > 0 if "flags" in out else np.zeros((R, K, S), bool)
+        absent = _any_flag(_as_slots(out["flags"], 0), NOT_A_TRACK) if "flags" in out else np.zeros((R, K, S), bool)
         cols = {"tracker": [name] * K, "scan": np.arange(K), "time_s": np.asarray(times, float)}
         # ---- innovation consistency (needs no truth)
         given = (innovations or {}).get(name)

@@ -79,7 +79,7 @@ def track_life(flags, track_id=None) -> dict:
         track's first confirmed scan), ``last`` (the track's last scan held), ``deleted``,
         ``open`` and ``unflagged`` (at the last scan of tracks that ended that way); and
         ``first`` (R, K, T) int, the scan at which the track held at each scan started (−1
-        where the slot is empty).
+        where the slot is empty), in the smallest integer type that holds the scans.
     """
     f = _flag_bits(flags)
     R, K, T = f.shape
@@ -125,7 +125,6 @@ def track_life(flags, track_id=None) -> dict:
     confirm[:, 0] = True                                           # nothing before the first scan (−1 < first)
     np.less(latest[:, :-1], first[:, 1:], out=confirm[:, 1:])
     confirm &= confirmed_scan
-    first = first.astype(np.int64)                                 # the int the callers index with
     return {"held": held, "start": start, "confirm": confirm, "last": last, "deleted": deleted, "open": open_,
             "unflagged": unflagged, "first": first}
 

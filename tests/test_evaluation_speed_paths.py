@@ -718,3 +718,17 @@ def test_polar_position_information_entry_by_entry_is_the_matrix_expression():
         fast = polar_position_information(xy, sigma_r, sigma_b)
     np.testing.assert_array_equal(_bits(fast), _bits(plain))
     assert np.isfinite(fast[2:]).all() and np.isnan(fast[0, 0]).all()
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.int16, np.uint16, np.uint32, np.int64, np.float64])
+def test_flags_tested_in_their_own_type_are_those_of_an_int64_copy(dtype):
+    from trackreplay.vocabulary import DELETED
+
+    rng = np.random.default_rng(15)
+    info = np.iinfo(dtype) if np.dtype(dtype).kind in "iu" else None
+    high = min(info.max, 1 << 20) if info is not None else 1 << 20
+    flags = rng.integers(info.min if info is not None else 0, high, size=(20, 6, 1), endpoint=True).astype(dtype)
+    bits = NO_TRACK | DELETED | INITIALISING
+    expected = (flags.astype(np.int64) & bits) > 0
+    np.testing.assert_array_equal(standard._any_flag(flags, bits), expected)
+    assert expected.any() and not expected.all()
