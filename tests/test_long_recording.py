@@ -90,7 +90,8 @@ def test_steady_scans_of_many_runs_equal_the_scan_loop_bit_for_bit(monkeypatch, 
     monkeypatch.setattr(rt, "SCANS_RUN_SCANS", 70)  # stretches of max(4, 70 // runs) scans
     taken = []
     real = rt._steady_kalman_scans
-    monkeypatch.setattr(rt, "_steady_kalman_scans", lambda first, stop, *a: taken.append(stop - first) or real(first, stop, *a))
+    monkeypatch.setattr(rt, "_steady_kalman_scans",
+                        lambda first, stop, *a: taken.append(stop - first) or real(first, stop, *a))
     for plots in (_plots(7, 120, seed=5, detection=0.998), _plots(9, 80, seed=7, detection=1.0, pass_distance_m=2.0)):
         _assert_same(*_both(plots, strategy))
         _assert_same(*_both(plots, strategy, startup_gains=False, confirm_hits=0, max_coasted_scans=2))

@@ -153,7 +153,8 @@ def _steady_kalman_scans(first, stop, x, c, n_plots, plot_range, plot_bearing, t
     state, innov = out["state"], out["innov"]
     for j, d in enumerate(dt.tolist()):
         k = first + j
-        _cv_position_scan_rows(x, c, d, design.sigma_v, used[j], r_cov[j], state[k], innov[k], s[j], gain[:, j], post[:, j])
+        _cv_position_scan_rows(x, c, d, design.sigma_v, used[j], r_cov[j], state[k], innov[k], s[j], gain[:, j],
+                               post[:, j])
         x, c = state[k], post[:, j]
     # track_plots' last check of the reported covariances (cv_floor_components), made here while
     # they are in the cache: a stretch whose every covariance passes is not read again there
