@@ -197,7 +197,7 @@ def _sums_sparse(tracks, truths, d0, track_ids, truth_ids, angular, alphas, pair
     sim_c, run_c, pair_c = sim[chosen], p[chosen] // K, pair[chosen]
     pair_run = g_run[pair_g]
     # a TP at α is one at every smaller α: count each by the number of α it passes, then add up
-    level = np.searchsorted(np.asarray(alphas) - _EPS, sim_c, side="right")
+    level = _alpha_levels(alphas, sim_c)
     A = alphas.size
 
     def over_alphas(group, n_groups, weights=None):

@@ -470,6 +470,8 @@ def pairs_within(pairs, radius: float):
     ``radius``, in their order: the pairs :func:`close_pairs` finds at ``radius`` itself."""
     p, i, j, d = pairs
     keep = d < radius
+    if keep.all():                 # found at this radius (HOTA's d₀ as the larger): the pairs themselves
+        return p, i, j, d
     return p[keep], i[keep], j[keep], d[keep]
 
 
@@ -490,15 +492,14 @@ def assign_edges(problem, row, col, weight, n_rows: int, n_cols: int) -> np.ndar
     problem, row, col = (np.asarray(a, np.int64) for a in (problem, row, col))
     weight = np.asarray(weight, float)
     E = problem.size
-    chosen = np.zeros(E, bool)
     if E == 0:
-        return chosen
+        return np.zeros(E, bool)
     P = int(problem.max()) + 1
     row_key, col_key = problem * n_rows + row, problem * n_cols + col
     row_deg = np.bincount(row_key, minlength=P * n_rows)
     col_deg = np.bincount(col_key, minlength=P * n_cols)
     alone = (row_deg[row_key] == 1) & (col_deg[col_key] == 1)
-    chosen[alone] = weight[alone] > 0
+    chosen = alone & (weight > 0)
     rest = np.flatnonzero(~alone)
     if rest.size == 0:
         return chosen
@@ -515,7 +516,7 @@ def assign_edges(problem, row, col, weight, n_rows: int, n_cols: int) -> np.ndar
     # the edges left, by the size of their component, then by component: one pass sorts them
     by = np.lexsort((prob, size[prob]))
     edge_size = size[prob[by]]
-    sizes = np.unique(edge_size)
+    sizes = edge_size[np.r_[True, edge_size[1:] != edge_size[:-1]]]      # sorted already
     cuts = np.searchsorted(edge_size, np.append(sizes, edge_size[-1] + 1))
     for s, lo, hi in zip(sizes, cuts[:-1], cuts[1:]):
         e = by[lo:hi]

@@ -149,6 +149,18 @@ def _close_pairs_dense(X, Y, radius: float, angular: bool = False):
 
 def _compact(keys, n: int):
     """The distinct ``keys`` (< n) numbered 0… in increasing order, and how many there are."""
+    keys = np.asarray(keys)
+    if keys.size and keys.size < n // 4:
+        # far fewer keys than values (a few of the (problem, row) keys of an assignment): when they
+        # come sorted, as edges listed by problem and row do, they are numbered by counting the
+        # changes, without a pass over all n values
+        new = np.empty(keys.size, bool)
+        new[0] = True
+        np.not_equal(keys[1:], keys[:-1], out=new[1:])
+        if not (keys[1:] < keys[:-1]).any():
+            number = np.cumsum(new)
+            number -= 1
+            return number, int(number[-1]) + 1
     mark = np.zeros(n, bool)
     mark[keys] = True
     number = np.cumsum(mark) - 1
