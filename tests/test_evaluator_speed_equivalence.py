@@ -567,3 +567,19 @@ def test_matching_that_keeps_previous_matches_visits_contested_pairs_alone(seed)
                                                           contested_only=False)
         fast = am._matches_keeping_previous(X, Y, present, usable, tid, track_id, gate, False)
         assert np.array_equal(fast[0], plain[0]) and np.array_equal(fast[1], plain[1], equal_nan=True), (seed, trial)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_compact_numbering_of_sorted_and_unsorted_keys_is_uniques(seed):
+    # the distinct keys numbered in increasing order, whether the keys come sorted (numbered by
+    # counting changes) or not (numbered by marking), few or many against the range
+    from trackreplay.evaluators.set_distances_shared import _compact
+
+    rng = np.random.default_rng(seed)
+    for n, size in ((1000, 10), (1000, 200), (1000, 5000), (50, 3), (7, 1)):
+        keys = rng.integers(0, n, size)
+        for k in (keys, np.sort(keys)):
+            number, count = _compact(k, n)
+            uniq, inverse = np.unique(k, return_inverse=True)
+            assert count == uniq.size
+            np.testing.assert_array_equal(number, inverse)
