@@ -373,8 +373,10 @@ def agreement(ours_h, ours_a, match, dist, their_h, their_c, their_i, n: int):
 
 
 def _git(*a) -> str:
+    """git's output with its trailing newline removed (not its leading spaces: a porcelain
+    status line starts with one for a file changed but not staged)."""
     try:
-        return subprocess.run(["git", *a], cwd=REPO, capture_output=True, text=True).stdout.strip()
+        return subprocess.run(["git", *a], cwd=REPO, capture_output=True, text=True).stdout.rstrip("\n")
     except OSError:
         return ""
 
