@@ -133,11 +133,12 @@ def test_steady_scans_of_a_few_hundred_runs_equal_the_scan_loop_bit_for_bit():
     _assert_same(*_both(plots, "kalman"))
 
 
-@pytest.mark.parametrize("n_runs", [1, 6, 300])
-def test_every_output_entry_is_written(monkeypatch, n_runs):
-    """The outputs are allocated unfilled (the loop fills its scans with NaN, the blocks write all
-    of theirs): with allocations that start as garbage, the outputs do not change."""
-    plots = _plots(n_runs, 90, seed=n_runs, detection=0.97)
+@pytest.mark.parametrize("n_runs, detection", [(1, 0.97), (6, 0.97), (300, 0.97), (300, 1.0)])
+def test_every_output_entry_is_written(monkeypatch, n_runs, detection):
+    """The outputs are allocated unfilled (the loop fills its scans with NaN, the blocks and the
+    many-run stretches write all of theirs): with allocations that start as garbage, the outputs
+    do not change."""
+    plots = _plots(n_runs, 90, seed=n_runs, detection=detection)
     clean = _both(plots, "kalman", max_coasted_scans=2)
     garbage = SimpleNamespace(**{**vars(np), "empty": lambda shape, dtype=float: np.full(shape, 7.25, dtype)})
     monkeypatch.setattr(rt, "np", garbage)
