@@ -426,6 +426,9 @@ def _whiteness(w0, present, power, max_lag: int) -> dict:
     K = w0.shape[1]
     lags = np.arange(1, max_lag + 1)
     rho, bound = np.full(max_lag, np.nan), np.full(max_lag, np.nan)
+    # every lag's products written into the one buffer (the start of it, C-ordered as the
+    # product numpy would make): its pages are touched once, not once a lag
+    products = np.empty(w0[:, 1:].size)
     for i, j in enumerate(lags):
         if j >= K:
             break
@@ -433,7 +436,8 @@ def _whiteness(w0, present, power, max_lag: int) -> dict:
         count = int(np.count_nonzero(both))
         if not count:
             continue
-        num = np.sum(w0[:, :-j] * w0[:, j:])                     # a missing partner contributes 0
+        lagged = products[:w0[:, j:].size].reshape(w0[:, j:].shape)
+        num = np.sum(np.multiply(w0[:, :-j], w0[:, j:], out=lagged))   # a missing partner contributes 0
         den = np.sqrt(np.sum(power[:, :-j], where=both) * np.sum(power[:, j:], where=both))
         rho[i] = num / den if den > 0 else np.nan
         bound[i] = NORMAL_95 / np.sqrt(count * w0.shape[-1])
