@@ -193,10 +193,14 @@ def run_mean_interval(nx, prob: float = 0.95):
     -------
     mean, se, low, high, runs : float, float, float, float, int
     """
+    nx = np.asarray(nx, float)
+    return _run_mean_interval(nx, np.isfinite(nx), prob)
+
+
+def _run_mean_interval(nx, finite, prob: float):
+    """:func:`run_mean_interval` of float ``nx`` given where it is finite."""
     from trackreplay.evaluators.confidence import t_quantile
 
-    nx = np.asarray(nx, float)
-    finite = np.isfinite(nx)
     counts = np.sum(finite, axis=1).astype(float)
     sums = np.sum(nx, axis=1, where=finite)
     used = counts > 0
@@ -238,7 +242,12 @@ def effective_scans(nx, max_block: int = 1 << 20) -> float:
     """
     nx = np.asarray(nx, float)
     present = np.isfinite(nx)
-    count = present.sum(axis=0)
+    return _effective_scans(nx, present, present.sum(axis=0), max_block)
+
+
+def _effective_scans(nx, present, count, max_block: int = 1 << 20) -> float:
+    """:func:`effective_scans` of float ``nx`` given where it is finite and the count of
+    those values per scan."""
     have = count > 1
     K = int(np.count_nonzero(count > 0))
     if K < 2 or not have.any():
@@ -355,7 +364,10 @@ def consistency_summary(nx, dim: int, prob: float = 0.95, white: bool = False) -
     from trackreplay.evaluators.confidence import wilson_interval
 
     nx = np.asarray(nx, float)
-    count = np.sum(np.isfinite(nx), axis=0)
+    # where the values are finite, found once for the counts, the run averages and the
+    # effective number of scans
+    finite = np.isfinite(nx)
+    count = np.sum(finite, axis=0)
     per_scan = nanmean(nx, axis=0)
     low, high = average_bounds(dim, count, prob)
     have = count > 0
@@ -364,10 +376,10 @@ def consistency_summary(nx, dim: int, prob: float = 0.95, white: bool = False) -
     scans = int(np.count_nonzero(have))
     hits = int(np.count_nonzero(inside[have]))
     # the scans as binomial trials: independent for white values, else worth effective_scans
-    trials = float(scans) if white else min(float(scans), effective_scans(nx))
+    trials = float(scans) if white else min(float(scans), _effective_scans(nx, finite, count))
     in_low, in_high = ((float(v) for v in wilson_interval(hits / scans * trials, trials, prob)) if scans
                        else (np.nan, np.nan))
-    mean, se, ci_low, ci_high, _ = run_mean_interval(nx, prob)
+    mean, se, ci_low, ci_high, _ = _run_mean_interval(nx, finite, prob)
     if white:
         t_low, t_high = (float(v) for v in average_bounds(dim, total, prob))
     else:

@@ -740,3 +740,16 @@ def test_flags_tested_in_their_own_type_are_those_of_an_int64_copy(dtype):
     expected = (flags.astype(np.int64) & bits) > 0
     np.testing.assert_array_equal(standard._any_flag(flags, bits), expected)
     assert expected.any() and not expected.all()
+
+
+def test_consistency_summary_reads_the_finite_values_once():
+    """consistency_summary finds where the values are finite once for its counts, its time
+    average's interval and its effective number of scans: those of the public functions."""
+    rng = np.random.default_rng(16)
+    nx = rng.chisquare(4, size=(60, 25)) + np.cumsum(rng.normal(size=(60, 25)), axis=1) ** 2
+    nx[:, :2] = np.nan
+    nx[5, 7] = np.inf
+    c = consistency.consistency_summary(nx, 4, white=False)
+    mean, se, low, high, _ = consistency.run_mean_interval(nx)
+    assert (c["time_average"], c["time_se"], c["time_ci_high"]) == (mean, se, high)
+    assert c["inside_trials"] == min(float(c["scans"]), consistency.effective_scans(nx)) < c["scans"]
