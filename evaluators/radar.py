@@ -86,30 +86,9 @@ def evaluate(times, tracks: dict, measured_xy, truth_state=None, cross_range_std
     cross = None
     if cross_range_std is not None and nominal_cross_range_m is not None:
         cross = _masked_sums(cross_range_std, True, sums_of)
-    stats = {}
-    for name, out in tracks.items():
-        flags = out["flags"]
-        ok = filtered_mask(flags)
-        clamped = (flags & vocab.CLAMPED) > 0
-        sums = {"ok": sums_of(ok), "clamped": sums_of(clamped), "coasted": sums_of((flags & vocab.COASTED) > 0)}
-        if "innovation" in out and "measurement" in out:
-            # innovation of the converted plot (x, y) in metres: trackers that report the plot they used
-            sums["innovation"] = _masked_sums(squared_error(out["innovation"], 0.0), ok, sums_of, own=True)[0]
-        if truth_state is not None:
-            # squared errors once per tracker; every RMSE is a ratio of sums of these
-            se_pos = squared_error(out["state"][..., :2], truth_state[..., :2])
-            # (se_pos is zeroed where not valid: the NPE's sums below keep a subset of the valid scans)
-            sums["position"], valid_pos = _masked_sums(se_pos, ok, sums_of, own=True)
-            sums["velocity"] = _masked_sums(squared_error(out["state"][..., 2:], truth_state[..., 2:]), ok, sums_of,
-                                            own=True)[0]
-            sm = squared_error(out.get("measurement", measured_xy), truth_state[..., :2])
-            # NPE compares like with like: the runs where both the estimate and the plot exist
-            both = valid_pos & np.isfinite(sm)
-            np.logical_not(both, out=valid_pos)                   # (valid_pos is not needed again)
-            np.copyto(se_pos, 0.0, where=valid_pos)
-            np.copyto(sm, 0.0, where=valid_pos)
-            sums["npe"] = (sums_of(se_pos), sums_of(sm), sums_of(both))
-        stats[name] = sums
+    # each tracker's sums a block of runs at a time (_tracker_sums_in_blocks): the sums of
+    # _tracker_sums to the bit, without its (runs, scans) arrays of errors and masks
+    stats = {name: _tracker_sums_in_blocks(out, measured_xy, truth_state, G) for name, out in tracks.items()}
     rows_of = lambda pick: _summary_rows(stats, pick, cross, nominal_cross_range_m,  # noqa: E731
                                          pcrb_position_var, truth_state is not None)
     per_scan = pl.concat([_per_scan(name, out, stats[name], times, pcrb_position_var)
@@ -122,6 +101,140 @@ def evaluate(times, tracks: dict, measured_xy, truth_state=None, cross_range_std
                                                          pcrb_position_var, truth_state is not None, table=False))
                                    for g in range(G)]
     return per_scan, summary, [rows_of(_selection(g, left_out)) for g in range(G)]
+
+
+def _tracker_sums(out: dict, measured_xy, truth_state, sums_of) -> dict:
+    """A tracker's per-scan sums over the runs of each group, ``sums_of(values)`` (G, K): of its
+    filtered, clamped and coasted scans, of its squared innovations, position and velocity
+    errors where filtered and finite (with their counts), and the NPE's sums over the runs
+    where both the estimate and the plot exist."""
+    flags = out["flags"]
+    ok = filtered_mask(flags)
+    clamped = (flags & vocab.CLAMPED) > 0
+    sums = {"ok": sums_of(ok), "clamped": sums_of(clamped), "coasted": sums_of((flags & vocab.COASTED) > 0)}
+    if "innovation" in out and "measurement" in out:
+        # innovation of the converted plot (x, y) in metres: trackers that report the plot they used
+        sums["innovation"] = _masked_sums(squared_error(out["innovation"], 0.0), ok, sums_of, own=True)[0]
+    if truth_state is not None:
+        # squared errors once per tracker; every RMSE is a ratio of sums of these
+        se_pos = squared_error(out["state"][..., :2], truth_state[..., :2])
+        # (se_pos is zeroed where not valid: the NPE's sums below keep a subset of the valid scans)
+        sums["position"], valid_pos = _masked_sums(se_pos, ok, sums_of, own=True)
+        sums["velocity"] = _masked_sums(squared_error(out["state"][..., 2:], truth_state[..., 2:]), ok, sums_of,
+                                        own=True)[0]
+        sm = squared_error(out.get("measurement", measured_xy), truth_state[..., :2])
+        # NPE compares like with like: the runs where both the estimate and the plot exist
+        both = valid_pos & np.isfinite(sm)
+        np.logical_not(both, out=valid_pos)                   # (valid_pos is not needed again)
+        np.copyto(se_pos, 0.0, where=valid_pos)
+        np.copyto(sm, 0.0, where=valid_pos)
+        sums["npe"] = (sums_of(se_pos), sums_of(sm), sums_of(both))
+    return sums
+
+
+def _tracker_sums_in_blocks(out: dict, measured_xy, truth_state, groups: int, block: int | None = None) -> dict:
+    """:func:`_tracker_sums` with ``sums_of`` the group totals, a block of runs at a time: each
+    block's errors and masks are made as there (element by element) and its rows added onto
+    the totals so far in the order of the runs (:class:`_GroupTotals`), so the sums are the
+    same to the bit (tests/test_evaluation_speed_paths.py) while no (runs, scans) array is
+    held; a block stays in cache from one step to the next."""
+    flags = out["flags"]
+    R, K = flags.shape[:2]
+    G = groups
+    rows = G * max(1, (block or SUMS_BLOCK) // max(1, G * int(np.prod(flags.shape[1:], dtype=np.int64))))
+    whole = R // G * G
+    # blocks of whole groups of runs, then the runs left over (added last, as group_totals adds them)
+    bounds = [(a, min(a + rows, whole)) for a in range(0, whole, rows)] + ([(whole, R)] if whole < R else [])
+    measurement = out.get("measurement", measured_xy)
+    keys = ["ok", "clamped", "coasted"]
+    have_innovation = "innovation" in out and "measurement" in out
+    if have_innovation:
+        keys += ["innovation", "innovation_n"]
+    if truth_state is not None:
+        keys += ["position", "position_n", "velocity", "velocity_n", "npe_e", "npe_m", "npe_n"]
+    totals = {key: _GroupTotals(G, R) for key in keys}
+    for a, b in bounds:
+        runs = slice(a, b)
+        f = flags[runs]
+        ok = filtered_mask(f)
+        part = {"ok": ok, "clamped": (f & vocab.CLAMPED) > 0, "coasted": (f & vocab.COASTED) > 0}
+        if have_innovation:
+            se = squared_error(out["innovation"][runs], 0.0)
+            part["innovation"], part["innovation_n"] = _zero_invalid(se, ok)
+        if truth_state is not None:
+            truth = truth_state[runs]
+            se_pos = squared_error(out["state"][runs, ..., :2], truth[..., :2])
+            part["position"], valid_pos = _zero_invalid(se_pos, ok)
+            part["position_n"] = valid_pos.copy()
+            part["velocity"], part["velocity_n"] = _zero_invalid(
+                squared_error(out["state"][runs, ..., 2:], truth[..., 2:]), ok)
+            # the block's position errors are added to the position sums before the NPE's
+            # zeroes: the totals copy what they add
+            totals["position"].add(se_pos)
+            del part["position"]
+            sm = squared_error(measurement[runs], truth[..., :2])
+            both = valid_pos & np.isfinite(sm)
+            np.logical_not(both, out=valid_pos)
+            np.copyto(se_pos, 0.0, where=valid_pos)
+            np.copyto(sm, 0.0, where=valid_pos)
+            part["npe_e"], part["npe_m"], part["npe_n"] = se_pos, sm, both
+        for key, values in part.items():
+            totals[key].add(values)
+    t = {key: acc.total for key, acc in totals.items()}
+    sums = {key: t[key] for key in ("ok", "clamped", "coasted")}
+    if have_innovation:
+        sums["innovation"] = (t["innovation"], t["innovation_n"])
+    if truth_state is not None:
+        sums["position"] = (t["position"], t["position_n"])
+        sums["velocity"] = (t["velocity"], t["velocity_n"])
+        sums["npe"] = (t["npe_e"], t["npe_m"], t["npe_n"])
+    return sums
+
+
+#: values of a block of runs of :func:`_tracker_sums_in_blocks`
+SUMS_BLOCK = 1 << 14
+
+
+def _zero_invalid(values, keep):
+    """``values`` zeroed in place where not finite or not ``keep``, and the mask of those kept
+    (:func:`_masked_sums` with ``own``, before the sums)."""
+    valid = np.isfinite(values)
+    valid &= keep
+    np.copyto(values, 0.0, where=~valid)
+    return values, valid
+
+
+class _GroupTotals:
+    """:func:`trackreplay.evaluators.confidence.group_totals` of (R, ...) values given a block of
+    runs at a time, in the order of the runs: blocks of whole groups of runs (a multiple of G
+    rows), then the runs left over as the last block.
+
+    numpy adds the (whole, G, ...) rows over their first axis one after another; each block's
+    rows are added onto the totals so far in the same way (the totals as the block's first
+    row), and the runs left over are added at the end, as group_totals adds them: the same
+    additions in the same order, so the same sums.
+    """
+
+    def __init__(self, groups: int, runs: int):
+        self.G, self.whole = groups, runs // groups * groups
+        self.total, self.seen = None, 0
+
+    def add(self, block) -> None:
+        n = block.shape[0]
+        if self.seen < self.whole:
+            grouped = block.reshape((n // self.G, self.G) + block.shape[1:])
+            if self.total is None:
+                self.total = np.add.reduce(grouped, axis=0, dtype=float)
+            else:
+                rows = np.empty((grouped.shape[0] + 1,) + grouped.shape[1:])
+                rows[0] = self.total
+                rows[1:] = grouped
+                self.total = np.add.reduce(rows, axis=0)
+        else:
+            if self.total is None:                      # fewer runs than groups
+                self.total = np.zeros((self.G,) + block.shape[1:])
+            self.total[:n] += block
+        self.seen += n
 
 
 def _selection(group: int | None = None, left_out: bool = False):

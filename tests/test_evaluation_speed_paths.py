@@ -753,3 +753,20 @@ def test_consistency_summary_reads_the_finite_values_once():
     mean, se, low, high, _ = consistency.run_mean_interval(nx)
     assert (c["time_average"], c["time_se"], c["time_ci_high"]) == (mean, se, high)
     assert c["inside_trials"] == min(float(c["scans"]), consistency.effective_scans(nx)) < c["scans"]
+
+
+@pytest.mark.parametrize("runs,groups,block", [(43, 10, 64), (43, 10, 1 << 14), (7, 10, 64), (100, 10, 30),
+                                               (37, 1, 50)])
+def test_radar_sums_in_blocks_of_runs_are_the_group_totals(runs, groups, block):
+    """A radar tracker's per-group sums taken a block of runs at a time (the runs left over
+    last, fewer runs than groups too) are those of the whole (runs, scans) arrays, to the bit."""
+    times, tracks, measured, truth, cross, pcrb = _radar_outputs(runs)
+    for out in tracks.values():
+        for with_truth in (truth, None):
+            plain = radar._tracker_sums(out, measured, with_truth, lambda a: group_totals(a, groups))
+            fast = radar._tracker_sums_in_blocks(out, measured, with_truth, groups, block)
+            assert plain.keys() == fast.keys()
+            for key in plain:
+                pair = (plain[key], fast[key]) if isinstance(plain[key], tuple) else ((plain[key],), (fast[key],))
+                for p, f in zip(*pair):
+                    np.testing.assert_array_equal(_bits(f), _bits(p), err_msg=key)
