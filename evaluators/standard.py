@@ -229,7 +229,7 @@ class _ScanMeans:
             missing = np.isnan(values)
             count = R - np.sum(missing, axis=0, dtype=np.intp)
             if missing.any():
-                values[missing] = 0.0                         # as np.nanmean leaves them out
+                np.copyto(values, 0.0, where=missing)        # as np.nanmean leaves them out
         else:
             count = np.full(block.shape[1:], R, np.intp)      # counts and flags are never NaN
         if self.total is None:
