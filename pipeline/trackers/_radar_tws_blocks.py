@@ -103,14 +103,21 @@ def _steady_block(first, stop, x, c, n_plots, plot_range, plot_bearing, times, d
     out["cov"][scans] = c_post[MATRIX_FROM_COMPONENTS].transpose(1, 0, 2)
     out["used"][scans, 0], out["used"][scans, 1] = zx, zy
     out["innov"][scans, 0], out["innov"][scans, 1] = zx - xp[0], zy - xp[1]
-    out["alpha"][scans] = diag["alpha"].transpose(1, 0, 2)
-    out["beta"][scans] = diag["beta"].transpose(1, 0, 2)
-    out["lam"][scans] = diag["lambda_cross"]
     s_k = out["s_cov"][scans]
     s_k[..., 0] = cp[0] + r_cov[0]
     s_k[..., 1] = s_k[..., 2] = cp[1] + r_cov[1]
     s_k[..., 3] = cp[2] + r_cov[2]
     out["gains"][scans] = gain.transpose(1, 2, 0)
+    _write_gain_diagnostics(out, scans, diag, floored)
+    return states[:, -1].copy(), c_post[:, -1].copy(), n_plots + L
+
+
+def _write_gain_diagnostics(out, scans, diag, floored) -> None:
+    """A stretch's α, β and λ into the outputs, and its flags: plots whose variance was floored,
+    gains clamped or floored by the strategy."""
+    out["alpha"][scans] = diag["alpha"].transpose(1, 0, 2)
+    out["beta"][scans] = diag["beta"].transpose(1, 0, 2)
+    out["lam"][scans] = diag["lambda_cross"]
     flags = out["flags"][scans]
     if floored is not None:
         flags |= np.where(floored, vocab.FLOORED, 0).astype(np.uint16)
@@ -118,7 +125,6 @@ def _steady_block(first, stop, x, c, n_plots, plot_range, plot_bearing, times, d
         flags |= np.where(diag["clamped"], vocab.CLAMPED, 0).astype(np.uint16)
     if diag["floored"].any():
         flags |= np.where(diag["floored"], vocab.FLOORED, 0).astype(np.uint16)
-    return states[:, -1].copy(), c_post[:, -1].copy(), n_plots + L
 
 
 def _steady_kalman_scans(first, stop, x, c, n_plots, plot_range, plot_bearing, times, design: TrackerDesign, strategy,
@@ -171,14 +177,5 @@ def _steady_kalman_scans(first, stop, x, c, n_plots, plot_range, plot_bearing, t
     # the intervals as a column: the same products as with a (scans, runs) array of them, without
     # its reads (a broadcast view costs more than a column)
     diag = strategy.diagnostics(gain, cos_b, sin_b, (sigma_along, sigma_cross), design, dt[:, None])
-    out["alpha"][scans] = diag["alpha"].transpose(1, 0, 2)
-    out["beta"][scans] = diag["beta"].transpose(1, 0, 2)
-    out["lam"][scans] = diag["lambda_cross"]
-    flags = out["flags"][scans]
-    if floored is not None:
-        flags |= np.where(floored, vocab.FLOORED, 0).astype(np.uint16)
-    if diag["clamped"].any():
-        flags |= np.where(diag["clamped"], vocab.CLAMPED, 0).astype(np.uint16)
-    if diag["floored"].any():
-        flags |= np.where(diag["floored"], vocab.FLOORED, 0).astype(np.uint16)
+    _write_gain_diagnostics(out, scans, diag, floored)
     return x.copy(), c.copy(), n_plots + L
