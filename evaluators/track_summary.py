@@ -129,11 +129,19 @@ def track_life(flags, track_id=None) -> dict:
             "unflagged": unflagged, "first": first}
 
 
+#: the fewest entries a scan's row (runs × slots) holds for :func:`_running_max_over_scans` to go
+#: scan by scan: on one run × 100,000 scans the loop took 0.4 s where the accumulation takes 1 ms
+SCAN_ROW_MIN = 256
+
+
 def _running_max_over_scans(a):
     """``np.maximum.accumulate(a, axis=1)`` of integers (R, K, T), as a view of a scan-major
     copy: each scan's running maximum is then one operation over a contiguous row of every run
     and slot, where numpy's accumulation along the middle axis steps through the runs one by
-    one (the same integers either way)."""
+    one (the same integers either way). A scan whose row is short (few runs and slots, as on one
+    long recording) would cost a call for a few numbers: there numpy's accumulation is the fast one."""
+    if a.shape[0] * a.shape[2] < SCAN_ROW_MIN:
+        return np.maximum.accumulate(a, axis=1)
     rows = np.ascontiguousarray(a.transpose(1, 0, 2))
     for k in range(1, rows.shape[0]):
         np.maximum(rows[k - 1], rows[k], out=rows[k])

@@ -213,11 +213,13 @@ def test_with_truth_the_summary_rows_are_standard_measures_and_eval_prints_the_b
     assert {"tracks_started_per_run", "track_lifetime_s", "mean_nis"} <= names
 
 
-def test_running_max_over_scans_is_numpys_accumulation():
-    from trackreplay.evaluators.track_summary import _running_max_over_scans
+@pytest.mark.parametrize("runs", [13, 100])  # rows of 39 (numpy's accumulation) and 300 (scan by scan)
+def test_running_max_over_scans_is_numpys_accumulation(runs):
+    from trackreplay.evaluators.track_summary import SCAN_ROW_MIN, _running_max_over_scans
 
+    assert (runs * 3 >= SCAN_ROW_MIN) == (runs == 100)  # both forms are exercised
     rng = np.random.default_rng(21)
-    a = np.where(rng.random((13, 9, 3)) < 0.3, np.arange(9, dtype=np.int16)[None, :, None], np.int16(-1))
+    a = np.where(rng.random((runs, 9, 3)) < 0.3, np.arange(9, dtype=np.int16)[None, :, None], np.int16(-1))
     got = _running_max_over_scans(a)
     assert got.shape == a.shape and got.dtype == a.dtype
     np.testing.assert_array_equal(got, np.maximum.accumulate(a, axis=1))
