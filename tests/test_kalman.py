@@ -177,3 +177,38 @@ def test_joseph_covariance_fast_equals_the_plain_form(n_stack):
     R = np.array([[4.0, 0.5], [0.5, 9.0]])
     plain = kalman.joseph_covariance(P, K, H, R)
     np.testing.assert_allclose(joseph_covariance_fast(P, K, H, R), plain, rtol=1e-12, atol=1e-12 * np.abs(plain).max())
+
+
+
+@pytest.mark.parametrize("runs, per_run_R", [(1, False), (7, False), (7, True)])
+def test_two_component_whitened_update_equals_the_general_form_to_the_bit(runs, per_run_R):
+    """The written-out 2-D update (_whitened_update_2) gives _whitened_update's bits, and
+    stacked_kf_step takes it for a two-component measurement."""
+    from trackreplay.cores.filters import kalman
+    rng = np.random.default_rng(3)
+    G, N, m = 3, 6, 2
+    B = rng.standard_normal((G, N, N, runs))
+    Pp = np.einsum("gikr,gjkr->gijr", B, B) + np.eye(N)[None, :, :, None]
+    xp = rng.standard_normal((G, N, runs))
+    H = rng.standard_normal((G, m, N, runs))
+    C = rng.standard_normal((m, m, runs if per_run_R else 1))
+    R_meas = np.einsum("ikr,jkr->ijr", C, C) + np.eye(m)[:, :, None]
+    HP = np.einsum("gmnr,gnkr->gmkr", H, Pp)
+    S = np.einsum("gmnr,gknr->gmkr", HP, H) + R_meas
+    nu = rng.standard_normal((G, m, runs))
+    fast = kalman._whitened_update_2(S, HP, nu, xp, Pp)
+    plain = kalman._whitened_update(S, HP, nu, xp, Pp)
+    for a, b in zip(fast, plain):
+        assert a.shape == b.shape
+        assert np.array_equal(a, b), np.max(np.abs(a - b))
+    # and the whole step: P = P⁻ − K S Kᵀ, NIS = νᵀ S⁻¹ ν from the dense formulas
+    F = np.broadcast_to(np.eye(N), (G, N, N))
+    Q = np.zeros((G, N, N, 1))
+    y = rng.standard_normal((m, runs))
+    x, P, ll, nis, nu2, S2 = kalman.stacked_kf_step(F, Q, None, xp, Pp, y, H, R_meas)
+    Sm = np.moveaxis(S2, -1, 1)                                  # (G, runs, m, m)
+    K = np.einsum("gnkr,gmkr->grnm", Pp, H) @ np.linalg.inv(Sm)
+    P_dense = np.moveaxis(Pp, -1, 1) - K @ Sm @ np.swapaxes(K, -1, -2)
+    assert np.allclose(np.moveaxis(P, -1, 1), P_dense, atol=1e-10)
+    nu_r = np.moveaxis(nu2, -1, 1)[..., None]
+    assert np.allclose(nis, (np.swapaxes(nu_r, -1, -2) @ np.linalg.solve(Sm, nu_r))[..., 0, 0])
